@@ -1,0 +1,27 @@
+"""Exceptions for user mistakes: each names the offending field and value."""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+class ActiveLearnError(Exception):
+    """Base class of every error activelearn raises for bad input or state."""
+
+
+class InputError(ActiveLearnError, ValueError):
+    """A user-supplied value is invalid; `field` names it and `value` holds it."""
+
+    def __init__(self, field: str, value: Any, reason: str) -> None:
+        self.field = field
+        self.value = value
+        self.reason = reason
+        super().__init__(f"{field}: {reason} (got {value!r})")
+
+
+class ConfigError(InputError):
+    """A configuration key is unknown, mistyped or out of range."""
+
+
+class DataFormatError(ActiveLearnError, ValueError):
+    """A data file is malformed; the message names the file and line."""

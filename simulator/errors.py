@@ -1,0 +1,27 @@
+"""Exceptions of the simulator: each names the offending field and value."""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+class SimulatorError(Exception):
+    """Base class of every error the simulator raises."""
+
+
+class ManeuverError(SimulatorError, ValueError):
+    """A maneuver or collection argument is invalid; `field` names it and `value` holds it."""
+
+    def __init__(self, field: str, value: Any, reason: str) -> None:
+        self.field = field
+        self.value = value
+        self.reason = reason
+        super().__init__(f"{field}: {reason} (got {value!r})")
+
+
+class DivergenceError(SimulatorError, RuntimeError):
+    """A rollout blew up (NaN, flipped or airborne); `maneuvers` names the runs affected."""
+
+    def __init__(self, maneuvers: list[str], reason: str) -> None:
+        self.maneuvers = maneuvers
+        super().__init__(f"diverged: {', '.join(maneuvers)}: {reason}")
