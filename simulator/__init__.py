@@ -1,0 +1,50 @@
+"""MuJoCo simulator of AutoDRIVE's Nigel: benchmark maneuvers logged in the AutoDRIVE layout.
+
+Knows nothing about learning; `activelearn` reaches MuJoCo only through this package.
+"""
+
+from simulator.collect import AUTODRIVE_COLUMNS, COLUMNS, EXTRA_COLUMNS, NoiseConfig, add_noise, collect
+from simulator.errors import DivergenceError, DivergenceWarning, ManeuverError, SimulatorError
+from simulator.maneuvers import DIRECTIONS, KINDS, Maneuver, nominal_controls, nominal_turn, sample_times
+from simulator.vehicle import (
+    ENCODER_CPR,
+    MAX_SPEED,
+    MAX_YAW_RATE,
+    STEERING_LIMIT,
+    THROTTLE_LIMIT,
+    Vehicle,
+    ackermann_angles,
+    model_xml,
+    reference_speed,
+)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "AUTODRIVE_COLUMNS",
+    "COLUMNS",
+    "DIRECTIONS",
+    "ENCODER_CPR",
+    "EXTRA_COLUMNS",
+    "KINDS",
+    "MAX_SPEED",
+    "MAX_YAW_RATE",
+    "STEERING_LIMIT",
+    "THROTTLE_LIMIT",
+    "DivergenceError",
+    "DivergenceWarning",
+    "Maneuver",
+    "ManeuverError",
+    "NoiseConfig",
+    "SimulatorError",
+    "Vehicle",
+    "__version__",
+    "ackermann_angles",
+    "add_noise",
+    "collect",
+    "model_xml",
+    "nominal_controls",
+    "nominal_turn",
+    "reference_speed",
+    "sample_times",
+]

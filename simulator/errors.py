@@ -20,8 +20,17 @@ class ManeuverError(SimulatorError, ValueError):
 
 
 class DivergenceError(SimulatorError, RuntimeError):
-    """A rollout blew up (NaN, flipped or airborne); `maneuvers` names the runs affected."""
+    """A rollout blew up (NaN, flipped or airborne); `maneuvers` names the runs affected.
 
-    def __init__(self, maneuvers: list[str], reason: str) -> None:
+    `data` holds the collected table (diverged runs flagged and truncated) when it exists.
+    """
+
+    def __init__(self, maneuvers: list[str], reason: str, data: Any = None) -> None:
         self.maneuvers = maneuvers
+        self.reason = reason
+        self.data = data
         super().__init__(f"diverged: {', '.join(maneuvers)}: {reason}")
+
+
+class DivergenceWarning(RuntimeWarning):
+    """Some maneuvers diverged; their rows are flagged in the `diverged` column."""

@@ -1,0 +1,533 @@
+"""Run many maneuvers in parallel through mujoco.rollout and log them in the AutoDRIVE column layout.
+
+How a collection runs:
+- every maneuver is one rollout of the batch; `threads` MjData instances step the batch in parallel;
+- time advances in chunks of at most 2 s of log samples (fewer if the batch is large, to bound
+  memory: a chunk holds the full state and sensors of every physics step). Between chunks the
+  state is carried over exactly and the solver warm start is recomputed from it, and the eight
+  maneuver decides its next steering flips from the heading measured so far;
+- only the log samples are kept: a sample is taken every 1 / rate_hz s at the nearest physics step
+  (exact for rates dividing the 300 Hz physics rate, such as 30 Hz); commands are held between
+  samples, so the logged throttle/steering is what the car received until the next row;
+- sensor noise is drawn per maneuver from `SeedSequence(seed).spawn(len(maneuvers))[i]`, keyed by
+  the maneuver's position in the list, so results never depend on the thread count. The physics,
+  including the eight's heading feedback, never sees the noise: noise-free and noisy logs of a
+  maneuver share one trajectory.
+
+Columns (COLUMNS): the AutoDRIVE layout first -- timestamp (s on a virtual clock, runs laid end to
+end), throttle and steering (the command held from this row to the next; steering signed, + left),
+leftTicks/rightTicks (rear encoders, 1920 counts/rev, int), posX/posY/posZ (CG, m), roll/pitch/yaw
+(rad, ROS ZYX angles; yaw wrapped to (-pi, pi]), speed (body-frame forward velocity, m/s),
+angX/angY/angZ (gyro, rad/s; angZ is the yaw rate), accX/accY/accZ (accelerometer specific force,
+m/s^2, +9.81 on z at rest) -- then time (s since the run started), maneuver (kind), direction,
+op_throttle, op_steering (unsigned amplitude applied; 0 for straight), run_id (the maneuver's
+name, "#2", "#3"... appended for repeats in one call) and diverged.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, fields
+from numbers import Integral, Real
+
+import mujoco
+import mujoco.rollout
+import numpy as np
+import pandas as pd
+
+from simulator.errors import DivergenceError, DivergenceWarning, ManeuverError
+from simulator.maneuvers import Maneuver, open_loop_steering
+from simulator.vehicle import ENCODER_CPR, MAX_SPEED, Vehicle
+
+AUTODRIVE_COLUMNS = (
+    "timestamp",
+    "throttle",
+    "steering",
+    "leftTicks",
+    "rightTicks",
+    "posX",
+    "posY",
+    "posZ",
+    "roll",
+    "pitch",
+    "yaw",
+    "speed",
+    "angX",
+    "angY",
+    "angZ",
+    "accX",
+    "accY",
+    "accZ",
+)
+EXTRA_COLUMNS = ("time", "maneuver", "direction", "op_throttle", "op_steering", "run_id", "diverged")
+COLUMNS = AUTODRIVE_COLUMNS + EXTRA_COLUMNS
+
+MAX_TILT = math.radians(60.0)  # roll or pitch beyond this is a rollover
+AIRBORNE_SAMPLES = 2  # consecutive log samples with no tyre on the floor count as airborne
+_CHUNK_SECONDS = 2.0  # < one full turn of the eight at any reachable yaw rate: at most one flip a chunk
+_CHUNK_BYTES = 64 * 2**20  # memory bound of one chunk's rollout outputs
+
+ProgressCallback = Callable[[int, int], None]
+
+
+def _is_real(value: object) -> bool:
+    return isinstance(value, Real) and not isinstance(value, bool)
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, Integral) and not isinstance(value, bool)
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    """Seeded Gaussian sensor noise: one standard deviation per channel group.
+
+    With `heteroscedastic`, every standard deviation is scaled by (1 + speed_gain * |v| / 0.267),
+    v being the true forward speed of the sample and 0.267 m/s the reference speed limit, so noise
+    at full speed is (1 + speed_gain) times the noise at rest. Encoder tick noise is rounded to
+    whole counts.
+    """
+
+    enabled: bool = True
+    speed: float = 0.002  # m/s, forward speed
+    yaw_rate: float = 0.005  # rad/s, all three gyro axes
+    acceleration: float = 0.02  # m/s^2, all three accelerometer axes
+    position: float = 0.002  # m, posX/posY/posZ
+    angle: float = 0.002  # rad, roll/pitch/yaw
+    ticks: float = 1.0  # counts, left/right encoders
+    heteroscedastic: bool = False
+    speed_gain: float = 2.0
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name in ("enabled", "heteroscedastic"):
+                if not isinstance(value, bool):
+                    raise ManeuverError(f"noise.{f.name}", value, "must be true or false")
+            elif not _is_real(value) or not math.isfinite(value) or value < 0:
+                raise ManeuverError(f"noise.{f.name}", value, "must be a finite number >= 0")
+
+
+# (column, NoiseConfig field) in the fixed order noise is drawn: changing one std never changes the
+# noise drawn for another channel.
+_NOISE_CHANNELS = (
+    ("speed", "speed"),
+    ("angX", "yaw_rate"),
+    ("angY", "yaw_rate"),
+    ("angZ", "yaw_rate"),
+    ("accX", "acceleration"),
+    ("accY", "acceleration"),
+    ("accZ", "acceleration"),
+    ("posX", "position"),
+    ("posY", "position"),
+    ("posZ", "position"),
+    ("roll", "angle"),
+    ("pitch", "angle"),
+    ("yaw", "angle"),
+    ("leftTicks", "ticks"),
+    ("rightTicks", "ticks"),
+)
+
+
+class _Run:
+    """Book-keeping of one maneuver during a collection."""
+
+    def __init__(self, index: int, maneuver: Maneuver, run_id: str, n: int, vehicle: Vehicle) -> None:
+        self.index = index
+        self.maneuver = maneuver
+        self.run_id = run_id
+        self.n = n  # number of log samples
+        self.throttle = np.full(n, maneuver.throttle)
+        self.steering = np.zeros(n)
+        self.ctrl = np.zeros((n, vehicle.model.nu))
+        self.sens = np.full((n, vehicle.model.nsensordata), np.nan)
+        self.state = vehicle.rest_state.copy()
+        self.warmstart = np.zeros(vehicle.model.nv)
+        self.diverged_at: int | None = None
+        self.reason = ""
+        self.airborne = 0  # consecutive airborne samples so far
+        # closed-loop eight: current steering sign, unwrapped heading, heading at the start of the turn
+        self.sign = maneuver.sign
+        self.yaw = 0.0
+        self.turn_start = 0.0
+        self.flip_sample: int | None = None
+
+    @property
+    def kept(self) -> int:
+        """Rows to keep: all, or up to and including the first diverged sample."""
+        return self.n if self.diverged_at is None else self.diverged_at + 1
+
+    def diverge(self, sample: int, reason: str) -> None:
+        if self.diverged_at is None or sample < self.diverged_at:
+            self.diverged_at = sample
+            self.reason = reason
+
+
+class _Buffers:
+    """Reusable contiguous arrays for the rollout inputs and outputs of every chunk.
+
+    Reusing memory that is already mapped keeps page faults out of the timed rollout; a view of
+    the first elements of a flat buffer is C-contiguous, as mujoco.rollout requires.
+    """
+
+    def __init__(self) -> None:
+        self._flat: dict[str, np.ndarray] = {}
+
+    def get(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
+        size = math.prod(shape)
+        flat = self._flat.get(name)
+        if flat is None or flat.size < size:
+            flat = self._flat[name] = np.empty(size)
+        return flat[:size].reshape(shape)
+
+
+def _check_args(
+    maneuvers: Sequence[Maneuver] | Maneuver,
+    rate_hz: float,
+    seed: int,
+    noise: NoiseConfig | None,
+    threads: int | None,
+    on_divergence: str,
+    physics_rate: float,
+) -> list[Maneuver]:
+    if isinstance(maneuvers, Maneuver):
+        maneuvers = [maneuvers]
+    if isinstance(maneuvers, str | bytes) or not isinstance(maneuvers, Sequence):
+        raise ManeuverError("maneuvers", maneuvers, "must be a sequence of Maneuver")
+    for m in maneuvers:
+        if not isinstance(m, Maneuver):
+            raise ManeuverError("maneuvers", m, "every item must be a Maneuver")
+    if not _is_real(rate_hz) or not math.isfinite(rate_hz):
+        raise ManeuverError("rate_hz", rate_hz, "must be a finite number")
+    if not 0.0 < rate_hz <= physics_rate + 1e-9:
+        raise ManeuverError("rate_hz", rate_hz, f"must lie in (0, {physics_rate:g}] Hz (the physics rate)")
+    if not _is_int(seed) or seed < 0:
+        raise ManeuverError("seed", seed, "must be an integer >= 0")
+    if noise is not None and not isinstance(noise, NoiseConfig):
+        raise ManeuverError("noise", noise, "must be a NoiseConfig or None")
+    if threads is not None and (not _is_int(threads) or threads < 1):
+        raise ManeuverError("threads", threads, "must be an integer >= 1")
+    if on_divergence not in ("warn", "raise"):
+        raise ManeuverError("on_divergence", on_divergence, "must be 'warn' or 'raise'")
+    return list(maneuvers)
+
+
+_DEFAULT_VEHICLE: Vehicle | None = None
+
+
+def _default_vehicle() -> Vehicle:
+    global _DEFAULT_VEHICLE
+    if _DEFAULT_VEHICLE is None:
+        _DEFAULT_VEHICLE = Vehicle()
+    return _DEFAULT_VEHICLE
+
+
+def collect(
+    maneuvers: Sequence[Maneuver] | Maneuver,
+    *,
+    rate_hz: float = 30.0,
+    seed: int = 0,
+    noise: NoiseConfig | None = NoiseConfig(),  # frozen dataclass: a safe shared default
+    threads: int | None = None,
+    progress: ProgressCallback | None = None,
+    on_divergence: str = "warn",
+    vehicle: Vehicle | None = None,
+) -> pd.DataFrame:
+    """Simulate maneuvers in parallel and return their logs, one row per log sample, in COLUMNS order.
+
+    `noise=None` (or `NoiseConfig(enabled=False)`) logs the true signals. `threads` defaults to all
+    cores; the data do not depend on it. `progress(done, total)` is called after every chunk with
+    counts of log samples. `vehicle` swaps in an edited model (studies, tests).
+
+    Divergence (NaN/inf or a MuJoCo instability reset, roll or pitch beyond 60 deg, or no tyre on
+    the floor for two samples) does not stop the other maneuvers: a diverged run keeps its rows up
+    to the first bad sample, all flagged `diverged = True`, and is simulated no further. With
+    `on_divergence="warn"` (default) a DivergenceWarning names the runs, so a long campaign keeps
+    the healthy runs and decides itself what to drop; with "raise" a DivergenceError names them and
+    carries the table in `.data`.
+    """
+    vehicle = vehicle if vehicle is not None else _default_vehicle()
+    dt = vehicle.timestep
+    physics_rate = 1.0 / dt
+    maneuvers = _check_args(maneuvers, rate_hz, seed, noise, threads, on_divergence, physics_rate)
+    rate_hz = float(rate_hz)
+    if not maneuvers:
+        return _empty_table()
+
+    runs = _make_runs(maneuvers, rate_hz, vehicle)
+    n_max = max(run.n for run in runs)
+    # physics step at which each log sample is taken (nearest step to k / rate_hz)
+    sample_step = np.rint(np.arange(n_max + 1) * (physics_rate / rate_hz)).astype(np.int64)
+    total = sum(run.n for run in runs)
+    done = 0
+
+    nthread = min(threads if threads is not None else (os.cpu_count() or 1), len(runs))
+    datas = [mujoco.MjData(vehicle.model) for _ in range(nthread)]
+    scratch = mujoco.MjData(vehicle.model)
+    nu, nstate = vehicle.model.nu, vehicle.nstate
+    nsens = vehicle.model.nsensordata
+    steps_per_sample = physics_rate / rate_hz
+    chunk_cap = max(1, round(_CHUNK_SECONDS * rate_hz))
+    buffers = _Buffers()
+
+    with mujoco.rollout.Rollout(nthread=nthread if nthread > 1 else 0) as roller:
+        k = 0
+        while True:
+            active = [run for run in runs if run.diverged_at is None and run.n > k]
+            if not active:
+                break
+            nb = len(active)
+            bytes_per_sample = nb * steps_per_sample * (nstate + nsens + nu) * 8
+            chunk = int(min(chunk_cap, max(1, _CHUNK_BYTES // bytes_per_sample)))
+            k1 = min(k + chunk, max(run.n for run in active))
+            start = int(sample_step[k])
+            # the last sample of a run needs its own step; otherwise stop where sample k1 begins
+            end = int(sample_step[k1]) if any(run.n > k1 for run in active) else int(sample_step[k1 - 1]) + 1
+            nstep = end - start
+            # log sample that owns each physics step of the chunk (commands held between samples)
+            owner = np.searchsorted(sample_step, np.arange(start, end), side="right") - 1
+
+            for run in active:
+                if run.maneuver.kind == "eight":
+                    _plan_eight(run, k, min(k1, run.n), sample_step, dt, vehicle)
+            control = buffers.get("control", (nb, nstep, nu))
+            init = np.empty((nb, nstate))
+            warm = np.empty((nb, vehicle.model.nv))
+            for b, run in enumerate(active):
+                control[b] = run.ctrl[np.minimum(owner, run.n - 1)]
+                init[b] = run.state
+                warm[b] = _warmstart(vehicle, scratch, run, control[b, 0])
+            state_out = buffers.get("state", (nb, nstep, nstate))
+            sens_out = buffers.get("sensordata", (nb, nstep, nsens))
+            roller.rollout(
+                [vehicle.model] * nb,
+                datas,
+                init,
+                control,
+                control_spec=mujoco.mjtState.mjSTATE_CTRL.value,
+                skip_checks=True,
+                nstep=nstep,
+                initial_warmstart=warm,
+                state=state_out,
+                sensordata=sens_out,
+            )
+
+            local = sample_step[k:k1] - start
+            for b, run in enumerate(active):
+                kk = min(k1, run.n)
+                rows = local[: kk - k]
+                run.sens[k:kk] = sens_out[b, rows]
+                run.state = state_out[b, -1].copy()
+                # a MuJoCo instability (bad qacc) resets or freezes the state: time stops matching
+                expected = (sample_step[k:kk] + 1) * dt
+                _check_divergence(run, k, vehicle, state_out[b, rows, vehicle.state_time], expected, dt)
+                if run.maneuver.kind == "eight" and run.diverged_at is None:
+                    _track_heading(run, k, kk, vehicle)
+                done += (kk - k) + (run.n - kk if run.diverged_at is not None else 0)
+            if progress is not None:
+                progress(done, total)
+            k = k1
+
+    table = _assemble(runs, vehicle, sample_step, dt, rate_hz, seed, noise)
+    diverged = [run for run in runs if run.diverged_at is not None]
+    if diverged:
+        names = [run.run_id for run in diverged]
+        detail = "; ".join(
+            f"{run.run_id} at t={sample_step[run.diverged_at] * dt:.2f} s ({run.reason})" for run in diverged
+        )
+        if on_divergence == "raise":
+            raise DivergenceError(names, detail, data=table)
+        warnings.warn(f"{len(diverged)} maneuver(s) diverged: {detail}", DivergenceWarning, stacklevel=2)
+    return table
+
+
+def _make_runs(maneuvers: list[Maneuver], rate_hz: float, vehicle: Vehicle) -> list[_Run]:
+    """One _Run per maneuver, with unique run ids and the open-loop command schedules filled in."""
+    seen: dict[str, int] = {}
+    runs = []
+    for i, maneuver in enumerate(maneuvers):
+        name = maneuver.name
+        seen[name] = seen.get(name, 0) + 1
+        run_id = name if seen[name] == 1 else f"{name}#{seen[name]}"
+        n = math.floor(maneuver.duration * rate_hz + 1e-9) + 1
+        run = _Run(i, maneuver, run_id, n, vehicle)
+        if maneuver.kind != "eight":
+            run.steering = open_loop_steering(maneuver, np.arange(n) / rate_hz)
+            run.ctrl = vehicle.controls(run.throttle, run.steering)
+        runs.append(run)
+    return runs
+
+
+def _warmstart(vehicle: Vehicle, scratch: mujoco.MjData, run: _Run, ctrl: np.ndarray) -> np.ndarray:
+    """Constraint-solver warm start for the run's next step: the accelerations at its current state."""
+    m = vehicle.model
+    mujoco.mj_setState(m, scratch, run.state, mujoco.mjtState.mjSTATE_FULLPHYSICS.value)
+    scratch.ctrl[:] = ctrl
+    scratch.qacc_warmstart[:] = run.warmstart
+    mujoco.mj_forward(m, scratch)
+    if np.all(np.isfinite(scratch.qacc)):
+        run.warmstart = scratch.qacc.copy()
+    else:
+        run.warmstart = np.zeros(m.nv)
+    return run.warmstart
+
+
+def _plan_eight(run: _Run, k: int, kk: int, sample_step: np.ndarray, dt: float, vehicle: Vehicle) -> None:
+    """Steering for samples k..kk-1 of an eight: flip the sign when the current turn completes 2 pi.
+
+    The heading is extrapolated from the measured heading and yaw rate at the chunk start, so the
+    flip lands on the sample where the turn completes; _track_heading then re-anchors the next turn
+    on the heading actually measured at that sample.
+    """
+    amp = run.maneuver.op_steering
+    _, yaw_rate = vehicle.yaw_and_rate(run.state)
+    t0 = sample_step[k] * dt
+    run.flip_sample = None
+    for j in range(k, kk):
+        if run.flip_sample is None:
+            predicted = run.yaw + float(yaw_rate) * (sample_step[j] * dt - t0)
+            if abs(predicted - run.turn_start) >= 2.0 * math.pi:
+                run.sign = -run.sign
+                run.flip_sample = j
+        run.steering[j] = run.sign * amp
+    run.ctrl[k:kk] = vehicle.controls(run.throttle[k:kk], run.steering[k:kk])
+
+
+def _track_heading(run: _Run, k: int, kk: int, vehicle: Vehicle) -> None:
+    """Unwrap the eight's measured heading over the chunk and re-anchor the turn at a flip."""
+    yaw = vehicle.decode(run.sens[k:kk])["yaw"]
+    end_yaw, _ = vehicle.yaw_and_rate(run.state)
+    wrapped = np.concatenate([[run.yaw], yaw, [end_yaw]])
+    unwrapped = np.unwrap(wrapped)
+    # np.unwrap keeps the first value, which is the (already unwrapped) heading at the chunk start
+    if run.flip_sample is not None:
+        run.turn_start = float(unwrapped[1 + run.flip_sample - k])
+    run.yaw = float(unwrapped[-1])
+
+
+def _check_divergence(
+    run: _Run, k: int, vehicle: Vehicle, times: np.ndarray, expected: np.ndarray, dt: float
+) -> None:
+    """Flag the first sample of this chunk that is non-finite, unstable, rolled over or airborne."""
+    sens = run.sens[k : k + len(times)]
+    bad = ~np.all(np.isfinite(sens), axis=1)
+    if np.any(bad):
+        run.diverge(k + int(np.argmax(bad)), "NaN or inf in the state")
+    unstable = ~np.isfinite(times) | (np.abs(times - expected) > 0.5 * dt)
+    if np.any(unstable):
+        run.diverge(k + int(np.argmax(unstable)), "simulation unstable (MuJoCo reset the state)")
+    if not np.all(np.isfinite(run.state)):
+        run.diverge(k + len(times) - 1, "NaN or inf in the state")
+    channels = vehicle.decode(np.nan_to_num(sens))
+    tilted = (np.abs(channels["roll"]) > MAX_TILT) | (np.abs(channels["pitch"]) > MAX_TILT)
+    if np.any(tilted):
+        run.diverge(k + int(np.argmax(tilted)), "rolled over (roll or pitch beyond 60 deg)")
+    for j, airborne in enumerate(np.sum(channels["contacts"], axis=1) == 0):
+        run.airborne = run.airborne + 1 if airborne else 0
+        if run.airborne >= AIRBORNE_SAMPLES:
+            run.diverge(k + j, "all four wheels off the ground")
+            break
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    """Wrap angles to (-pi, pi]."""
+    return np.pi - np.mod(np.pi - angle, 2.0 * np.pi)
+
+
+def _assemble(
+    runs: list[_Run],
+    vehicle: Vehicle,
+    sample_step: np.ndarray,
+    dt: float,
+    rate_hz: float,
+    seed: int,
+    noise: NoiseConfig | None,
+) -> pd.DataFrame:
+    """Build the sample table in COLUMNS order: true channels per run, then that run's seeded noise."""
+    children = np.random.SeedSequence(seed).spawn(len(runs))
+    parts: dict[str, list[np.ndarray]] = {c: [] for c in COLUMNS}
+    offset = 0.0
+    for run in runs:
+        n = run.kept
+        ch = vehicle.decode(run.sens[:n])
+        time = sample_step[:n] * dt
+        cols = {c: ch[c] for c in AUTODRIVE_COLUMNS if c in ch}
+        with np.errstate(invalid="ignore"):
+            for column, wheel in (("leftTicks", "wheel_left"), ("rightTicks", "wheel_right")):
+                ticks = np.nan_to_num(ch[wheel] * (ENCODER_CPR / (2.0 * np.pi)))
+                cols[column] = np.rint(ticks).astype(np.int64)
+        if noise is not None and noise.enabled:
+            _noisy(cols, noise, np.random.default_rng(children[run.index]))
+        m = run.maneuver
+        cols.update(
+            timestamp=offset + time,
+            throttle=run.throttle[:n],
+            steering=run.steering[:n],
+            time=time,
+            maneuver=np.full(n, m.kind, dtype=object),
+            direction=np.full(n, m.direction, dtype=object),
+            op_throttle=np.full(n, m.throttle),
+            op_steering=np.full(n, m.op_steering),
+            run_id=np.full(n, run.run_id, dtype=object),
+            diverged=np.full(n, run.diverged_at is not None),
+        )
+        for c in COLUMNS:
+            parts[c].append(cols[c])
+        offset += run.n / rate_hz  # runs laid end to end on one virtual recording clock
+    table = pd.DataFrame({c: np.concatenate(parts[c]) for c in COLUMNS})
+    for c in ("maneuver", "direction", "run_id"):
+        table[c] = table[c].astype("str")
+    return table
+
+
+def _noisy(cols: dict[str, np.ndarray], noise: NoiseConfig, rng: np.random.Generator) -> None:
+    """Replace the sensor channels in `cols` by noisy copies (one stream, fixed channel order)."""
+    n = len(cols["speed"])
+    draws = rng.standard_normal((n, len(_NOISE_CHANNELS)))
+    scale = np.ones(n)
+    if noise.heteroscedastic:
+        scale = 1.0 + noise.speed_gain * np.abs(np.nan_to_num(cols["speed"])) / MAX_SPEED
+    for j, (column, field) in enumerate(_NOISE_CHANNELS):
+        delta = getattr(noise, field) * scale * draws[:, j]
+        if column in ("leftTicks", "rightTicks"):
+            cols[column] = cols[column] + np.rint(delta).astype(np.int64)
+        else:
+            cols[column] = cols[column] + delta
+    cols["yaw"] = _wrap(cols["yaw"])
+
+
+def add_noise(
+    frame: pd.DataFrame,
+    noise: NoiseConfig,
+    seed: int | np.random.SeedSequence | np.random.Generator,
+) -> pd.DataFrame:
+    """Copy of a noise-free log with seeded sensor noise added (the noise `collect` itself adds).
+
+    All rows form one noise stream drawn in a fixed channel order, so changing one channel's std
+    never changes another channel's noise. `collect(ms, seed=s, noise=cfg)` equals `add_noise` of
+    the noise-free log of run i with seed `SeedSequence(s).spawn(len(ms))[i]`. Encoder noise is
+    whole counts; yaw is re-wrapped to (-pi, pi]. Disabled noise returns an unchanged copy.
+    """
+    out = frame.copy()
+    if not noise.enabled or len(out) == 0:
+        return out
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    cols = {
+        column: out[column].to_numpy(np.int64 if column.endswith("Ticks") else float)
+        for column, _ in _NOISE_CHANNELS
+    }
+    _noisy(cols, noise, rng)
+    for column, values in cols.items():
+        out[column] = values
+    return out
+
+
+def _empty_table() -> pd.DataFrame:
+    """A table with no rows and the usual columns and dtypes."""
+    dtypes = {c: "float64" for c in COLUMNS}
+    dtypes.update(leftTicks="int64", rightTicks="int64", diverged="bool")
+    dtypes.update(maneuver="str", direction="str", run_id="str")
+    return pd.DataFrame({c: pd.Series(dtype=t) for c, t in dtypes.items()})[list(COLUMNS)]

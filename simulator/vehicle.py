@@ -1,0 +1,190 @@
+"""Nigel's MuJoCo model: loading, the (throttle, steering) -> actuator map, rest state and sensor decoding."""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+MODEL_PATH = Path(__file__).resolve().parent / "assets" / "nigel.xml"
+
+# Limits and facts from shared/reference/nigel.md.
+THROTTLE_LIMIT = 1.0
+STEERING_LIMIT = 0.5236  # rad
+ENCODER_CPR = 1920  # wheel encoder counts per revolution
+WHEELBASE = 0.14155  # m, lf + lr of the model (reference table: 0.1415)
+TRACK = 0.153  # m
+WHEEL_RADIUS = 0.0325  # m
+MAX_SPEED = 0.2670  # m/s, reference linear velocity limit
+MAX_YAW_RATE = 0.8051  # rad/s, reference angular velocity limit
+
+# Reference calibration target: steady straight-line speed for each throttle.
+REFERENCE_THROTTLE = np.round(np.arange(0.0, 1.01, 0.1), 1)
+REFERENCE_SPEED = np.array(
+    [0.0, 0.02867, 0.05685, 0.08457, 0.11185, 0.13871, 0.16516, 0.19122, 0.21688, 0.24215, 0.26703]
+)
+
+# Actuator order of the control vector (see assets/nigel.xml).
+ACTUATORS = (
+    "steer_left",
+    "steer_right",
+    "drive_fwd",
+    "drive_rev",
+    "brake_fl",
+    "brake_fr",
+    "brake_rl",
+    "brake_rr",
+)
+CONTACT_SENSORS = ("contact_fl", "contact_fr", "contact_rl", "contact_rr")
+
+# How long the car settles on its wheels (brakes on) before every run starts.
+_SETTLE_TIME = 0.5  # s
+
+
+def model_xml() -> str:
+    """Text of the MJCF model file (for fingerprints of cached simulations)."""
+    return MODEL_PATH.read_text()
+
+
+def reference_speed(throttle: np.ndarray | float) -> np.ndarray:
+    """Steady straight-line speed (m/s) of the reference table, interpolated; negative throttle mirrors."""
+    u = np.asarray(throttle, dtype=float)
+    return np.sign(u) * np.interp(np.abs(u), REFERENCE_THROTTLE, REFERENCE_SPEED)
+
+
+def ackermann_angles(
+    steering: np.ndarray | float, wheelbase: float = WHEELBASE, track: float = TRACK
+) -> tuple[np.ndarray, np.ndarray]:
+    """Left and right front-wheel angles (rad) for a bicycle-model steering angle, by true Ackermann.
+
+    The bicycle angle delta turns the rear-axle centre on radius R = L / tan(delta); each front wheel
+    points at the same centre, so tan(delta_in) = L / (R - t/2) and tan(delta_out) = L / (R + t/2).
+    Positive steering turns left, so the left wheel is then the inner one and turns more.
+    """
+    tan_delta = np.tan(np.asarray(steering, dtype=float))
+    left = np.arctan(wheelbase * tan_delta / (wheelbase - 0.5 * track * tan_delta))
+    right = np.arctan(wheelbase * tan_delta / (wheelbase + 0.5 * track * tan_delta))
+    return left, right
+
+
+def quat_to_rpy(quat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Roll, pitch, yaw (rad, ROS/ZYX convention, yaw in (-pi, pi]) of (w, x, y, z) quaternions."""
+    w, x, y, z = (quat[..., i] for i in range(4))
+    roll = np.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    pitch = np.arcsin(np.clip(2.0 * (w * y - z * x), -1.0, 1.0))
+    yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return roll, pitch, yaw
+
+
+class Vehicle:
+    """One Nigel model: its control map, rest state, state layout and sensor layout.
+
+    `model` is a private copy; tests and studies may edit it (friction, gains, ...) before the first
+    rollout. The rest state is computed lazily, so it reflects such edits.
+    """
+
+    def __init__(self, xml_path: str | Path = MODEL_PATH) -> None:
+        self.model = mujoco.MjModel.from_xml_path(str(xml_path))
+        m = self.model
+        self.actuator_ids = np.array([m.actuator(name).id for name in ACTUATORS])
+        # Ackermann geometry from the model itself, so the split always matches the wheels.
+        front = m.body("wheel_fl").pos
+        rear = m.body("wheel_rl").pos
+        self.wheelbase = float(front[0] - rear[0])
+        self.track = float(2.0 * abs(front[1]))
+        self.wheel_radius = float(m.geom("tyre_rl").size[0])
+        self.sensors = {
+            m.sensor(i).name: slice(int(m.sensor_adr[i]), int(m.sensor_adr[i] + m.sensor_dim[i]))
+            for i in range(m.nsensor)
+        }
+        self.nstate = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS.value)
+        # Offsets of time, qpos and qvel inside a FULLPHYSICS state vector (components in bit order).
+        offsets: dict[int, int] = {}
+        offset = 0
+        for bit in range(mujoco.mjtState.mjNSTATE.value):
+            flag = 1 << bit
+            if flag & mujoco.mjtState.mjSTATE_FULLPHYSICS.value:
+                offsets[flag] = offset
+                offset += mujoco.mj_stateSize(m, flag)
+        self.state_time = offsets[mujoco.mjtState.mjSTATE_TIME.value]
+        qpos0 = offsets[mujoco.mjtState.mjSTATE_QPOS.value]
+        qvel0 = offsets[mujoco.mjtState.mjSTATE_QVEL.value]
+        root = m.joint("root")
+        self.state_root_quat = slice(qpos0 + int(root.qposadr[0]) + 3, qpos0 + int(root.qposadr[0]) + 7)
+        # free-joint angular velocity is in the body frame: index 5 is the yaw rate on flat ground
+        self.state_root_yaw_rate = qvel0 + int(root.dofadr[0]) + 5
+
+    @property
+    def timestep(self) -> float:
+        """Physics time step (s)."""
+        return float(self.model.opt.timestep)
+
+    def controls(self, throttle: np.ndarray | float, steering: np.ndarray | float) -> np.ndarray:
+        """Actuator controls (..., nu) for throttle in [-1, 1] and signed steering (rad, + = left)."""
+        u = np.asarray(throttle, dtype=float)
+        u, delta = np.broadcast_arrays(u, np.asarray(steering, dtype=float))
+        ctrl = np.zeros((*u.shape, self.model.nu))
+        left, right = ackermann_angles(delta, self.wheelbase, self.track)
+        ids = self.actuator_ids
+        ctrl[..., ids[0]] = left
+        ctrl[..., ids[1]] = right
+        ctrl[..., ids[2]] = np.maximum(u, 0.0)
+        ctrl[..., ids[3]] = np.maximum(-u, 0.0)
+        brake = (u == 0.0).astype(float)  # exactly zero throttle is the brake command
+        for k in range(4, 8):
+            ctrl[..., ids[k]] = brake
+        return ctrl
+
+    @functools.cached_property
+    def rest_state(self) -> np.ndarray:
+        """FULLPHYSICS state of the car settled on its wheels at the origin, heading +x, time 0."""
+        m = self.model
+        d = mujoco.MjData(m)
+        d.ctrl[:] = self.controls(0.0, 0.0)
+        for _ in range(round(_SETTLE_TIME / m.opt.timestep)):
+            mujoco.mj_step(m, d)
+        d.time = 0.0
+        d.qvel[:] = 0.0
+        d.qacc_warmstart[:] = 0.0
+        # settling is symmetric, but pin the planar pose exactly so every run starts identically
+        root = m.joint("root")
+        adr = int(root.qposadr[0])
+        d.qpos[adr : adr + 2] = 0.0
+        state = np.empty(self.nstate)
+        mujoco.mj_getState(m, d, state, mujoco.mjtState.mjSTATE_FULLPHYSICS.value)
+        return state
+
+    def yaw_and_rate(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Yaw (rad, wrapped) and yaw rate (rad/s) of the chassis from FULLPHYSICS state vectors."""
+        _, _, yaw = quat_to_rpy(states[..., self.state_root_quat])
+        return yaw, states[..., self.state_root_yaw_rate]
+
+    def decode(self, sensordata: np.ndarray) -> dict[str, np.ndarray]:
+        """Log channels (speed, gyro, accelerometer, pose, wheel angles, tyre contacts) from sensor data."""
+        s = self.sensors
+        vel = sensordata[..., s["velocity"]]
+        gyro = sensordata[..., s["gyro"]]
+        acc = sensordata[..., s["accelerometer"]]
+        pos = sensordata[..., s["position"]]
+        roll, pitch, yaw = quat_to_rpy(sensordata[..., s["orientation"]])
+        contacts = np.stack([sensordata[..., s[name]][..., 0] for name in CONTACT_SENSORS], axis=-1)
+        return {
+            "speed": vel[..., 0],
+            "angX": gyro[..., 0],
+            "angY": gyro[..., 1],
+            "angZ": gyro[..., 2],
+            "accX": acc[..., 0],
+            "accY": acc[..., 1],
+            "accZ": acc[..., 2],
+            "posX": pos[..., 0],
+            "posY": pos[..., 1],
+            "posZ": pos[..., 2],
+            "roll": roll,
+            "pitch": pitch,
+            "yaw": yaw,
+            "wheel_left": sensordata[..., s["encoder_left"]][..., 0],
+            "wheel_right": sensordata[..., s["encoder_right"]][..., 0],
+            "contacts": contacts,
+        }
