@@ -148,6 +148,176 @@ def _simulate(args: argparse.Namespace) -> int:
 _REGISTRARS.append(_register_simulate)
 
 
+# --- campaign run / compare -----------------------------------------------------------------------
+
+_ROUND_COLUMNS = {
+    "round": "round",
+    "n_maneuvers": "maneuvers",
+    "n_samples": "samples",
+    "test_rmse": "RMSE",
+    "test_rmse_v": "RMSE v",
+    "test_rmse_w": "RMSE ω",
+    "test_nll": "NLL",
+    "coverage_95": "cover95",
+    "epistemic_std_mean": "epi std",
+    "calib_std_to_rmse": "epi/err",
+    "calib_z_spread": "z spread",
+}
+
+
+def _add_config_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", metavar="CONFIG",
+                   help="campaign config (TOML), e.g. experiments/configs/skidpad.toml")
+    p.add_argument("--tracking-uri", default=None, metavar="URI",
+                   help="MLflow tracking URI (default: the config's, sqlite:///mlruns/mlflow.db)")
+    p.add_argument("--no-tracking", action="store_true", help="do not log to MLflow")
+    p.add_argument("--params", default=None, metavar="TOML",
+                   help="[model]/[training] overrides, e.g. the best.toml written by `activelearn tune`")
+    p.add_argument("--out", default=None, metavar="DIR", help="output directory (default: under runs/)")
+    p.add_argument("--resume", action="store_true", help="continue a stopped run in --out")
+
+
+def _load_campaign_config(args: argparse.Namespace, **overrides: object):
+    from activelearn.config import load_config
+
+    if args.tracking_uri is not None:
+        overrides["tracking"] = {"uri": args.tracking_uri}
+    return load_config(args.config, params=args.params, overrides=overrides)
+
+
+def _register_campaign(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("campaign", help="run one active-learning campaign",
+                       description="Active-learning campaigns: one config, one strategy, one seed.")
+    campaign_sub = p.add_subparsers(dest="campaign_command", required=True, parser_class=_Parser)
+    run = campaign_sub.add_parser("run", help="run (or resume) a campaign")
+    _add_config_options(run)
+    run.add_argument("--strategy", default=None, metavar="S",
+                     help="acquisition strategy (default: the config's)")
+    run.add_argument("--seed", type=int, default=None, metavar="N",
+                     help="campaign seed (default: the config's)")
+    run.set_defaults(handler=_campaign_run)
+
+
+def _campaign_run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from tqdm import tqdm
+
+    from activelearn.campaign import Campaign, CampaignInterrupted, default_directory, total_rounds
+
+    overrides: dict[str, object] = {}
+    if args.strategy is not None:
+        overrides["strategy"] = args.strategy
+    if args.seed is not None:
+        overrides["seed"] = args.seed
+    cfg = _load_campaign_config(args, **overrides)
+    directory = Path(args.out) if args.out else default_directory(cfg)
+    tracker = None
+    if cfg.tracking.enabled and not args.no_tracking:
+        from activelearn.tracking import Tracker
+
+        tracker = Tracker(cfg.tracking.uri, cfg.tracking.experiment)
+    campaign = Campaign(cfg, directory, tracker=tracker)
+    bar = tqdm(total=total_rounds(cfg, len(campaign.maneuvers)), unit="round",
+               desc=f"{cfg.name} {cfg.strategy} seed {cfg.seed}", disable=None)
+
+    def progress(event: dict) -> None:
+        if event["event"] == "round":
+            bar.update(1)
+            bar.set_postfix(maneuvers=event["n_maneuvers"], samples=event["n_samples"],
+                            rmse=f"{event['test_rmse']:.4f}")
+
+    campaign.progress = progress
+    try:
+        result = campaign.run(resume=args.resume)
+    except CampaignInterrupted as exc:
+        bar.close()
+        print(_red(f"interrupted: {exc}"), file=sys.stderr)
+        return 130
+    bar.close()
+    history = result.history
+    columns = [c for c in _ROUND_COLUMNS if c in history]
+    print(history[columns].rename(columns=_ROUND_COLUMNS).to_string(index=False, float_format="%.4g"))
+    print(f"stopped by {result.state.stop_reason}; campaign directory: {directory}")
+    if tracker is not None:
+        print(f"MLflow run {result.state.run_id} in {cfg.tracking.uri} "
+              f"(mlflow ui --backend-store-uri {cfg.tracking.uri})")
+    return 0
+
+
+_REGISTRARS.append(_register_campaign)
+
+_SUMMARY_COLUMNS = {
+    "strategy": "strategy",
+    "seeds": "seeds",
+    "final_rmse": "final RMSE",
+    "final_rmse_sem": "± s.e.",
+    "final_nll": "final NLL",
+    "rmse_auc": "RMSE AUC",
+    "reached": "reached",
+    "maneuvers_to_target": "maneuvers to target",
+    "ratio_to_reference": "ratio",
+}
+
+
+def _register_compare(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("compare", help="compare strategies over seeds under one MLflow parent run",
+                       description="Run strategies x seeds on one config and compare them with uniform.")
+    _add_config_options(p)
+    p.add_argument("--strategies", default="uniform,max_epistemic", metavar="A,B,...",
+                   help="comma-separated strategies (default: uniform,max_epistemic)")
+    p.add_argument("--seeds", type=int, default=3, metavar="N", help="seeds 0..N-1 (default 3)")
+    p.add_argument("--workers", type=int, default=None, metavar="K",
+                   help="parallel processes (default: number of cores)")
+    p.set_defaults(handler=_compare)
+
+
+def _compare(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from activelearn.compare import compare
+    from activelearn.errors import InputError
+
+    strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
+    if args.seeds < 1:
+        raise InputError("--seeds", args.seeds, "must be at least 1")
+    if args.workers is not None and args.workers < 1:
+        raise InputError("--workers", args.workers, "must be at least 1")
+    cfg = _load_campaign_config(args)
+    n_jobs = len(strategies) * args.seeds
+    bars: dict[str, tqdm] = {}
+
+    def progress(event: dict) -> None:
+        if event["event"] == "sim_progress":
+            bar = bars.setdefault("sim", tqdm(total=event["total"], unit="sample", desc="simulating pool",
+                                              leave=False, disable=None))
+            bar.update(event["done"] - bar.n)
+        elif event["event"] == "job":
+            bar = bars.setdefault("jobs", tqdm(total=n_jobs, unit="campaign", desc="campaigns", disable=None))
+            bar.update(1)
+            bar.set_postfix(last=f"{event['strategy']}/seed{event['seed']}", rmse=f"{event['test_rmse']:.4f}")
+
+    try:
+        result = compare(cfg, strategies, list(range(args.seeds)), directory=args.out, workers=args.workers,
+                         tracking=cfg.tracking.enabled and not args.no_tracking, resume=args.resume,
+                         progress=progress)
+    finally:
+        for bar in bars.values():
+            bar.close()
+    table = result.table
+    print(f"target: {table.attrs['reference']}'s final RMSE {table.attrs['target_rmse']:.4g}")
+    summary = table[list(_SUMMARY_COLUMNS)].rename(columns=_SUMMARY_COLUMNS)
+    print(summary.to_string(index=False, float_format="%.4g"))
+    print(f"figure: {result.figure_path}")
+    print(f"curves and table: {result.directory}")
+    if result.parent_run_id is not None:
+        print(f"MLflow parent run {result.parent_run_id} (mlflow ui --backend-store-uri {cfg.tracking.uri})")
+    return 0
+
+
+_REGISTRARS.append(_register_compare)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `activelearn` console script."""
     parser = build_parser()

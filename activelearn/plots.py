@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Any
+
 import numpy as np
 import pandas as pd
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -63,4 +66,87 @@ def plot_log(table: pd.DataFrame, title: str | None = None) -> Figure:
         ax.tick_params(labelbottom=False)
     if title:
         fig.suptitle(title)
+    return fig
+
+
+# ------------------------------------------------------------------------------------- campaign figures
+
+_KIND_MARKERS = {"straight": "s", "skidpad": "o", "fishhook": "^", "slalom": "D", "eight": "P"}
+
+
+def _signed_steering(maneuver: Any) -> float:
+    return 0.0 if maneuver.kind == "straight" else maneuver.sign * maneuver.steering
+
+
+def epistemic_map(
+    throttles: np.ndarray,
+    steerings: np.ndarray,
+    std: np.ndarray,
+    *,
+    taken: Sequence[Any],
+    picks: Sequence[Any],
+    title: str = "",
+) -> Figure:
+    """Heat map of epistemic std over throttle × signed steering, with collected and chosen maneuvers.
+
+    `std` has shape (len(throttles), len(steerings)); maneuvers are marked at their operating point
+    (throttle, signed steering), one marker shape per kind.
+    """
+    fig = _new_figure(6.4, 5.2)
+    ax = fig.add_subplot()
+    mesh = ax.pcolormesh(steerings, throttles, std, shading="nearest", cmap="viridis")
+    fig.colorbar(mesh, ax=ax, label="epistemic std (standardised, mean of v and ω)")
+    styles = (
+        (taken, {"facecolor": "white", "edgecolor": "black", "s": 36}),
+        (picks, {"facecolor": "red", "edgecolor": "black", "s": 90}),
+    )
+    for group, style in styles:
+        for kind in sorted({m.kind for m in group}):
+            pts = np.array([(_signed_steering(m), m.throttle) for m in group if m.kind == kind])
+            ax.scatter(pts[:, 0], pts[:, 1], marker=_KIND_MARKERS.get(kind, "o"), **style)
+    ax.scatter([], [], facecolor="white", edgecolor="black", label="collected")
+    ax.scatter([], [], facecolor="red", edgecolor="black", label="chosen this round")
+    for kind in sorted({m.kind for m in [*taken, *picks]}):
+        ax.scatter([], [], marker=_KIND_MARKERS.get(kind, "o"), color="gray", label=kind)
+    ax.set_xlabel("signed steering (rad, + = left, ccw)")
+    ax.set_ylabel("throttle")
+    ax.set_title(title)
+    fig.legend(loc="outside lower center", ncols=6, fontsize=7, frameon=False)
+    return fig
+
+
+_METRIC_LABELS = {
+    "epistemic_std_mean": "mean epistemic std on the grid (standardised)",
+    "test_rmse": "test RMSE (standardised)",
+    "test_nll": "test NLL (standardised)",
+}
+
+
+def comparison_figure(
+    curves: pd.DataFrame, metrics: Sequence[str], *, reference: str = "uniform", title: str = ""
+) -> Figure:
+    """Metric-versus-data curves, one line per strategy, mean ± 1 standard error over seeds.
+
+    `curves` has one row per (strategy, seed, round) with `n_maneuvers` and the metric columns; the
+    reference strategy is drawn dashed and thicker.
+    """
+    fig = _new_figure(5.0 * len(metrics), 4.2)
+    axes = fig.subplots(1, len(metrics), squeeze=False)[0]
+    strategies = list(dict.fromkeys(curves["strategy"]))
+    for ax, metric in zip(axes, metrics, strict=True):
+        for i, strategy in enumerate(strategies):
+            part = curves[curves["strategy"] == strategy]
+            stats = part.groupby("n_maneuvers")[metric].agg(["mean", "std", "count"])
+            sem = (stats["std"] / np.sqrt(stats["count"])).fillna(0.0)
+            color = f"C{i % 10}"
+            style = {"linewidth": 2.6, "linestyle": "--"} if strategy == reference else {"linewidth": 1.6}
+            ax.plot(stats.index, stats["mean"], color=color, label=strategy, **style)
+            ax.fill_between(stats.index, stats["mean"] - sem, stats["mean"] + sem, color=color, alpha=0.2)
+        ax.set_xlabel("maneuvers collected")
+        ax.set_ylabel(_METRIC_LABELS.get(metric, metric))
+        if metric != "test_nll":
+            ax.set_yscale("log")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(title or "strategy comparison")
     return fig

@@ -1,0 +1,432 @@
+"""Acquisition strategies: score candidate maneuvers and pick a batch.
+
+Every strategy implements `select(model, pool, k, rng) -> list[int]` (indices into `pool.maneuvers`),
+so the campaign loop treats them alike. Space-filling strategies ignore the model; uncertainty
+strategies score each candidate along the controls that maneuver would apply.
+
+Uncertainty strategies work in *function space*: `model.draw(S)` gives S posterior function draws
+f_s with weights shared across inputs, so the posterior covariance between any two inputs is the
+sample covariance of f_s over s. Writing the standardised deviations as phi(x) = (f_s(x) - mean_s) /
+sqrt(S) turns the posterior into a linear-Gaussian model f(x) = m(x) + phi(x)^T w, w ~ N(0, I_S).
+Observing a maneuver's rows with aleatoric variance sigma^2 is then an exact rank-update of the
+S x S precision of w. That gives, from one forward pass:
+  * greedy batches with fantasised updates (later picks see the variance earlier picks remove),
+  * integrated variance reduction over an evaluation grid (`integrated_variance`),
+  * per-point epistemic variance phi^T Sigma_w phi, which reduces to the model's own at Sigma_w = I.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+from scipy.stats import qmc
+
+from activelearn.errors import InputError
+
+BatchMode = Literal["fantasy", "penalty", "topk"]
+_VAR_FLOOR = 1e-8  # standardised variance floor: keeps 1/sigma^2 finite for near-noise-free outputs
+
+
+@dataclass(frozen=True)
+class Pool:
+    """Candidate maneuvers and what strategies need to compare and score them.
+
+    features: (n, d) coordinates of each candidate in [0, 1]^d (operating point: throttle, signed
+        steering) used for distances and quasi-random designs.
+    kinds: (n,) integer maneuver kind of each candidate (a different kind adds `kind_distance`).
+    points / owner / weights: stacked model inputs along each candidate's control sequence, the
+        candidate each point belongs to, and how many training rows each point stands for.
+    taken: (n,) True where the candidate was already collected.
+    eval_grid: (G, n_inputs) inputs over which integrated variance and the uncertainty maps are taken.
+    output_scale: (n_outputs,) divide outputs by this so v and omega weigh alike.
+    design_seed: seeds quasi-random sequences so they continue across rounds.
+    """
+
+    maneuvers: tuple[Any, ...]
+    features: np.ndarray
+    kinds: np.ndarray
+    points: np.ndarray
+    owner: np.ndarray
+    weights: np.ndarray
+    taken: np.ndarray
+    eval_grid: np.ndarray
+    output_scale: np.ndarray
+    design_seed: int = 0
+    kind_distance: float = 0.5
+
+    def __post_init__(self) -> None:
+        n = len(self.maneuvers)
+        for name in ("features", "kinds", "taken"):
+            if len(getattr(self, name)) != n:
+                raise ValueError(f"Pool.{name} has {len(getattr(self, name))} rows for {n} maneuvers")
+        if not (len(self.points) == len(self.owner) == len(self.weights)):
+            raise ValueError("Pool.points, owner and weights must have the same length")
+        if len(self.owner) and (self.owner.min() < 0 or self.owner.max() >= n):
+            raise ValueError("Pool.owner refers to a candidate outside the pool")
+
+    @property
+    def available(self) -> np.ndarray:
+        """Indices of candidates not yet collected."""
+        return np.flatnonzero(~self.taken)
+
+    def with_taken(self, indices: Sequence[int]) -> Pool:
+        """Return a copy with `indices` marked as collected."""
+        taken = self.taken.copy()
+        taken[list(indices)] = True
+        return Pool(**{**self.__dict__, "taken": taken})
+
+    def distances(self, rows: np.ndarray, to: np.ndarray) -> np.ndarray:
+        """Pairwise distances between candidates `rows` and `to` (operating point plus kind)."""
+        diff = self.features[rows][:, None, :] - self.features[to][None, :, :]
+        dist = np.sqrt((diff**2).sum(-1))
+        return dist + self.kind_distance * (self.kinds[rows][:, None] != self.kinds[to][None, :])
+
+
+def _check_k(pool: Pool, k: int) -> np.ndarray:
+    available = pool.available
+    if k < 1:
+        raise InputError("k", k, "must be at least 1")
+    if k > len(available):
+        raise InputError("k", k, f"only {len(available)} candidates are left in the pool")
+    return available
+
+
+class Strategy(ABC):
+    """Pick k untaken candidates from a pool."""
+
+    name: ClassVar[str]
+    uses_model: ClassVar[bool] = False
+
+    @abstractmethod
+    def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
+        """Return k distinct indices of untaken candidates in `pool`."""
+
+
+# --------------------------------------------------------------------------- space-filling designs
+
+
+class GridStrategy(Strategy):
+    """The reference study's sweep: untaken candidates in pool order (kind, throttle, steering)."""
+
+    name = "grid"
+
+    def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
+        return [int(i) for i in _check_k(pool, k)[:k]]
+
+
+class RandomStrategy(Strategy):
+    """Uniformly random untaken candidates."""
+
+    name = "random"
+
+    def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
+        return [int(i) for i in rng.choice(_check_k(pool, k), size=k, replace=False)]
+
+
+def greedy_maximin(pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
+    """Greedy maximin: repeatedly add the candidate farthest from everything taken or chosen."""
+    available = list(_check_k(pool, k))
+    chosen_or_taken = list(np.flatnonzero(pool.taken))
+    picks: list[int] = []
+    for _ in range(k):
+        if chosen_or_taken:
+            gaps = pool.distances(np.array(available), np.array(chosen_or_taken)).min(axis=1)
+        else:  # empty design: start from the candidate nearest the centre of the pool
+            centre = pool.features.mean(axis=0)
+            gaps = -np.linalg.norm(pool.features[available] - centre, axis=1)
+        best = np.flatnonzero(gaps >= gaps.max() - 1e-9)
+        pick = available[int(rng.choice(best))]  # ties broken at random, so seeds differ
+        picks.append(int(pick))
+        chosen_or_taken.append(pick)
+        available.remove(pick)
+    return picks
+
+
+class MaximinStrategy(Strategy):
+    """`uniform`: greedy maximin over the pool, a strong space-filling baseline."""
+
+    name = "uniform"
+
+    def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
+        return greedy_maximin(pool, k, rng)
+
+
+class _QuasiRandomStrategy(Strategy):
+    """Quasi-random points in the feature cube (+ a kind coordinate), snapped to nearest candidates."""
+
+    def _engine(self, d: int, seed: int) -> qmc.QMCEngine:
+        raise NotImplementedError
+
+    def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
+        available = list(_check_k(pool, k))
+        n_kinds = int(pool.kinds.max()) + 1
+        d = pool.features.shape[1] + (1 if n_kinds > 1 else 0)
+        # The sequence is seeded by the campaign, not the round, so rounds continue one design.
+        n_taken = int(pool.taken.sum())
+        targets = self._engine(d, pool.design_seed).random(n_taken + k)[n_taken:]
+        picks: list[int] = []
+        for target in targets:
+            cont = target[: pool.features.shape[1]]
+            dist = np.linalg.norm(pool.features[available] - cont, axis=1)
+            if n_kinds > 1:
+                kind = min(int(target[-1] * n_kinds), n_kinds - 1)
+                dist = dist + pool.kind_distance * (pool.kinds[available] != kind)
+            pick = available.pop(int(np.argmin(dist)))
+            picks.append(int(pick))
+        return picks
+
+
+class SobolStrategy(_QuasiRandomStrategy):
+    """Scrambled Sobol sequence (scipy.stats.qmc) snapped to the nearest untaken candidates."""
+
+    name = "sobol"
+
+    def _engine(self, d: int, seed: int) -> qmc.QMCEngine:
+        return qmc.Sobol(d, scramble=True, rng=seed)
+
+
+class LatinHypercubeStrategy(_QuasiRandomStrategy):
+    """Latin hypercube (scipy.stats.qmc) snapped to the nearest untaken candidates."""
+
+    name = "lhs"
+
+    def _engine(self, d: int, seed: int) -> qmc.QMCEngine:
+        return qmc.LatinHypercube(d, rng=seed)
+
+
+# --------------------------------------------------------------------------- uncertainty strategies
+
+
+@dataclass(frozen=True)
+class FunctionSamples:
+    """Posterior function draws at a set of inputs, standardised per output.
+
+    phi: (P, O, S) deviations of the S sampled means from their average, divided by sqrt(S), so that
+        the epistemic variance at point p, output o is |phi[p, o]|^2.
+    aleatoric: (P, O) mean over draws of the predicted noise variance.
+    """
+
+    phi: np.ndarray
+    aleatoric: np.ndarray
+
+    @classmethod
+    def from_model(
+        cls, model: Any, x: np.ndarray, scale: np.ndarray, n_samples: int, seed: int
+    ) -> FunctionSamples:
+        """Draw `n_samples` posterior functions from `model` and evaluate them at `x`."""
+        means, variances = model.draw(n_samples, seed=seed)(x)
+        means = np.asarray(means, dtype=np.float64) / scale
+        variances = np.asarray(variances, dtype=np.float64) / scale**2
+        phi = (means - means.mean(axis=0, keepdims=True)) / np.sqrt(means.shape[0])
+        return cls(phi=np.transpose(phi, (1, 2, 0)), aleatoric=variances.mean(axis=0))
+
+    @property
+    def n_samples(self) -> int:
+        """Number of posterior draws S."""
+        return self.phi.shape[-1]
+
+    def epistemic(self, cov: np.ndarray | None = None) -> np.ndarray:
+        """(P, O) epistemic variance under the sample-space covariance `cov` (identity by default)."""
+        if cov is None:
+            return (self.phi**2).sum(-1)
+        return np.einsum("pos,st,pot->po", self.phi, cov, self.phi)
+
+    def precision(self, rows: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """S x S precision added by observing points `rows`, each `weights` times, with their noise."""
+        phi = self.phi[rows]  # (R, O, S)
+        w = weights[rows][:, None] / np.maximum(self.aleatoric[rows], _VAR_FLOOR)  # (R, O)
+        return np.einsum("ros,ro,rot->st", phi, w, phi)
+
+
+def _per_candidate(values: np.ndarray, owner: np.ndarray, n: int) -> np.ndarray:
+    """Average per-point values over each candidate's points."""
+    counts = np.bincount(owner, minlength=n)
+    return np.bincount(owner, weights=values, minlength=n) / np.maximum(counts, 1)
+
+
+class UncertaintyStrategy(Strategy):
+    """Base of model-driven strategies: score candidates, pick greedily with a batch-diversity rule.
+
+    batch: "fantasy" conditions the function-space posterior on each pick before the next (default),
+        "penalty" damps scores near earlier picks, "topk" takes the k best scores (no diversity).
+    n_samples: posterior draws S; fantasy_weight scales the rows each scoring point stands for.
+    """
+
+    uses_model = True
+
+    def __init__(
+        self,
+        *,
+        batch: BatchMode = "fantasy",
+        n_samples: int = 64,
+        fantasy_weight: float = 1.0,
+        penalty_length: float = 0.15,
+        seed: int = 0,
+    ) -> None:
+        if batch not in ("fantasy", "penalty", "topk"):
+            raise InputError("acquisition.batch", batch, "must be one of fantasy, penalty, topk")
+        if n_samples < 2:
+            raise InputError("acquisition.n_samples", n_samples, "must be at least 2")
+        if fantasy_weight <= 0:
+            raise InputError("acquisition.fantasy_weight", fantasy_weight, "must be positive")
+        if penalty_length <= 0:
+            raise InputError("acquisition.penalty_length", penalty_length, "must be positive")
+        self.batch = batch
+        self.n_samples = n_samples
+        self.fantasy_weight = fantasy_weight
+        self.penalty_length = penalty_length
+        self.seed = seed
+
+    @abstractmethod
+    def point_scores(self, samples: FunctionSamples, cov: np.ndarray) -> np.ndarray:
+        """(P,) score of every scoring point under sample-space covariance `cov`."""
+
+    def candidate_scores(self, samples: FunctionSamples, pool: Pool, cov: np.ndarray) -> np.ndarray:
+        """(n,) score of every candidate: its points' scores averaged along its control sequence."""
+        return _per_candidate(self.point_scores(samples, cov), pool.owner, len(pool.maneuvers))
+
+    def samples(self, model: Any, pool: Pool, rng: np.random.Generator) -> FunctionSamples:
+        """Evaluate posterior draws at the pool's scoring points."""
+        seed = int(rng.integers(2**31 - 1))
+        return FunctionSamples.from_model(model, pool.points, pool.output_scale, self.n_samples, seed)
+
+    def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
+        available = _check_k(pool, k)
+        samples = self.samples(model, pool, rng)
+        cov = np.eye(samples.n_samples)
+        weights = pool.weights * self.fantasy_weight
+        open_mask = np.zeros(len(pool.maneuvers), dtype=bool)
+        open_mask[available] = True
+        picks: list[int] = []
+        scores = self.candidate_scores(samples, pool, cov)
+        for _ in range(k):
+            masked = np.where(open_mask, scores, -np.inf)
+            if self.batch == "penalty" and picks:
+                masked = masked * self._penalty(pool, picks)
+                masked[~open_mask] = -np.inf
+            pick = int(np.argmax(masked))
+            picks.append(pick)
+            open_mask[pick] = False
+            if self.batch == "fantasy" and len(picks) < k:
+                rows = np.flatnonzero(pool.owner == pick)
+                cov = _condition(cov, samples.precision(rows, weights))
+                scores = self.candidate_scores(samples, pool, cov)
+        return picks
+
+    def _penalty(self, pool: Pool, picks: list[int]) -> np.ndarray:
+        """(n,) factor in [0, 1): zero at earlier picks, one far from them."""
+        dist = pool.distances(np.arange(len(pool.maneuvers)), np.array(picks)).min(axis=1)
+        return 1.0 - np.exp(-0.5 * (dist / self.penalty_length) ** 2)
+
+
+def _condition(cov: np.ndarray, precision: np.ndarray) -> np.ndarray:
+    """Sample-space covariance after adding `precision`: (cov^-1 + precision)^-1, computed stably."""
+    # cov - cov P (I + cov P)^-1 cov avoids inverting a near-singular cov after many updates.
+    eye = np.eye(len(cov))
+    return cov - cov @ precision @ np.linalg.solve(eye + cov @ precision, cov)
+
+
+class MaxEpistemicStrategy(UncertaintyStrategy):
+    """Pick maneuvers whose controls the model knows least about (epistemic variance)."""
+
+    name = "max_epistemic"
+
+    def point_scores(self, samples: FunctionSamples, cov: np.ndarray) -> np.ndarray:
+        return samples.epistemic(cov).sum(axis=1)
+
+
+class MaxTotalStrategy(UncertaintyStrategy):
+    """Pick by total predictive variance (aleatoric + epistemic): chases noise, on purpose."""
+
+    name = "max_total"
+
+    def point_scores(self, samples: FunctionSamples, cov: np.ndarray) -> np.ndarray:
+        return (samples.epistemic(cov) + samples.aleatoric).sum(axis=1)
+
+
+class BaldStrategy(UncertaintyStrategy):
+    """BALD: mutual information between a new observation and the weights.
+
+    For a Gaussian head whose predictive is approximated as Gaussian, I(y; w) = 0.5 log(1 + epi/ale)
+    per output (the entropy of N(m, epi + ale) minus the expected entropy N(., ale)); outputs are
+    treated as independent given the weights, so their informations add.
+    """
+
+    name = "bald"
+
+    def point_scores(self, samples: FunctionSamples, cov: np.ndarray) -> np.ndarray:
+        ratio = samples.epistemic(cov) / np.maximum(samples.aleatoric, _VAR_FLOOR)
+        return 0.5 * np.log1p(ratio).sum(axis=1)
+
+
+class IntegratedVarianceStrategy(UncertaintyStrategy):
+    """Integrated variance reduction: pick the maneuver that most lowers epistemic variance on the grid.
+
+    The reduction is exact for the linear-Gaussian sample-space posterior: observing candidate c
+    with precision P_c changes the grid variance from tr(C M) to tr((C^-1 + P_c)^-1 M), where
+    M = sum over grid points and outputs of phi phi^T. Batches always use fantasised updates.
+    """
+
+    name = "integrated_variance"
+
+    def __init__(self, **options: Any) -> None:
+        options.setdefault("batch", "fantasy")
+        super().__init__(**options)
+
+    def point_scores(self, samples: FunctionSamples, cov: np.ndarray) -> np.ndarray:  # pragma: no cover
+        raise NotImplementedError("integrated_variance scores whole candidates")
+
+    def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
+        available = list(_check_k(pool, k))
+        seed = int(rng.integers(2**31 - 1))
+        stacked = np.concatenate([pool.points, pool.eval_grid])
+        samples = FunctionSamples.from_model(model, stacked, pool.output_scale, self.n_samples, seed)
+        cand = FunctionSamples(samples.phi[: len(pool.points)], samples.aleatoric[: len(pool.points)])
+        grid_phi = samples.phi[len(pool.points) :]  # (G, O, S)
+        m = np.einsum("gos,got->st", grid_phi, grid_phi)
+        weights = pool.weights * self.fantasy_weight
+        precisions = {c: cand.precision(np.flatnonzero(pool.owner == c), weights) for c in available}
+        cov = np.eye(cand.n_samples)
+        picks: list[int] = []
+        for _ in range(k):
+            before = np.trace(cov @ m)
+            gains = [before - np.trace(_condition(cov, precisions[c]) @ m) for c in available]
+            pick = available.pop(int(np.argmax(gains)))
+            picks.append(int(pick))
+            cov = _condition(cov, precisions[pick])
+        return picks
+
+    def grid_variance(self, model: Any, pool: Pool, seed: int = 0) -> float:
+        """Integrated epistemic variance over the evaluation grid (standardised units)."""
+        samples = FunctionSamples.from_model(model, pool.eval_grid, pool.output_scale, self.n_samples, seed)
+        return float(samples.epistemic().sum())
+
+
+STRATEGIES: dict[str, type[Strategy]] = {
+    cls.name: cls
+    for cls in (
+        GridStrategy,
+        MaximinStrategy,
+        RandomStrategy,
+        SobolStrategy,
+        LatinHypercubeStrategy,
+        MaxEpistemicStrategy,
+        MaxTotalStrategy,
+        BaldStrategy,
+        IntegratedVarianceStrategy,
+    )
+}
+
+
+def make_strategy(name: str, **options: Any) -> Strategy:
+    """Build a strategy by name; uncertainty strategies accept batch, n_samples, fantasy_weight, ..."""
+    if name not in STRATEGIES:
+        raise InputError("strategy", name, f"unknown strategy; choose from {', '.join(STRATEGIES)}")
+    cls = STRATEGIES[name]
+    if issubclass(cls, UncertaintyStrategy):
+        return cls(**options)
+    return cls()

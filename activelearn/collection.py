@@ -1,0 +1,161 @@
+"""Turning maneuvers into training and test samples: simulation cache, seeded noise, row selection.
+
+MuJoCo is deterministic, so the noise-free log of a maneuver depends only on the maneuver, the log
+rate and the vehicle model. Each one is simulated once and kept in a cache (one Parquet file per
+maneuver, written atomically); sensor noise is then drawn per (campaign seed, maneuver). Strategies
+that pick the same maneuver therefore see the same data (common random numbers), and a comparison
+pays for each simulation once.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import zlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+import simulator
+from activelearn.config import DataConfig, NoiseSettings, SimulationConfig
+from activelearn.data import read_table, write_table
+from simulator import Maneuver
+
+FEATURES: tuple[str, ...] = ("throttle", "steering")
+TARGETS: tuple[str, ...] = ("speed", "angZ")
+RATE_FEATURES: tuple[str, ...] = ("prev_speed", "prev_angZ")
+
+Progress = Callable[[int, int], None]
+
+
+def simulator_fingerprint() -> str:
+    """Short hash of the vehicle model and simulator code version: cache entries depend on both."""
+    digest = hashlib.sha256(simulator.model_xml().encode())
+    digest.update(getattr(simulator, "__version__", "0").encode())
+    return digest.hexdigest()[:12]
+
+
+class SimulationCache:
+    """Noise-free maneuver logs, simulated on demand and kept as one Parquet file per maneuver."""
+
+    def __init__(self, root: str | Path, settings: SimulationConfig) -> None:
+        self.settings = settings
+        self.root = Path(root) / f"sim-{simulator_fingerprint()}-{settings.rate_hz:g}hz"
+
+    def path(self, maneuver: Maneuver) -> Path:
+        """Cache file of one maneuver."""
+        return self.root / f"{maneuver.name}.parquet"
+
+    def missing(self, maneuvers: Sequence[Maneuver]) -> list[Maneuver]:
+        """Maneuvers not in the cache yet."""
+        return [m for m in maneuvers if not self.path(m).exists()]
+
+    def get(self, maneuvers: Sequence[Maneuver], progress: Progress | None = None) -> list[pd.DataFrame]:
+        """Noise-free logs of `maneuvers`, simulating the missing ones in one parallel batch."""
+        todo = self.missing(maneuvers)
+        if todo:
+            frame = simulator.collect(
+                todo,
+                rate_hz=self.settings.rate_hz,
+                seed=0,
+                noise=None,
+                threads=self.settings.threads,
+                progress=progress,
+            )
+            self.root.mkdir(parents=True, exist_ok=True)
+            for m, (_, part) in zip(todo, frame.groupby("run_id", sort=False), strict=True):
+                write_table(part.reset_index(drop=True), self.path(m))
+        return [read_table(self.path(m)) for m in maneuvers]
+
+
+def noise_seed(seed: int, maneuver: Maneuver) -> int:
+    """Noise seed of one maneuver in one campaign: independent of when or by whom it is collected."""
+    return int(np.random.SeedSequence([seed, zlib.crc32(maneuver.name.encode())]).generate_state(1)[0])
+
+
+def noise_config(settings: NoiseSettings) -> simulator.NoiseConfig | None:
+    """The simulator's noise model for the config's noise section (None when disabled)."""
+    if not settings.enabled:
+        return None
+    overrides = {k: v for k, v in settings.model_dump().items() if k != "enabled" and v is not None}
+    return simulator.NoiseConfig(**overrides)
+
+
+def noisy_logs(
+    clean: Sequence[pd.DataFrame], maneuvers: Sequence[Maneuver], settings: NoiseSettings, seed: int
+) -> list[pd.DataFrame]:
+    """Add seeded sensor noise to noise-free logs, one independent stream per maneuver."""
+    noise = noise_config(settings)
+    if noise is None:
+        return [frame.copy() for frame in clean]
+    return [simulator.add_noise(f, noise, noise_seed(seed, m)) for f, m in zip(clean, maneuvers, strict=True)]
+
+
+def training_rows(frame: pd.DataFrame, cfg: DataConfig) -> pd.DataFrame:
+    """The rows of one maneuver's log that become samples: after the transient, every stride-th row.
+
+    Adds `prev_speed` and `prev_angZ`, the rates one log step earlier, for the Markov-state model.
+    """
+    frame = frame.reset_index(drop=True).copy()
+    frame["prev_speed"] = frame["speed"].shift(1)
+    frame["prev_angZ"] = frame["angZ"].shift(1)
+    keep = frame.iloc[1:]
+    keep = keep[keep["time"] >= cfg.skip_seconds - 1e-9]
+    return keep.iloc[:: cfg.stride]
+
+
+def feature_columns(cfg: DataConfig) -> list[str]:
+    """Model input columns for the config's input choice."""
+    return list(FEATURES) + (list(RATE_FEATURES) if cfg.inputs == "controls+rates" else [])
+
+
+def arrays(rows: pd.DataFrame, cfg: DataConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Inputs and targets of sample rows as float arrays."""
+    x = rows[feature_columns(cfg)].to_numpy(dtype=np.float64)
+    y = rows[list(TARGETS)].to_numpy(dtype=np.float64)
+    return x, y
+
+
+def rows_per_maneuver(duration: float, settings: SimulationConfig, cfg: DataConfig) -> float:
+    """Approximate number of training rows one maneuver of `duration` seconds contributes."""
+    return max(1.0, (duration - cfg.skip_seconds) * settings.rate_hz / cfg.stride)
+
+
+@dataclass(frozen=True)
+class TestSet:
+    """The fixed test set: inputs, noise-free and noisy targets, and the per-output scale."""
+
+    __test__ = False  # not a pytest class
+
+    x: np.ndarray
+    y_clean: np.ndarray
+    y_noisy: np.ndarray
+    scale: np.ndarray
+    groups: np.ndarray
+
+
+def build_test_set(
+    maneuvers: Sequence[Maneuver],
+    cache: SimulationCache,
+    noise: NoiseSettings,
+    data: DataConfig,
+    noise_seed_base: int,
+    progress: Progress | None = None,
+) -> TestSet:
+    """Simulate (or load) the test maneuvers and assemble the fixed, seed-independent test set."""
+    clean = cache.get(maneuvers, progress=progress)
+    noisy = noisy_logs(clean, maneuvers, noise, noise_seed_base)
+    xs, clean_y, noisy_y, groups = [], [], [], []
+    for i, (c, n) in enumerate(zip(clean, noisy, strict=True)):
+        rows_c, rows_n = training_rows(c, data), training_rows(n, data)
+        x, y = arrays(rows_n, data)  # controls carry no noise; previous rates are measured, so they do
+        xs.append(x)
+        noisy_y.append(y)
+        clean_y.append(rows_c[list(TARGETS)].to_numpy(dtype=np.float64))
+        groups.append(np.full(len(x), i))
+    y_clean = np.concatenate(clean_y)
+    scale = y_clean.std(axis=0)
+    scale = np.where(scale > 1e-9, scale, 1.0)
+    return TestSet(np.concatenate(xs), y_clean, np.concatenate(noisy_y), scale, np.concatenate(groups))

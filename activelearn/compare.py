@@ -1,0 +1,217 @@
+"""Strategy comparison: strategies × seeds under one parent MLflow run, curves, figure and table."""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from activelearn.campaign import Campaign
+from activelearn.config import CampaignConfig
+from activelearn.errors import InputError
+from activelearn.pool import pool_maneuvers, test_maneuvers
+
+Progress = Callable[[dict[str, Any]], None]
+CURVE_METRICS: tuple[str, ...] = ("epistemic_std_mean", "test_rmse", "test_nll")
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Per-round metrics of every campaign, the summary table and the figure's path."""
+
+    curves: pd.DataFrame
+    table: pd.DataFrame
+    figure_path: Path | None
+    directory: Path
+    parent_run_id: str | None
+
+
+def _run_job(
+    cfg_json: str,
+    directory: str,
+    cache_dir: str,
+    tracking: tuple[str, str] | None,
+    parent_run_id: str | None,
+    resume: bool,
+    single_thread: bool,
+) -> list[dict[str, Any]]:
+    """Worker: run one campaign and return its per-round metrics."""
+    import torch
+
+    if single_thread:  # two busy processes on two cores: intra-op threads would only fight
+        torch.set_num_threads(1)
+    cfg = CampaignConfig.model_validate_json(cfg_json)
+    tracker = None
+    if tracking is not None:
+        from activelearn.tracking import Tracker
+
+        tracker = Tracker(*tracking)
+    campaign = Campaign(cfg, directory, cache_dir=cache_dir, tracker=tracker, parent_run_id=parent_run_id)
+    result = campaign.run(resume=resume, figures=True, log_model=False)
+    return result.state.rounds
+
+
+def _summary(curves: pd.DataFrame, reference: str) -> pd.DataFrame:
+    """Per strategy: final RMSE and NLL, area under the RMSE curve, maneuvers to reach the reference."""
+    rows = []
+    ref = curves[curves["strategy"] == reference]
+    ref_final = ref.sort_values("n_maneuvers").groupby("seed").last()
+    target = float(ref_final["test_rmse"].mean()) if len(ref_final) else math.nan
+    ref_budget = float(ref_final["n_maneuvers"].mean()) if len(ref_final) else math.nan
+    for strategy, part in curves.groupby("strategy", sort=False):
+        finals = part.sort_values("n_maneuvers").groupby("seed").last()
+        aucs, reach = [], []
+        for _, run in part.groupby("seed"):
+            run = run.sort_values("n_maneuvers")
+            n, rmse = run["n_maneuvers"].to_numpy(float), run["test_rmse"].to_numpy(float)
+            span = n[-1] - n[0]
+            aucs.append(float(np.trapezoid(rmse, n) / span) if span > 0 else float(rmse[-1]))
+            hit = np.flatnonzero(rmse <= target)
+            reach.append(float(n[hit[0]]) if len(hit) else math.nan)
+        reach_arr = np.array(reach)
+        reached = reach_arr[~np.isnan(reach_arr)]
+        sem = lambda v: float(np.std(v, ddof=1) / np.sqrt(len(v))) if len(v) > 1 else 0.0  # noqa: E731
+        rows.append(
+            {
+                "strategy": strategy,
+                "seeds": len(finals),
+                "final_rmse": float(finals["test_rmse"].mean()),
+                "final_rmse_sem": sem(finals["test_rmse"].to_numpy()),
+                "final_nll": float(finals["test_nll"].mean()),
+                "rmse_auc": float(np.mean(aucs)),
+                "reached": f"{len(reached)}/{len(reach_arr)}",
+                "maneuvers_to_target": float(np.median(reached)) if len(reached) else math.nan,
+                "ratio_to_reference": float(np.median(reached) / ref_budget) if len(reached) else math.nan,
+            }
+        )
+    table = pd.DataFrame(rows)
+    table.attrs["target_rmse"] = target
+    table.attrs["reference"] = reference
+    return table
+
+
+def compare(
+    cfg: CampaignConfig,
+    strategies: Sequence[str],
+    seeds: Sequence[int],
+    *,
+    directory: str | Path | None = None,
+    workers: int | None = None,
+    tracking: bool = True,
+    resume: bool = False,
+    progress: Progress | None = None,
+) -> Comparison:
+    """Run every strategy with every seed on one config and compare them against `uniform`."""
+    from activelearn.acquisition import STRATEGIES
+
+    for name in strategies:
+        if name not in STRATEGIES:
+            raise InputError("--strategies", name, f"unknown strategy; choose from {', '.join(STRATEGIES)}")
+    if not strategies:
+        raise InputError("--strategies", "", "name at least one strategy")
+    if not seeds:
+        raise InputError("--seeds", 0, "must be at least 1")
+    progress = progress or (lambda event: None)
+    directory = Path(directory or Path(cfg.output_dir) / cfg.name / "compare")
+    if (directory / "curves.csv").exists() and not resume:
+        raise InputError(
+            "--out", str(directory), "holds a comparison already; pass --resume or another --out"
+        )
+    cache_dir = Path(cfg.output_dir) / "cache"
+    workers = max(1, min(workers or os.cpu_count() or 1, len(strategies) * len(seeds)))
+
+    # Simulate the whole pool and the test set once, with every core, before the workers start.
+    from activelearn.collection import SimulationCache
+
+    cache = SimulationCache(cache_dir, cfg.simulation)
+    todo = cache.missing(pool_maneuvers(cfg.pool) + test_maneuvers(cfg.test))
+    if todo:
+        progress({"event": "simulate", "n": len(todo)})
+        cache.get(
+            todo,
+            progress=lambda done, total: progress({"event": "sim_progress", "done": done, "total": total}),
+        )
+
+    tracker, parent_run_id = None, None
+    if tracking:
+        from activelearn.tracking import Tracker
+
+        tracker = Tracker(cfg.tracking.uri, cfg.tracking.experiment)
+        parent_run_id = tracker.start_run(f"compare-{cfg.name}", tags={"kind": "comparison"})
+        tracker.log_params(
+            parent_run_id,
+            {"strategies": list(strategies), "seeds": list(seeds), **cfg.model_dump(mode="json")},
+        )
+
+    jobs = [(s, seed) for s in strategies for seed in seeds]
+    results: dict[tuple[str, int], list[dict[str, Any]]] = {}
+    tracking_args = (cfg.tracking.uri, cfg.tracking.experiment) if tracking else None
+    try:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+            futures = {
+                pool.submit(
+                    _run_job,
+                    cfg.model_copy(update={"strategy": s, "seed": seed}).model_dump_json(),
+                    str(directory / s / f"seed{seed}"),
+                    str(cache_dir),
+                    tracking_args,
+                    parent_run_id,
+                    resume,
+                    workers > 1,
+                ): (s, seed)
+                for s, seed in jobs
+            }
+            for done, future in enumerate(as_completed(futures), start=1):
+                key = futures[future]
+                results[key] = future.result()
+                final = results[key][-1]
+                progress(
+                    {
+                        "event": "job",
+                        "done": done,
+                        "total": len(jobs),
+                        "strategy": key[0],
+                        "seed": key[1],
+                        "test_rmse": final["test_rmse"],
+                    }
+                )
+    except BaseException:
+        if tracker is not None and parent_run_id is not None:
+            tracker.end_run(parent_run_id, "KILLED")
+        raise
+
+    records = [{"strategy": s, "seed": seed, **r} for (s, seed), rounds in results.items() for r in rounds]
+    curves = pd.DataFrame(records).sort_values(["strategy", "seed", "round"]).reset_index(drop=True)
+    reference = "uniform" if "uniform" in strategies else strategies[0]
+    table = _summary(curves, reference)
+    directory.mkdir(parents=True, exist_ok=True)
+    curves.to_csv(directory / "curves.csv", index=False)
+    table.to_csv(directory / "summary.csv", index=False)
+
+    from activelearn.plots import comparison_figure
+
+    fig = comparison_figure(
+        curves, CURVE_METRICS, reference=reference, title=f"{cfg.name}: {len(seeds)} seeds"
+    )
+    figure_path = directory / "comparison.png"
+    fig.savefig(figure_path, dpi=110)
+    if tracker is not None and parent_run_id is not None:
+        tracker.log_figure(parent_run_id, fig, "comparison.png")
+        tracker.log_artifact(parent_run_id, directory / "summary.csv")
+        tracker.log_artifact(parent_run_id, directory / "curves.csv")
+        for row in table.itertuples():
+            tracker.log_metrics(
+                parent_run_id,
+                {f"{row.strategy}.final_rmse": row.final_rmse, f"{row.strategy}.rmse_auc": row.rmse_auc},
+                step=0,
+            )
+        tracker.end_run(parent_run_id, "FINISHED")
+    return Comparison(curves, table, figure_path, directory, parent_run_id)

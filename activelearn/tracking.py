@@ -1,0 +1,202 @@
+"""MLflow tracking: the only module of activelearn that imports MLflow.
+
+Runs are addressed by id through an `MlflowClient`, never through MLflow's global "active run", so
+nested runs written from several processes (a comparison's workers) cannot get mixed up.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import tempfile
+import time
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, TypeVar
+
+import mlflow
+import mlflow.pytorch
+from mlflow.entities import Metric, Param, RunStatus
+from mlflow.exceptions import MlflowException
+from mlflow.tracking import MlflowClient
+
+from activelearn.errors import ConfigError
+
+# No usage reports from a research tool on a closed network (they would only time out).
+os.environ.setdefault("MLFLOW_DISABLE_TELEMETRY", "true")
+
+DEFAULT_TRACKING_URI = "sqlite:///mlruns/mlflow.db"
+DEFAULT_EXPERIMENT = "activelearn"
+_MAX_PARAM_LENGTH = 6000  # MLflow's limit on a param value
+_BATCH = 100  # MLflow accepts at most 100 params per log_batch call
+
+T = TypeVar("T")
+
+# MLflow's migrations and store notices are noise for a user watching a progress bar.
+# The pickle-format and "+cpu" version-label warnings of model logging are expected here.
+logging.getLogger("mlflow").setLevel(logging.ERROR)
+logging.getLogger("alembic").setLevel(logging.WARNING)
+
+
+def flatten_params(params: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
+    """Flatten nested mappings into dotted keys with string values, as MLflow params want."""
+    flat: dict[str, str] = {}
+    for key, value in params.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            flat.update(flatten_params(value, prefix=f"{name}."))
+        else:
+            text = ",".join(map(str, value)) if isinstance(value, list | tuple) else str(value)
+            flat[name] = text[:_MAX_PARAM_LENGTH]
+    return flat
+
+
+def artifact_root_for(tracking_uri: str) -> str | None:
+    """Artifact root beside a SQLite store (`<db dir>/artifacts`), or None to let MLflow decide."""
+    if not tracking_uri.startswith("sqlite:///"):
+        return None
+    db_path = Path(tracking_uri.removeprefix("sqlite:///"))
+    return (db_path.parent.resolve() / "artifacts").as_uri()
+
+
+def _retry(call: Callable[[], T], attempts: int = 8) -> T:
+    """Retry a store call that SQLite refused because another process held its lock."""
+    delay = 0.05
+    for attempt in range(attempts):
+        try:
+            return call()
+        except MlflowException as exc:
+            if "locked" not in str(exc).lower() or attempt == attempts - 1:
+                raise
+            time.sleep(delay)
+            delay *= 2
+    raise AssertionError("unreachable")
+
+
+class Tracker:
+    """Write runs, params, metrics, figures and models to one MLflow store and experiment."""
+
+    def __init__(
+        self, tracking_uri: str = DEFAULT_TRACKING_URI, experiment: str = DEFAULT_EXPERIMENT
+    ) -> None:
+        if tracking_uri.startswith("sqlite:///"):
+            Path(tracking_uri.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
+        self.tracking_uri = tracking_uri
+        try:
+            self.client = MlflowClient(tracking_uri)
+            self.experiment_id = self._experiment_id(experiment)
+        except MlflowException as exc:
+            raise ConfigError("tracking.uri", tracking_uri, f"cannot open the MLflow store: {exc}") from exc
+
+    def _experiment_id(self, name: str) -> str:
+        found = _retry(lambda: self.client.get_experiment_by_name(name))
+        if found is not None:
+            return found.experiment_id
+        try:
+            return _retry(
+                lambda: self.client.create_experiment(
+                    name, artifact_location=artifact_root_for(self.tracking_uri)
+                )
+            )
+        except MlflowException:  # another process created it first
+            found = self.client.get_experiment_by_name(name)
+            if found is None:
+                raise
+            return found.experiment_id
+
+    def start_run(
+        self,
+        name: str,
+        *,
+        parent_run_id: str | None = None,
+        tags: Mapping[str, str] | None = None,
+        resume_run_id: str | None = None,
+    ) -> str:
+        """Create a run (nested under `parent_run_id` if given) or reopen `resume_run_id`; return its id."""
+        if resume_run_id is not None:
+            _retry(lambda: self.client.update_run(resume_run_id, status="RUNNING"))
+            return resume_run_id
+        all_tags = dict(tags or {})
+        if parent_run_id is not None:
+            all_tags["mlflow.parentRunId"] = parent_run_id
+        run = _retry(lambda: self.client.create_run(self.experiment_id, run_name=name, tags=all_tags))
+        return run.info.run_id
+
+    def log_params(self, run_id: str, params: Mapping[str, Any]) -> None:
+        """Log a (possibly nested) mapping of params, flattened to dotted keys."""
+        items = [Param(k, v) for k, v in flatten_params(params).items()]
+        existing = _retry(lambda: self.client.get_run(run_id)).data.params
+        items = [p for p in items if p.key not in existing]  # params are immutable; resume re-logs nothing
+        for start in range(0, len(items), _BATCH):
+            chunk = items[start : start + _BATCH]
+            _retry(lambda chunk=chunk: self.client.log_batch(run_id, params=chunk))
+
+    def set_tags(self, run_id: str, tags: Mapping[str, Any]) -> None:
+        """Set string tags on a run."""
+        for key, value in tags.items():
+            _retry(lambda key=key, value=value: self.client.set_tag(run_id, key, str(value)))
+
+    def log_metrics(self, run_id: str, metrics: Mapping[str, float], step: int) -> None:
+        """Log one step of metrics in a single batch."""
+        now = int(time.time() * 1000)
+        items = [Metric(k, float(v), now, int(step)) for k, v in metrics.items()]
+        _retry(lambda: self.client.log_batch(run_id, metrics=items))
+
+    def log_figure(self, run_id: str, figure: Any, artifact_file: str) -> None:
+        """Log a matplotlib figure as a PNG artifact."""
+        _retry(lambda: self.client.log_figure(run_id, figure, artifact_file))
+
+    def log_artifact(self, run_id: str, path: str | Path, artifact_path: str | None = None) -> None:
+        """Log a local file as an artifact."""
+        _retry(lambda: self.client.log_artifact(run_id, str(path), artifact_path))
+
+    def log_text(self, run_id: str, text: str, artifact_file: str) -> None:
+        """Log a text artifact."""
+        _retry(lambda: self.client.log_text(run_id, text, artifact_file))
+
+    def log_model(self, run_id: str, model: Any, name: str = "model") -> str:
+        """Log a torch model through `mlflow.pytorch`; return its model URI."""
+        with self._active(run_id):
+            # pickle: MLflow 3's default "pt2" format needs a traced input example and drops our methods
+            info = mlflow.pytorch.log_model(model, name=name, serialization_format="pickle")
+        return info.model_uri
+
+    def end_run(self, run_id: str, status: str = "FINISHED") -> None:
+        """Mark a run FINISHED, FAILED or KILLED."""
+        RunStatus.from_string(status)  # raises on a typo
+        _retry(lambda: self.client.set_terminated(run_id, status))
+
+    def run_status(self, run_id: str) -> str:
+        """Return the status of a run (RUNNING, FINISHED, KILLED, FAILED)."""
+        return _retry(lambda: self.client.get_run(run_id)).info.status
+
+    def metric_history(self, run_id: str, key: str) -> list[tuple[int, float]]:
+        """Return (step, value) pairs of a metric, in step order."""
+        history = _retry(lambda: self.client.get_metric_history(run_id, key))
+        return sorted((m.step, m.value) for m in history)
+
+    def child_runs(self, parent_run_id: str) -> list[str]:
+        """Ids of the runs nested under a parent run."""
+        runs = self.client.search_runs(
+            [self.experiment_id], filter_string=f"tags.mlflow.parentRunId = '{parent_run_id}'"
+        )
+        return [r.info.run_id for r in runs]
+
+    @contextmanager
+    def _active(self, run_id: str) -> Iterator[None]:
+        """Make `run_id` MLflow's active run for fluent-only APIs (model logging)."""
+        mlflow.set_tracking_uri(self.tracking_uri)
+        with mlflow.start_run(run_id=run_id):
+            yield
+        # leaving the fluent context marks the run FINISHED; put it back to RUNNING for later rounds
+        self.client.update_run(run_id, status="RUNNING")
+
+
+def load_model(model_uri: str, tracking_uri: str = DEFAULT_TRACKING_URI) -> Any:
+    """Load a model logged with `Tracker.log_model` (an MLflow model URI such as runs:/<id>/model)."""
+    mlflow.set_tracking_uri(tracking_uri)
+    try:
+        return mlflow.pytorch.load_model(model_uri, dst_path=tempfile.mkdtemp(prefix="activelearn-model-"))
+    except MlflowException as exc:
+        raise ConfigError("model", model_uri, f"cannot load the MLflow model: {exc}") from exc

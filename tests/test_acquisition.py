@@ -1,0 +1,142 @@
+"""Acquisition strategies on a real (small, quickly trained) model and a real maneuver pool."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from activelearn import synthetic
+from activelearn.acquisition import (
+    STRATEGIES,
+    BaldStrategy,
+    FunctionSamples,
+    MaxEpistemicStrategy,
+    _condition,
+    greedy_maximin,
+    make_strategy,
+)
+from activelearn.config import CampaignConfig, ModelConfig, TrainingConfig
+from activelearn.errors import InputError
+from activelearn.models import build_model
+from activelearn.pool import build_pool, pool_maneuvers
+from activelearn.training import fit
+
+
+@pytest.fixture(scope="module")
+def cfg() -> CampaignConfig:
+    return CampaignConfig.model_validate(
+        {
+            "name": "acq",
+            "pool": {
+                "kinds": ["skidpad", "fishhook"],
+                "throttles": [-0.6, -0.2, 0.2, 0.4, 0.6, 0.8, 1.0],
+                "steerings": [0.1, 0.25, 0.4, 0.5],
+                "duration": 30.0,
+            },
+        }
+    )
+
+
+@pytest.fixture(scope="module")
+def model():
+    """A hybrid PBNN trained on forward throttle and left steering only."""
+    rng = np.random.default_rng(0)
+    x = synthetic.random_points(600, throttle=(0.2, 1.0), steering=(0.0, 0.5), seed=1)
+    y = synthetic.observe(x, rng)
+    m = build_model(ModelConfig())
+    fit(m, x, y, TrainingConfig(epochs=60, batch_size=64, patience=None), seed=0)
+    return m
+
+
+def _pool(cfg: CampaignConfig, taken: list[int] | None = None):
+    maneuvers = pool_maneuvers(cfg.pool)
+    mask = np.zeros(len(maneuvers), dtype=bool)
+    mask[taken or []] = True
+    return build_pool(cfg, maneuvers, mask, np.array([0.1, 0.3]), rows_per_maneuver=80.0, design_seed=3)
+
+
+@pytest.mark.parametrize("name", sorted(STRATEGIES))
+def test_every_strategy_returns_k_distinct_untaken_candidates(cfg, model, name):
+    pool = _pool(cfg, taken=[0, 5, 11])
+    k = 4
+    picks = make_strategy(name).select(model, pool, k, np.random.default_rng(0))
+    assert len(picks) == k
+    assert len(set(picks)) == k
+    assert all(0 <= p < len(pool.maneuvers) for p in picks)
+    assert not pool.taken[picks].any()
+
+
+def test_unknown_strategy_and_oversized_batch_are_rejected(cfg, model):
+    with pytest.raises(InputError, match="strategy"):
+        make_strategy("most_confused")
+    pool = _pool(cfg, taken=list(range(len(pool_maneuvers(cfg.pool)) - 2)))
+    with pytest.raises(InputError, match="k"):
+        make_strategy("uniform").select(model, pool, 3, np.random.default_rng(0))
+
+
+def test_maximin_spreads_more_than_random(cfg):
+    pool = _pool(cfg)
+    maximin = greedy_maximin(pool, 8, np.random.default_rng(0))
+
+    def min_gap(picks):
+        d = pool.distances(np.array(picks), np.array(picks))
+        return d[~np.eye(len(picks), dtype=bool)].min()
+
+    random_gaps = [
+        min_gap(list(np.random.default_rng(s).choice(len(pool.maneuvers), 8, replace=False)))
+        for s in range(20)
+    ]
+    assert min_gap(maximin) > np.max(random_gaps) * 0.99
+
+
+def test_quasi_random_designs_continue_across_rounds(cfg, model):
+    first = make_strategy("sobol").select(model, _pool(cfg), 3, np.random.default_rng(0))
+    second = make_strategy("sobol").select(model, _pool(cfg, taken=first), 3, np.random.default_rng(1))
+    assert not set(first) & set(second)
+
+
+def test_max_epistemic_prefers_the_unseen_region(cfg, model):
+    """Trained on forward throttle only, the model should ask for reverse-throttle maneuvers first."""
+    pool = _pool(cfg)
+    picks = MaxEpistemicStrategy(batch="topk").select(model, pool, 3, np.random.default_rng(0))
+    assert all(pool.maneuvers[p].throttle < 0 for p in picks)
+    first = make_strategy("max_epistemic").select(model, pool, 1, np.random.default_rng(0))
+    assert pool.maneuvers[first[0]].throttle < 0
+
+
+def test_sample_space_epistemic_matches_the_model(cfg, model):
+    pool = _pool(cfg)
+    samples = FunctionSamples.from_model(model, pool.points, pool.output_scale, n_samples=32, seed=4)
+    pred = model.predict(pool.points, n_samples=32, seed=4)
+    expected = pred.epistemic_var / pool.output_scale**2
+    np.testing.assert_allclose(samples.epistemic(), expected, rtol=1e-4, atol=1e-9)
+
+
+def test_conditioning_matches_the_direct_inverse():
+    rng = np.random.default_rng(0)
+    a = rng.standard_normal((6, 6))
+    cov = a @ a.T + np.eye(6)
+    b = rng.standard_normal((6, 3))
+    precision = b @ b.T
+    direct = np.linalg.inv(np.linalg.inv(cov) + precision)
+    np.testing.assert_allclose(_condition(cov, precision), direct, rtol=1e-8, atol=1e-10)
+
+
+def test_fantasy_batches_are_more_diverse_than_top_k(cfg, model):
+    pool = _pool(cfg)
+    fantasy = MaxEpistemicStrategy(batch="fantasy").select(model, pool, 4, np.random.default_rng(0))
+    topk = MaxEpistemicStrategy(batch="topk").select(model, pool, 4, np.random.default_rng(0))
+
+    def mean_gap(picks):
+        d = pool.distances(np.array(picks), np.array(picks))
+        return d[~np.eye(len(picks), dtype=bool)].mean()
+
+    assert mean_gap(fantasy) > mean_gap(topk)
+
+
+def test_bald_is_half_log_one_plus_ratio():
+    phi = np.zeros((2, 2, 4))
+    phi[0, 0, 0], phi[1, 1, 1] = 0.3, 0.1  # epistemic variances 0.09 and 0.01
+    samples = FunctionSamples(phi=phi, aleatoric=np.full((2, 2), 0.01))
+    scores = BaldStrategy().point_scores(samples, np.eye(4))
+    np.testing.assert_allclose(scores, [0.5 * np.log(1 + 9.0), 0.5 * np.log(1 + 1.0)])

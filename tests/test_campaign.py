@@ -1,0 +1,165 @@
+"""The outer loop end to end: real MuJoCo, real models, a real SQLite MLflow store."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from activelearn.campaign import Campaign, CampaignState
+from activelearn.compare import compare
+from activelearn.config import load_config, validate_config
+from activelearn.errors import ConfigError
+from activelearn.tracking import Tracker
+
+SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
+ROUND_METRICS = (
+    "test_rmse", "test_rmse_v", "test_rmse_w", "test_nll", "test_crps", "coverage_95",
+    "epistemic_std_mean", "epistemic_std_max", "aleatoric_std_mean",
+    "n_samples", "n_maneuvers", "sim_seconds", "wall_seconds",
+)
+
+
+def tiny_config(tmp_path: Path, **overrides):
+    """The smoke config, shrunk further, writing under tmp_path."""
+    data = {
+        "output_dir": str(tmp_path / "runs"),
+        "tracking": {"uri": f"sqlite:///{tmp_path}/mlruns/mlflow.db"},
+        "training": {"epochs": 25},
+        "design": {"initial": 3, "per_round": 2, "max_maneuvers": 5},
+        **overrides,
+    }
+    return load_config(SMOKE, overrides=data)
+
+
+def test_smoke_campaign_logs_every_round_metric_to_sqlite(tmp_path):
+    cfg = tiny_config(tmp_path)
+    tracker = Tracker(cfg.tracking.uri, cfg.tracking.experiment)
+    result = Campaign(cfg, tmp_path / "c", tracker=tracker).run()
+    run_id = result.state.run_id
+    assert tracker.run_status(run_id) == "FINISHED"
+    for name in ROUND_METRICS:
+        steps = [step for step, _ in tracker.metric_history(run_id, name)]
+        assert len(steps) >= 2, name
+    # step = number of training samples, growing with the data
+    steps = [step for step, _ in tracker.metric_history(run_id, "test_rmse")]
+    assert steps == sorted(steps) and steps[0] < steps[-1]
+    assert result.history["n_samples"].tolist() == steps
+    assert (tmp_path / "c" / "figures" / "epistemic_round01.png").exists()
+    assert len(result.state.taken) == 5 and len(set(result.state.taken)) == 5
+
+
+def _run_cli(args, **kwargs):
+    return subprocess.Popen([sys.executable, "-m", "activelearn.cli", *args], **kwargs)
+
+
+def test_killed_campaign_resumes_to_identical_data(tmp_path):
+    common = ["campaign", "run", str(SMOKE), "--no-tracking", "--seed", "3"]
+    reference = _run_cli([*common, "--out", str(tmp_path / "ref")])
+    assert reference.wait(timeout=300) == 0
+
+    victim = _run_cli([*common, "--out", str(tmp_path / "kill")])
+    state_file = tmp_path / "kill" / "state.json"
+    deadline = time.time() + 240
+    while time.time() < deadline:  # kill as soon as the first round is checkpointed
+        if state_file.exists() and CampaignState.load(tmp_path / "kill").rounds:
+            break
+        time.sleep(0.05)
+    victim.send_signal(signal.SIGKILL)
+    victim.wait(timeout=30)
+    killed_state = CampaignState.load(tmp_path / "kill")
+    assert not killed_state.finished, "the kill came too late to test anything"
+
+    resumed = _run_cli([*common, "--out", str(tmp_path / "kill"), "--resume"])
+    assert resumed.wait(timeout=300) == 0
+    ref_samples = pd.read_parquet(tmp_path / "ref" / "samples.parquet")
+    resumed_samples = pd.read_parquet(tmp_path / "kill" / "samples.parquet")
+    pd.testing.assert_frame_equal(ref_samples, resumed_samples)
+    ref_state, res_state = CampaignState.load(tmp_path / "ref"), CampaignState.load(tmp_path / "kill")
+    assert ref_state.batches == res_state.batches
+    for a, b in zip(ref_state.rounds, res_state.rounds, strict=True):
+        assert a["test_rmse"] == b["test_rmse"] and a["test_nll"] == b["test_nll"]
+
+
+def test_ctrl_c_marks_the_run_killed_and_leaves_a_resumable_directory(tmp_path):
+    uri = f"sqlite:///{tmp_path}/mlruns/mlflow.db"
+    out = tmp_path / "c"
+    proc = _run_cli(["campaign", "run", str(SMOKE), "--out", str(out), "--tracking-uri", uri],
+                    stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 240
+    while time.time() < deadline:
+        if (out / "state.json").exists() and CampaignState.load(out).rounds:
+            break
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "--resume" in err
+    state = CampaignState.load(out)
+    assert not state.finished
+    assert Tracker(uri).run_status(state.run_id) == "KILLED"
+    resumed = _run_cli(["campaign", "run", str(SMOKE), "--out", str(out), "--tracking-uri", uri, "--resume"])
+    assert resumed.wait(timeout=300) == 0
+    assert CampaignState.load(out).finished
+    assert Tracker(uri).run_status(state.run_id) == "FINISHED"
+
+
+@pytest.mark.parametrize(
+    ("patch", "key"),
+    [
+        ({"pool": {"kinds": ["drift"]}}, "pool.kinds.0"),
+        ({"pool": {"throttles": [0.5, 1.5]}}, "pool.throttles.1"),
+        ({"design": {"initial": 0}}, "design.initial"),
+        ({"design": {"per_round": "two"}}, "design.per_round"),
+        ({"training": {"lr": -1.0}}, "training.lr"),
+        ({"model": {"kind": "gp"}}, "model.kind"),
+        ({"acquisition": {"batchsize": 3}}, "acquisition.batchsize"),
+        ({"strategy": "psychic"}, "strategy"),
+        ({"colour": "red"}, "colour"),
+    ],
+)
+def test_bad_configs_are_rejected_naming_the_key(patch, key):
+    with pytest.raises(ConfigError) as info:
+        validate_config(patch)
+    assert info.value.field == key
+    assert key in str(info.value)
+
+
+def test_cli_rejects_a_bad_config_with_exit_code_2(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(SMOKE.read_text().replace("initial = 3", "initial = -3"))
+    proc = _run_cli(["campaign", "run", str(bad), "--no-tracking", "--out", str(tmp_path / "o")],
+                    stderr=subprocess.PIPE, text=True)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 2
+    assert "design.initial" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
+
+
+def test_comparison_produces_its_table_and_figure(tmp_path):
+    cfg = tiny_config(tmp_path)
+    result = compare(cfg, ["uniform", "max_epistemic"], [0, 1], directory=tmp_path / "cmp", workers=2)
+    assert result.figure_path is not None and result.figure_path.stat().st_size > 10_000
+    table = result.table.set_index("strategy")
+    assert set(table.index) == {"uniform", "max_epistemic"}
+    assert np.isfinite(table[["final_rmse", "final_nll", "rmse_auc"]].to_numpy()).all()
+    # uniform reaches its own final RMSE by definition of the target, at its full budget or earlier
+    assert table.loc["uniform", "maneuvers_to_target"] <= 5
+    tracker = Tracker(cfg.tracking.uri, cfg.tracking.experiment)
+    assert len(tracker.child_runs(result.parent_run_id)) == 4
+    assert tracker.run_status(result.parent_run_id) == "FINISHED"
+
+
+def test_stop_rule_ends_the_campaign_early(tmp_path):
+    cfg = tiny_config(tmp_path, design={"initial": 3, "per_round": 2, "max_maneuvers": 9,
+                                        "stop_epistemic_std": 10.0})
+    result = Campaign(cfg, tmp_path / "c").run(figures=False)
+    assert result.state.stop_reason == "stop_epistemic_std"
+    assert len(result.state.taken) == 3
+
