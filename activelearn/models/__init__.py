@@ -1,0 +1,37 @@
+"""Bayesian layers, the hybrid PBNN and its baselines, all behind one `Model` interface."""
+
+from activelearn.models.base import Model, Prediction, SampledModel
+from activelearn.models.layers import BayesianLinear, DenseLinear
+from activelearn.models.networks import (
+    BNN,
+    DNN,
+    PBNN,
+    PNN,
+    DeepEnsemble,
+    HybridPBNN,
+    StackModel,
+    build_model,
+)
+from activelearn.models.persistence import load_model, save_model
+from activelearn.models.spec import LayerSpec, parse_arch, resolve_arch
+
+__all__ = [
+    "BNN",
+    "DNN",
+    "PBNN",
+    "PNN",
+    "BayesianLinear",
+    "DeepEnsemble",
+    "DenseLinear",
+    "HybridPBNN",
+    "LayerSpec",
+    "Model",
+    "Prediction",
+    "SampledModel",
+    "StackModel",
+    "build_model",
+    "load_model",
+    "parse_arch",
+    "resolve_arch",
+    "save_model",
+]

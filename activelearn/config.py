@@ -1,0 +1,577 @@
+"""Configuration models: one place for every default.
+
+Each section is a pydantic v2 model that rejects unknown keys (`extra="forbid"`) and validates its
+values with messages that name the offending field. This module holds the model and training
+sections; campaign sections are added beside them.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+
+from activelearn.errors import ConfigError
+
+ModelKind = Literal["hybrid", "pbnn", "pnn", "bnn", "dnn", "ensemble"]
+Activation = Literal["tanh", "sigmoid", "elu", "relu", "selu", "softplus"]
+ACTIVATIONS: tuple[str, ...] = ("tanh", "sigmoid", "elu", "relu", "selu", "softplus")
+MAX_STEERING = 0.5236  # rad, Nigel's steering limit
+
+# Named architectures. Tokens: V = variational (Bayesian) layer, D = dense layer, number = width,
+# optional ":activation"; the last token has no width and produces the Gaussian head's parameters.
+ARCH_PRESETS: dict[str, str] = {
+    # The reference study's hybrid (3D-2V): saturating first variational layer, relu dense layers.
+    "reference": "V8:sigmoid-D32:relu-D32:relu-D8:relu-V",
+    # Chosen by measurement (experiments/model_selection.py): a dense relu feature extractor and a
+    # variational read-out (the last two layers). Relu features grow linearly away from the data, so
+    # the read-out's spread grows too: novelty ratio ~20 vs ~1.1 for `reference`, in-between (gap)
+    # ratio ~3.7; as accurate as the alternatives and faster to train than D32-V32-V16-V.
+    "default": "D64:relu-D64:relu-V16:relu-V",
+}
+
+
+class _Section(BaseModel):
+    """Base of every config section: unknown keys are errors, values are re-validated on assignment."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class ModelConfig(_Section):
+    """Which network to build and how its Bayesian layers are parameterised."""
+
+    kind: ModelKind = "hybrid"
+    # Spec string (e.g. "V8-D32-D32-D8-V") or a preset name from ARCH_PRESETS. Baselines reuse the
+    # widths: pbnn/bnn turn every layer variational, pnn/dnn/ensemble turn every layer dense.
+    arch: str = "default"
+    # Activation of tokens that do not name their own.
+    activation: Activation = "relu"
+    posterior: Literal["mean_field", "full_cov"] = "mean_field"
+    kl: Literal["exact", "mc"] = "exact"
+    kl_samples: int = Field(1, description="weight draws per step for the Monte Carlo KL")
+    prior_scale: float = 1.0
+    prior_trainable: bool = False
+    # Initial posterior std of every variational weight (weight units, inputs are standardised).
+    posterior_init_std: float = 0.01
+    ensemble_size: int = 5
+    # Floor of the Gaussian head's std, in standardised output units.
+    min_std: float = 1e-3
+    n_inputs: int = 2
+    n_outputs: int = 2
+
+    @field_validator("arch")
+    @classmethod
+    def _check_arch(cls, value: str) -> str:
+        # Imported here: the parser lives with the networks, which import this module.
+        from activelearn.models.spec import parse_arch
+
+        try:
+            parse_arch(value)
+        except ValueError as exc:
+            raise ValueError(f"arch: {exc}") from None
+        return value
+
+    @field_validator("prior_scale", "posterior_init_std", "min_std")
+    @classmethod
+    def _check_positive(cls, value: float, info) -> float:
+        if not value > 0:
+            raise ValueError(f"{info.field_name} must be > 0, got {value!r}")
+        return value
+
+    @field_validator("kl_samples", "n_inputs", "n_outputs")
+    @classmethod
+    def _check_count(cls, value: int, info) -> int:
+        if value < 1:
+            raise ValueError(f"{info.field_name} must be >= 1, got {value!r}")
+        return value
+
+    @field_validator("ensemble_size")
+    @classmethod
+    def _check_ensemble(cls, value: int) -> int:
+        if value < 2:
+            raise ValueError(f"ensemble_size must be >= 2, got {value!r}")
+        return value
+
+
+KLCount = Literal["rows", "maneuvers", "sqrt"]
+
+
+class TrainingConfig(_Section):
+    """How `activelearn.training.fit` trains a model."""
+
+    # Data term of the ELBO. "nll" = Gaussian NLL (the head's variance is learnt); "mse"/"mae" fit the
+    # mean only, as the reference study did (the head's scale then receives no gradient).
+    loss: Literal["nll", "mse", "mae"] = "nll"
+    optimizer: Literal["adam", "rmsprop", "sgd"] = "adam"
+    lr: float = 1e-3
+    momentum: float = 0.9
+    weight_decay: float = 0.0
+    epochs: int = 400
+    batch_size: int = 64
+    # Epochs without a better validation NLL before stopping; None trains all epochs.
+    patience: int | None = 60
+    # N in KL/N: "rows" = training rows, "maneuvers" = distinct `groups`, "sqrt" = √(rows × maneuvers),
+    # or a positive number used as is (without groups every row is its own maneuver). Default "sqrt",
+    # measured (experiments/model_selection.py klsize): held-out z spread before recalibration stays
+    # in 0.8-1.6 from 8 to 40 operating points and 60 to 600 rows per point, where "rows" drifts from
+    # 1.4 to 5.1 (overconfident as rows per maneuver grow) and "maneuvers" to 0.7 (underconfident).
+    kl_count: KLCount | float = "sqrt"
+    # Extra multiplier on KL/N (cold/warm posterior tempering); 1 is the plain ELBO.
+    kl_weight: float = 1.0
+    # Posterior samples used for the per-epoch validation metrics.
+    n_eval_samples: int = 16
+    # Fit `epistemic_scale` on the validation set after training ("validation"), or leave it at 1.
+    recalibrate: Literal["none", "validation"] = "none"
+    # Re-initialise the weights from `seed` before training (reproducible); False continues training.
+    reinit: bool = True
+    # Compile the whole training step (forward, backward, update) with torch.compile: ~5x faster per
+    # step, after a one-off compile of ~5-20 s. "auto" compiles fits of >= 40,000 steps.
+    compile: bool | Literal["auto"] = "auto"
+    # torch intra-op threads during fit (restored afterwards); these layers are too small to gain
+    # from more threads, and one thread avoids contention. None leaves torch's setting alone.
+    num_threads: int | None = 1
+
+    @field_validator("lr")
+    @classmethod
+    def _check_lr(cls, value: float) -> float:
+        if not value > 0:
+            raise ValueError(f"lr must be > 0, got {value!r}")
+        return value
+
+    @field_validator("momentum", "weight_decay", "kl_weight")
+    @classmethod
+    def _check_non_negative(cls, value: float, info) -> float:
+        if not value >= 0:
+            raise ValueError(f"{info.field_name} must be >= 0, got {value!r}")
+        return value
+
+    @field_validator("epochs", "batch_size", "n_eval_samples")
+    @classmethod
+    def _check_count(cls, value: int, info) -> int:
+        if value < 1:
+            raise ValueError(f"{info.field_name} must be >= 1, got {value!r}")
+        return value
+
+    @field_validator("num_threads")
+    @classmethod
+    def _check_threads(cls, value: int | None) -> int | None:
+        if value is not None and value < 1:
+            raise ValueError(f"num_threads must be >= 1 or None, got {value!r}")
+        return value
+
+    @field_validator("patience")
+    @classmethod
+    def _check_patience(cls, value: int | None) -> int | None:
+        if value is not None and value < 1:
+            raise ValueError(f"patience must be >= 1 or None, got {value!r}")
+        return value
+
+    @field_validator("kl_count")
+    @classmethod
+    def _check_kl_count(cls, value: str | float) -> str | float:
+        if isinstance(value, str):
+            return value
+        if not value > 0:
+            raise ValueError(f"kl_count must be 'rows', 'maneuvers', 'sqrt' or a number > 0, got {value!r}")
+        return float(value)
+
+
+# ----------------------------------------------------------------------------------- campaign sections
+# Shared constrained types: pydantic names the key and the bound in its error message.
+Count = Annotated[int, Field(ge=1)]
+Positive = Annotated[float, Field(gt=0)]
+NonNegative = Annotated[float, Field(ge=0)]
+Throttle = Annotated[float, Field(ge=-1.0, le=1.0)]
+Steering = Annotated[float, Field(ge=0.0, le=MAX_STEERING)]
+Kind = Literal["straight", "skidpad", "fishhook", "slalom", "eight"]
+Direction = Literal["ccw", "cw"]
+
+
+def _unique(values: list[Any], field: str) -> list[Any]:
+    if not values:
+        raise ValueError(f"{field} must not be empty")
+    if len(set(values)) != len(values):
+        raise ValueError(f"{field} has duplicates: {values}")
+    return values
+
+
+class PoolConfig(_Section):
+    """Candidate maneuvers: kinds × directions × an operating-point grid or a continuous range.
+
+    Give `throttles` and `steerings` for a grid, or `throttle_range`, `steering_range` and `size` for
+    a scrambled-Sobol set of operating points (seeded by `seed`, the same for every campaign seed).
+    Steering is the unsigned amplitude; `directions` carries the sign. Straight maneuvers have no
+    steering; fishhooks ramp to full lock, so they vary in throttle and direction only.
+    """
+
+    kinds: list[Kind] = ["skidpad"]
+    directions: list[Direction] = ["ccw", "cw"]
+    throttles: list[Throttle] | None = [0.2, 0.4, 0.6, 0.8, 1.0]
+    steerings: list[Steering] | None = [0.1047, 0.2094, 0.3142, 0.4189, 0.5236]
+    throttle_range: tuple[Throttle, Throttle] | None = None
+    steering_range: tuple[Steering, Steering] | None = None
+    size: Annotated[int, Field(ge=2)] | None = None
+    seed: int = 0
+    duration: Positive = 90.0
+    # Distance added between candidates of different kinds, in units of the [0, 1] operating-point cube.
+    kind_distance: NonNegative = 0.5
+
+    @field_validator("kinds", "directions", "throttles", "steerings")
+    @classmethod
+    def _non_empty_unique(cls, value: list[Any] | None, info: ValidationInfo) -> list[Any] | None:
+        return value if value is None else _unique(value, info.field_name)
+
+    @model_validator(mode="after")
+    def _grid_or_range(self) -> PoolConfig:
+        ranged = (self.throttle_range, self.steering_range, self.size)
+        if any(v is not None for v in ranged):
+            if any(v is None for v in ranged):
+                raise ValueError("a continuous pool needs throttle_range, steering_range and size together")
+            for name, (low, high) in (("throttle_range", self.throttle_range), ("steering_range", self.steering_range)):
+                if not low < high:
+                    raise ValueError(f"{name} must be [low, high] with low < high, got {[low, high]}")
+            # A continuous pool replaces the default grid.
+            object.__setattr__(self, "throttles", None)
+            object.__setattr__(self, "steerings", None)
+        elif self.throttles is None or self.steerings is None:
+            raise ValueError("give throttles and steerings (a grid) or throttle_range, steering_range and size")
+        return self
+
+
+class NoiseSettings(_Section):
+    """Sensor noise of the simulated logs (passed to `simulator.NoiseConfig`; None keeps its default)."""
+
+    enabled: bool = True
+    heteroscedastic: bool = True
+    speed: NonNegative | None = None
+    yaw_rate: NonNegative | None = None
+
+
+class SimulationConfig(_Section):
+    """How maneuvers are simulated and logged."""
+
+    rate_hz: Annotated[float, Field(gt=0, le=500)] = 30.0
+    threads: Count | None = None  # None: all cores
+    noise: NoiseSettings = NoiseSettings()
+
+
+class DataConfig(_Section):
+    """Which logged rows become training samples."""
+
+    # Keep every `stride`-th logged row: neighbouring rows at 30 Hz carry nearly the same information.
+    stride: Count = 10
+    # Drop each maneuver's first seconds: the start-up transient is not a function of the controls.
+    skip_seconds: NonNegative = 2.0
+    # Model inputs: the controls, or the controls and the previous rates (the Markov-state variant).
+    inputs: Literal["controls", "controls+rates"] = "controls"
+
+
+class DesignConfig(_Section):
+    """Initial design, batch size, budget and stop rule of the outer loop."""
+
+    initial: Count = 4
+    per_round: Count = 2
+    # Budget: the loop stops at the first limit reached (at least one must be given).
+    max_maneuvers: Count | None = 24
+    max_rounds: Count | None = None
+    max_sim_seconds: Positive | None = None
+    # Stop once the largest epistemic std over the pool falls below this (standardised units).
+    stop_epistemic_std: Positive | None = None
+
+    @model_validator(mode="after")
+    def _needs_budget(self) -> DesignConfig:
+        if self.max_maneuvers is None and self.max_rounds is None and self.max_sim_seconds is None:
+            raise ValueError("give a budget: max_maneuvers, max_rounds or max_sim_seconds")
+        if self.max_maneuvers is not None and self.max_maneuvers < self.initial:
+            raise ValueError(f"max_maneuvers ({self.max_maneuvers}) is below initial ({self.initial})")
+        return self
+
+
+class AcquisitionConfig(_Section):
+    """How uncertainty strategies score and batch candidates, and the evaluation grid."""
+
+    batch: Literal["fantasy", "penalty", "topk"] = "fantasy"
+    n_samples: Annotated[int, Field(ge=2)] = 64
+    fantasy_weight: Positive = 1.0
+    penalty_length: Positive = 0.15
+    # Points along each candidate's control sequence at which it is scored.
+    score_points: Count = 24
+    # Evaluation grid (throttle × signed steering): uncertainty metrics, maps, integrated variance.
+    grid_throttles: Annotated[int, Field(ge=2)] = 15
+    grid_steerings: Annotated[int, Field(ge=2)] = 15
+
+
+class TestSetConfig(_Section):
+    """The fixed test set: one grid of maneuvers shared by every strategy and seed of a config."""
+
+    __test__ = False  # not a pytest class
+
+    kinds: list[Kind] = ["skidpad"]
+    directions: list[Direction] = ["ccw", "cw"]
+    throttles: list[Throttle] = [0.3, 0.5, 0.7, 0.9]
+    steerings: list[Steering] = [0.05, 0.1571, 0.2618, 0.3665, 0.4712]
+    duration: Positive = 30.0
+    noise_seed: int = 1_000_003
+
+    @field_validator("kinds", "directions", "throttles", "steerings")
+    @classmethod
+    def _non_empty_unique(cls, value: list[Any], info: ValidationInfo) -> list[Any]:
+        return _unique(value, info.field_name)
+
+
+class TrackingConfig(_Section):
+    """Where MLflow writes."""
+
+    uri: str = "sqlite:///mlruns/mlflow.db"
+    experiment: str = "activelearn"
+    enabled: bool = True
+
+
+class CampaignConfig(_Section):
+    """A whole campaign: pool, simulation, data, design, acquisition, model, training, test set, tracking."""
+
+    name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")] = "campaign"
+    seed: Annotated[int, Field(ge=0)] = 0
+    strategy: str = "max_epistemic"
+    output_dir: str = "runs"
+    pool: PoolConfig = PoolConfig()
+    simulation: SimulationConfig = SimulationConfig()
+    data: DataConfig = DataConfig()
+    design: DesignConfig = DesignConfig()
+    acquisition: AcquisitionConfig = AcquisitionConfig()
+    model: ModelConfig = ModelConfig()
+    training: TrainingConfig = TrainingConfig()
+    test: TestSetConfig = TestSetConfig()
+    tracking: TrackingConfig = TrackingConfig()
+    # [tuning] (issue 5) is read by `activelearn tune` only; excluded from dumps, so campaign hashes,
+    # logged params and the configs sent to workers do not depend on it. Defined at the end of the file.
+    tuning: TuningConfig = Field(default_factory=lambda: TuningConfig(), exclude=True)
+
+    @field_validator("strategy")
+    @classmethod
+    def _check_strategy(cls, value: str) -> str:
+        from activelearn.acquisition import STRATEGIES  # acquisition does not import this module's users
+
+        if value not in STRATEGIES:
+            raise ValueError(f"unknown strategy {value!r}; choose from {', '.join(STRATEGIES)}")
+        return value
+
+    @model_validator(mode="after")
+    def _inputs_match_model(self) -> CampaignConfig:
+        expected = 4 if self.data.inputs == "controls+rates" else 2
+        if self.model.n_inputs != expected:
+            raise ValueError(f"model.n_inputs must be {expected} for data.inputs = {self.data.inputs!r}")
+        return self
+
+
+def _as_config_error(exc: ValidationError) -> ConfigError:
+    error = exc.errors()[0]
+    field = ".".join(str(p) for p in error["loc"]) or "config"
+    return ConfigError(field, error.get("input"), error["msg"].removeprefix("Value error, "))
+
+
+def _merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
+    merged = dict(base)
+    for key, value in override.items():
+        both_tables = isinstance(value, dict) and isinstance(merged.get(key), dict)
+        merged[key] = _merge(merged[key], value) if both_tables else value
+    return merged
+
+
+def read_toml(path: str | Path, field: str = "config") -> dict[str, Any]:
+    """Parse a TOML file; a missing file or a syntax error is a ConfigError naming `field`."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(field, str(path), "no such file")
+    try:
+        return tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(field, str(path), f"invalid TOML: {exc}") from None
+
+
+def validate_config(data: dict[str, Any]) -> CampaignConfig:
+    """Validate a config mapping, raising a ConfigError that names the first offending key."""
+    try:
+        return CampaignConfig.model_validate(data)
+    except ValidationError as exc:
+        raise _as_config_error(exc) from None
+
+
+def load_config(
+    path: str | Path, *, params: str | Path | None = None, overrides: dict[str, Any] | None = None
+) -> CampaignConfig:
+    """Load and validate a campaign config.
+
+    `params` is a TOML file of [model] and [training] tables (as `activelearn tune` writes them);
+    `overrides` (nested values from the command line) take precedence over both.
+    """
+    data = read_toml(path)
+    if params is not None:
+        extra = read_toml(params, "--params")
+        unknown = sorted(set(extra) - {"model", "training"})
+        if unknown:
+            raise ConfigError("--params", unknown, "only [model] and [training] tables are accepted")
+        data = _merge(data, extra)
+    data = _merge(data, overrides or {})
+    data.setdefault("name", Path(path).stem)
+    return validate_config(data)
+
+
+# ------------------------------------------------------------------------------------- tuning section
+# `activelearn tune` (issue 5): the search space and the study's settings. Appended after
+# CampaignConfig, which refers to TuningConfig by name (resolved by the model_rebuild at the end).
+
+SpaceKind = Literal["float", "int", "bool", "choice"]
+# Every tunable parameter: its kind and, for choices, the allowed values. Widths apply per hidden
+# layer: dense layers draw from `width`, variational ones from `variational_width` (a full-covariance
+# posterior costs O(p²) in a layer's parameter count p, so variational layers stay narrow by default).
+SPACE_PARAMS: dict[str, tuple[SpaceKind, tuple[Any, ...] | None]] = {
+    "lr": ("float", None),
+    "epochs": ("int", None),
+    "batch_size": ("int", None),
+    "activation": ("choice", ACTIVATIONS),
+    "optimizer": ("choice", ("sgd", "rmsprop", "adam")),
+    "loss": ("choice", ("nll", "mse", "mae")),
+    "posterior": ("choice", ("mean_field", "full_cov")),
+    "kl": ("choice", ("exact", "mc")),
+    "prior_scale": ("float", None),
+    "n_layers": ("int", None),
+    "width": ("int", None),
+    "variational_width": ("int", None),
+    "variational": ("bool", None),
+    "variational_head": ("bool", None),
+}
+# Upper bounds that keep a sampled network buildable and trainable in reasonable time.
+_SPACE_MAX = {"n_layers": 8, "width": 1024, "variational_width": 1024}
+
+
+class Range(_Section):
+    """A numeric interval of the search space: [low, high], optionally log-uniform or stepped."""
+
+    low: int | float
+    high: int | float
+    log: bool = False
+    step: float | None = None
+
+
+def _check_space_value(name: str, kind: SpaceKind, allowed: tuple[Any, ...] | None, value: Any) -> Any:
+    """Validate one fixed value or choice of parameter `name`; return it in its canonical type."""
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise ValueError(f"takes true/false, got {value!r}")
+        return value
+    if kind == "choice":
+        if value not in allowed:  # type: ignore[operator]
+            raise ValueError(f"unknown value {value!r}; choose from {', '.join(allowed)}")  # type: ignore[arg-type]
+        return value
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(f"takes a number, got {value!r}")
+    if kind == "int":
+        if value != int(value):
+            raise ValueError(f"takes whole numbers, got {value!r}")
+        value = int(value)
+        if value < 1:
+            raise ValueError(f"must be >= 1, got {value!r}")
+        if name in _SPACE_MAX and value > _SPACE_MAX[name]:
+            raise ValueError(f"must be <= {_SPACE_MAX[name]}, got {value!r}")
+        return value
+    if not value > 0:
+        raise ValueError(f"must be > 0, got {value!r}")
+    return float(value)
+
+
+def check_space_param(name: str, value: Any) -> Range | list[Any] | Any:
+    """Validate one search-space entry: a fixed value, a list of choices or a {low, high} range."""
+    kind, allowed = SPACE_PARAMS[name]
+    if isinstance(value, list | tuple):
+        if not value:
+            raise ValueError("empty list of choices")
+        choices = [_check_space_value(name, kind, allowed, v) for v in value]
+        if len(set(choices)) != len(choices):
+            raise ValueError(f"duplicate choices {choices}")
+        return choices
+    if isinstance(value, dict | Range):
+        if kind not in ("float", "int"):
+            raise ValueError("takes a value or a list of choices, not a range")
+        try:
+            rng = Range.model_validate(value if isinstance(value, dict) else value.model_dump())
+        except ValidationError as exc:
+            error = exc.errors()[0]
+            where = ".".join(str(p) for p in error["loc"])
+            raise ValueError(f"range {where}: {error['msg']}") from None
+        low = _check_space_value(name, kind, allowed, rng.low)
+        high = _check_space_value(name, kind, allowed, rng.high)
+        if low > high:
+            raise ValueError(f"empty range: low ({low!r}) > high ({high!r})")
+        if rng.step is not None:
+            if not rng.step > 0:
+                raise ValueError(f"step must be > 0, got {rng.step!r}")
+            if rng.log:
+                raise ValueError("a range is either log or stepped, not both")
+            if kind == "int" and rng.step != int(rng.step):
+                raise ValueError(f"step must be a whole number, got {rng.step!r}")
+        return Range(low=low, high=high, log=rng.log, step=rng.step)
+    return _check_space_value(name, kind, allowed, value)
+
+
+class SearchSpace(_Section):
+    """What `activelearn tune` samples: per parameter a fixed value, a list of choices or a range.
+
+    TOML forms: `optimizer = "adam"` (fixed), `activation = ["relu", "elu"]` (choices),
+    `lr = { low = 1e-4, high = 1e-1, log = true }` or `epochs = { low = 20, high = 200, step = 10 }`.
+    The network has `n_layers` hidden layers; each is variational or dense (`variational`), with a
+    width from `variational_width` or `width`; `variational_head` makes the output layer variational.
+    """
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, validate_default=True)
+
+    lr: Any = Range(low=1e-4, high=1e-1, log=True)
+    epochs: Any = Range(low=20, high=200, step=10)
+    batch_size: Any = [16, 32, 64, 128, 256]
+    activation: Any = list(ACTIVATIONS)
+    optimizer: Any = ["sgd", "rmsprop", "adam"]
+    loss: Any = ["nll", "mse", "mae"]
+    posterior: Any = ["mean_field", "full_cov"]
+    kl: Any = ["exact", "mc"]
+    prior_scale: Any = Range(low=0.1, high=10.0, log=True)
+    n_layers: Any = Range(low=1, high=4)
+    width: Any = [8, 16, 32, 64]
+    variational_width: Any = [4, 8, 16]
+    variational: Any = [False, True]
+    # The read-out is variational by default: the model then always has epistemic uncertainty.
+    variational_head: Any = True
+
+    @field_validator("*")
+    @classmethod
+    def _check_param(cls, value: Any, info: ValidationInfo) -> Any:
+        return check_space_param(info.field_name, value)  # type: ignore[arg-type]
+
+
+class TuningConfig(_Section):
+    """`activelearn tune`: the search space, the validation split and the pruner/sampler settings."""
+
+    space: SearchSpace = SearchSpace()
+    # Share of operating points (whole maneuvers) held out for validation.
+    val_fraction: Annotated[float, Field(gt=0, lt=1)] = 0.2
+    # TPE samples at random for its first trials of each run, then models the good region.
+    sampler_startup_trials: Annotated[int, Field(ge=0)] = 10
+    # MedianPruner: prune only once this many trials completed, and never before this epoch.
+    pruner_startup_trials: Annotated[int, Field(ge=0)] = 5
+    pruner_warmup_epochs: Annotated[int, Field(ge=0)] = 10
+    # HyperbandPruner: the fewest epochs a trial runs before it can be stopped.
+    hyperband_min_epochs: Count = 5
+    # Every trial is a new architecture: compiling would cost more than it saves (see training.py).
+    compile: bool = False
+
+
+CampaignConfig.model_rebuild()

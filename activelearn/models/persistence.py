@@ -1,0 +1,54 @@
+"""Save and load models as a config + state-dict file (no pickled code, `weights_only` safe)."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import torch
+
+from activelearn.config import ModelConfig
+from activelearn.errors import DataFormatError
+from activelearn.models.base import Model
+
+FORMAT_VERSION = 1
+
+
+def save_model(model: Model, path: str | Path) -> None:
+    """Write the model's config, scalers, epistemic scale and weights to `path` atomically."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "format_version": FORMAT_VERSION,
+        "kind": model.kind,
+        "config": model.config.model_dump(mode="json"),
+        "state_dict": {k: v.detach().clone() for k, v in model.state_dict().items()},
+    }
+    # Write to a temporary name in the same directory, then rename: readers never see half a file.
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    os.close(fd)
+    try:
+        torch.save(payload, tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def load_model(path: str | Path) -> Model:
+    """Rebuild a model written by `save_model` / `Model.save`."""
+    from activelearn.models.networks import build_model
+
+    try:
+        payload = torch.load(Path(path), map_location="cpu", weights_only=True)
+    except FileNotFoundError:
+        raise
+    except Exception as exc:
+        raise DataFormatError(f"{path}: not a saved activelearn model ({exc})") from exc
+    if not isinstance(payload, dict) or payload.get("format_version") != FORMAT_VERSION:
+        raise DataFormatError(f"{path}: unknown model file format")
+    model = build_model(ModelConfig(**payload["config"]))  # weights replaced below
+    model.load_state_dict(payload["state_dict"])
+    model.eval()
+    return model

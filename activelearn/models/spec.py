@@ -1,0 +1,64 @@
+"""Architecture spec strings: `V8:sigmoid-D32-D32-D8-V` and named presets."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from activelearn.config import ACTIVATIONS, ARCH_PRESETS
+
+_TOKEN = re.compile(r"^(?P<kind>[VD])(?P<width>\d+)?(?::(?P<act>[a-z]+))?$")
+
+
+@dataclass(frozen=True)
+class LayerSpec:
+    """One layer of a spec: variational or dense, width (None = head layer), activation (None = default)."""
+
+    variational: bool
+    width: int | None
+    activation: str | None
+
+
+def resolve_arch(arch: str) -> str:
+    """Return the spec string of a preset name, or `arch` itself when it is already a spec."""
+    return ARCH_PRESETS.get(arch, arch)
+
+
+def parse_arch(arch: str) -> list[LayerSpec]:
+    """Parse a spec string or preset name into layers; raise ValueError naming the bad token."""
+    spec = resolve_arch(arch.strip())
+    tokens = spec.split("-")
+    if not tokens or tokens == [""]:
+        raise ValueError(f"empty architecture {arch!r}")
+    layers: list[LayerSpec] = []
+    for i, token in enumerate(tokens):
+        m = _TOKEN.match(token.strip())
+        if m is None:
+            raise ValueError(
+                f"bad token {token!r} in {arch!r}: expected V or D, an optional width and ':activation'"
+                f" (presets: {', '.join(ARCH_PRESETS)})"
+            )
+        width = int(m["width"]) if m["width"] else None
+        act = m["act"]
+        last = i == len(tokens) - 1
+        if act is not None and act not in ACTIVATIONS:
+            raise ValueError(f"unknown activation {act!r} in token {token!r}; choose from {ACTIVATIONS}")
+        if last and (width is not None or act is not None):
+            raise ValueError(
+                f"the last token {token!r} feeds the Gaussian head: give it no width or activation"
+            )
+        if not last and (width is None or width < 1):
+            raise ValueError(f"hidden token {token!r} needs a width >= 1")
+        layers.append(LayerSpec(m["kind"] == "V", width, act))
+    return layers
+
+
+def format_arch(layers: list[LayerSpec]) -> str:
+    """Inverse of `parse_arch` (activations written explicitly when set)."""
+    out = []
+    for layer in layers:
+        tok = ("V" if layer.variational else "D") + (str(layer.width) if layer.width is not None else "")
+        if layer.activation:
+            tok += f":{layer.activation}"
+        out.append(tok)
+    return "-".join(out)

@@ -1,0 +1,196 @@
+"""fit(): ELBO terms, KL counting, optimizers, early stopping, callbacks, reproducibility, compile."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from activelearn import synthetic as syn
+from activelearn.config import ModelConfig, TrainingConfig
+from activelearn.errors import InputError
+from activelearn.models import build_model
+from activelearn.training import History, fit, kl_count_value
+from activelearn.uncertainty import rmse
+
+FAST = {"epochs": 3, "batch_size": 64, "patience": None}
+
+
+@pytest.fixture(scope="module")
+def data():
+    x, y, groups = syn.repeated_rows(syn.random_points(12, seed=0), 40, seed=1)
+    return x, y, groups
+
+
+def _weights(model) -> torch.Tensor:
+    return torch.cat([p.detach().reshape(-1) for p in model.parameters()])
+
+
+def test_same_seed_same_weights_and_global_rng_untouched(data):
+    x, y, _ = data
+    cfg = TrainingConfig(**FAST)
+    torch.manual_seed(123)
+    before = torch.random.get_rng_state()
+    a, b, c = (build_model(ModelConfig(arch="D8-V8-V"), seed=s) for s in (0, 1, 2))
+    fit(a, x, y, cfg, seed=7)
+    fit(b, x, y, cfg, seed=7)  # different initial weights: reinit from the fit seed
+    fit(c, x, y, cfg, seed=8)
+    torch.testing.assert_close(_weights(a), _weights(b), rtol=0, atol=0)
+    assert not torch.equal(_weights(a), _weights(c))
+    assert torch.equal(torch.random.get_rng_state(), before)
+
+
+def test_fit_reduces_loss_and_learns_the_map(data):
+    x, y, _ = data
+    m = build_model(ModelConfig(arch="D16-V16-V"))
+    h = fit(m, x, y, TrainingConfig(epochs=25, batch_size=32, patience=None))
+    assert isinstance(h, History) and h.n_epochs == 25 and h.best_epoch == 24
+    assert h.train_loss[-1] < h.train_loss[0]
+    assert len(h.kl) == 25 and all(k > 0 for k in h.kl)
+    pts = syn.random_points(50, seed=5)
+    assert rmse(syn.steady_state(pts), m.predict(pts)) < 0.05
+
+
+def test_kl_count_values():
+    groups = np.repeat(np.arange(4), 25)
+    assert kl_count_value("rows", 100, None) == 100
+    assert kl_count_value("maneuvers", 100, groups) == 4
+    assert kl_count_value("sqrt", 100, groups) == pytest.approx(20.0)
+    assert kl_count_value(12.5, 100, None) == 12.5
+    # Without groups each row is its own maneuver.
+    assert kl_count_value("maneuvers", 100, None) == kl_count_value("sqrt", 100, None) == 100
+
+
+def test_kl_count_changes_the_loss(data):
+    x, y, groups = data
+    losses = {}
+    for count in ("rows", "maneuvers"):
+        m = build_model(ModelConfig(arch="D8-V8-V"))
+        h = fit(m, x, y, TrainingConfig(**{**FAST, "epochs": 1, "kl_count": count}), groups=groups)
+        losses[count] = h.train_loss[0] - h.train_data[0]  # the KL/N part
+        assert h.kl_count == (len(x) if count == "rows" else 12)
+    # Fewer "pieces of evidence" → the KL weighs len(x)/12 = 40x more per row.
+    assert losses["maneuvers"] > 20 * losses["rows"]
+
+
+@pytest.mark.parametrize("loss", ["nll", "mse", "mae"])
+@pytest.mark.parametrize("optimizer", ["adam", "rmsprop", "sgd"])
+def test_losses_and_optimizers_train(data, loss, optimizer):
+    x, y, _ = data
+    m = build_model(ModelConfig(arch="D8-V8-V"))
+    lr = 1e-2
+    h = fit(
+        m, x, y, TrainingConfig(epochs=6, batch_size=32, patience=None, loss=loss, optimizer=optimizer, lr=lr)
+    )
+    assert all(math.isfinite(v) for v in h.train_loss)
+    assert h.train_data[-1] < h.train_data[0]
+
+
+def test_early_stopping_restores_the_best_epoch(data):
+    x, y, _ = data
+    xv, yv, _ = syn.repeated_rows(syn.random_points(6, seed=9), 20, seed=2)
+    m = build_model(ModelConfig(arch="D16-V16-V"))
+    # A large learning rate makes validation NLL bounce, so the last epoch is rarely the best.
+    cfg = TrainingConfig(epochs=40, batch_size=16, patience=4, lr=0.05, n_eval_samples=8)
+    h = fit(m, x, y, cfg, x_val=xv, y_val=yv)
+    assert len(h.val_nll) == h.n_epochs and len(h.val_rmse) == h.n_epochs
+    assert h.best_epoch == int(np.argmin(h.val_nll))
+    if h.stopped_early:
+        assert h.n_epochs == h.best_epoch + 1 + 4
+    from activelearn.training import _validate
+
+    val_nll, _ = _validate(m, xv, yv, 8, 0)
+    assert val_nll == pytest.approx(h.val_nll[h.best_epoch], rel=1e-5)
+
+
+def test_callback_sees_metrics_and_can_stop(data):
+    x, y, _ = data
+    xv, yv = x[:50], y[:50]
+    seen = []
+
+    def cb(epoch, metrics):
+        seen.append((epoch, metrics))
+        return epoch == 2
+
+    h = fit(build_model(ModelConfig(arch="D8-V8-V")), x, y, TrainingConfig(**{**FAST, "epochs": 10}),
+            x_val=xv, y_val=yv, callback=cb)  # fmt: skip
+    assert [e for e, _ in seen] == [0, 1, 2] and h.n_epochs == 3
+    assert {"train_loss", "val_nll", "val_rmse", "kl", "epoch_time"} <= set(seen[0][1])
+
+
+def test_callback_exceptions_propagate(data):
+    x, y, _ = data
+
+    class Pruned(Exception):
+        pass
+
+    def cb(epoch, metrics):
+        raise Pruned
+
+    with pytest.raises(Pruned):
+        fit(build_model(ModelConfig(arch="D8-V8-V")), x, y, TrainingConfig(**FAST), callback=cb)
+
+
+def test_bad_inputs_name_the_field(data):
+    x, y, groups = data
+    m = build_model(ModelConfig())
+    with pytest.raises(InputError, match=r"^x:"):
+        fit(m, x[:, :1], y, TrainingConfig(**FAST))
+    with pytest.raises(InputError, match=r"^y:"):
+        fit(m, x, y[:-1], TrainingConfig(**FAST))
+    with pytest.raises(InputError, match="groups"):
+        fit(m, x, y, TrainingConfig(**FAST), groups=groups[:-1])
+    with pytest.raises(InputError, match="recalibrate"):
+        fit(m, x, y, TrainingConfig(**FAST, recalibrate="validation"))
+    bad = y.copy()
+    bad[0, 0] = np.nan
+    with pytest.raises(InputError):
+        fit(m, x, bad, TrainingConfig(**FAST))
+
+
+def test_recalibrate_on_validation(data):
+    x, y, _ = data
+    xv, yv, gv = syn.repeated_rows(syn.random_points(8, seed=3), 30, seed=4)
+    m = build_model(ModelConfig(arch="D8-V8-V"))
+    h = fit(m, x, y, TrainingConfig(**FAST, recalibrate="validation"), x_val=xv, y_val=yv, groups_val=gv)
+    assert h.epistemic_scale == pytest.approx(float(m.epistemic_scale)) and h.epistemic_scale > 0
+
+
+def test_ensemble_members_train_independently(data):
+    x, y, _ = data
+    m = build_model(ModelConfig(kind="ensemble", arch="D8-D", ensemble_size=3))
+    fit(m, x, y, TrainingConfig(**FAST))
+    w = m.layers[0].weight
+    assert not torch.allclose(w[0], w[1])
+    assert m.predict(x[:10]).epistemic_var.min() > 0
+
+
+def test_compiled_step_computes_what_the_eager_step_computes(data):
+    """The fused, compiled training step matches torch.optim's update (a deterministic PNN)."""
+    x, y, _ = data
+    weights = []
+    for compiled in (False, True):
+        m = build_model(ModelConfig(kind="pnn", arch="D8-D"))
+        fit(
+            m,
+            x,
+            y,
+            TrainingConfig(epochs=2, batch_size=100, patience=None, compile=compiled, weight_decay=1e-3),
+        )
+        weights.append(_weights(m))
+    torch.testing.assert_close(weights[0], weights[1], rtol=1e-4, atol=1e-5)
+    assert not torch.equal(weights[0], _weights(build_model(ModelConfig(kind="pnn", arch="D8-D"))))
+
+
+def test_compiled_hybrid_training_is_reproducible(data):
+    """The compiled path draws its training noise from the seeded RNG too: same seed, same weights."""
+    x, y, _ = data
+    weights = []
+    for seed in (0, 0, 1):
+        m = build_model(ModelConfig(arch="D8-V8-V"))
+        fit(m, x, y, TrainingConfig(epochs=2, batch_size=64, patience=None, compile=True), seed=seed)
+        weights.append(_weights(m))
+    assert torch.equal(weights[0], weights[1])
+    assert not torch.equal(weights[0], weights[2])
