@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import torch
 
 from activelearn import uncertainty
 from activelearn.acquisition import Pool, Strategy, greedy_maximin, make_strategy
@@ -41,7 +42,9 @@ from activelearn.data import atomic_write_bytes, read_table, write_table
 from activelearn.errors import ActiveLearnError, InputError
 from activelearn.models import Prediction, build_model, load_model
 from activelearn.pool import build_pool, evaluation_grid, pool_maneuvers, test_maneuvers
+from activelearn.surrogate import model_inputs
 from activelearn.training import fit
+from activelearn.uncertainty import recalibrate_epistemic
 
 STATE_FILE = "state.json"
 SAMPLES_FILE = "samples.parquet"
@@ -191,22 +194,56 @@ class Campaign:
         x, y = arrays(rows, self.cfg.data)
         return x, y, rows["pool_index"].to_numpy()
 
-    def pool(self, taken: list[int]) -> Pool:
-        """The candidate pool with `taken` marked as collected."""
+    def pool(self, taken: list[int], model: Any | None = None) -> Pool:
+        """The candidate pool with `taken` marked as collected, its points as `model` inputs."""
         mask = np.zeros(len(self.maneuvers), dtype=bool)
         mask[taken] = True
-        return build_pool(
+        pool = build_pool(
             self.cfg, self.maneuvers, mask, self.test_set.scale, self.rows_per_maneuver, self.cfg.seed
+        )
+        if model is None or model.n_inputs == pool.points.shape[1]:
+            return pool
+        return dataclasses.replace(
+            pool, points=model_inputs(model, pool.points), eval_grid=model_inputs(model, pool.eval_grid)
         )
 
     # ------------------------------------------------------------------ model
 
-    def fit_model(self, samples: pd.DataFrame, round_index: int) -> Any:
-        """Train a fresh model on all samples, seeded by (seed, round)."""
+    def fit_model(self, samples: pd.DataFrame, round_index: int, epistemic_scale: float = 1.0) -> Any:
+        """Train a fresh model on all samples, seeded by (seed, round), with a given epistemic scale."""
         x, y, groups = self._training_data(samples)
         model = build_model(self.cfg.model)
         fit(model, x, y, self.cfg.training, groups=groups, seed=self.cfg.seed * 10_007 + round_index)
+        with torch.no_grad():
+            model.epistemic_scale.fill_(epistemic_scale)
         return model
+
+    def prequential_scale(self, model: Any, new_samples: pd.DataFrame) -> float:
+        """Epistemic scale that would have calibrated `model` on the maneuvers collected after it.
+
+        Those maneuvers were not in the model's training data, so they are honest held-out operating
+        points. Rows with the same controls in one maneuver are averaged (steady maneuvers become one
+        nearly noise-free target); the rest keep their aleatoric variance in the likelihood.
+        """
+        x, y, pool_index = self._training_data(new_samples)
+        keys = np.column_stack([pool_index, np.round(x[:, :2], 4)])
+        _, groups = np.unique(keys, axis=0, return_inverse=True)
+        previous = float(model.epistemic_scale)
+        scale = recalibrate_epistemic(model, x, y, groups=groups.ravel(), n_samples=EVAL_SAMPLES)
+        with torch.no_grad():
+            model.epistemic_scale.fill_(previous)  # the checkpointed model keeps the scale it was used with
+        return scale
+
+    def _applied_scale(self, state: CampaignState) -> float:
+        """Geometric mean of the last two prequential scales (1 before any was measured).
+
+        Only recent rounds count: a model trained on few maneuvers errs far more between its points
+        than one trained on many, so old scales would inflate the variance of later models.
+        """
+        if self.cfg.design.recalibrate == "none":
+            return 1.0
+        scales = [r["prequential_scale"] for r in state.rounds if "prequential_scale" in r][-2:]
+        return float(np.exp(np.mean(np.log(scales)))) if scales else 1.0
 
     def evaluate(self, model: Any) -> dict[str, float]:
         """Test-set accuracy and calibration, and uncertainty over the evaluation grid."""
@@ -226,7 +263,9 @@ class Campaign:
         diag = uncertainty.epistemic_diagnostic(clean, std_pred)
         metrics.update({f"calib_{k}": float(v) for k, v in diag.items() if np.isscalar(v)})
         _, _, grid = evaluation_grid(self.cfg)
-        grid_pred = _standardise(model.predict(grid, n_samples=EVAL_SAMPLES, seed=0), test.scale)
+        grid_pred = _standardise(
+            model.predict(model_inputs(model, grid), n_samples=EVAL_SAMPLES, seed=0), test.scale
+        )
         epi = np.sqrt(grid_pred.epistemic_var).mean(axis=1)
         metrics["epistemic_std_mean"] = float(epi.mean())
         metrics["epistemic_std_max"] = float(epi.max())
@@ -330,7 +369,9 @@ class Campaign:
         from activelearn.plots import epistemic_map  # matplotlib only when figures are drawn
 
         throttles, steerings, grid = evaluation_grid(self.cfg)
-        pred = _standardise(model.predict(grid, n_samples=EVAL_SAMPLES, seed=0), self.test_set.scale)
+        pred = _standardise(
+            model.predict(model_inputs(model, grid), n_samples=EVAL_SAMPLES, seed=0), self.test_set.scale
+        )
         std = np.sqrt(pred.epistemic_var).mean(axis=1).reshape(len(throttles), len(steerings))
         fig = epistemic_map(
             throttles,
@@ -366,15 +407,20 @@ class Campaign:
             while not state.finished:
                 round_index = len(state.rounds)
                 self.progress({"event": "fit", "round": round_index, "n_maneuvers": len(state.taken)})
-                model = self.fit_model(samples, round_index)
+                scale = self._applied_scale(state)
+                model = self.fit_model(samples, round_index, scale)
                 x, _, _ = self._training_data(samples)
-                metrics: dict[str, Any] = {"round": round_index, **self.evaluate(model)}
+                metrics: dict[str, Any] = {
+                    "round": round_index,
+                    "epistemic_scale": scale,
+                    **self.evaluate(model),
+                }
                 metrics.update(
                     n_samples=len(x),
                     n_maneuvers=len(state.taken),
                     sim_seconds=self._sim_seconds(state.taken),
                 )
-                pool = self.pool(state.taken)
+                pool = self.pool(state.taken, model)
                 k, reason = self.next_batch_size(state)
                 if reason is None and self.cfg.design.stop_epistemic_std is not None:
                     metrics["pool_epistemic_std_max"] = self.pool_epistemic_max(model, pool)
@@ -386,9 +432,10 @@ class Campaign:
                 if figures:
                     self._figure(model, state, picks, round_index)
                 if picks:
-                    samples = pd.concat(
-                        [samples, self._collect(picks, len(state.batches))], ignore_index=True
-                    )
+                    new = self._collect(picks, len(state.batches))
+                    if self.cfg.design.recalibrate == "prequential" and model.has_epistemic:
+                        metrics["prequential_scale"] = self.prequential_scale(model, new)
+                    samples = pd.concat([samples, new], ignore_index=True)
                     state.batches.append(picks)
                 metrics["wall_seconds"] = base_wall + time.perf_counter() - started
                 state.wall_seconds = metrics["wall_seconds"]

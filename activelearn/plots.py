@@ -150,3 +150,47 @@ def comparison_figure(
     axes[0].legend(fontsize=8)
     fig.suptitle(title or "strategy comparison")
     return fig
+
+
+# ------------------------------------------------------------------------------------ surrogate figure
+
+
+def surrogate_figure(rollout: Any, index: int, truth: pd.DataFrame, *, title: str = "") -> Figure:
+    """Surrogate against ground truth for one maneuver: path fan, v(t) and ω(t) with 50/95% bands.
+
+    The path panel draws every sampled trajectory faintly (one posterior draw each), the mean path
+    and the true path; the rate panels shade the 95% and 50% bands over samples.
+    """
+    n = int(rollout.lengths[index])
+    t = rollout.time[:n]
+    fig = _new_figure(13.0, 6.5)
+    grid = fig.add_gridspec(2, 2, width_ratios=(1.0, 1.3))
+    ax_xy = fig.add_subplot(grid[:, 0])
+    x0, y0, yaw0 = (truth[c].to_numpy()[0] for c in ("posX", "posY", "yaw"))
+    dx, dy = truth["posX"].to_numpy()[:n] - x0, truth["posY"].to_numpy()[:n] - y0
+    c, s = np.cos(-yaw0), np.sin(-yaw0)
+    for k in range(rollout.x.shape[0]):
+        ax_xy.plot(rollout.x[k, index, :n], rollout.y[k, index, :n], color="C0", alpha=0.12, linewidth=0.8)
+    mx, my = rollout.mean_path()
+    ax_xy.plot(mx[index, :n], my[index, :n], color="C0", linewidth=2.0, label="surrogate mean")
+    ax_xy.plot(c * dx - s * dy, s * dx + c * dy, color="black", linewidth=1.5, linestyle="--", label="MuJoCo")
+    ax_xy.plot([], [], color="C0", alpha=0.3, label=f"{rollout.x.shape[0]} sampled paths")
+    ax_xy.set_aspect("equal", adjustable="datalim")
+    ax_xy.set_xlabel("x (m, start frame)")
+    ax_xy.set_ylabel("y (m)")
+    ax_xy.legend(fontsize=8)
+    for row, (name, column, label) in enumerate((("v", "speed", "v (m/s)"), ("w", "angZ", "ω (rad/s)"))):
+        ax = fig.add_subplot(grid[row, 1])
+        q = rollout.quantiles(name)[:, index, :n]
+        ax.fill_between(t, q[0], q[4], color="C0", alpha=0.18, label="95% band")
+        ax.fill_between(t, q[1], q[3], color="C0", alpha=0.35, label="50% band")
+        ax.plot(t, rollout.mean_rates[index, :n, row], color="C0", linewidth=1.4, label="surrogate mean")
+        ax.plot(t, truth[column].to_numpy()[:n], color="black", linewidth=0.9, label="MuJoCo")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+        if row == 0:
+            ax.legend(fontsize=8, ncols=4)
+        else:
+            ax.set_xlabel("time (s)")
+    fig.suptitle(title)
+    return fig

@@ -335,6 +335,8 @@ def _fit(
 
     for epoch in range(config.epochs):
         t0 = time.perf_counter()
+        if config.lr_schedule == "cosine":
+            stepper.set_lr(config.lr * (0.01 + 0.99 * 0.5 * (1.0 + math.cos(math.pi * epoch / config.epochs))))
         train_loss, train_data = stepper.epoch(xs, ys, gen)
         metrics: dict[str, float] = {"train_loss": train_loss, "train_data": train_data}
         with torch.no_grad():
@@ -392,6 +394,13 @@ class _Stepper:
         self.variational = kl_weight > 0 and _is_variational(model)
         self.flat = _FlatTrainer(model, config, kl_weight, compiled=True) if use_compile else None
         self.opt = _optimizer([p for p in model.parameters() if p.requires_grad], config)
+
+    def set_lr(self, lr: float) -> None:
+        """Change the learning rate of the next steps (both step paths)."""
+        for group in self.opt.param_groups:
+            group["lr"] = lr
+        if self.flat is not None:
+            self.flat.hp[0] = lr
 
     def _eager_step(self, xb: Tensor, yb: Tensor) -> tuple[Tensor, Tensor]:
         loss, data = _elbo(self.model, xb, yb, self.config.loss, self.kl_weight, self.variational)

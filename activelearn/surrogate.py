@@ -1,0 +1,293 @@
+"""Forward simulation with a trained surrogate: rates with uncertainty, integrated to a pose, with fans.
+
+Given control sequences (throttle, signed steering) at the log rate, the surrogate predicts forward
+speed v and yaw rate ω at every step and integrates the planar pose
+
+    x' = v cos ψ,   y' = v sin ψ,   ψ' = ω.
+
+Uncertainty fans come from S sampled trajectories. Each trajectory keeps ONE posterior weight draw
+for its whole length (so a path is what one plausible model would do, not a zig-zag between
+models), and adds aleatoric noise at every step.
+
+Two model variants:
+  * static ("controls"): rates are a function of the current controls. Nothing depends on the past,
+    so every step of every maneuver is evaluated in one vectorised pass (identical control rows are
+    evaluated once: skidpads, straights and eights repeat a handful of rows thousands of times).
+  * Markov ("controls+rates", model.n_inputs == 4): rates also depend on the previous rates. The
+    rollout is sequential in time but batched over maneuvers and samples; each trajectory feeds its
+    own sampled rates back in, so the fans propagate the uncertainty.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from activelearn.errors import InputError
+from simulator import Maneuver, nominal_controls
+
+N_CONTROLS = 2
+BANDS = (0.025, 0.25, 0.5, 0.75, 0.975)  # quantiles of the 95% and 50% bands and the median
+
+
+@dataclass(frozen=True)
+class Rollout:
+    """Sampled surrogate trajectories of M maneuvers over T steps with S samples.
+
+    Arrays are (S, M, T): `v`, `w` (sampled rates, aleatoric noise included), `x`, `y`, `yaw`
+    (integrated pose). `mean_v`, `mean_w`, `epistemic_var`, `aleatoric_var` are (M, T, 2)-style
+    summaries of the predictive distribution at each step (no noise sampling). `lengths` gives each
+    maneuver's number of valid steps (shorter maneuvers are padded by repeating their last control).
+    """
+
+    dt: float
+    v: np.ndarray
+    w: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    yaw: np.ndarray
+    mean_rates: np.ndarray  # (M, T, 2) predictive mean of (v, ω)
+    aleatoric_var: np.ndarray  # (M, T, 2)
+    epistemic_var: np.ndarray  # (M, T, 2)
+    lengths: np.ndarray
+
+    @property
+    def time(self) -> np.ndarray:
+        """(T,) seconds since the start."""
+        return np.arange(self.v.shape[-1]) * self.dt
+
+    def quantiles(self, name: str) -> np.ndarray:
+        """(5, M, T) quantiles 2.5, 25, 50, 75, 97.5 % over samples of `v`, `w`, `x`, `y` or `yaw`."""
+        return np.quantile(getattr(self, name), BANDS, axis=0)
+
+    def mean_path(self) -> tuple[np.ndarray, np.ndarray]:
+        """(M, T) mean x and y over samples."""
+        return self.x.mean(axis=0), self.y.mean(axis=0)
+
+
+def controls_for(maneuvers: Sequence[Maneuver], rate_hz: float) -> list[np.ndarray]:
+    """The (T, 2) control sequence each maneuver applies at `rate_hz`."""
+    return [nominal_controls(m, rate_hz) for m in maneuvers]
+
+
+def _stack(controls: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Pad control sequences to one (M, T, 2) array by repeating each last row; return it and lengths."""
+    if not controls:
+        raise InputError("controls", 0, "give at least one control sequence")
+    lengths = np.array([len(c) for c in controls])
+    if lengths.min() < 1:
+        raise InputError("controls", int(lengths.min()), "every control sequence needs at least one step")
+    out = np.empty((len(controls), int(lengths.max()), N_CONTROLS))
+    for i, c in enumerate(controls):
+        c = np.asarray(c, dtype=np.float64)
+        if c.ndim != 2 or c.shape[1] != N_CONTROLS:
+            raise InputError("controls", c.shape, "each control sequence must have shape (T, 2)")
+        if not np.isfinite(c).all():
+            raise InputError("controls", i, "control sequences must be finite")
+        out[i, : len(c)] = c
+        out[i, len(c) :] = c[-1]
+    return out, lengths
+
+
+def _integrate(v: np.ndarray, w: np.ndarray, dt: float, yaw0: np.ndarray | float = 0.0):
+    """Planar pose from rates (..., T): ψ_{k+1} = ψ_k + ω_k dt, position by the heading at step start."""
+
+    def shifted_cumsum(rate: np.ndarray) -> np.ndarray:  # value before step k: sum of steps 0..k-1
+        return np.concatenate([np.zeros((*rate.shape[:-1], 1)), np.cumsum(rate[..., :-1], axis=-1) * dt], -1)
+
+    yaw = np.asarray(yaw0)[..., None] + shifted_cumsum(w)
+    return shifted_cumsum(v * np.cos(yaw)), shifted_cumsum(v * np.sin(yaw)), yaw
+
+
+def _static_moments(model, controls: np.ndarray, n_samples: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(S, M, T, 2) means and variances of a static model, each distinct control row evaluated once."""
+    flat = controls.reshape(-1, N_CONTROLS)
+    unique, inverse = np.unique(flat, axis=0, return_inverse=True)
+    means, variances = model.draw(n_samples, seed=seed)(unique.astype(np.float32))
+    shape = (n_samples, *controls.shape[:2], -1)
+    return means[:, inverse.ravel()].reshape(shape), variances[:, inverse.ravel()].reshape(shape)
+
+
+def simulate(
+    model,
+    controls: Sequence[np.ndarray],
+    *,
+    rate_hz: float = 30.0,
+    n_samples: int = 32,
+    seed: int = 0,
+    initial_rates: np.ndarray | None = None,
+    initial_yaw: np.ndarray | float = 0.0,
+) -> Rollout:
+    """Forward-simulate `model` along control sequences (each (T, 2) at `rate_hz`) with S samples.
+
+    `initial_rates` (M, 2) seeds the Markov variant's previous rates (default: standing still).
+    """
+    if n_samples < 2:
+        raise InputError("n_samples", n_samples, "must be at least 2 to form bands")
+    if not rate_hz > 0:
+        raise InputError("rate_hz", rate_hz, "must be positive")
+    stacked, lengths = _stack(controls)
+    dt = 1.0 / rate_hz
+    rng = np.random.default_rng(seed)
+    n_inputs = int(model.n_inputs)
+    if n_inputs == N_CONTROLS:
+        means, variances = _static_moments(model, stacked, n_samples, seed)
+        noise = rng.standard_normal(means.shape)
+        sampled = means + noise * np.sqrt(variances)
+    elif n_inputs == N_CONTROLS + 2:
+        means, variances, sampled = _markov_rollout(model, stacked, n_samples, seed, rng, initial_rates)
+    else:
+        raise InputError(
+            "model.n_inputs", n_inputs, "the surrogate needs 2 (controls) or 4 (controls + rates)"
+        )
+    v, w = sampled[..., 0], sampled[..., 1]
+    x, y, yaw = _integrate(v, w, dt, initial_yaw)
+    mean_rates = means.mean(axis=0)
+    return Rollout(
+        dt=dt,
+        v=v,
+        w=w,
+        x=x,
+        y=y,
+        yaw=yaw,
+        mean_rates=mean_rates,
+        aleatoric_var=variances.mean(axis=0),
+        epistemic_var=means.var(axis=0),
+        lengths=lengths,
+    )
+
+
+def _markov_rollout(model, controls, n_samples, seed, rng, initial_rates):
+    """Sequential rollout of a model whose inputs are (throttle, steering, previous v, previous ω)."""
+    n_maneuvers, n_steps, _ = controls.shape
+    sampled_model = model.draw(n_samples, seed=seed)
+    prev = np.zeros((n_samples, n_maneuvers, 2), dtype=np.float32)
+    if initial_rates is not None:
+        prev[:] = np.asarray(initial_rates, dtype=np.float32)[None]
+    ctrl = torch.as_tensor(controls, dtype=torch.float32)
+    state = torch.as_tensor(prev)
+    noise = torch.as_tensor(rng.standard_normal((n_steps, n_samples, n_maneuvers, 2)), dtype=torch.float32)
+    means = torch.empty((n_samples, n_maneuvers, n_steps, 2))
+    variances = torch.empty_like(means)
+    sampled = torch.empty_like(means)
+    step_controls = ctrl.permute(1, 0, 2)  # (T, M, 2)
+    for k in range(n_steps):
+        inputs = torch.cat([step_controls[k].expand(n_samples, -1, -1), state], dim=-1)  # (S, M, 4)
+        m, var = sampled_model(inputs)
+        state = m + noise[k] * var.clamp_min(0).sqrt()
+        means[:, :, k], variances[:, :, k], sampled[:, :, k] = m, var, state
+    return tuple(a.numpy().astype(np.float64) for a in (means, variances, sampled))
+
+
+@dataclass(frozen=True)
+class TrackMetrics:
+    """Accuracy of one surrogate rollout against ground truth."""
+
+    rmse_v: float
+    rmse_w: float
+    position_error: dict[float, float]  # seconds -> metres between mean path and true path
+    coverage_v: float  # fraction of true steps inside the 95% band
+    coverage_w: float
+    coverage_position: float  # fraction of steps whose true (x, y) lies inside both 95% bands
+
+
+def track_metrics(
+    rollout: Rollout, index: int, truth: dict[str, np.ndarray], times: Sequence[float] = (10.0, 30.0)
+) -> TrackMetrics:
+    """Compare maneuver `index` of a rollout with ground truth arrays `speed`, `angZ`, `posX`, `posY`.
+
+    Truth positions are taken relative to the start, rotated into the start heading `yaw[0]`.
+    """
+    n = int(rollout.lengths[index])
+    true_v, true_w = truth["speed"][:n], truth["angZ"][:n]
+    dx, dy = truth["posX"][:n] - truth["posX"][0], truth["posY"][:n] - truth["posY"][0]
+    c, s = np.cos(-truth["yaw"][0]), np.sin(-truth["yaw"][0])
+    true_x, true_y = c * dx - s * dy, s * dx + c * dy
+    mean_v, mean_w = rollout.mean_rates[index, :n, 0], rollout.mean_rates[index, :n, 1]
+    mx, my = (a[index, :n] for a in rollout.mean_path())
+    q = {name: rollout.quantiles(name)[:, index, :n] for name in ("v", "w", "x", "y")}
+
+    def inside(values: np.ndarray, name: str) -> np.ndarray:
+        return (values >= q[name][0]) & (values <= q[name][-1])
+
+    errors = np.hypot(mx - true_x, my - true_y)
+    marks = {float(t): float(errors[min(round(t / rollout.dt), n - 1)]) for t in times if t < n * rollout.dt}
+    marks[float((n - 1) * rollout.dt)] = float(errors[-1])
+    return TrackMetrics(
+        rmse_v=float(np.sqrt(np.mean((mean_v - true_v) ** 2))),
+        rmse_w=float(np.sqrt(np.mean((mean_w - true_w) ** 2))),
+        position_error=marks,
+        coverage_v=float(inside(true_v, "v").mean()),
+        coverage_w=float(inside(true_w, "w").mean()),
+        coverage_position=float((inside(true_x, "x") & inside(true_y, "y")).mean()),
+    )
+
+
+@dataclass(frozen=True)
+class Benchmark:
+    """A surrogate rollout beside the MuJoCo log of the same maneuvers, with per-maneuver metrics."""
+
+    rollout: Rollout
+    truth: list  # one pandas DataFrame per maneuver (MuJoCo log, AutoDRIVE layout)
+    metrics: list[TrackMetrics]
+
+
+def against_simulator(
+    model,
+    maneuvers: Sequence[Maneuver],
+    *,
+    rate_hz: float = 30.0,
+    n_samples: int = 32,
+    seed: int = 0,
+    noise: object | None = "default",
+) -> Benchmark:
+    """Simulate maneuvers in MuJoCo and with the surrogate on the same applied controls; compare them.
+
+    The surrogate is driven by the controls MuJoCo actually applied (for the eight these come from
+    heading feedback), and a Markov model starts from the rates logged at the first step.
+    """
+    import simulator
+
+    noise_cfg = simulator.NoiseConfig() if noise == "default" else noise
+    log = simulator.collect(list(maneuvers), rate_hz=rate_hz, seed=seed, noise=noise_cfg)
+    truth = [part.reset_index(drop=True) for _, part in log.groupby("run_id", sort=False)]
+    controls = [t[["throttle", "steering"]].to_numpy() for t in truth]
+    initial = np.array([[t["speed"].iloc[0], t["angZ"].iloc[0]] for t in truth])
+    rollout = simulate(
+        model, controls, rate_hz=rate_hz, n_samples=n_samples, seed=seed, initial_rates=initial
+    )
+    metrics = [
+        track_metrics(rollout, i, {c: t[c].to_numpy() for c in ("speed", "angZ", "posX", "posY", "yaw")})
+        for i, t in enumerate(truth)
+    ]
+    return Benchmark(rollout, truth, metrics)
+
+
+def steady_state_inputs(model, controls: np.ndarray, *, steps: int = 60, n_samples: int = 8) -> np.ndarray:
+    """Inputs (throttle, steering, v, ω) of a Markov model at the rates it settles to under `controls`.
+
+    Acquisition and uncertainty maps score controls; a Markov model also needs the rates it would be
+    in. Holding each control for `steps` log steps (2 s at 30 Hz) from standstill and feeding back
+    the posterior-mean rates gives the quasi-steady state, a fair stand-in for slowly varying
+    maneuvers (fishhook, skidpad, straight) and an approximation for slalom and eight.
+    """
+    controls = np.asarray(controls, dtype=np.float32)
+    sampled = model.draw(n_samples, seed=0)
+    ctrl = torch.as_tensor(controls)
+    rates = torch.zeros((len(controls), 2))
+    for _ in range(steps):
+        means, _ = sampled(torch.cat([ctrl, rates], dim=-1))
+        rates = means.mean(dim=0)
+    return np.concatenate([controls, rates.numpy()], axis=1).astype(np.float64)
+
+
+def model_inputs(model, controls: np.ndarray) -> np.ndarray:
+    """Controls as model inputs: unchanged for a static model, with quasi-steady rates for a Markov one."""
+    return (
+        np.asarray(controls, dtype=np.float64)
+        if model.n_inputs == N_CONTROLS
+        else steady_state_inputs(model, controls)
+    )

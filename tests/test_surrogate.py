@@ -1,0 +1,148 @@
+"""Surrogate forward simulation against MuJoCo ground truth (real simulator, real trained models)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import simulator
+from activelearn.collection import arrays, training_rows
+from activelearn.config import DataConfig, ModelConfig, TrainingConfig
+from activelearn.models import build_model
+from activelearn.surrogate import against_simulator, simulate
+from activelearn.training import fit
+from simulator import Maneuver
+
+TRAIN_THROTTLES = (0.3, 0.5, 0.7, 0.9)
+TRAIN_STEERINGS = (0.15, 0.3, 0.45)
+
+
+def _train(maneuvers: list[Maneuver], data: DataConfig, n_inputs: int, epochs: int):
+    log = simulator.collect(maneuvers, seed=1)
+    rows = pd.concat([training_rows(part, data) for _, part in log.groupby("run_id", sort=False)])
+    x, y = arrays(rows, data)
+    model = build_model(ModelConfig(n_inputs=n_inputs))
+    fit(model, x, y, TrainingConfig(lr=3e-3, epochs=epochs, patience=None), seed=0)
+    return model
+
+
+@pytest.fixture(scope="module")
+def skidpad_model():
+    """The default hybrid trained on skidpad logs: forward throttle, both directions."""
+    maneuvers = [
+        Maneuver("skidpad", t, s, d, 12.0)
+        for t in TRAIN_THROTTLES
+        for s in TRAIN_STEERINGS
+        for d in ("ccw", "cw")
+    ]
+    return _train(maneuvers, DataConfig(stride=3, skip_seconds=1.0), 2, epochs=120)
+
+
+def _circle_radius(x: np.ndarray, y: np.ndarray) -> float:
+    """Least-squares (Kasa) circle fit through path points."""
+    a = np.column_stack([x, y, np.ones_like(x)])
+    c, *_ = np.linalg.lstsq(a, x**2 + y**2, rcond=None)
+    return float(np.sqrt(c[2] + (c[0] / 2) ** 2 + (c[1] / 2) ** 2))
+
+
+def test_skidpad_circle_radius_within_ten_percent(skidpad_model):
+    result = against_simulator(skidpad_model, [Maneuver("skidpad", 0.6, 0.3, "ccw", 30.0)], n_samples=32)
+    truth = result.truth[0].iloc[60:]
+    true_radius = _circle_radius(truth["posX"].to_numpy(), truth["posY"].to_numpy())
+    mx, my = result.rollout.mean_path()
+    predicted = _circle_radius(mx[0, 60:], my[0, 60:])
+    assert abs(predicted - true_radius) / true_radius < 0.10, (predicted, true_radius)
+
+
+def test_ground_truth_inside_the_95_band_in_distribution(skidpad_model):
+    result = against_simulator(skidpad_model, [Maneuver("skidpad", 0.5, 0.3, "cw", 20.0)], n_samples=64)
+    m = result.metrics[0]
+    assert m.coverage_v >= 0.8 and m.coverage_w >= 0.8, m
+
+
+def test_bands_widen_far_outside_the_training_range(skidpad_model):
+    inside = Maneuver("skidpad", 0.6, 0.3, "ccw", 10.0)
+    outside = Maneuver("skidpad", -0.9, 0.3, "ccw", 10.0)  # reverse throttle: never seen
+    result = against_simulator(skidpad_model, [inside, outside], n_samples=64)
+    q = {name: result.rollout.quantiles(name) for name in ("v", "w")}
+    width = {name: (q[name][4] - q[name][0]).mean(axis=1) for name in q}  # mean 95% band width per maneuver
+    for name in ("v", "w"):
+        assert width[name][1] > 3.0 * width[name][0], (name, width[name])
+
+
+def test_markov_variant_tracks_a_throttle_step_better_than_the_static_map():
+    maneuvers = [Maneuver("straight", t, 0.0, "ccw", 3.0) for t in (0.2, 0.35, 0.5, 0.65, 0.8, 0.95, 1.0)]
+    maneuvers += [Maneuver("skidpad", t, 0.3, "ccw", 3.0) for t in (0.25, 0.55, 0.85)]
+    data = DataConfig(stride=1, skip_seconds=0.0, inputs="controls")
+    static = _train(maneuvers, data, 2, epochs=150)
+    markov = _train(maneuvers, data.model_copy(update={"inputs": "controls+rates"}), 4, epochs=150)
+    step = [Maneuver("straight", 0.75, 0.0, "ccw", 2.0)]  # a throttle step from standstill, unseen level
+    errors = {}
+    for name, model in (("static", static), ("markov", markov)):
+        result = against_simulator(model, step, n_samples=16, noise=None)
+        truth = result.truth[0]["speed"].to_numpy()[:30]  # the first second
+        errors[name] = float(np.sqrt(np.mean((result.rollout.mean_rates[0, :30, 0] - truth) ** 2)))
+    assert errors["markov"] < 0.5 * errors["static"], errors
+
+
+def test_rollout_keeps_one_weight_draw_per_trajectory(skidpad_model):
+    """Without aleatoric noise each sampled path is one deterministic function: no step-to-step jitter."""
+    controls = [np.tile([0.6, 0.3], (50, 1))]
+    rollout = simulate(skidpad_model, controls, n_samples=8, seed=0)
+    means, _ = skidpad_model.draw(8, seed=0)(np.array([[0.6, 0.3]], dtype=np.float32))
+    # the sampled speeds of trajectory s scatter around draw s's mean, not the ensemble mean
+    per_traj = rollout.v[:, 0].mean(axis=1)
+    np.testing.assert_allclose(per_traj, means[:, 0, 0], atol=3 * rollout.aleatoric_var[0, 0, 0] ** 0.5)
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "activelearn.cli", "predict", *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+def test_predict_cli_bad_input_is_one_line_and_exit_2(tmp_path, skidpad_model):
+    path = tmp_path / "model.pt"
+    skidpad_model.save(path)
+    cases = [
+        (["--model", str(tmp_path / "missing.pt"), "--maneuver", "skidpad", "--throttle", "0.5"], "--model"),
+        (["--model", str(path), "--maneuver", "drift", "--throttle", "0.5"], "--maneuver"),
+        (["--model", str(path), "--maneuver", "skidpad", "--throttle", "1.5"], "--throttle"),
+        (["--model", str(path), "--maneuver", "skidpad", "--throttle", "0.5", "--samples", "1"], "--samples"),
+        (["--model", str(path), "--maneuver", "skidpad", "--throttle", "0.5", "--out", "x.txt"], "--out"),
+    ]
+    for args, field in cases:
+        proc = _cli(*args)
+        assert proc.returncode == 2, (args, proc.stderr)
+        assert field in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+
+
+def test_predict_cli_prints_metrics_and_writes_the_figure(tmp_path, skidpad_model):
+    path = tmp_path / "model.pt"
+    skidpad_model.save(path)
+    out = tmp_path / "fig.png"
+    proc = _cli(
+        "--model",
+        str(path),
+        "--maneuver",
+        "skidpad",
+        "--throttle",
+        "0.5",
+        "--steering",
+        "0.3",
+        "--duration",
+        "12",
+        "--out",
+        str(out),
+    )
+    assert proc.returncode == 0, proc.stderr
+    for label in ("RMSE v", "RMSE ω", "position error at 10 s", "inside 95% band"):
+        assert label in proc.stdout
+    assert out.stat().st_size > 10_000
