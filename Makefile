@@ -18,9 +18,11 @@ $(STAMP): pyproject.toml
 
 setup: $(STAMP)
 
+# The main job: a small comparison of max_epistemic against uniform sampling, 3 seeds each, tracked in
+# the embedded SQLite MLflow store (mlruns/mlflow.db). Each run gets its own output directory.
 demo: setup
-	$(BIN)/activelearn simulate --maneuver skidpad --throttle 0.6 --steering 0.3142 --direction ccw \
-		--duration 30 --out out/demo_skidpad.csv --plot out/demo_skidpad.png
+	$(BIN)/activelearn compare experiments/configs/demo.toml --strategies uniform,max_epistemic \
+		--seeds 3 --workers 2 --out runs/demo/$$(date +%Y%m%d-%H%M%S)
 
 test: setup
 	$(BIN)/ruff check .

@@ -17,6 +17,7 @@ S x S precision of w. That gives, from one forward pass:
 
 from __future__ import annotations
 
+import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -44,6 +45,8 @@ class Pool:
     eval_grid: (G, n_inputs) inputs over which integrated variance and the uncertainty maps are taken.
     output_scale: (n_outputs,) divide outputs by this so v and omega weigh alike.
     design_seed: seeds quasi-random sequences so they continue across rounds.
+    truth_x / truth_y / truth_owner: noise-free rows of every candidate, set only for the diagnostic
+        `oracle_error` strategy (a real campaign cannot know them).
     """
 
     maneuvers: tuple[Any, ...]
@@ -57,6 +60,9 @@ class Pool:
     output_scale: np.ndarray
     design_seed: int = 0
     kind_distance: float = 0.5
+    truth_x: np.ndarray | None = None
+    truth_y: np.ndarray | None = None
+    truth_owner: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.maneuvers)
@@ -167,7 +173,9 @@ class _QuasiRandomStrategy(Strategy):
         d = pool.features.shape[1] + (1 if n_kinds > 1 else 0)
         # The sequence is seeded by the campaign, not the round, so rounds continue one design.
         n_taken = int(pool.taken.sum())
-        targets = self._engine(d, pool.design_seed).random(n_taken + k)[n_taken:]
+        with warnings.catch_warnings():  # a prefix of any length is what a continued design needs
+            warnings.filterwarnings("ignore", message=".*balance properties.*", category=UserWarning)
+            targets = self._engine(d, pool.design_seed).random(n_taken + k)[n_taken:]
         picks: list[int] = []
         for target in targets:
             cont = target[: pool.features.shape[1]]
@@ -285,7 +293,12 @@ class UncertaintyStrategy(Strategy):
     def point_scores(self, samples: FunctionSamples, cov: np.ndarray) -> np.ndarray:
         """(P,) score of every scoring point under sample-space covariance `cov`."""
 
-    def candidate_scores(self, samples: FunctionSamples, pool: Pool, cov: np.ndarray) -> np.ndarray:
+    # Scores depend on earlier picks of the batch (not only through the posterior): rescore each pick.
+    rescore_after_pick: ClassVar[bool] = False
+
+    def candidate_scores(
+        self, samples: FunctionSamples, pool: Pool, cov: np.ndarray, picks: Sequence[int] = ()
+    ) -> np.ndarray:
         """(n,) score of every candidate: its points' scores averaged along its control sequence."""
         return _per_candidate(self.point_scores(samples, cov), pool.owner, len(pool.maneuvers))
 
@@ -311,10 +324,11 @@ class UncertaintyStrategy(Strategy):
             pick = int(np.argmax(masked))
             picks.append(pick)
             open_mask[pick] = False
-            if self.batch == "fantasy" and len(picks) < k:
+            if len(picks) < k and self.batch == "fantasy":
                 rows = np.flatnonzero(pool.owner == pick)
                 cov = _condition(cov, samples.precision(rows, weights))
-                scores = self.candidate_scores(samples, pool, cov)
+            if len(picks) < k and (self.batch == "fantasy" or self.rescore_after_pick):
+                scores = self.candidate_scores(samples, pool, cov, picks)
         return picks
 
     def _penalty(self, pool: Pool, picks: list[int]) -> np.ndarray:
@@ -363,6 +377,29 @@ class BaldStrategy(UncertaintyStrategy):
         return 0.5 * np.log1p(ratio).sum(axis=1)
 
 
+class EpistemicMaximinStrategy(MaxEpistemicStrategy):
+    """Space-filling weighted by uncertainty: maximise epistemic variance × squared gap to the design.
+
+    Greedy maximin alone ignores the model; max_epistemic alone piles up at the pool's edges, where a
+    network's variance grows whatever the data say. Their product keeps maximin's coverage and lets
+    the model break its near-ties. Batches also use the fantasised variance (`batch` applies).
+    """
+
+    name = "epistemic_maximin"
+
+    rescore_after_pick = True
+
+    def candidate_scores(
+        self, samples: FunctionSamples, pool: Pool, cov: np.ndarray, picks: Sequence[int] = ()
+    ) -> np.ndarray:
+        scores = super().candidate_scores(samples, pool, cov, picks)
+        design = np.concatenate([np.flatnonzero(pool.taken), np.asarray(picks, dtype=int)])
+        if len(design) == 0:
+            return scores
+        gap = pool.distances(np.arange(len(pool.maneuvers)), design).min(axis=1)
+        return scores * gap**2
+
+
 class IntegratedVarianceStrategy(UncertaintyStrategy):
     """Integrated variance reduction: pick the maneuver that most lowers epistemic variance on the grid.
 
@@ -406,6 +443,44 @@ class IntegratedVarianceStrategy(UncertaintyStrategy):
         return float(samples.epistemic().sum())
 
 
+class OracleErrorStrategy(Strategy):
+    """Diagnostic upper bound: pick the maneuvers where the current model's TRUE error is largest.
+
+    It reads the noise-free simulation of every candidate (`Pool.truth_*`), which no real campaign
+    has, to answer: could any strategy that seeks the model's errors beat space-filling here? Batches
+    damp scores near earlier picks, as the `penalty` batch rule does.
+    """
+
+    name = "oracle_error"
+    uses_model = True
+
+    def __init__(self, penalty_length: float = 0.15) -> None:
+        self.penalty_length = penalty_length
+
+    def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
+        available = _check_k(pool, k)
+        if pool.truth_x is None or pool.truth_y is None or pool.truth_owner is None:
+            raise InputError(
+                "strategy", self.name, "needs the pool's noise-free truth (campaigns provide it)"
+            )
+        mean = model.predict(pool.truth_x, n_samples=8, seed=0).mean
+        err = (((mean - pool.truth_y) / pool.output_scale) ** 2).sum(axis=1)
+        scores = _per_candidate(err, pool.truth_owner, len(pool.maneuvers))
+        open_mask = np.zeros(len(pool.maneuvers), dtype=bool)
+        open_mask[available] = True
+        picks: list[int] = []
+        for _ in range(k):
+            masked = scores.copy()
+            if picks:
+                dist = pool.distances(np.arange(len(pool.maneuvers)), np.array(picks)).min(axis=1)
+                masked *= 1.0 - np.exp(-0.5 * (dist / self.penalty_length) ** 2)
+            masked[~open_mask] = -np.inf
+            pick = int(np.argmax(masked))
+            picks.append(pick)
+            open_mask[pick] = False
+        return picks
+
+
 STRATEGIES: dict[str, type[Strategy]] = {
     cls.name: cls
     for cls in (
@@ -415,18 +490,26 @@ STRATEGIES: dict[str, type[Strategy]] = {
         SobolStrategy,
         LatinHypercubeStrategy,
         MaxEpistemicStrategy,
+        EpistemicMaximinStrategy,
         MaxTotalStrategy,
         BaldStrategy,
         IntegratedVarianceStrategy,
+        OracleErrorStrategy,
     )
 }
 
 
 def make_strategy(name: str, **options: Any) -> Strategy:
-    """Build a strategy by name; uncertainty strategies accept batch, n_samples, fantasy_weight, ..."""
+    """Build a strategy by name with the acquisition options it uses (the others are ignored).
+
+    Uncertainty strategies take batch, n_samples, fantasy_weight, penalty_length and seed; the
+    oracle takes penalty_length; space-filling designs take none.
+    """
     if name not in STRATEGIES:
         raise InputError("strategy", name, f"unknown strategy; choose from {', '.join(STRATEGIES)}")
     cls = STRATEGIES[name]
     if issubclass(cls, UncertaintyStrategy):
         return cls(**options)
+    if cls is OracleErrorStrategy:
+        return cls(**{k: v for k, v in options.items() if k == "penalty_length"})
     return cls()

@@ -137,18 +137,13 @@ class Campaign:
     ) -> None:
         self.cfg = cfg
         self.directory = Path(directory)
+        acq = cfg.acquisition
         self.strategy: Strategy = make_strategy(
             cfg.strategy,
-            **(
-                {
-                    "batch": cfg.acquisition.batch,
-                    "n_samples": cfg.acquisition.n_samples,
-                    "fantasy_weight": cfg.acquisition.fantasy_weight,
-                    "penalty_length": cfg.acquisition.penalty_length,
-                }
-                if cfg.strategy not in ("grid", "uniform", "random", "sobol", "lhs")
-                else {}
-            ),
+            batch=acq.batch,
+            n_samples=acq.n_samples,
+            fantasy_weight=acq.fantasy_weight,
+            penalty_length=acq.penalty_length,
         )
         self.cache = SimulationCache(cache_dir or Path(cfg.output_dir) / "cache", cfg.simulation)
         self.tracker = tracker
@@ -161,6 +156,7 @@ class Campaign:
             )
         self.rows_per_maneuver = rows_per_maneuver(cfg.pool.duration, cfg.simulation, cfg.data)
         self._test: TestSet | None = None
+        self._truth: dict[str, np.ndarray] | None = None
 
     # ------------------------------------------------------------------ data
 
@@ -201,11 +197,30 @@ class Campaign:
         pool = build_pool(
             self.cfg, self.maneuvers, mask, self.test_set.scale, self.rows_per_maneuver, self.cfg.seed
         )
+        if self.cfg.strategy == "oracle_error":
+            pool = dataclasses.replace(pool, **self._pool_truth())
         if model is None or model.n_inputs == pool.points.shape[1]:
             return pool
         return dataclasses.replace(
             pool, points=model_inputs(model, pool.points), eval_grid=model_inputs(model, pool.eval_grid)
         )
+
+    def _pool_truth(self) -> dict[str, np.ndarray]:
+        """Noise-free training rows of every candidate, for the diagnostic oracle strategy only."""
+        if self._truth is None:
+            clean = self.cache.get(self.maneuvers)
+            xs, ys, owner = [], [], []
+            for i, frame in enumerate(clean):
+                x, y = arrays(training_rows(frame, self.cfg.data), self.cfg.data)
+                xs.append(x)
+                ys.append(y)
+                owner.append(np.full(len(x), i))
+            self._truth = {
+                "truth_x": np.concatenate(xs),
+                "truth_y": np.concatenate(ys),
+                "truth_owner": np.concatenate(owner),
+            }
+        return self._truth
 
     # ------------------------------------------------------------------ model
 

@@ -301,6 +301,10 @@ def _compare(args: argparse.Namespace) -> int:
         result = compare(cfg, strategies, list(range(args.seeds)), directory=args.out, workers=args.workers,
                          tracking=cfg.tracking.enabled and not args.no_tracking, resume=args.resume,
                          progress=progress)
+    except KeyboardInterrupt:
+        print(_red("interrupted: finished rounds are checkpointed; rerun the same command with --resume"),
+              file=sys.stderr)
+        return 130
     finally:
         for bar in bars.values():
             bar.close()
@@ -316,6 +320,264 @@ def _compare(args: argparse.Namespace) -> int:
 
 
 _REGISTRARS.append(_register_compare)
+
+
+# --- tune -----------------------------------------------------------------------------------------
+
+_BEST_COLUMNS = {
+    "trial": "trial",
+    "val_nll": "val NLL",
+    "val_rmse": "val RMSE",
+    "arch": "arch",
+    "activation": "act",
+    "posterior": "posterior",
+    "kl": "kl",
+    "prior_scale": "prior",
+    "lr": "lr",
+    "optimizer": "opt",
+    "loss": "loss",
+    "batch_size": "batch",
+    "epochs": "epochs",
+    "best_epoch": "best ep",
+}
+
+
+# Mirrors activelearn.tuning.DEFAULT_STORAGE / PRUNERS: importing that module (Optuna, torch) here
+# would slow down every command; tests check the copies agree.
+_TUNE_STORAGE = "sqlite:///mlruns/optuna.db"
+_TUNE_PRUNERS = ("median", "hyperband", "none")
+
+
+def _register_tune(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "tune", help="tune the model's hyperparameters with Optuna (tracked in MLflow)",
+        description="Optuna study over the config's [tuning.space]: minimise the validation NLL (and "
+                    "optionally RMSE) on operating points held out whole. Same --study-name continues.",
+    )  # fmt: skip
+    p.add_argument("config", metavar="CONFIG",
+                   help="campaign config (TOML) with an optional [tuning] section")
+    p.add_argument("--n-trials", type=int, required=True, metavar="N",
+                   help="trials this command adds to the study (shared by its workers)")
+    p.add_argument("--storage", default=_TUNE_STORAGE, metavar="URL",
+                   help=f"Optuna storage (default {_TUNE_STORAGE}); postgresql://user:pass@host/db "
+                        "lets workers on many machines join one study")
+    p.add_argument("--study-name", default=None, metavar="NAME",
+                   help="study name (default: the config's name)")
+    p.add_argument("--workers", type=int, default=1, metavar="K", help="worker processes (default 1)")
+    p.add_argument("--timeout", type=float, default=None, metavar="SEC",
+                   help="start no new trial after SEC seconds")
+    p.add_argument("--tracking-uri", default=None, metavar="URI",
+                   help="MLflow tracking URI (default: the config's, sqlite:///mlruns/mlflow.db)")
+    p.add_argument("--no-tracking", action="store_true", help="do not log to MLflow")
+    p.add_argument("--data", nargs="+", default=None, metavar="PATH",
+                   help="train on these tables (.parquet) or AutoDRIVE logs (.csv) instead of simulating "
+                        "the config's pool")
+    p.add_argument("--objectives", default="nll", metavar="nll|nll,rmse",
+                   help="validation NLL, or NLL and RMSE (multi-objective: no pruning)")
+    p.add_argument("--pruner", default="median", choices=_TUNE_PRUNERS, help="trial pruner (default median)")
+    p.add_argument("--seed", type=int, default=None, metavar="N", help="sampler seed (default: the config's)")
+    p.add_argument("--out", default=None, metavar="TOML",
+                   help="best params file (default runs/tuning/<study>/best.toml); figures go beside it")
+    p.set_defaults(handler=_tune)
+
+
+def _tune(args: argparse.Namespace) -> int:
+    import math
+
+    from tqdm import tqdm
+
+    from activelearn.config import load_config
+    from activelearn.errors import InputError
+    from activelearn.tuning import TuningInterrupted, parse_objectives, tune
+
+    # Argument checks first: a mistake never creates a study, a run or a file.
+    if args.n_trials < 1:
+        raise InputError("--n-trials", args.n_trials, "must be at least 1")
+    if args.workers < 1:
+        raise InputError("--workers", args.workers, "must be at least 1")
+    if args.timeout is not None and not args.timeout > 0:
+        raise InputError("--timeout", args.timeout, "must be > 0 seconds")
+    objectives = parse_objectives(args.objectives)
+    overrides: dict[str, object] = {}
+    if args.tracking_uri is not None:
+        overrides["tracking"] = {"uri": args.tracking_uri}
+    cfg = load_config(args.config, overrides=overrides)
+    study_name = args.study_name or cfg.name
+    bars: dict[str, tqdm] = {}
+    counts = {"COMPLETE": 0, "PRUNED": 0, "FAIL": 0}
+    best = [math.inf]
+
+    def progress(event: dict) -> None:
+        kind = event["event"]
+        if kind == "note":
+            tqdm.write(f"note: {event['message']}", file=sys.stderr)
+        elif kind == "sim_progress":
+            bar = bars.setdefault("sim", tqdm(total=event["total"], unit="sample", desc="simulating pool",
+                                              leave=False, disable=None))
+            bar.update(event["done"] - bar.n)
+        elif kind == "start":
+            if "sim" in bars:
+                bars.pop("sim").close()
+            if event["existing_trials"]:
+                tqdm.write(f"continuing study {event['study']!r} ({event['existing_trials']} trials so far)",
+                           file=sys.stderr)
+            tqdm.write(f"data: {event['train_rows']} training rows at {event['train_points']} operating "
+                       f"points, {event['val_rows']} validation rows at {event['val_points']} held-out "
+                       "points", file=sys.stderr)
+            bars["trials"] = tqdm(total=args.n_trials, unit="trial", desc=f"tune {study_name}", disable=None)
+        elif kind == "trial":
+            counts[event["state"]] = counts.get(event["state"], 0) + 1
+            if event["state"] == "COMPLETE" and event["values"]:
+                best[0] = min(best[0], event["values"][0])
+            if event["state"] == "FAIL" and event.get("fail_reason"):
+                tqdm.write(f"trial {event['number']} failed: {event['fail_reason']}", file=sys.stderr)
+            bar = bars.get("trials")
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(best_nll=f"{best[0]:.4g}", pruned=counts["PRUNED"], failed=counts["FAIL"])
+
+    try:
+        result = tune(cfg, n_trials=args.n_trials, storage=args.storage, study_name=args.study_name,
+                      workers=args.workers, timeout=args.timeout, data=args.data, objectives=objectives,
+                      pruner=args.pruner, seed=args.seed, out=args.out, tracking=not args.no_tracking,
+                      progress=progress)  # fmt: skip
+    except TuningInterrupted as exc:
+        print(_red(f"interrupted: {exc}"), file=sys.stderr)
+        return 130
+    finally:
+        for bar in bars.values():
+            bar.close()
+    states = ", ".join(f"{n.lower()} {c}" for n, c in result.states.items() if c)
+    print(f"study {result.study_name!r}: {result.n_trials} trials this run ({states}), "
+          f"{result.study_trials} finished in all; {result.trials_per_minute:.2f} trials/min")
+    for note in result.notes:
+        print(f"note: {note}")
+    if result.best.empty:
+        print("no completed trial yet")
+        return 1
+    title = "Pareto front (val NLL, val RMSE)" if len(result.objectives) > 1 else "best trials"
+    table = result.best[[c for c in _BEST_COLUMNS if c in result.best]].rename(columns=_BEST_COLUMNS)
+    print(f"{title}:")
+    print(table.to_string(index=False, float_format="%.4g"))
+    print(f"best params: {result.best_path}  "
+          f"(activelearn campaign run {args.config} --params {result.best_path})")
+    if result.figures:
+        print("figures: " + ", ".join(str(f) for f in result.figures))
+    print(f"storage: {result.storage}  (optuna-dashboard {result.storage})")
+    if result.parent_run_id is not None:
+        print(f"MLflow parent run {result.parent_run_id} (mlflow ui --backend-store-uri {cfg.tracking.uri})")
+    return 0
+
+
+_REGISTRARS.append(_register_tune)
+
+# --- predict --------------------------------------------------------------------------------------
+
+
+def _register_predict(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("predict", help="forward-simulate a trained surrogate against MuJoCo on one maneuver",
+                       description="Run the surrogate (with uncertainty fans) and MuJoCo on one maneuver.")
+    p.add_argument("--model", required=True, metavar="URI|PATH",
+                   help="model file (model.pt), campaign directory, or MLflow model URI (runs:/<id>/model)")
+    p.add_argument("--maneuver", required=True, metavar="KIND",
+                   help="straight, skidpad, fishhook, slalom or eight")
+    p.add_argument("--throttle", required=True, type=float, metavar="T", help="throttle in [-1, 1]")
+    p.add_argument("--steering", type=float, default=None, metavar="S",
+                   help="steering amplitude in [0, 0.5236] rad (default: 0.5236 for fishhook, else 0)")
+    p.add_argument("--direction", default="ccw", metavar="cw|ccw", help="ccw turns left first (default)")
+    p.add_argument("--duration", type=float, default=90.0, metavar="SEC", help="seconds (default 90)")
+    p.add_argument("--samples", type=int, default=32, metavar="S", help="sampled trajectories (default 32)")
+    p.add_argument("--seed", type=int, default=0, metavar="N", help="noise and sampling seed (default 0)")
+    p.add_argument("--out", default=None, metavar="PNG", help="write the figure here (.png, .pdf, .svg)")
+    p.add_argument("--run-id", default=None, metavar="RUN",
+                   help="also log metrics and figure to this MLflow run")
+    p.add_argument("--tracking-uri", default="sqlite:///mlruns/mlflow.db", metavar="URI",
+                   help="MLflow store for runs:/ URIs and --run-id (default sqlite:///mlruns/mlflow.db)")
+    p.set_defaults(handler=_predict)
+
+
+def _load_any_model(spec: str, tracking_uri: str):
+    from pathlib import Path
+
+    from activelearn.errors import InputError
+    from activelearn.models import load_model
+
+    path = Path(spec)
+    if path.is_dir():
+        path = path / "model.pt"
+    if path.is_file():
+        try:
+            return load_model(path)
+        except Exception as exc:  # a foreign or truncated file: say which
+            raise InputError("--model", spec, f"cannot read the model file: {exc}") from None
+    if "://" not in spec and not spec.startswith(("runs:/", "models:/")):
+        raise InputError("--model", spec, "no such file, directory or MLflow model URI")
+    from activelearn.tracking import load_model as load_mlflow_model
+
+    return load_mlflow_model(spec, tracking_uri)
+
+
+def _predict(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from activelearn.errors import InputError
+    from simulator import STEERING_LIMIT, Maneuver, ManeuverError
+
+    steering = args.steering
+    if steering is None:
+        steering = STEERING_LIMIT if args.maneuver == "fishhook" else 0.0
+    try:
+        maneuver = Maneuver(args.maneuver, args.throttle, steering, args.direction, args.duration)
+    except ManeuverError as exc:
+        raise InputError(_MANEUVER_OPTIONS.get(exc.field, exc.field), exc.value, exc.reason) from None
+    if args.samples < 2:
+        raise InputError("--samples", args.samples, "must be at least 2")
+    out = Path(args.out) if args.out else None
+    if out is not None and out.suffix.lower() not in _PLOT_SUFFIXES:
+        raise InputError("--out", args.out, f"must end in {', '.join(_PLOT_SUFFIXES)}")
+    model = _load_any_model(args.model, args.tracking_uri)
+    tracker = None
+    if args.run_id is not None:
+        from activelearn.tracking import Tracker
+
+        tracker = Tracker(args.tracking_uri)
+        tracker.run_status(args.run_id)  # fails early, naming the run, before simulating
+
+    from activelearn.surrogate import against_simulator
+
+    result = against_simulator(model, [maneuver], n_samples=args.samples, seed=args.seed)
+    m = result.metrics[0]
+    rows = [("RMSE v (m/s)", m.rmse_v), ("RMSE ω (rad/s)", m.rmse_w)]
+    rows += [(f"position error at {t:g} s (m)", e) for t, e in m.position_error.items()]
+    rows += [("steps inside 95% band: v", m.coverage_v), ("steps inside 95% band: ω", m.coverage_w),
+             ("steps inside 95% band: position", m.coverage_position)]
+    width = max(len(name) for name, _ in rows)
+    print(f"{maneuver.name}: surrogate ({args.samples} samples) against MuJoCo")
+    for name, value in rows:
+        print(f"  {name:<{width}}  {value:.4f}")
+    fig = None
+    if out is not None or tracker is not None:
+        from activelearn.plots import surrogate_figure
+
+        title = f"{maneuver.name}: surrogate vs MuJoCo"
+        fig = surrogate_figure(result.rollout, 0, result.truth[0], title=title)
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_name(f".{out.name}.tmp{out.suffix}")
+        fig.savefig(tmp, dpi=120)
+        tmp.replace(out)
+        print(f"wrote {out}")
+    if tracker is not None:
+        metrics = {"predict_rmse_v": m.rmse_v, "predict_rmse_w": m.rmse_w, "predict_coverage_v": m.coverage_v,
+                   "predict_coverage_w": m.coverage_w, "predict_coverage_position": m.coverage_position}
+        metrics.update({f"predict_position_error_{t:g}s": e for t, e in m.position_error.items()})
+        tracker.log_metrics(args.run_id, metrics, step=0)
+        tracker.log_figure(args.run_id, fig, f"predict/{maneuver.name}.png")
+        print(f"logged to MLflow run {args.run_id}")
+    return 0
+
+
+_REGISTRARS.append(_register_predict)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import os
 from collections.abc import Callable, Sequence
@@ -16,6 +17,7 @@ import pandas as pd
 
 from activelearn.campaign import Campaign
 from activelearn.config import CampaignConfig
+from activelearn.data import atomic_write_bytes
 from activelearn.errors import InputError
 from activelearn.pool import pool_maneuvers, test_maneuvers
 
@@ -141,48 +143,68 @@ def compare(
         )
 
     tracker, parent_run_id = None, None
+    manifest = directory / "compare.json"
     if tracking:
         from activelearn.tracking import Tracker
 
         tracker = Tracker(cfg.tracking.uri, cfg.tracking.experiment)
-        parent_run_id = tracker.start_run(f"compare-{cfg.name}", tags={"kind": "comparison"})
+        previous = (
+            json.loads(manifest.read_text()).get("parent_run_id") if resume and manifest.exists() else None
+        )
+        # A resumed comparison reopens its parent run, so resumed children stay nested under it.
+        parent_run_id = tracker.start_run(
+            f"compare-{cfg.name}", tags={"kind": "comparison"}, resume_run_id=previous
+        )
         tracker.log_params(
             parent_run_id,
             {"strategies": list(strategies), "seeds": list(seeds), **cfg.model_dump(mode="json")},
         )
+    directory.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(
+        manifest,
+        json.dumps(
+            {"parent_run_id": parent_run_id, "strategies": list(strategies), "seeds": list(seeds)}
+        ).encode(),
+    )
 
     jobs = [(s, seed) for s in strategies for seed in seeds]
-    results: dict[tuple[str, int], list[dict[str, Any]]] = {}
     tracking_args = (cfg.tracking.uri, cfg.tracking.experiment) if tracking else None
-    try:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-            futures = {
-                pool.submit(
-                    _run_job,
-                    cfg.model_copy(update={"strategy": s, "seed": seed}).model_dump_json(),
-                    str(directory / s / f"seed{seed}"),
-                    str(cache_dir),
-                    tracking_args,
-                    parent_run_id,
-                    resume,
-                    workers > 1,
-                ): (s, seed)
-                for s, seed in jobs
+
+    def job_args(strategy: str, seed: int) -> tuple:
+        return (
+            cfg.model_copy(update={"strategy": strategy, "seed": seed}).model_dump_json(),
+            str(directory / strategy / f"seed{seed}"),
+            str(cache_dir),
+            tracking_args,
+            parent_run_id,
+            resume,
+            workers > 1,
+        )
+
+    results: dict[tuple[str, int], list[dict[str, Any]]] = {}
+
+    def finished(key: tuple[str, int], rounds: list[dict[str, Any]]) -> None:
+        results[key] = rounds
+        progress(
+            {
+                "event": "job",
+                "done": len(results),
+                "total": len(jobs),
+                "strategy": key[0],
+                "seed": key[1],
+                "test_rmse": rounds[-1]["test_rmse"],
             }
-            for done, future in enumerate(as_completed(futures), start=1):
-                key = futures[future]
-                results[key] = future.result()
-                final = results[key][-1]
-                progress(
-                    {
-                        "event": "job",
-                        "done": done,
-                        "total": len(jobs),
-                        "strategy": key[0],
-                        "seed": key[1],
-                        "test_rmse": final["test_rmse"],
-                    }
-                )
+        )
+
+    try:
+        if workers == 1:  # no process pool: simpler to debug, no start-up cost
+            for key in jobs:
+                finished(key, _run_job(*job_args(*key)))
+        else:
+            with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+                futures = {pool.submit(_run_job, *job_args(*key)): key for key in jobs}
+                for future in as_completed(futures):
+                    finished(futures[future], future.result())
     except BaseException:
         if tracker is not None and parent_run_id is not None:
             tracker.end_run(parent_run_id, "KILLED")
@@ -192,7 +214,6 @@ def compare(
     curves = pd.DataFrame(records).sort_values(["strategy", "seed", "round"]).reset_index(drop=True)
     reference = "uniform" if "uniform" in strategies else strategies[0]
     table = _summary(curves, reference)
-    directory.mkdir(parents=True, exist_ok=True)
     curves.to_csv(directory / "curves.csv", index=False)
     table.to_csv(directory / "summary.csv", index=False)
 

@@ -10,7 +10,7 @@ import logging
 import os
 import tempfile
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
@@ -30,6 +30,7 @@ DEFAULT_TRACKING_URI = "sqlite:///mlruns/mlflow.db"
 DEFAULT_EXPERIMENT = "activelearn"
 _MAX_PARAM_LENGTH = 6000  # MLflow's limit on a param value
 _BATCH = 100  # MLflow accepts at most 100 params per log_batch call
+_METRIC_BATCH = 1000  # and at most 1000 metrics
 
 T = TypeVar("T")
 
@@ -142,6 +143,14 @@ class Tracker:
         now = int(time.time() * 1000)
         items = [Metric(k, float(v), now, int(step)) for k, v in metrics.items()]
         _retry(lambda: self.client.log_batch(run_id, metrics=items))
+
+    def log_metric_series(self, run_id: str, rows: Sequence[tuple[int, Mapping[str, float]]]) -> None:
+        """Log many steps of metrics (e.g. a per-epoch curve) in as few store calls as MLflow allows."""
+        now = int(time.time() * 1000)
+        items = [Metric(k, float(v), now, int(step)) for step, values in rows for k, v in values.items()]
+        for start in range(0, len(items), _METRIC_BATCH):
+            chunk = items[start : start + _METRIC_BATCH]
+            _retry(lambda chunk=chunk: self.client.log_batch(run_id, metrics=chunk))
 
     def log_figure(self, run_id: str, figure: Any, artifact_file: str) -> None:
         """Log a matplotlib figure as a PNG artifact."""

@@ -336,7 +336,8 @@ def _fit(
     for epoch in range(config.epochs):
         t0 = time.perf_counter()
         if config.lr_schedule == "cosine":
-            stepper.set_lr(config.lr * (0.01 + 0.99 * 0.5 * (1.0 + math.cos(math.pi * epoch / config.epochs))))
+            decay = 0.5 * (1.0 + math.cos(math.pi * epoch / config.epochs))
+            stepper.set_lr(config.lr * (0.01 + 0.99 * decay))
         train_loss, train_data = stepper.epoch(xs, ys, gen)
         metrics: dict[str, float] = {"train_loss": train_loss, "train_data": train_data}
         with torch.no_grad():

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -58,6 +60,11 @@ def _pool(cfg: CampaignConfig, taken: list[int] | None = None):
 @pytest.mark.parametrize("name", sorted(STRATEGIES))
 def test_every_strategy_returns_k_distinct_untaken_candidates(cfg, model, name):
     pool = _pool(cfg, taken=[0, 5, 11])
+    if name == "oracle_error":  # the diagnostic oracle reads noise-free truth of every candidate
+        truth_x = np.column_stack([pool.points[:, 0], np.abs(pool.points[:, 1])])
+        pool = dataclasses.replace(
+            pool, truth_x=pool.points, truth_y=synthetic.steady_state(truth_x), truth_owner=pool.owner
+        )
     k = 4
     picks = make_strategy(name).select(model, pool, k, np.random.default_rng(0))
     assert len(picks) == k

@@ -1,0 +1,394 @@
+"""Optuna studies end to end: real training, real SQLite/PostgreSQL storages, a real MLflow store.
+
+Data are small (synthetic steady-state rows at 25 operating points) and trials short (a few epochs),
+so every study here runs in seconds.
+"""
+
+from __future__ import annotations
+
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from activelearn import cli, synthetic
+from activelearn.config import load_config
+from activelearn.data import write_table
+from activelearn.errors import ConfigError, InputError
+from activelearn.tracking import Tracker
+from activelearn.tuning import (
+    DEFAULT_STORAGE,
+    PRUNERS,
+    collect_dataset,
+    load_dataset,
+    operating_points,
+    split_data,
+    study_trials,
+    tune,
+)
+
+ROWS_PER_POINT = 30  # logged rows per operating point
+KEPT = ROWS_PER_POINT - 1  # training_rows drops each run's first row (it has no previous rates)
+
+
+@pytest.fixture(scope="module")
+def data_file(tmp_path_factory) -> Path:
+    """Synthetic skidpad-like sample table: 25 operating points (cw and ccw), 30 noisy rows each."""
+    points = synthetic.skidpad_points()[::2]
+    x, y, groups = synthetic.repeated_rows(points, ROWS_PER_POINT, seed=1)
+    table = pd.DataFrame({
+        "time": np.tile(np.arange(ROWS_PER_POINT) * 0.1, len(points)),
+        "throttle": x[:, 0], "steering": x[:, 1], "speed": y[:, 0], "angZ": y[:, 1],
+        "maneuver": "skidpad", "direction": np.where(x[:, 1] < 0, "cw", "ccw"),
+        "op_throttle": x[:, 0], "op_steering": np.abs(x[:, 1]),
+        "run_id": [f"point{g}" for g in groups], "diverged": False,
+    })  # fmt: skip
+    return write_table(table, tmp_path_factory.mktemp("data") / "samples.parquet")
+
+
+@pytest.fixture(scope="module")
+def mlflow_uri(tmp_path_factory) -> str:
+    """One MLflow store for the module (runs are found through their parent run id)."""
+    return f"sqlite:///{tmp_path_factory.mktemp('mlruns')}/mlflow.db"
+
+
+TINY_SPACE = """
+[tuning]
+sampler_startup_trials = 2
+pruner_startup_trials = 2
+pruner_warmup_epochs = 2
+
+[tuning.space]
+epochs = { low = 4, high = 8 }
+batch_size = [32, 64]
+n_layers = { low = 1, high = 2 }
+width = [8, 16]
+variational_width = [4, 8]
+"""
+
+
+def write_config(directory: Path, mlflow_uri: str, extra: str = TINY_SPACE) -> Path:
+    """A config for the synthetic table: every row kept, tracking into `mlflow_uri`."""
+    path = directory / "study.toml"
+    path.write_text(
+        f'name = "study"\noutput_dir = "{directory / "runs"}"\n'
+        f'[data]\nstride = 1\nskip_seconds = 0.0\n'
+        f'[training]\npatience = 100\n'
+        f'[tracking]\nuri = "{mlflow_uri}"\n' + extra
+    )
+    return path
+
+
+def sqlite_url(directory: Path, name: str = "optuna.db") -> str:
+    return f"sqlite:///{directory / name}"
+
+
+# ----------------------------------------------------------------------------------------- data
+def test_validation_split_holds_out_whole_operating_points(tmp_path, data_file, mlflow_uri):
+    cfg = load_config(write_config(tmp_path, mlflow_uri))
+    data = load_dataset([data_file], cfg)
+    assert data.n_groups == 25 and len(data.x) == 25 * KEPT
+    split = split_data(data, 0.2, seed=0)
+    assert len(split.val_points) == 5
+    # Every operating point lies entirely on one side, and the sides share none.
+    train_points = {tuple(r) for r in split.x_train}
+    val_points = {tuple(r) for r in split.x_val}
+    assert len(val_points) == 5 and len(train_points) == 20
+    assert not train_points & val_points
+    assert len(split.x_val) == 5 * KEPT
+    assert not set(split.groups_train) & set(split.groups_val)
+    # Seeded: the same seed gives the same split, another seed another one.
+    assert split_data(data, 0.2, seed=0).val_points == split.val_points
+    assert split_data(data, 0.2, seed=1).val_points != split.val_points
+
+
+def test_operating_points_separate_directions_of_autodrive_logs(tmp_path, mlflow_uri):
+    cfg = load_config(write_config(tmp_path, mlflow_uri))
+    paths = []
+    for name, steering in (("left", 0.3), ("right", -0.3), ("left_again", 0.3)):
+        rows = [
+            f"2023_04_12_15_30_{i // 10:02d}_{(i % 10) * 100:03d},0.5,{steering},0,0,0,0,0,0,0,0,"
+            f"0.12,0,0,{0.4 if steering > 0 else -0.4},0,0,0,cam0,cam1,lidar"
+            for i in range(40)
+        ]
+        path = tmp_path / name / "V1 Log.csv"
+        path.parent.mkdir()
+        path.write_text("\n".join(rows) + "\n")
+        paths.append(path)
+    data = load_dataset(paths, cfg)
+    assert len(data.x) == 3 * 39
+    # cw and ccw at the same amplitude are different points; two runs at one point are one group.
+    assert data.n_groups == 2
+    assert len(np.unique(data.groups[:39])) == 1
+    assert data.groups[0] == data.groups[78] != data.groups[39]
+    with pytest.raises(InputError, match="--data"):
+        load_dataset([tmp_path / "missing.parquet"], cfg)
+
+
+def test_dataset_from_the_config_pool_is_simulated_once_and_cached(tmp_path, mlflow_uri):
+    extra = """
+[pool]
+kinds = ["skidpad"]
+throttles = [0.4, 0.8]
+steerings = [0.3]
+duration = 4.0
+[simulation]
+threads = 1
+"""
+    cfg = load_config(write_config(tmp_path, mlflow_uri, extra))
+    events = []
+    data = collect_dataset(cfg, progress=events.append)
+    cached = list((tmp_path / "runs" / "cache").glob("tuning-data-*.parquet"))
+    assert len(cached) == 1 and events
+    assert data.n_groups == 4  # 2 throttles x 1 steering x cw/ccw
+    stamp = cached[0].stat().st_mtime_ns
+    again = collect_dataset(cfg, progress=events.append)
+    assert cached[0].stat().st_mtime_ns == stamp
+    np.testing.assert_array_equal(again.x, data.x)
+    np.testing.assert_array_equal(again.y, data.y)
+    assert again.key == data.key
+    assert operating_points(pd.read_parquet(cached[0])).tolist() == data.groups.tolist()
+
+
+# -------------------------------------------------------------------------------------- studies
+def _children(tracker: Tracker, parent: str) -> list:
+    return tracker.client.search_runs(
+        [tracker.experiment_id], filter_string=f"tags.mlflow.parentRunId = '{parent}'"
+    )
+
+
+def _parent_id(text: str) -> str:
+    return text.split("MLflow parent run ")[1].split()[0]
+
+
+def test_sqlite_study_logs_nested_runs_and_resumes(tmp_path, data_file, mlflow_uri, capsys):
+    config = write_config(tmp_path, mlflow_uri)
+    storage = sqlite_url(tmp_path)
+    args = ["tune", str(config), "--n-trials", "4", "--storage", storage, "--study-name", "s1",
+            "--data", str(data_file), "--seed", "0"]  # fmt: skip
+    assert cli.main(args) == 0
+    out = capsys.readouterr().out
+    trials = study_trials(storage, "s1")
+    assert len(trials) == 4
+    assert all(t["state"] in ("COMPLETE", "PRUNED") for t in trials)
+    assert [t["number"] for t in trials] == [0, 1, 2, 3]
+
+    tracker = Tracker(mlflow_uri)
+    parent = _parent_id(out)
+    children = _children(tracker, parent)
+    assert len(children) == 4
+    assert {c.data.tags["optuna.trial"] for c in children} == {"0", "1", "2", "3"}
+    for child in children:
+        assert child.data.tags["optuna.state"] in ("COMPLETE", "PRUNED")
+        assert {"model.arch", "training.lr", "training.batch_size"} <= set(child.data.params)
+        curve = tracker.metric_history(child.info.run_id, "val_nll")
+        assert [step for step, _ in curve] == list(range(len(curve))) and curve
+        if child.data.tags["optuna.state"] == "COMPLETE":
+            assert "objective_nll" in child.data.metrics
+    best = tmp_path / "runs" / "tuning" / "s1"
+    assert (best / "best.toml").is_file()
+    assert (best / "optimization_history.png").stat().st_size > 0
+    artifacts = {a.path for a in tracker.client.list_artifacts(parent)}
+    assert {"best.toml", "optimization_history.png"} <= artifacts
+    assert "best trials:" in out
+
+    # Same study name: the study continues (new trials, numbered on), under a new parent run.
+    assert cli.main([*args[:3], "2", *args[4:]]) == 0
+    out = capsys.readouterr().out
+    trials = study_trials(storage, "s1")
+    assert [t["number"] for t in trials] == list(range(6))
+    second = _parent_id(out)
+    assert second != parent and len(_children(tracker, second)) == 2
+    tagged = tracker.client.search_runs([tracker.experiment_id], filter_string="tags.`optuna.study` = 's1'")
+    assert {r.info.run_id for r in tagged} >= {parent, second}
+
+
+def test_best_params_round_trip_into_campaign_config(tmp_path, data_file, mlflow_uri):
+    config = write_config(tmp_path, mlflow_uri)
+    cfg = load_config(config)
+    out = tmp_path / "best.toml"
+    result = tune(cfg, n_trials=3, storage=sqlite_url(tmp_path), data=[data_file], tracking=False, out=out)
+    assert result.best_path == out and out.is_file()
+    merged = load_config(config, params=out)
+    best = result.best_params
+    assert best is not None
+    for key, value in best["model"].items():
+        assert getattr(merged.model, key) == value, key
+    for key, value in best["training"].items():
+        assert getattr(merged.training, key) == value, key
+    # Everything else is the config's own.
+    assert merged.training.patience == cfg.training.patience
+    assert merged.model.kind == cfg.model.kind
+
+
+def test_pruning_stops_a_clearly_worse_trial(tmp_path, data_file, mlflow_uri):
+    space = """
+[tuning]
+pruner_startup_trials = 2
+pruner_warmup_epochs = 3
+
+[tuning.space]
+lr = { low = 1e-6, high = 0.05, log = true }
+epochs = 25
+batch_size = 32
+optimizer = "adam"
+loss = "nll"
+posterior = "mean_field"
+kl = "exact"
+activation = "tanh"
+prior_scale = 1.0
+n_layers = 1
+width = 16
+variational = false
+"""
+    cfg = load_config(write_config(tmp_path, mlflow_uri, space))
+    # Two good trials complete first; then a learning rate far too small to learn in 25 epochs.
+    result = tune(cfg, n_trials=3, storage=sqlite_url(tmp_path), data=[data_file],
+                  enqueue=[{"lr": 0.02}, {"lr": 0.01}, {"lr": 1e-6}])  # fmt: skip
+    trials = study_trials(sqlite_url(tmp_path), cfg.name)
+    assert [t["state"] for t in trials] == ["COMPLETE", "COMPLETE", "PRUNED"]
+    assert trials[2]["params"]["lr"] == 1e-6
+    assert trials[2]["last_step"] < 24  # stopped long before its last epoch
+    tracker = Tracker(mlflow_uri)
+    pruned = [c for c in _children(tracker, result.parent_run_id) if c.data.tags["optuna.trial"] == "2"]
+    assert pruned[0].data.tags["optuna.state"] == "PRUNED"
+    assert len(tracker.metric_history(pruned[0].info.run_id, "val_nll")) == trials[2]["last_step"] + 1
+
+
+def test_same_seed_and_storage_state_give_the_same_suggestions(tmp_path, data_file, mlflow_uri):
+    cfg = load_config(write_config(tmp_path, mlflow_uri, TINY_SPACE.replace("high = 8", "high = 4")))
+
+    def params(name: str, seed: int) -> list[dict]:
+        storage = sqlite_url(tmp_path, f"{name}.db")
+        tune(cfg, n_trials=3, storage=storage, data=[data_file], seed=seed, tracking=False, pruner="none")
+        return [t["params"] for t in study_trials(storage, cfg.name)]
+
+    first = params("a", 7)
+    assert params("b", 7) == first
+    assert params("c", 8) != first
+
+
+def test_two_workers_on_sqlite_finish_exactly_the_requested_trials(tmp_path, data_file, mlflow_uri):
+    cfg = load_config(write_config(tmp_path, mlflow_uri))
+    storage = sqlite_url(tmp_path)
+    result = tune(cfg, n_trials=5, storage=storage, data=[data_file], workers=2)
+    trials = study_trials(storage, cfg.name)
+    assert [t["number"] for t in trials] == list(range(5))
+    assert all(t["state"] in ("COMPLETE", "PRUNED", "FAIL") for t in trials)
+    assert result.n_trials == 5
+    children = _children(Tracker(mlflow_uri), result.parent_run_id)
+    assert sorted(int(c.data.tags["optuna.trial"]) for c in children) == list(range(5))
+
+
+def test_postgres_study_with_two_workers_records_every_trial_once(
+    tmp_path, data_file, mlflow_uri, postgres_url
+):
+    cfg = load_config(write_config(tmp_path, mlflow_uri))
+    name = f"pg-{uuid.uuid4().hex[:8]}"
+    n_trials = 6
+    result = tune(cfg, n_trials=n_trials, storage=postgres_url, study_name=name, data=[data_file], workers=2)
+    trials = study_trials(postgres_url, name)
+    assert len(trials) == n_trials
+    assert sorted(t["number"] for t in trials) == list(range(n_trials))
+    assert all(t["state"] in ("COMPLETE", "PRUNED", "FAIL") for t in trials)
+    assert {t["user_attrs"]["worker"] for t in trials} == {0, 1}  # both processes took trials
+    # One MLflow run per trial, each linked from its trial, all under the one parent run.
+    run_ids = [t["user_attrs"]["mlflow_run_id"] for t in trials]
+    assert len(set(run_ids)) == n_trials
+    children = _children(Tracker(mlflow_uri), result.parent_run_id)
+    assert {c.info.run_id for c in children} == set(run_ids)
+    assert sorted(int(c.data.tags["optuna.trial"]) for c in children) == list(range(n_trials))
+    assert result.storage.count("***") == 1 and "***" not in postgres_url  # password never shown
+
+
+def test_multi_objective_study_does_not_prune(tmp_path, data_file, mlflow_uri, capsys):
+    config = write_config(tmp_path, mlflow_uri)
+    storage = sqlite_url(tmp_path)
+    args = ["tune", str(config), "--n-trials", "3", "--storage", storage, "--data", str(data_file),
+            "--objectives", "nll,rmse", "--no-tracking"]  # fmt: skip
+    assert cli.main(args) == 0
+    captured = capsys.readouterr()
+    assert "pruning is disabled" in captured.err + captured.out
+    assert "Pareto front" in captured.out
+    trials = study_trials(storage, "study")
+    assert all(t["state"] == "COMPLETE" and len(t["values"]) == 2 for t in trials)
+    # Continuing it as a single-objective study is refused, naming the option.
+    assert cli.main([*args[:-3], "--no-tracking"]) == 2
+    assert "--objectives" in capsys.readouterr().err
+
+
+def test_timeout_stops_starting_trials(tmp_path, data_file, mlflow_uri):
+    cfg = load_config(write_config(tmp_path, mlflow_uri))
+    started = time.perf_counter()
+    storage = sqlite_url(tmp_path)
+    result = tune(cfg, n_trials=500, storage=storage, data=[data_file], timeout=2, tracking=False)
+    assert 1 <= result.n_trials < 500
+    assert time.perf_counter() - started < 30
+
+
+# --------------------------------------------------------------------------------------- errors
+@pytest.mark.parametrize(
+    ("space", "field"),
+    [
+        ("learning_rate = 0.01", "tuning.space.learning_rate"),  # unknown name
+        ("activation = []", "tuning.space.activation"),  # empty list of choices
+        ("lr = { low = 0.1, high = 0.001 }", "tuning.space.lr"),  # low > high
+        ("epochs = { low = 0, high = 10 }", "tuning.space.epochs"),  # out of bounds
+        ("loss = { low = 1, high = 2 }", "tuning.space.loss"),  # a range for a categorical
+        ("optimizer = [\"adam\", \"lbfgs\"]", "tuning.space.optimizer"),  # unknown choice
+    ],
+)
+def test_bad_search_space_is_rejected_before_anything_runs(tmp_path, data_file, space, field, capsys):
+    mlflow_db = tmp_path / "mlflow.db"
+    config = write_config(tmp_path, f"sqlite:///{mlflow_db}", f"[tuning.space]\n{space}\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(config)
+    assert info.value.field == field
+    storage = tmp_path / "optuna.db"
+    code = cli.main(["tune", str(config), "--n-trials", "2", "--storage", f"sqlite:///{storage}",
+                     "--data", str(data_file)])  # fmt: skip
+    assert code == 2
+    err = capsys.readouterr().err
+    assert field in err and len(err.strip().splitlines()) == 1
+    assert not storage.exists() and not mlflow_db.exists()
+
+
+def test_unreachable_storage_fails_fast_and_creates_nothing(tmp_path, data_file, capsys):
+    mlflow_db = tmp_path / "mlflow.db"
+    config = write_config(tmp_path, f"sqlite:///{mlflow_db}")
+    started = time.perf_counter()
+    code = cli.main(["tune", str(config), "--n-trials", "2", "--data", str(data_file),
+                     "--storage", "postgresql://user:secret@127.0.0.1:1/db"])  # fmt: skip
+    assert code == 2 and time.perf_counter() - started < 15
+    err = capsys.readouterr().err
+    assert "--storage" in err and "secret" not in err and len(err.strip().splitlines()) == 1
+    assert not mlflow_db.exists()  # no MLflow run for a study that never started
+
+    # A SQLite file whose directory cannot exist (its parent is a file).
+    (tmp_path / "a_file").write_text("")
+    code = cli.main(["tune", str(config), "--n-trials", "2", "--data", str(data_file),
+                     "--storage", f"sqlite:///{tmp_path / 'a_file' / 'optuna.db'}"])  # fmt: skip
+    assert code == 2 and "--storage" in capsys.readouterr().err
+    assert not mlflow_db.exists()
+
+
+def test_bad_arguments_are_clean_errors(tmp_path, data_file, mlflow_uri, capsys):
+    config = str(write_config(tmp_path, mlflow_uri))
+    for extra, option in ((["--n-trials", "0"], "--n-trials"),
+                          (["--n-trials", "2", "--workers", "0"], "--workers"),
+                          (["--n-trials", "2", "--objectives", "rmse"], "--objectives"),
+                          (["--n-trials", "2", "--data", str(tmp_path / "nope.parquet")], "--data"),
+                          (["--n-trials", "2", "--storage", "not a url"], "--storage")):  # fmt: skip
+        args = ["tune", config, *extra]
+        if "--data" not in extra:
+            args += ["--data", str(data_file)]
+        if "--storage" not in extra:
+            args += ["--storage", sqlite_url(tmp_path)]
+        assert cli.main(args) == 2, extra
+        assert option in capsys.readouterr().err
+    assert not (tmp_path / "optuna.db").exists()
+    # The CLI's copies of the defaults (kept to avoid importing Optuna at start-up) agree.
+    assert cli._TUNE_STORAGE == DEFAULT_STORAGE and cli._TUNE_PRUNERS == PRUNERS
