@@ -62,12 +62,8 @@ _MANEUVER_OPTIONS = {
 }
 
 
-def _register_simulate(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "simulate",
-        help="simulate one maneuver of Nigel and write its log (CSV or Parquet)",
-        description="Simulate one maneuver of Nigel in MuJoCo and write its log in the AutoDRIVE layout.",
-    )
+def _add_maneuver_options(p: argparse.ArgumentParser) -> None:
+    """The options that define one maneuver (simulate, predict)."""
     p.add_argument("--maneuver", required=True, metavar="KIND",
                    help="straight, skidpad, fishhook, slalom or eight")
     p.add_argument("--throttle", required=True, type=float, metavar="T", help="throttle in [-1, 1]")
@@ -75,6 +71,29 @@ def _register_simulate(sub: argparse._SubParsersAction) -> None:
                    help="steering amplitude in [0, 0.5236] rad (default: 0.5236 for fishhook, else 0)")
     p.add_argument("--direction", default="ccw", metavar="cw|ccw", help="ccw turns left first (default)")
     p.add_argument("--duration", type=float, default=90.0, metavar="SEC", help="seconds (default 90)")
+
+
+def _maneuver_from_args(args: argparse.Namespace):
+    """The validated Maneuver of --maneuver/--throttle/--steering/--direction/--duration."""
+    from activelearn.errors import InputError
+    from simulator import STEERING_LIMIT, Maneuver, ManeuverError
+
+    steering = args.steering
+    if steering is None:
+        steering = STEERING_LIMIT if args.maneuver == "fishhook" else 0.0
+    try:
+        return Maneuver(args.maneuver, args.throttle, steering, args.direction, args.duration)
+    except ManeuverError as exc:
+        raise InputError(_MANEUVER_OPTIONS.get(exc.field, exc.field), exc.value, exc.reason) from None
+
+
+def _register_simulate(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "simulate",
+        help="simulate one maneuver of Nigel and write its log (CSV or Parquet)",
+        description="Simulate one maneuver of Nigel in MuJoCo and write its log in the AutoDRIVE layout.",
+    )
+    _add_maneuver_options(p)
     p.add_argument("--rate", type=float, default=30.0, metavar="HZ", help="log rate in Hz (default 30)")
     p.add_argument("--seed", type=int, default=0, metavar="N", help="noise seed (default 0)")
     p.add_argument("--noise", action=argparse.BooleanOptionalAction, default=True,
@@ -90,16 +109,10 @@ def _simulate(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from activelearn.errors import InputError
-    from simulator import STEERING_LIMIT, DivergenceWarning, Maneuver, ManeuverError, NoiseConfig, collect
+    from simulator import DivergenceWarning, NoiseConfig, collect
 
     # Validate everything before simulating, so a bad value never leaves a file behind.
-    steering = args.steering
-    if steering is None:
-        steering = STEERING_LIMIT if args.maneuver == "fishhook" else 0.0
-    try:
-        maneuver = Maneuver(args.maneuver, args.throttle, steering, args.direction, args.duration)
-    except ManeuverError as exc:
-        raise InputError(_MANEUVER_OPTIONS.get(exc.field, exc.field), exc.value, exc.reason) from None
+    maneuver = _maneuver_from_args(args)
     if not math.isfinite(args.rate) or not 0.0 < args.rate <= 300.0:
         raise InputError("--rate", args.rate, "must lie in (0, 300] Hz")
     if args.seed < 0:
@@ -479,13 +492,7 @@ def _register_predict(sub: argparse._SubParsersAction) -> None:
                        description="Run the surrogate (with uncertainty fans) and MuJoCo on one maneuver.")
     p.add_argument("--model", required=True, metavar="URI|PATH",
                    help="model file (model.pt), campaign directory, or MLflow model URI (runs:/<id>/model)")
-    p.add_argument("--maneuver", required=True, metavar="KIND",
-                   help="straight, skidpad, fishhook, slalom or eight")
-    p.add_argument("--throttle", required=True, type=float, metavar="T", help="throttle in [-1, 1]")
-    p.add_argument("--steering", type=float, default=None, metavar="S",
-                   help="steering amplitude in [0, 0.5236] rad (default: 0.5236 for fishhook, else 0)")
-    p.add_argument("--direction", default="ccw", metavar="cw|ccw", help="ccw turns left first (default)")
-    p.add_argument("--duration", type=float, default=90.0, metavar="SEC", help="seconds (default 90)")
+    _add_maneuver_options(p)
     p.add_argument("--samples", type=int, default=32, metavar="S", help="sampled trajectories (default 32)")
     p.add_argument("--seed", type=int, default=0, metavar="N", help="noise and sampling seed (default 0)")
     p.add_argument("--out", default=None, metavar="PNG", help="write the figure here (.png, .pdf, .svg)")
@@ -521,15 +528,8 @@ def _predict(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from activelearn.errors import InputError
-    from simulator import STEERING_LIMIT, Maneuver, ManeuverError
 
-    steering = args.steering
-    if steering is None:
-        steering = STEERING_LIMIT if args.maneuver == "fishhook" else 0.0
-    try:
-        maneuver = Maneuver(args.maneuver, args.throttle, steering, args.direction, args.duration)
-    except ManeuverError as exc:
-        raise InputError(_MANEUVER_OPTIONS.get(exc.field, exc.field), exc.value, exc.reason) from None
+    maneuver = _maneuver_from_args(args)
     if args.samples < 2:
         raise InputError("--samples", args.samples, "must be at least 2")
     out = Path(args.out) if args.out else None

@@ -18,27 +18,9 @@ import numpy as np
 import pandas as pd
 
 from activelearn.errors import DataFormatError, InputError
+from simulator.collect import AUTODRIVE_COLUMNS
 
-AUTODRIVE_COLUMNS = (
-    "timestamp",
-    "throttle",
-    "steering",
-    "leftTicks",
-    "rightTicks",
-    "posX",
-    "posY",
-    "posZ",
-    "roll",
-    "pitch",
-    "yaw",
-    "speed",
-    "angX",
-    "angY",
-    "angZ",
-    "accX",
-    "accY",
-    "accZ",
-)
+# The AutoDRIVE layout is the simulator's own log layout: one definition, in `simulator`.
 # The raw AutoDRIVE CSV ends with three perception columns this project does not use.
 AUTODRIVE_UNUSED_COLUMNS = ("cam0", "cam1", "lidar")
 EXTRA_COLUMNS = ("time", "maneuver", "direction", "op_throttle", "op_steering", "run_id", "diverged")
