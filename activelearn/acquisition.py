@@ -317,10 +317,8 @@ class UncertaintyStrategy(Strategy):
         picks: list[int] = []
         scores = self.candidate_scores(samples, pool, cov)
         for _ in range(k):
-            masked = np.where(open_mask, scores, -np.inf)
-            if self.batch == "penalty" and picks:
-                masked = masked * self._penalty(pool, picks)
-                masked[~open_mask] = -np.inf
+            damped = scores * self._penalty(pool, picks) if self.batch == "penalty" and picks else scores
+            masked = np.where(open_mask, damped, -np.inf)
             pick = int(np.argmax(masked))
             picks.append(pick)
             open_mask[pick] = False

@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 _MAX_LEGEND = 8
 
@@ -143,6 +144,7 @@ def comparison_figure(
             ax.plot(stats.index, stats["mean"], color=color, label=strategy, **style)
             ax.fill_between(stats.index, stats["mean"] - sem, stats["mean"] + sem, color=color, alpha=0.2)
         ax.set_xlabel("maneuvers collected")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_ylabel(_METRIC_LABELS.get(metric, metric))
         if metric != "test_nll":
             ax.set_yscale("log")
