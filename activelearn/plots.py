@@ -183,7 +183,7 @@ def surrogate_figure(rollout: Any, index: int, truth: pd.DataFrame, *, title: st
     ax_xy.legend(fontsize=8)
     for row, (name, column, label) in enumerate((("v", "speed", "v (m/s)"), ("w", "angZ", "ω (rad/s)"))):
         ax = fig.add_subplot(grid[row, 1])
-        q = rollout.quantiles(name)[:, index, :n]
+        q = rollout.quantiles(name, index)[:, :n]
         ax.fill_between(t, q[0], q[4], color="C0", alpha=0.18, label="95% band")
         ax.fill_between(t, q[1], q[3], color="C0", alpha=0.35, label="50% band")
         ax.plot(t, rollout.mean_rates[index, :n, row], color="C0", linewidth=1.4, label="surrogate mean")

@@ -60,9 +60,14 @@ class Rollout:
         """(T,) seconds since the start."""
         return np.arange(self.v.shape[-1]) * self.dt
 
-    def quantiles(self, name: str) -> np.ndarray:
-        """(5, M, T) quantiles 2.5, 25, 50, 75, 97.5 % over samples of `v`, `w`, `x`, `y` or `yaw`."""
-        return np.quantile(getattr(self, name), BANDS, axis=0)
+    def quantiles(self, name: str, index: int | None = None) -> np.ndarray:
+        """Quantiles 2.5, 25, 50, 75, 97.5 % over samples of `v`, `w`, `x`, `y` or `yaw`.
+
+        (5, M, T) for every maneuver, or (5, T) for maneuver `index` alone (much cheaper: the sort
+        over samples is the cost, so per-maneuver callers should not sort all M).
+        """
+        values = getattr(self, name)
+        return np.quantile(values if index is None else values[:, index], BANDS, axis=0)
 
     def mean_path(self) -> tuple[np.ndarray, np.ndarray]:
         """(M, T) mean x and y over samples."""
@@ -230,7 +235,7 @@ def track_metrics(
     true_x, true_y = c * dx - s * dy, s * dx + c * dy
     mean_v, mean_w = rollout.mean_rates[index, :n, 0], rollout.mean_rates[index, :n, 1]
     mx, my = (a[index, :n] for a in rollout.mean_path())
-    q = {name: rollout.quantiles(name)[:, index, :n] for name in ("v", "w", "x", "y")}
+    q = {name: rollout.quantiles(name, index)[:, :n] for name in ("v", "w", "x", "y")}
 
     def inside(values: np.ndarray, name: str) -> np.ndarray:
         return (values >= q[name][0]) & (values <= q[name][-1])

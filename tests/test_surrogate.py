@@ -65,13 +65,20 @@ def test_ground_truth_inside_the_95_band_in_distribution(skidpad_model):
 
 
 def test_bands_widen_far_outside_the_training_range(skidpad_model):
+    """The epistemic band (spread of the sampled models' rates) widens >= 3x on reverse throttle.
+
+    Asserted on the epistemic part, the one that says how far to trust the model: the aleatoric head
+    is a deterministic function whose extrapolation is unconstrained. Measured over 5 training seeds
+    of this fixture, the epistemic std on reverse throttle was 3.3x to 145x the in-range one, while
+    the total (epistemic + aleatoric) band went from 0.6x to 35x: it can even shrink when the
+    extrapolated noise std falls below the in-range one.
+    """
     inside = Maneuver("skidpad", 0.6, 0.3, "ccw", 10.0)
     outside = Maneuver("skidpad", -0.9, 0.3, "ccw", 10.0)  # reverse throttle: never seen
     result = against_simulator(skidpad_model, [inside, outside], n_samples=64)
-    q = {name: result.rollout.quantiles(name) for name in ("v", "w")}
-    width = {name: (q[name][4] - q[name][0]).mean(axis=1) for name in q}  # mean 95% band width per maneuver
-    for name in ("v", "w"):
-        assert width[name][1] > 3.0 * width[name][0], (name, width[name])
+    epistemic_std = np.sqrt(result.rollout.epistemic_var).mean(axis=1)  # (maneuver, output)
+    for i, name in enumerate(("v", "w")):
+        assert epistemic_std[1, i] > 3.0 * epistemic_std[0, i], (name, epistemic_std[:, i])
 
 
 def test_markov_variant_tracks_a_throttle_step_better_than_the_static_map():
@@ -97,6 +104,16 @@ def test_rollout_keeps_one_weight_draw_per_trajectory(skidpad_model):
     # the sampled speeds of trajectory s scatter around draw s's mean, not the ensemble mean
     per_traj = rollout.v[:, 0].mean(axis=1)
     np.testing.assert_allclose(per_traj, means[:, 0, 0], atol=3 * rollout.aleatoric_var[0, 0, 0] ** 0.5)
+
+
+def test_per_maneuver_quantiles_equal_the_full_ones(skidpad_model):
+    controls = [np.tile([0.6, 0.3], (40, 1)), np.tile([0.9, 0.1], (30, 1))]
+    rollout = simulate(skidpad_model, controls, n_samples=16, seed=1)
+    for name in ("v", "w", "x", "y", "yaw"):
+        full = rollout.quantiles(name)
+        assert full.shape == (5, 2, 40)
+        for index in range(2):
+            np.testing.assert_array_equal(rollout.quantiles(name, index), full[:, index])
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:
