@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from matplotlib.ticker import MaxNLocator
+from matplotlib.ticker import FormatStrFormatter, MaxNLocator
 
 _MAX_LEGEND = 8
 
@@ -148,6 +148,9 @@ def comparison_figure(
         ax.set_ylabel(_METRIC_LABELS.get(metric, metric))
         if metric != "test_nll":
             ax.set_yscale("log")
+            # plain decimals: a narrow log range otherwise gets "1.3 x 10^-1"-style labels
+            ax.yaxis.set_major_formatter(FormatStrFormatter("%.3g"))
+            ax.yaxis.set_minor_formatter(FormatStrFormatter("%.3g"))
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
     fig.suptitle(title or "strategy comparison")
