@@ -6,7 +6,8 @@ prints, per strategy:
     its spread), divided by uniform's budget (goal: <= 0.5 for max_epistemic);
   * paired differences of test RMSE against uniform at each budget (same seed = same initial design,
     test set and noise streams): mean ± s.e.m. and wins out of seeds;
-  * the epistemic calibration diagnostic at each round (z spread, Spearman(std, |err|), std / RMSE).
+  * the epistemic calibration diagnostic at each round (z spread, Spearman(std, |err|), std / RMSE);
+  * where each strategy's picks land: the share on the edge of the operating range and per kind.
 
 Usage: python experiments/benchmarks/bench_sample_efficiency.py [--seeds 10] [--workers 2]
        [--configs skidpad,all_maneuvers] [--strategies uniform,max_epistemic,...] [--out DIR]
@@ -16,6 +17,7 @@ The comparisons are tracked in MLflow (sqlite:///mlruns/mlflow.db) and resumable
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
@@ -23,7 +25,8 @@ import numpy as np
 import pandas as pd
 
 from activelearn.compare import compare
-from activelearn.config import load_config
+from activelearn.config import CampaignConfig, load_config
+from activelearn.pool import pool_maneuvers
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -92,6 +95,41 @@ def calibration_table(curves: pd.DataFrame) -> pd.DataFrame:
     return curves.groupby(["strategy", "n_maneuvers"])[cols].mean().reset_index()
 
 
+def pick_table(directory: Path, cfg: CampaignConfig) -> pd.DataFrame:
+    """Where the picks after the initial design land, per strategy, beside the pool's own shares.
+
+    A maneuver is on the edge when its throttle is the pool's lowest or highest, or its steering
+    magnitude the pool's smallest or largest non-zero one (the boundary of the throttle x |steering|
+    grid). The kind columns count picks per maneuver kind.
+    """
+    pool = pool_maneuvers(cfg.pool)
+    throttles = np.array([m.throttle for m in pool])
+    steerings = np.array([m.steering for m in pool])
+    turning = steerings[steerings > 0]
+    edge = (throttles == throttles.min()) | (throttles == throttles.max())
+    if len(turning):
+        edge |= (steerings > 0) & ((steerings == turning.min()) | (steerings == turning.max()))
+    kinds = np.array([m.kind for m in pool])
+
+    def shares(picks: np.ndarray) -> dict:
+        row = {"picks": len(picks), "edge_share": float(edge[picks].mean())}
+        if len(set(kinds)) > 1:
+            row.update({kind: int((kinds[picks] == kind).sum()) for kind in cfg.pool.kinds})
+        return row
+
+    rows = [{"strategy": "(pool)", **shares(np.arange(len(pool)))}]
+    for strategy_dir in sorted(p for p in directory.iterdir() if p.is_dir()):
+        picks = [
+            i
+            for state in strategy_dir.glob("seed*/state.json")
+            for batch in json.loads(state.read_text())["batches"][1:]
+            for i in batch
+        ]
+        if picks:
+            rows.append({"strategy": strategy_dir.name, **shares(np.array(picks))})
+    return pd.DataFrame(rows)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=10)
@@ -132,6 +170,8 @@ def main() -> None:
         print(paired_table(curves).to_string(index=False, float_format="%.4f"))
         print("\nepistemic calibration at each round (mean over seeds):")
         print(calibration_table(curves).to_string(index=False, float_format="%.3f"))
+        print("\nwhere the picks after the initial design land (all seeds):")
+        print(pick_table(Path(args.out) / name, cfg).to_string(index=False, float_format="%.2f"))
         print(f"\nfigure: {result.figure_path}")
 
 
