@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from matplotlib.ticker import FormatStrFormatter, MaxNLocator
+from matplotlib.ticker import FormatStrFormatter, LogLocator, MaxNLocator, NullFormatter
 
 _MAX_LEGEND = 8
 
@@ -148,9 +148,12 @@ def comparison_figure(
         ax.set_ylabel(_METRIC_LABELS.get(metric, metric))
         if metric != "test_nll":
             ax.set_yscale("log")
-            # plain decimals: a narrow log range otherwise gets "1.3 x 10^-1"-style labels
+            # plain decimals at 1-2-5 steps: the default gives "1.3 x 10^-1"-style labels; minor
+            # ticks are labelled only when the range spans less than a decade (else they crowd)
+            low, high = ax.get_ylim()
+            ax.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
             ax.yaxis.set_major_formatter(FormatStrFormatter("%.3g"))
-            ax.yaxis.set_minor_formatter(FormatStrFormatter("%.3g"))
+            ax.yaxis.set_minor_formatter(FormatStrFormatter("%.3g") if high < 10 * low else NullFormatter())
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
     fig.suptitle(title or "strategy comparison")
