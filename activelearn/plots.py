@@ -179,8 +179,8 @@ def surrogate_figure(rollout: Any, index: int, truth: pd.DataFrame, *, title: st
     c, s = np.cos(-yaw0), np.sin(-yaw0)
     for k in range(rollout.x.shape[0]):
         ax_xy.plot(rollout.x[k, index, :n], rollout.y[k, index, :n], color="C0", alpha=0.12, linewidth=0.8)
-    mx, my = rollout.mean_path()
-    ax_xy.plot(mx[index, :n], my[index, :n], color="C0", linewidth=2.0, label="surrogate mean")
+    mx, my = rollout.mean_path(index)
+    ax_xy.plot(mx[:n], my[:n], color="C0", linewidth=2.0, label="surrogate mean")
     ax_xy.plot(c * dx - s * dy, s * dx + c * dy, color="black", linewidth=1.5, linestyle="--", label="MuJoCo")
     ax_xy.plot([], [], color="C0", alpha=0.3, label=f"{rollout.x.shape[0]} sampled paths")
     ax_xy.set_aspect("equal", adjustable="datalim")

@@ -69,9 +69,11 @@ class Rollout:
         values = getattr(self, name)
         return np.quantile(values if index is None else values[:, index], BANDS, axis=0)
 
-    def mean_path(self) -> tuple[np.ndarray, np.ndarray]:
-        """(M, T) mean x and y over samples."""
-        return self.x.mean(axis=0), self.y.mean(axis=0)
+    def mean_path(self, index: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Mean x and y over samples: (M, T) each, or (T,) for maneuver `index` alone."""
+        if index is None:
+            return self.x.mean(axis=0), self.y.mean(axis=0)
+        return self.x[:, index].mean(axis=0), self.y[:, index].mean(axis=0)
 
 
 def controls_for(maneuvers: Sequence[Maneuver], rate_hz: float) -> list[np.ndarray]:
@@ -234,7 +236,7 @@ def track_metrics(
     c, s = np.cos(-truth["yaw"][0]), np.sin(-truth["yaw"][0])
     true_x, true_y = c * dx - s * dy, s * dx + c * dy
     mean_v, mean_w = rollout.mean_rates[index, :n, 0], rollout.mean_rates[index, :n, 1]
-    mx, my = (a[index, :n] for a in rollout.mean_path())
+    mx, my = (a[:n] for a in rollout.mean_path(index))
     q = {name: rollout.quantiles(name, index)[:, :n] for name in ("v", "w", "x", "y")}
 
     def inside(values: np.ndarray, name: str) -> np.ndarray:

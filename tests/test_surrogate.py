@@ -106,7 +106,7 @@ def test_rollout_keeps_one_weight_draw_per_trajectory(skidpad_model):
     np.testing.assert_allclose(per_traj, means[:, 0, 0], atol=3 * rollout.aleatoric_var[0, 0, 0] ** 0.5)
 
 
-def test_per_maneuver_quantiles_equal_the_full_ones(skidpad_model):
+def test_per_maneuver_quantiles_and_mean_path_equal_the_full_ones(skidpad_model):
     controls = [np.tile([0.6, 0.3], (40, 1)), np.tile([0.9, 0.1], (30, 1))]
     rollout = simulate(skidpad_model, controls, n_samples=16, seed=1)
     for name in ("v", "w", "x", "y", "yaw"):
@@ -114,6 +114,9 @@ def test_per_maneuver_quantiles_equal_the_full_ones(skidpad_model):
         assert full.shape == (5, 2, 40)
         for index in range(2):
             np.testing.assert_array_equal(rollout.quantiles(name, index), full[:, index])
+    for index in range(2):
+        for per_maneuver, every in zip(rollout.mean_path(index), rollout.mean_path(), strict=True):
+            np.testing.assert_array_equal(per_maneuver, every[index])
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:
