@@ -317,7 +317,8 @@ class UncertaintyStrategy(Strategy):
         picks: list[int] = []
         scores = self.candidate_scores(samples, pool, cov)
         for _ in range(k):
-            damped = scores * self._penalty(pool, picks) if self.batch == "penalty" and picks else scores
+            penalise = self.batch == "penalty" and picks
+            damped = scores * _proximity_penalty(pool, picks, self.penalty_length) if penalise else scores
             masked = np.where(open_mask, damped, -np.inf)
             pick = int(np.argmax(masked))
             picks.append(pick)
@@ -329,10 +330,12 @@ class UncertaintyStrategy(Strategy):
                 scores = self.candidate_scores(samples, pool, cov, picks)
         return picks
 
-    def _penalty(self, pool: Pool, picks: list[int]) -> np.ndarray:
-        """(n,) factor in [0, 1): zero at earlier picks, one far from them."""
-        dist = pool.distances(np.arange(len(pool.maneuvers)), np.array(picks)).min(axis=1)
-        return 1.0 - np.exp(-0.5 * (dist / self.penalty_length) ** 2)
+
+
+def _proximity_penalty(pool: Pool, picks: Sequence[int], length: float) -> np.ndarray:
+    """(n,) factor in [0, 1): zero at earlier picks, one far from them (Gaussian in distance/length)."""
+    dist = pool.distances(np.arange(len(pool.maneuvers)), np.array(picks)).min(axis=1)
+    return 1.0 - np.exp(-0.5 * (dist / length) ** 2)
 
 
 def _condition(cov: np.ndarray, precision: np.ndarray) -> np.ndarray:
@@ -468,11 +471,8 @@ class OracleErrorStrategy(Strategy):
         open_mask[available] = True
         picks: list[int] = []
         for _ in range(k):
-            masked = scores.copy()
-            if picks:
-                dist = pool.distances(np.arange(len(pool.maneuvers)), np.array(picks)).min(axis=1)
-                masked *= 1.0 - np.exp(-0.5 * (dist / self.penalty_length) ** 2)
-            masked[~open_mask] = -np.inf
+            damped = scores * _proximity_penalty(pool, picks, self.penalty_length) if picks else scores
+            masked = np.where(open_mask, damped, -np.inf)
             pick = int(np.argmax(masked))
             picks.append(pick)
             open_mask[pick] = False
