@@ -11,12 +11,12 @@ Usage: python experiments/batch_ablation.py [--seeds 5] [--workers 2] [--config 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from activelearn.campaign import STATE_FILE, CampaignState
 from activelearn.compare import compare
 from activelearn.config import load_config
 from activelearn.pool import operating_features, pool_maneuvers
@@ -27,8 +27,8 @@ CONFIGS = Path(__file__).resolve().parent / "configs"
 def batch_spread(directory: Path, features: np.ndarray) -> float:
     """Mean distance between picks of the same batch, over every batch after the initial design."""
     gaps = []
-    for state_file in directory.glob("*/seed*/state.json"):
-        for batch in json.loads(state_file.read_text())["batches"][1:]:
+    for state_file in directory.glob(f"*/seed*/{STATE_FILE}"):
+        for batch in CampaignState.load(state_file.parent).batches[1:]:
             if len(batch) > 1:
                 f = features[batch]
                 d = np.sqrt(((f[:, None] - f[None]) ** 2).sum(-1))

@@ -17,13 +17,13 @@ The comparisons are tracked in MLflow (sqlite:///mlruns/mlflow.db) and resumable
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from activelearn.campaign import STATE_FILE, CampaignState
 from activelearn.compare import compare
 from activelearn.config import CampaignConfig, load_config
 from activelearn.pool import pool_maneuvers
@@ -121,8 +121,8 @@ def pick_table(directory: Path, cfg: CampaignConfig) -> pd.DataFrame:
     for strategy_dir in sorted(p for p in directory.iterdir() if p.is_dir()):
         picks = [
             i
-            for state in strategy_dir.glob("seed*/state.json")
-            for batch in json.loads(state.read_text())["batches"][1:]
+            for state in strategy_dir.glob(f"seed*/{STATE_FILE}")
+            for batch in CampaignState.load(state.parent).batches[1:]
             for i in batch
         ]
         if picks:
