@@ -11,8 +11,10 @@ models), and adds aleatoric noise at every step.
 
 Two model variants:
   * static ("controls"): rates are a function of the current controls. Nothing depends on the past,
-    so every step of every maneuver is evaluated in one vectorised pass (identical control rows are
-    evaluated once: skidpads, straights and eights repeat a handful of rows thousands of times).
+    so every step of every maneuver is evaluated in one vectorised pass (a control row repeated at
+    consecutive steps is evaluated once: skidpads, straights and eights hold a handful of rows for
+    thousands of steps). The S trajectories are then noised and integrated on a pool of threads,
+    one generator per trajectory, so the result does not depend on the thread count.
   * Markov ("controls+rates", model.n_inputs == 4): rates also depend on the previous rates. The
     rollout is sequential in time but batched over maneuvers and samples; each trajectory feeds its
     own sampled rates back in, so the fans propagate the uncertainty.
@@ -24,10 +26,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import pandas as pd
 import torch
 
 from activelearn.errors import InputError
+from activelearn.models.base import CHUNK_ROWS
+from activelearn.threads import even_blocks, parallel_map
 from simulator import Maneuver, nominal_controls
 
 N_CONTROLS = 2
@@ -100,42 +103,93 @@ def _stack(controls: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     return out, lengths
 
 
-def _integrate(v: torch.Tensor, w: torch.Tensor, dt: float, yaw0: np.ndarray | float = 0.0):
-    """Planar pose from rates (..., T): ψ_{k+1} = ψ_k + ω_k dt, position by the heading at step start."""
+def _integrate(
+    v: torch.Tensor,
+    w: torch.Tensor,
+    dt: float,
+    yaw0: torch.Tensor,
+    out: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Planar pose from rates (..., T): ψ_{k+1} = ψ_k + ω_k dt, position by the heading at step start.
 
-    def shifted_cumsum(rate: torch.Tensor) -> torch.Tensor:  # value before step k: sum of steps 0..k-1
-        out = torch.zeros_like(rate)
-        torch.cumsum(rate[..., :-1], dim=-1, out=out[..., 1:])
-        return out.mul_(dt)
+    `yaw0` broadcasts against (..., 1). Writes into `out` = (x, y, yaw) when given.
+    """
+    x, y, yaw = out if out is not None else (torch.empty_like(v) for _ in range(3))
 
-    yaw = shifted_cumsum(w).add_(torch.as_tensor(np.asarray(yaw0, dtype=np.float32))[..., None])
-    return shifted_cumsum(v * torch.cos(yaw)), shifted_cumsum(v * torch.sin(yaw)), yaw
+    def shifted_cumsum(rate: torch.Tensor, into: torch.Tensor) -> torch.Tensor:
+        """into[..., k] = sum of rate[..., :k] (the value before step k)."""
+        into[..., 0] = 0.0
+        torch.cumsum(rate[..., :-1], dim=-1, out=into[..., 1:])
+        return into
+
+    shifted_cumsum(w, yaw)
+    torch.add(yaw0, yaw, alpha=dt, out=yaw)
+    # One scratch buffer serves v cos ψ, then v sin ψ.
+    scratch = torch.cos(yaw).mul_(v)
+    shifted_cumsum(scratch, x).mul_(dt)
+    torch.sin(yaw, out=scratch).mul_(v)
+    shifted_cumsum(scratch, y).mul_(dt)
+    return x, y, yaw
 
 
-def _static_rollout(model, controls: np.ndarray, n_samples: int, gen: torch.Generator):
-    """Sampled rates (S, M, T, 2) of a static model and per-step moments (M, T, 2).
+def _distinct_rows(controls: np.ndarray) -> tuple[np.ndarray, torch.Tensor]:
+    """Rows of (M, T, 2) controls where the control changed from the step before, and each step's index.
 
-    Every distinct control row is evaluated once (all S draws in one batched pass); the moments are
-    taken over draws on those rows, then spread back to the steps that use them.
+    Skidpads, straights and eights hold a handful of rows for thousands of steps; consecutive
+    repeats are evaluated once. The index never decreases, so spreading results back to the steps
+    reads memory in order.
     """
     flat = np.ascontiguousarray(controls.reshape(-1, N_CONTROLS), dtype=np.float64)
-    # A (throttle, steering) row viewed as one complex number: hashing beats a row-wise sort by 40x.
-    codes, unique = pd.factorize(flat.view(np.complex128).ravel())
-    unique = np.column_stack([unique.real, unique.imag])
-    index = torch.as_tensor(codes)
-    means, variances = model.draw(n_samples, seed=int(torch.randint(2**31 - 1, (1,), generator=gen)))(
-        torch.as_tensor(unique, dtype=torch.float32)
-    )
-    shape = (*controls.shape[:2], means.shape[-1])
-    moments = (
-        means.mean(dim=0).index_select(0, index).reshape(shape),
-        variances.mean(dim=0).index_select(0, index).reshape(shape),
-        means.var(dim=0, unbiased=False).index_select(0, index).reshape(shape),
-    )
-    sampled = torch.empty((n_samples, len(index), means.shape[-1])).normal_(generator=gen)
-    sampled.mul_(variances.clamp_min(0).sqrt_().index_select(1, index))
-    sampled.add_(means.index_select(1, index))
-    return sampled.reshape(n_samples, *shape), moments
+    as_one = flat.view(np.complex128).ravel()  # a (throttle, steering) row as one comparable number
+    changed = np.empty(len(as_one), dtype=bool)
+    changed[0] = True
+    np.not_equal(as_one[1:], as_one[:-1], out=changed[1:])
+    return flat[changed], torch.as_tensor(np.cumsum(changed) - 1)
+
+
+def _static_rollout(model, controls: np.ndarray, n_samples: int, gen: torch.Generator, dt: float, yaw0):
+    """Sampled trajectories of a static model: rates and pose, each (S, M, T), and per-step moments.
+
+    Every distinct control row is evaluated once (all S draws in one batched pass per block of
+    rows); the moments are taken over draws on those rows, then spread back to the steps that use
+    them. Trajectory s gets its aleatoric noise from its own generator (seeded from `gen`), so the
+    result does not depend on how many threads fill the samples in.
+    """
+    n_maneuvers, n_steps, _ = controls.shape
+    unique, index = _distinct_rows(controls)
+    sampled = model.draw(n_samples, seed=int(torch.randint(2**31 - 1, (1,), generator=gen)))
+    inputs = torch.as_tensor(unique.T, dtype=torch.float32)
+    n_unique = inputs.shape[1]
+    means, std = (torch.empty((n_samples, 2, n_unique)) for _ in range(2))
+    centre, aleatoric, epistemic = (torch.empty((2, n_unique)) for _ in range(3))
+
+    def rows_block(rows: slice) -> None:
+        mu, var = sampled.block(inputs[:, rows], out=means[..., rows])
+        torch.sqrt(var, out=std[..., rows])
+        centre[:, rows] = mu.mean(dim=0)
+        aleatoric[:, rows] = var.mean(dim=0)
+        epistemic[:, rows] = (mu - centre[:, rows]).square_().mean(dim=0)
+
+    for rows in even_blocks(n_unique, CHUNK_ROWS, workers=1):
+        rows_block(rows)
+    seeds = torch.randint(2**62, (n_samples,), generator=gen).tolist()
+    v, w, x, y, yaw = (torch.empty((n_samples, n_maneuvers, n_steps)) for _ in range(5))
+
+    def trajectories(s: int) -> None:
+        noise = torch.Generator().manual_seed(seeds[s])
+        for rate, j in ((v[s], 0), (w[s], 1)):
+            flat_rate = rate.view(-1).normal_(generator=noise)
+            torch.addcmul(
+                means[s, j].index_select(0, index), std[s, j].index_select(0, index), flat_rate, out=flat_rate
+            )
+        _integrate(v[s], w[s], dt, yaw0, out=(x[s], y[s], yaw[s]))
+
+    parallel_map(trajectories, range(n_samples))
+
+    def per_step(moment: torch.Tensor) -> torch.Tensor:  # (2, U) → (M, T, 2)
+        return moment.index_select(1, index).t().reshape(n_maneuvers, n_steps, 2)
+
+    return (v, w, x, y, yaw), (per_step(centre), per_step(aleatoric), per_step(epistemic))
 
 
 def simulate(
@@ -162,18 +216,20 @@ def simulate(
     gen = torch.Generator().manual_seed(int(seed))
     n_inputs = int(model.n_inputs)
     with torch.no_grad():
+        yaw0 = torch.as_tensor(np.asarray(initial_yaw, dtype=np.float32))[..., None]
         if n_inputs == N_CONTROLS:
-            sampled, (mean_rates, aleatoric, epistemic) = _static_rollout(model, stacked, n_samples, gen)
+            (v, w, x, y, yaw), (mean_rates, aleatoric, epistemic) = _static_rollout(
+                model, stacked, n_samples, gen, dt, yaw0
+            )
         elif n_inputs == N_CONTROLS + 2:
-            sampled, (mean_rates, aleatoric, epistemic) = _markov_rollout(
+            (v, w), (mean_rates, aleatoric, epistemic) = _markov_rollout(
                 model, stacked, n_samples, gen, initial_rates
             )
+            x, y, yaw = _integrate(v, w, dt, yaw0)
         else:
             raise InputError(
                 "model.n_inputs", n_inputs, "the surrogate needs 2 (controls) or 4 (controls + rates)"
             )
-        v, w = sampled[..., 0], sampled[..., 1]
-        x, y, yaw = _integrate(v, w, dt, initial_yaw)
     return Rollout(
         dt=dt,
         v=v.numpy(),
@@ -196,19 +252,31 @@ def _markov_rollout(model, controls: np.ndarray, n_samples: int, gen: torch.Gene
     """
     n_maneuvers, n_steps, _ = controls.shape
     sampled_model = model.draw(n_samples, seed=int(torch.randint(2**31 - 1, (1,), generator=gen)))
-    state = torch.zeros((n_samples, n_maneuvers, 2))
+    # Column layout throughout: inputs (S, 4, M), rates (S, 2, M) per step.
+    inputs = torch.zeros((n_samples, N_CONTROLS + 2, n_maneuvers))
     if initial_rates is not None:
-        state[:] = torch.as_tensor(np.asarray(initial_rates, dtype=np.float32))[None]
-    step_controls = torch.as_tensor(controls, dtype=torch.float32).permute(1, 0, 2)  # (T, M, 2)
-    noise = torch.randn((n_steps, n_samples, n_maneuvers, 2), generator=gen)
-    means = torch.empty((n_samples, n_maneuvers, n_steps, 2))
-    variances = torch.empty_like(means)
-    sampled = torch.empty_like(means)
+        inputs[:, N_CONTROLS:] = torch.as_tensor(np.asarray(initial_rates, dtype=np.float32)).t()
+    step_controls = torch.as_tensor(controls, dtype=torch.float32).permute(1, 2, 0).contiguous()  # (T, 2, M)
+    noise = torch.randn((n_steps, n_samples, n_maneuvers, 2), generator=gen).transpose(2, 3)
+    means, variances, sampled = (torch.empty((n_steps, n_samples, 2, n_maneuvers)) for _ in range(3))
     for k in range(n_steps):
-        m, var = sampled_model(torch.cat([step_controls[k].expand(n_samples, -1, -1), state], dim=-1))
-        state = m + noise[k] * var.clamp_min(0).sqrt()
-        means[:, :, k], variances[:, :, k], sampled[:, :, k] = m, var, state
-    return sampled, (means.mean(dim=0), variances.mean(dim=0), means.var(dim=0, unbiased=False))
+        inputs[:, :N_CONTROLS] = step_controls[k]
+        m, var = sampled_model.block(inputs)
+        torch.addcmul(m, noise[k], var.sqrt(), out=sampled[k])
+        inputs[:, N_CONTROLS:] = sampled[k]
+        means[k], variances[k] = m, var
+
+    def per_step(moment: torch.Tensor) -> torch.Tensor:  # (T, 2, M) → (M, T, 2)
+        return moment.permute(2, 0, 1).contiguous()
+
+    mean = means.mean(dim=1)
+    moments = (
+        per_step(mean),
+        per_step(variances.mean(dim=1)),
+        per_step((means - mean[:, None]).square_().mean(dim=1)),
+    )
+    v, w = (sampled[:, :, j].permute(1, 2, 0).contiguous() for j in range(2))  # (S, M, T) each
+    return (v, w), moments
 
 
 @dataclass(frozen=True)

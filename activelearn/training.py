@@ -29,6 +29,7 @@ from torch.func import functional_call, grad_and_value
 from activelearn.config import TrainingConfig
 from activelearn.errors import InputError
 from activelearn.models.base import Model
+from activelearn.threads import intra_op_threads
 from activelearn.uncertainty import gaussian_nll, recalibrate_epistemic, rmse
 
 Callback = Callable[[int, dict[str, float]], "bool | None"]
@@ -290,17 +291,11 @@ def fit(
     use_compile = config.compile is True or (
         config.compile == "auto" and steps_per_epoch * config.epochs >= AUTO_COMPILE_STEPS
     )
-    old_threads = torch.get_num_threads()
-    if config.num_threads is not None:
-        torch.set_num_threads(config.num_threads)
-    try:
-        with torch.random.fork_rng(devices=[]):
-            return _fit(
-                model, x, y, config, x_val, y_val, groups_val, seed, callback,
-                history, kl_weight, batch, use_compile,
-            )  # fmt: skip
-    finally:
-        torch.set_num_threads(old_threads)
+    with intra_op_threads(config.num_threads), torch.random.fork_rng(devices=[]):
+        return _fit(
+            model, x, y, config, x_val, y_val, groups_val, seed, callback,
+            history, kl_weight, batch, use_compile,
+        )  # fmt: skip
 
 
 def _fit(

@@ -25,6 +25,7 @@ from activelearn.models import (
     load_model,
     parse_arch,
 )
+from activelearn.models.base import CHUNK_ROWS
 from activelearn.training import fit
 
 KINDS = ["hybrid", "pbnn", "pnn", "bnn", "dnn", "ensemble"]
@@ -292,3 +293,14 @@ def test_mlflow_pytorch_round_trip(trained, data, tmp_path, monkeypatch):
     assert isinstance(loaded, HybridPBNN)
     x = data[0][:10]
     np.testing.assert_array_equal(loaded.predict(x, 8, seed=1).mean, m.predict(x, 8, seed=1).mean)
+
+
+def test_predict_in_blocks_equals_predict_on_each_part(trained):
+    """Inputs longer than one block of rows give the same moments as the rows evaluated apart."""
+    m = trained["hybrid"]
+    x = np.random.default_rng(0).uniform([-1, -0.5], [1, 0.5], (CHUNK_ROWS + 300, 2))
+    whole = m.predict(x, 8, seed=2)
+    for rows in (slice(0, 10), slice(CHUNK_ROWS - 5, CHUNK_ROWS + 5), slice(CHUNK_ROWS + 290, None)):
+        part = m.predict(x[rows], 8, seed=2)
+        for name in ("mean", "aleatoric_var", "epistemic_var"):
+            np.testing.assert_allclose(getattr(part, name), getattr(whole, name)[rows], rtol=1e-5, atol=1e-9)

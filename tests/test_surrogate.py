@@ -8,12 +8,13 @@ import sys
 import numpy as np
 import pandas as pd
 import pytest
+import torch
 
 import simulator
 from activelearn.collection import arrays, training_rows
 from activelearn.config import DataConfig, ModelConfig, TrainingConfig
 from activelearn.models import build_model
-from activelearn.surrogate import against_simulator, simulate
+from activelearn.surrogate import _integrate, against_simulator, simulate
 from activelearn.training import fit
 from simulator import Maneuver
 
@@ -166,3 +167,39 @@ def test_predict_cli_prints_metrics_and_writes_the_figure(tmp_path, skidpad_mode
     for label in ("RMSE v", "RMSE ω", "position error at 10 s", "inside 95% band"):
         assert label in proc.stdout
     assert out.stat().st_size > 10_000
+
+
+def test_integrate_matches_a_step_by_step_loop():
+    rng = np.random.default_rng(0)
+    v = rng.uniform(0.0, 2.0, (3, 50)).astype(np.float32)
+    w = rng.uniform(-1.0, 1.0, (3, 50)).astype(np.float32)
+    yaw0 = np.array([0.0, 0.5, -2.0], dtype=np.float32)
+    dt = 0.1
+    x, y, yaw = _integrate(torch.as_tensor(v), torch.as_tensor(w), dt, torch.as_tensor(yaw0)[:, None])
+    px, py, pyaw = np.zeros(3), np.zeros(3), yaw0.astype(np.float64)
+    for k in range(50):
+        np.testing.assert_allclose(x[:, k], px, atol=1e-4)
+        np.testing.assert_allclose(y[:, k], py, atol=1e-4)
+        np.testing.assert_allclose(yaw[:, k], pyaw, atol=1e-4)
+        px, py = px + v[:, k] * np.cos(pyaw) * dt, py + v[:, k] * np.sin(pyaw) * dt
+        pyaw = pyaw + w[:, k] * dt
+
+
+def test_rollout_is_seeded_and_independent_of_the_thread_count(skidpad_model):
+    t = np.linspace(0.0, 6.0, 180)
+    controls = [np.column_stack([np.full_like(t, 0.5), 0.3 * np.sin(t)]), np.tile([0.8, -0.2], (120, 1))]
+    old = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        two = simulate(skidpad_model, controls, n_samples=8, seed=3)
+        torch.set_num_threads(1)
+        one = simulate(skidpad_model, controls, n_samples=8, seed=3)
+    finally:
+        torch.set_num_threads(old)
+    assert torch.get_num_threads() == old
+    for name in ("v", "w", "x", "y", "yaw", "mean_rates", "aleatoric_var", "epistemic_var"):
+        np.testing.assert_array_equal(getattr(one, name), getattr(two, name), err_msg=name)
+    other = simulate(skidpad_model, controls, n_samples=8, seed=4)
+    assert not np.array_equal(other.v, one.v)
+    # The shorter maneuver is padded with its last control: its tail repeats the last rates' moments.
+    np.testing.assert_array_equal(one.mean_rates[1, 120:], np.broadcast_to(one.mean_rates[1, 119], (60, 2)))

@@ -13,9 +13,12 @@ from torch import Tensor, nn
 
 from activelearn.config import ModelConfig
 from activelearn.errors import InputError
+from activelearn.threads import even_blocks
 
-# Rows evaluated at once in `predict`; bounds memory at S × rows × width floats.
-_PREDICT_CHUNK = 8192
+# Rows evaluated per block by `SampledModel.columns` and `predict`. Blocks bound the S × rows × width
+# activations; the per-sample GEMMs of big blocks split well over torch's intra-op threads, while
+# running small blocks on a pool of Python threads was slower (GEMMs in concurrent threads contend).
+CHUNK_ROWS = 4096
 
 
 @dataclass(frozen=True)
@@ -69,6 +72,9 @@ class SampledModel:
     are meaningful and a forward simulation can keep one draw per trajectory. The model's
     `epistemic_scale` c (read at draw time) widens each sample mean's deviation from the average of
     the S means by √c. Variances are the aleatoric part (zeros for a DNN).
+
+    `sampled.columns(x)` is the fast path for large inputs: torch x in column layout, (d, N) or
+    (S, d, N), and torch (S, n_outputs, N) results.
     """
 
     def __init__(self, model: Model, params: list, n_samples: int, seed: int) -> None:
@@ -77,21 +83,51 @@ class SampledModel:
         self.n_samples = n_samples
         self.seed = seed
         self.epistemic_scale = float(model.epistemic_scale)
+        self._column_params = model.columns_params(params)
+
+    def standardised(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        """Standardised (S, n_outputs, n) means and variances for one block of physical column inputs.
+
+        The epistemic scale is not applied.
+        """
+        m = self.model
+        xs = (x - m.x_mean[:, None]) / m.x_std[:, None]
+        return m.columns_forward(xs, self._column_params, self.n_samples)
+
+    def block(self, x: Tensor, out: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """Physical (S, n_outputs, n) means and variances for one block of inputs (d, n) or (S, d, n).
+
+        `out`, when given, receives the means (it may be a slice of a larger tensor).
+        """
+        m = self.model
+        means, var = self.standardised(x)
+        if self.epistemic_scale != 1.0 and self.n_samples > 1:
+            centre = means.mean(dim=0, keepdim=True)
+            means = (means - centre).mul_(self.epistemic_scale**0.5).add_(centre)
+        means = torch.addcmul(m.y_mean[:, None], means, m.y_std[:, None], out=out)
+        return means, var * m.y_std.square()[:, None]
 
     @torch.no_grad()
+    def columns(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        """Physical means and variances (S, n_outputs, N) for physical inputs x of shape (d, N) or (S, d, N).
+
+        Evaluated in blocks of `CHUNK_ROWS` rows, which bounds the (S, width, rows) activations.
+        """
+        means = torch.empty((self.n_samples, self.model.n_outputs, x.shape[-1]))
+        var = torch.empty_like(means)
+
+        for rows in even_blocks(x.shape[-1], CHUNK_ROWS, workers=1):
+            var[..., rows] = self.block(x[..., rows], out=means[..., rows])[1]
+        return means, var
+
     def __call__(self, x: np.ndarray | Tensor) -> tuple[np.ndarray | Tensor, np.ndarray | Tensor]:
         """Evaluate every draw on x; see the class docstring for shapes and units."""
         numpy_in = not isinstance(x, Tensor)
         xt = _as_tensor(x, self.model.n_inputs)
         if xt.dim() == 3 and xt.shape[0] != self.n_samples:
             raise InputError("x", tuple(xt.shape), f"leading dimension must equal n_samples={self.n_samples}")
-        m = self.model
-        means, var = m.sampled_forward((xt - m.x_mean) / m.x_std, self.params, self.n_samples)
-        if self.epistemic_scale != 1.0 and self.n_samples > 1:
-            centre = means.mean(dim=0, keepdim=True)
-            means = centre + (means - centre) * self.epistemic_scale**0.5
-        means = means * m.y_std + m.y_mean
-        var = var * m.y_std.square()
+        means, var = self.columns(xt.transpose(-1, -2))
+        means, var = means.transpose(1, 2).contiguous(), var.transpose(1, 2).contiguous()
         if numpy_in:
             return means.numpy(), var.numpy()
         return means, var
@@ -140,8 +176,17 @@ class Model(nn.Module, ABC):
         """Posterior-mean weights (every ensemble member) and the number of 'samples' they form."""
 
     @abstractmethod
+    def columns_params(self, params: list) -> list:
+        """`sample_params` / `mean_params` weights rearranged for `columns_forward`."""
+
+    @abstractmethod
+    def columns_forward(self, x: Tensor, params: list, n_samples: int) -> tuple[Tensor, Tensor]:
+        """Standardised (S, n_outputs, N) means and variances for standardised x (d, N) or (S, d, N)."""
+
     def sampled_forward(self, x: Tensor, params: list, n_samples: int) -> tuple[Tensor, Tensor]:
-        """Standardised (S, N, n_outputs) means and variances for standardised x (N, d) or (S, N, d)."""
+        """Row layout: standardised (S, N, n_outputs) means and variances for x (N, d) or (S, N, d)."""
+        means, var = self.columns_forward(x.transpose(-1, -2), self.columns_params(params), n_samples)
+        return means.transpose(1, 2), var.transpose(1, 2)
 
     @abstractmethod
     def reset_parameters(self, generator: torch.Generator | None = None) -> None:
@@ -184,25 +229,32 @@ class Model(nn.Module, ABC):
             raise InputError("x", tuple(xt.shape), f"predict expects shape (N, {self.n_inputs})")
         s = self.n_members if self.n_members is not None else n_samples
         sampled = self.draw(s, seed=seed)
-        means_parts, var_parts = [], []
-        for start in range(0, max(len(xt), 1), _PREDICT_CHUNK):
-            m, v = sampled(xt[start : start + _PREDICT_CHUNK])
-            means_parts.append(m)
-            var_parts.append(v)
-        means = torch.cat(means_parts, dim=1).double()
-        var = torch.cat(var_parts, dim=1).double()
-        mean = means.mean(dim=0)
-        alea = var.mean(dim=0) if self.has_aleatoric else torch.zeros_like(mean)
-        # Population variance (ddof 0): the mixture's variance. The epistemic scale is already in
-        # the samples' spread (SampledModel), so it is not applied twice. (Written out: Tensor.var
-        # over the leading dimension is ~20x slower.)
-        epi = (means - mean).square().mean(dim=0) if self.has_epistemic else torch.zeros_like(mean)
+        # Moments per chunk in standardised units, then scaled: the (S, n_outputs, N) samples are
+        # never rescaled or copied unless asked for.
+        columns = xt.t()
+
+        def moments(rows: slice) -> tuple[Tensor, Tensor, Tensor]:
+            means, var = sampled.standardised(columns[:, rows])
+            mean = means.mean(dim=0)
+            # Population variance (ddof 0): the mixture's variance.
+            return mean, var.mean(dim=0), (means - mean).square_().mean(dim=0)
+
+        parts = [moments(rows) for rows in even_blocks(len(xt), CHUNK_ROWS, workers=1)]
+        mean, alea, epi = (torch.cat(p, dim=-1) for p in zip(*parts, strict=True))
+        y_std, y_mean = self.y_std[:, None].double(), self.y_mean[:, None].double()
+        mean = mean.double() * y_std + y_mean
+        alea = alea.double() * y_std.square() if self.has_aleatoric else torch.zeros_like(mean)
+        epi_scale = y_std.square() * sampled.epistemic_scale
+        epi = epi.double() * epi_scale if self.has_epistemic else torch.zeros_like(mean)
+        sample_means = None
+        if return_samples:  # a second pass, in physical units (a rarely used diagnostic)
+            sample_means = sampled.columns(xt.t())[0].transpose(1, 2).contiguous().numpy()
         return Prediction(
-            mean=mean.numpy(),
-            aleatoric_var=alea.numpy(),
-            epistemic_var=epi.numpy(),
-            total_var=(alea + epi).numpy(),
-            sample_means=means.float().numpy() if return_samples else None,
+            mean=mean.t().numpy(),
+            aleatoric_var=alea.t().numpy(),
+            epistemic_var=epi.t().numpy(),
+            total_var=(alea + epi).t().numpy(),
+            sample_means=sample_means,
             has_epistemic=self.has_epistemic,
             has_aleatoric=self.has_aleatoric,
         )

@@ -101,12 +101,10 @@ class StackModel(Model):
                 self.noise_rho.fill_(0.0)
 
     # ----- heads ------------------------------------------------------------------------------
-    def _head(self, h: Tensor, *, contiguous: bool = False) -> tuple[Tensor, Tensor | None]:
+    def _head(self, h: Tensor) -> tuple[Tensor, Tensor | None]:
         o = self.n_outputs
         if self.head == "gaussian":
-            raw = h[..., o:]
-            # Elementwise ops on a strided slice of a large (S, N, 2·O) tensor are ~10x slower.
-            std = F.softplus(raw.contiguous() if contiguous else raw) + self.config.min_std
+            std = F.softplus(h[..., o:]) + self.config.min_std
             return h[..., :o], std.square()
         if self.head == "homoscedastic":
             std = F.softplus(self.noise_rho) + self.config.min_std
@@ -157,34 +155,66 @@ class StackModel(Model):
                 params.append((layer.weight, layer.bias))
         return params, (self.n_members or 1)
 
-    def sampled_forward(self, x: Tensor, params: list, n_samples: int) -> tuple[Tensor, Tensor]:
-        """Evaluate S weight sets with batched matmuls; x is (N, d) or (S, N, d), standardised."""
-        h = x
-        for (w, b), act in zip(params, self.activations, strict=True):
-            if w.dim() == 3 and h.dim() == 2:
-                # Rows shared by every sample: one (N, in) @ (in, S·out) GEMM instead of a batched
-                # matmul over an expanded (S, N, in) copy of the input. The bias is added in the
-                # GEMM's contiguous (N, S, out) layout, then viewed as (S, N, out).
+    def columns_params(self, params: list) -> list:
+        """`sample_params`/`mean_params` weights in column layout, one (W, b, W_aug) per layer.
+
+        W is (out, in) or (S, out, in), b (out, 1) or (S, out, 1). W_aug is set on a sampled layer
+        whose input is shared by every sample: (S·out, in + 1) with the biases as a last column, so
+        one GEMM against the input with a row of ones appended adds them (a separate broadcast bias
+        costs a full extra pass over the layer's largest output).
+        """
+        out = []
+        shared_input = True
+        for w, b in params:
+            if w.dim() == 3:
                 s, n_in, n_out = w.shape
-                h = (h @ w.permute(1, 0, 2).reshape(n_in, s * n_out)).reshape(-1, s, n_out)
-                h = h.add_(b.transpose(0, 1)).transpose(0, 1)
+                wc = w.transpose(1, 2).contiguous()
+                bc = b.reshape(s, n_out, 1).contiguous()
+                aug = torch.cat([wc, bc], dim=2).reshape(s * n_out, n_in + 1) if shared_input else None
+                out.append((wc, bc, aug))
+                shared_input = False
+            else:
+                out.append((w.t().contiguous(), b.reshape(-1, 1).contiguous(), None))
+        return out
+
+    def columns_forward(self, x: Tensor, params: list, n_samples: int) -> tuple[Tensor, Tensor]:
+        """Evaluate S weight sets on standardised inputs in column layout: x is (d, N) or (S, d, N).
+
+        Returns standardised means and variances, each (S, n_outputs, N). `params` come from
+        `columns_params`. Column layout keeps the long row axis last, so every layer is a GEMM whose
+        large dimension is contiguous, and each sample's block of units is contiguous for the next
+        batched matmul and for the elementwise head (a row-major (S, N, out) layout makes the
+        per-sample matmul and the head run on strided memory, which was ~2x slower overall).
+        """
+        h = x
+        for (w, b, aug), act in zip(params, self.activations, strict=True):
+            if w.dim() == 3 and h.dim() == 2:
+                # Inputs shared by every sample: one (S·out, in + 1) @ (in + 1, N) GEMM serves all S.
+                ones = torch.ones((1, h.shape[1]), dtype=h.dtype)
+                h = (aug @ torch.cat([h, ones])).view(w.shape[0], w.shape[1], -1)
             elif w.dim() == 3:
                 if h.shape[0] != w.shape[0]:
                     h = h.expand(w.shape[0], *h.shape[1:])
-                h = torch.baddbmm(b, h, w)
+                h = torch.baddbmm(b, w, h)
+            elif h.dim() == 2:
+                # Shared dense weights before any sampled layer: one matmul serves every sample.
+                h = torch.addmm(b, w, h)
             else:
-                # Shared dense weights: one matmul serves every sample (no expansion needed yet).
-                h = (h @ w).add_(b)
+                # Shared weights on per-sample rows: one (S·N, in) @ (in, out) GEMM, not S small ones.
+                h = torch.matmul(h.transpose(1, 2), w.t()).transpose(1, 2).add_(b)
             if act is not None:
                 h = _ACT_INPLACE[act](h)
         if h.dim() == 2:
             h = h.expand(n_samples, *h.shape)
         elif h.shape[0] != n_samples:
             h = h.expand(n_samples, *h.shape[1:])
-        mean, var = self._head(h, contiguous=True)
-        if var is None:
-            var = torch.zeros_like(mean)
-        return mean, var
+        o = self.n_outputs
+        if self.head == "gaussian":
+            return h[:, :o], F.softplus(h[:, o:]).add_(self.config.min_std).square_()
+        if self.head == "homoscedastic":
+            std = F.softplus(self.noise_rho) + self.config.min_std
+            return h, std.square()[:, None].expand_as(h)
+        return h, torch.zeros_like(h)
 
 
 class HybridPBNN(StackModel):

@@ -9,6 +9,7 @@
    error at 10 s, 30 s and the end, and the fraction of ground-truth steps inside the 95% band.
 
 Usage: python experiments/benchmarks/bench_surrogate.py [--maneuvers 256] [--samples 32] [--epochs 120]
+       [--repeats 5]
 """
 
 from __future__ import annotations
@@ -68,6 +69,7 @@ def main() -> None:
     parser.add_argument("--train-maneuvers", type=int, default=60)
     parser.add_argument("--samples", type=int, default=32)
     parser.add_argument("--epochs", type=int, default=120)
+    parser.add_argument("--repeats", type=int, default=5, help="timed surrogate calls per variant")
     args = parser.parse_args()
     threads = os.cpu_count() or 1
 
@@ -86,20 +88,30 @@ def main() -> None:
     controls = [t[["throttle", "steering"]].to_numpy() for t in truth]
     initial = np.array([[t["speed"].iloc[0], t["angZ"].iloc[0]] for t in truth])
 
-    timings, rollouts = {}, {}
+    timings: dict[str, list[float]] = {}
+    rollouts = {}
     for name, model in models.items():
         simulate(model, controls[:4], n_samples=args.samples, initial_rates=initial[:4])  # warm-up
-        started = time.perf_counter()
-        rollouts[name] = simulate(model, controls, n_samples=args.samples, initial_rates=initial)
-        timings[name] = time.perf_counter() - started
+        timings[name] = []
+        for _ in range(args.repeats):
+            rollouts.pop(name, None)  # free the last result first: the timed call allocates afresh
+            started = time.perf_counter()
+            rollouts[name] = simulate(model, controls, n_samples=args.samples, initial_rates=initial)
+            timings[name].append(time.perf_counter() - started)
 
     steps = sum(len(c) for c in controls)
     print(
-        f"\n{args.maneuvers} maneuvers x 90 s at 30 Hz ({steps} steps), {threads} threads, S = {args.samples}"
+        f"\n{args.maneuvers} maneuvers x 90 s at 30 Hz ({steps} steps), {threads} threads, "
+        f"S = {args.samples}; surrogate: {args.repeats} timed calls after a small warm-up "
+        "(first / median / min)"
     )
     print(f"  MuJoCo                  {sim_seconds:8.2f} s")
-    for name, seconds in timings.items():
-        print(f"  surrogate ({name:6s})      {seconds:8.2f} s   speed-up x{sim_seconds / seconds:7.1f}")
+    for name, runs in timings.items():
+        first, median, best = runs[0], float(np.median(runs)), min(runs)
+        print(
+            f"  surrogate ({name:6s})      {first:6.2f} / {median:.2f} / {best:.2f} s   speed-up (median)"
+            f" x{sim_seconds / median:6.1f}   (first call x{sim_seconds / first:.1f})"
+        )
 
     rows = []
     for name, rollout in rollouts.items():

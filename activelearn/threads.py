@@ -1,0 +1,63 @@
+"""Thread control for torch work: a scoped intra-op thread count and a thread-pool map.
+
+Large evaluations here (posterior draws over many rows, thousands of sampled trajectories) split
+into independent blocks. Running the blocks on a pool of Python threads, each block's torch ops on
+one intra-op thread, scales better on few cores than letting every op split itself (measured on
+2 cores: pose integration of 32 × 256 × 2 700 steps 78 ms against 135 ms). Torch releases the GIL
+inside its ops, so the threads run in parallel.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+from typing import TypeVar
+
+import torch
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+@contextmanager
+def intra_op_threads(n: int | None) -> Iterator[None]:
+    """Set torch's intra-op thread count for the block (None: leave it), then restore it.
+
+    The setting is process-wide: do not run other torch work concurrently from other threads.
+    """
+    old = torch.get_num_threads()
+    if n is not None:
+        torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
+
+
+def parallel_map(task: Callable[[T], R], items: Iterable[T], workers: int | None = None) -> list[R]:
+    """`[task(i) for i in items]` on `workers` threads (default: torch's thread count), in order.
+
+    With more than one worker, torch ops inside the tasks run on one intra-op thread each.
+    """
+    items = list(items)
+    workers = min(workers or torch.get_num_threads(), len(items))
+    if workers <= 1:
+        return [task(item) for item in items]
+    with intra_op_threads(1), ThreadPoolExecutor(workers) as pool:
+        return list(pool.map(task, items))
+
+
+def even_blocks(n: int, block: int, workers: int | None = None) -> list[slice]:
+    """Slices covering range(n) in blocks of at most `block`, their count a multiple of `workers`.
+
+    Equal-sized blocks keep every worker busy to the end (1024-row blocks of 2 700 rows on two
+    threads would leave one thread idle for a third of the time).
+    """
+    if n <= 0:
+        return [slice(0, 0)]
+    workers = workers or torch.get_num_threads()
+    count = max(1, -(-n // block))
+    count = -(-count // workers) * workers if n >= workers else count
+    size = max(1, -(-n // count))
+    return [slice(start, min(start + size, n)) for start in range(0, n, size)]
