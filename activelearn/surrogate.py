@@ -22,6 +22,7 @@ Two model variants:
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -109,12 +110,15 @@ def _integrate(
     dt: float,
     yaw0: torch.Tensor,
     out: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
+    scratch: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Planar pose from rates (..., T): ψ_{k+1} = ψ_k + ω_k dt, position by the heading at step start.
 
-    `yaw0` broadcasts against (..., 1). Writes into `out` = (x, y, yaw) when given.
+    `yaw0` broadcasts against (..., 1). Writes into `out` = (x, y, yaw) when given; `scratch`
+    (shaped like v) is a work buffer to reuse across calls.
     """
     x, y, yaw = out if out is not None else (torch.empty_like(v) for _ in range(3))
+    scratch = torch.empty_like(v) if scratch is None else scratch
 
     def shifted_cumsum(rate: torch.Tensor, into: torch.Tensor) -> torch.Tensor:
         """into[..., k] = sum of rate[..., :k] (the value before step k)."""
@@ -125,7 +129,7 @@ def _integrate(
     shifted_cumsum(w, yaw)
     torch.add(yaw0, yaw, alpha=dt, out=yaw)
     # One scratch buffer serves v cos ψ, then v sin ψ.
-    scratch = torch.cos(yaw).mul_(v)
+    torch.cos(yaw, out=scratch).mul_(v)
     shifted_cumsum(scratch, x).mul_(dt)
     torch.sin(yaw, out=scratch).mul_(v)
     shifted_cumsum(scratch, y).mul_(dt)
@@ -170,19 +174,30 @@ def _static_rollout(model, controls: np.ndarray, n_samples: int, gen: torch.Gene
         aleatoric[:, rows] = var.mean(dim=0)
         epistemic[:, rows] = (mu - centre[:, rows]).square_().mean(dim=0)
 
-    for rows in even_blocks(n_unique, CHUNK_ROWS, workers=1):
-        rows_block(rows)
     seeds = torch.randint(2**62, (n_samples,), generator=gen).tolist()
     v, w, x, y, yaw = (torch.empty((n_samples, n_maneuvers, n_steps)) for _ in range(5))
 
+    for rows in even_blocks(n_unique, CHUNK_ROWS, workers=1):
+        rows_block(rows)
+
+    # Per-thread work buffers, reused for every trajectory the thread fills: fresh multi-MB
+    # temporaries would be paged in again for each one.
+    local = threading.local()
+
     def trajectories(s: int) -> None:
-        noise = torch.Generator().manual_seed(seeds[s])
+        """Trajectory s: its own noise, scaled to its draw's rates, then the integrated pose."""
+        if not hasattr(local, "buffers"):
+            local.buffers = torch.empty((3, n_maneuvers * n_steps))
+        mean_at, std_at, scratch = local.buffers
+        generator = torch.Generator().manual_seed(seeds[s])
         for rate, j in ((v[s], 0), (w[s], 1)):
-            flat_rate = rate.view(-1).normal_(generator=noise)
-            torch.addcmul(
-                means[s, j].index_select(0, index), std[s, j].index_select(0, index), flat_rate, out=flat_rate
-            )
-        _integrate(v[s], w[s], dt, yaw0, out=(x[s], y[s], yaw[s]))
+            flat_rate = rate.view(-1).normal_(generator=generator)
+            torch.index_select(means[s, j], 0, index, out=mean_at)
+            torch.index_select(std[s, j], 0, index, out=std_at)
+            torch.addcmul(mean_at, std_at, flat_rate, out=flat_rate)
+        _integrate(
+            v[s], w[s], dt, yaw0, out=(x[s], y[s], yaw[s]), scratch=scratch.view(n_maneuvers, n_steps)
+        )
 
     parallel_map(trajectories, range(n_samples))
 
