@@ -177,7 +177,7 @@ def _static_rollout(model, controls: np.ndarray, n_samples: int, gen: torch.Gene
     seeds = torch.randint(2**62, (n_samples,), generator=gen).tolist()
     v, w, x, y, yaw = (torch.empty((n_samples, n_maneuvers, n_steps)) for _ in range(5))
 
-    for rows in even_blocks(n_unique, CHUNK_ROWS, workers=1):
+    for rows in even_blocks(n_unique, CHUNK_ROWS):
         rows_block(rows)
 
     # Per-thread work buffers, reused for every trajectory the thread fills: fresh multi-MB

@@ -1,10 +1,11 @@
 """Thread control for torch work: a scoped intra-op thread count and a thread-pool map.
 
-Large evaluations here (posterior draws over many rows, thousands of sampled trajectories) split
-into independent blocks. Running the blocks on a pool of Python threads, each block's torch ops on
-one intra-op thread, scales better on few cores than letting every op split itself (measured on
-2 cores: pose integration of 32 × 256 × 2 700 steps 78 ms against 135 ms). Torch releases the GIL
-inside its ops, so the threads run in parallel.
+Independent elementwise work over many blocks (sampled trajectories: noise, pose integration)
+scales better on a pool of Python threads, each running its torch ops on one intra-op thread, than
+when every op splits itself (measured on 2 cores: pose integration of 32 × 256 × 2 700 steps 78 ms
+against 135 ms). Torch releases the GIL inside its ops, so the threads run in parallel. GEMM-heavy
+work does not gain: matmuls in concurrent Python threads contended (two threads took longer than
+one doing both), so network evaluation stays on torch's own intra-op threads.
 """
 
 from __future__ import annotations
@@ -48,16 +49,13 @@ def parallel_map(task: Callable[[T], R], items: Iterable[T], workers: int | None
         return list(pool.map(task, items))
 
 
-def even_blocks(n: int, block: int, workers: int | None = None) -> list[slice]:
-    """Slices covering range(n) in blocks of at most `block`, their count a multiple of `workers`.
+def even_blocks(n: int, block: int) -> list[slice]:
+    """Slices covering range(n) in the fewest blocks of at most `block` rows, all of about equal size.
 
-    Equal-sized blocks keep every worker busy to the end (1024-row blocks of 2 700 rows on two
-    threads would leave one thread idle for a third of the time).
+    Equal sizes avoid a tiny last block (a per-block cost paid for a few rows).
     """
     if n <= 0:
         return [slice(0, 0)]
-    workers = workers or torch.get_num_threads()
-    count = max(1, -(-n // block))
-    count = -(-count // workers) * workers if n >= workers else count
-    size = max(1, -(-n // count))
+    count = -(-n // block)
+    size = -(-n // count)
     return [slice(start, min(start + size, n)) for start in range(0, n, size)]

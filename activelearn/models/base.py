@@ -116,7 +116,7 @@ class SampledModel:
         means = torch.empty((self.n_samples, self.model.n_outputs, x.shape[-1]))
         var = torch.empty_like(means)
 
-        for rows in even_blocks(x.shape[-1], CHUNK_ROWS, workers=1):
+        for rows in even_blocks(x.shape[-1], CHUNK_ROWS):
             var[..., rows] = self.block(x[..., rows], out=means[..., rows])[1]
         return means, var
 
@@ -239,7 +239,7 @@ class Model(nn.Module, ABC):
             # Population variance (ddof 0): the mixture's variance.
             return mean, var.mean(dim=0), (means - mean).square_().mean(dim=0)
 
-        parts = [moments(rows) for rows in even_blocks(len(xt), CHUNK_ROWS, workers=1)]
+        parts = [moments(rows) for rows in even_blocks(len(xt), CHUNK_ROWS)]
         mean, alea, epi = (torch.cat(p, dim=-1) for p in zip(*parts, strict=True))
         y_std, y_mean = self.y_std[:, None].double(), self.y_mean[:, None].double()
         mean = mean.double() * y_std + y_mean
