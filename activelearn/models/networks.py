@@ -101,14 +101,21 @@ class StackModel(Model):
                 self.noise_rho.fill_(0.0)
 
     # ----- heads ------------------------------------------------------------------------------
-    def _head(self, h: Tensor) -> tuple[Tensor, Tensor | None]:
+    def _head(self, h: Tensor, dim: int = -1, *, inplace: bool = False) -> tuple[Tensor, Tensor | None]:
+        """(mean, variance) from the last layer's output h, its units along `dim`.
+
+        `inplace` reuses the softplus buffer (prediction only: autograd needs the copies).
+        """
         o = self.n_outputs
         if self.head == "gaussian":
-            std = F.softplus(h[..., o:]) + self.config.min_std
-            return h[..., :o], std.square()
+            std = F.softplus(h.narrow(dim, o, o))
+            var = std.add_(self.config.min_std).square_() if inplace else (std + self.config.min_std).square()
+            return h.narrow(dim, 0, o), var
         if self.head == "homoscedastic":
             std = F.softplus(self.noise_rho) + self.config.min_std
-            return h, std.square().expand_as(h)
+            shape = [1] * h.dim()
+            shape[dim] = -1
+            return h, std.square().view(shape).expand_as(h)
         return h, None
 
     # ----- training ---------------------------------------------------------------------------
@@ -208,13 +215,8 @@ class StackModel(Model):
             h = h.expand(n_samples, *h.shape)
         elif h.shape[0] != n_samples:
             h = h.expand(n_samples, *h.shape[1:])
-        o = self.n_outputs
-        if self.head == "gaussian":
-            return h[:, :o], F.softplus(h[:, o:]).add_(self.config.min_std).square_()
-        if self.head == "homoscedastic":
-            std = F.softplus(self.noise_rho) + self.config.min_std
-            return h, std.square()[:, None].expand_as(h)
-        return h, torch.zeros_like(h)
+        mean, var = self._head(h, dim=1, inplace=True)
+        return mean, torch.zeros_like(mean) if var is None else var
 
 
 class HybridPBNN(StackModel):
