@@ -115,7 +115,6 @@ class SampledModel:
         """
         means = torch.empty((self.n_samples, self.model.n_outputs, x.shape[-1]))
         var = torch.empty_like(means)
-
         for rows in even_blocks(x.shape[-1], CHUNK_ROWS):
             var[..., rows] = self.block(x[..., rows], out=means[..., rows])[1]
         return means, var
@@ -229,8 +228,8 @@ class Model(nn.Module, ABC):
             raise InputError("x", tuple(xt.shape), f"predict expects shape (N, {self.n_inputs})")
         s = self.n_members if self.n_members is not None else n_samples
         sampled = self.draw(s, seed=seed)
-        # Moments per chunk in standardised units, then scaled: the (S, n_outputs, N) samples are
-        # never rescaled or copied unless asked for.
+        # Moments per block of rows in standardised units, then scaled: the (S, n_outputs, N)
+        # samples are never rescaled or copied unless asked for.
         columns = xt.t()
 
         def moments(rows: slice) -> tuple[Tensor, Tensor, Tensor]:
