@@ -331,7 +331,6 @@ class UncertaintyStrategy(Strategy):
         return picks
 
 
-
 def _proximity_penalty(pool: Pool, picks: Sequence[int], length: float) -> np.ndarray:
     """(n,) factor in [0, 1): zero at earlier picks, one far from them (Gaussian in distance/length)."""
     dist = pool.distances(np.arange(len(pool.maneuvers)), np.array(picks)).min(axis=1)

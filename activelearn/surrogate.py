@@ -174,11 +174,10 @@ def _static_rollout(model, controls: np.ndarray, n_samples: int, gen: torch.Gene
         aleatoric[:, rows] = var.mean(dim=0)
         epistemic[:, rows] = (mu - centre[:, rows]).square_().mean(dim=0)
 
-    seeds = torch.randint(2**62, (n_samples,), generator=gen).tolist()
-    v, w, x, y, yaw = (torch.empty((n_samples, n_maneuvers, n_steps)) for _ in range(5))
-
     for rows in even_blocks(n_unique, CHUNK_ROWS):
         rows_block(rows)
+    seeds = torch.randint(2**62, (n_samples,), generator=gen).tolist()
+    v, w, x, y, yaw = (torch.empty((n_samples, n_maneuvers, n_steps)) for _ in range(5))
 
     # Per-thread work buffers, reused for every trajectory the thread fills: fresh multi-MB
     # temporaries would be paged in again for each one.

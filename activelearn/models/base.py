@@ -79,7 +79,6 @@ class SampledModel:
 
     def __init__(self, model: Model, params: list, n_samples: int, seed: int) -> None:
         self.model = model
-        self.params = params
         self.n_samples = n_samples
         self.seed = seed
         self.epistemic_scale = float(model.epistemic_scale)
