@@ -13,8 +13,9 @@ Two model variants:
   * static ("controls"): rates are a function of the current controls. Nothing depends on the past,
     so every step of every maneuver is evaluated in one vectorised pass (a control row repeated at
     consecutive steps is evaluated once: skidpads, straights and eights hold a handful of rows for
-    thousands of steps). The S trajectories are then noised and integrated on a pool of threads,
-    one generator per trajectory, so the result does not depend on the thread count.
+    thousands of steps). The S trajectories are then noised and integrated by a compiled kernel
+    (`activelearn.native`, one thread-pool task per trajectory, each step's noise a function of
+    its counter), with a NumPy/torch reference that draws the same numbers where no C compiler is.
   * Markov ("controls+rates", model.n_inputs == 4): rates also depend on the previous rates. The
     rollout is sequential in time but batched over maneuvers and samples; each trajectory feeds its
     own sampled rates back in, so the fans propagate the uncertainty.
@@ -22,20 +23,22 @@ Two model variants:
 
 from __future__ import annotations
 
-import threading
+import ctypes
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
+from activelearn import counter_noise, native
 from activelearn.errors import InputError
 from activelearn.models.base import CHUNK_ROWS
 from activelearn.threads import even_blocks, parallel_map
 from simulator import Maneuver, nominal_controls
 
 N_CONTROLS = 2
-BANDS = (0.025, 0.25, 0.5, 0.75, 0.975)  # quantiles of the 95% and 50% bands and the median
+BANDS = (0.025, 0.25, 0.5, 0.75, 0.975)
+BACKENDS = ("auto", "native", "reference")  # quantiles of the 95% and 50% bands and the median
 
 
 @dataclass(frozen=True)
@@ -151,59 +154,97 @@ def _distinct_rows(controls: np.ndarray) -> tuple[np.ndarray, torch.Tensor]:
     return flat[changed], torch.as_tensor(np.cumsum(changed) - 1)
 
 
-def _static_rollout(model, controls: np.ndarray, n_samples: int, gen: torch.Generator, dt: float, yaw0):
+def _static_rollout(
+    model, controls: np.ndarray, n_samples: int, gen: torch.Generator, dt: float, yaw0: np.ndarray, fill
+):
     """Sampled trajectories of a static model: rates and pose, each (S, M, T), and per-step moments.
 
     Every distinct control row is evaluated once (all S draws in one batched pass per block of
     rows); the moments are taken over draws on those rows, then spread back to the steps that use
-    them. Trajectory s gets its aleatoric noise from its own generator (seeded from `gen`), so the
-    result does not depend on how many threads fill the samples in.
+    them. `fill` (the compiled kernel or its NumPy/torch reference) then draws each trajectory's
+    aleatoric noise from counters under the trajectory's own key (`activelearn.counter_noise`) and
+    integrates the pose, so the result depends neither on the thread count nor on the backend.
     """
     n_maneuvers, n_steps, _ = controls.shape
     unique, index = _distinct_rows(controls)
     sampled = model.draw(n_samples, seed=int(torch.randint(2**31 - 1, (1,), generator=gen)))
     inputs = torch.as_tensor(unique.T, dtype=torch.float32)
     n_unique = inputs.shape[1]
-    means, std = (torch.empty((n_samples, 2, n_unique)) for _ in range(2))
+    means, variances = (torch.empty((n_samples, 2, n_unique)) for _ in range(2))
     centre, aleatoric, epistemic = (torch.empty((2, n_unique)) for _ in range(3))
 
-    def rows_block(rows: slice) -> None:
-        mu, var = sampled.block(inputs[:, rows], out=means[..., rows])
-        torch.sqrt(var, out=std[..., rows])
+    for rows in even_blocks(n_unique, CHUNK_ROWS):
+        mu, var = sampled.block(inputs[:, rows], out=(means[..., rows], variances[..., rows]))
         centre[:, rows] = mu.mean(dim=0)
         aleatoric[:, rows] = var.mean(dim=0)
         epistemic[:, rows] = (mu - centre[:, rows]).square_().mean(dim=0)
-
-    for rows in even_blocks(n_unique, CHUNK_ROWS):
-        rows_block(rows)
-    seeds = torch.randint(2**62, (n_samples,), generator=gen).tolist()
-    v, w, x, y, yaw = (torch.empty((n_samples, n_maneuvers, n_steps)) for _ in range(5))
-
-    # Per-thread work buffers, reused for every trajectory the thread fills: fresh multi-MB
-    # temporaries would be paged in again for each one.
-    local = threading.local()
-
-    def trajectories(s: int) -> None:
-        """Trajectory s: its own noise, scaled to its draw's rates, then the integrated pose."""
-        if not hasattr(local, "buffers"):
-            local.buffers = torch.empty((3, n_maneuvers * n_steps))
-        mean_at, std_at, scratch = local.buffers
-        generator = torch.Generator().manual_seed(seeds[s])
-        for rate, j in ((v[s], 0), (w[s], 1)):
-            flat_rate = rate.view(-1).normal_(generator=generator)
-            torch.index_select(means[s, j], 0, index, out=mean_at)
-            torch.index_select(std[s, j], 0, index, out=std_at)
-            torch.addcmul(mean_at, std_at, flat_rate, out=flat_rate)
-        _integrate(
-            v[s], w[s], dt, yaw0, out=(x[s], y[s], yaw[s]), scratch=scratch.view(n_maneuvers, n_steps)
-        )
-
-    parallel_map(trajectories, range(n_samples))
+    keys = torch.randint(2**62, (n_samples,), generator=gen).tolist()
+    paths = fill(means.numpy(), variances.numpy(), index.numpy(), keys, (n_maneuvers, n_steps), dt, yaw0)
 
     def per_step(moment: torch.Tensor) -> torch.Tensor:  # (2, U) → (M, T, 2)
         return moment.index_select(1, index).t().reshape(n_maneuvers, n_steps, 2)
 
-    return (v, w, x, y, yaw), (per_step(centre), per_step(aleatoric), per_step(epistemic))
+    return paths, (per_step(centre), per_step(aleatoric), per_step(epistemic))
+
+
+def _trajectory_filler(backend: str):
+    """The function that fills a static rollout's trajectories for `backend` (see `simulate`)."""
+    if backend == "reference" or (backend == "auto" and native.library() is None):
+        return _reference_trajectories
+    if native.library() is None:
+        raise InputError("backend", backend, "the compiled kernel could not be built on this machine")
+    return _native_trajectories
+
+
+def _native_trajectories(means, variances, index, keys, shape, dt, yaw0) -> tuple[np.ndarray, ...]:
+    """S trajectories (v, w, x, y, yaw), each (S, M, T), from the compiled kernel, one task per trajectory.
+
+    `means`, `variances` (aleatoric) are (S, 2, U) per distinct row, `index` (M·T,) each step's
+    row. ctypes releases the GIL, so the tasks run in parallel.
+    """
+    kernel = native.library()
+    n_maneuvers, n_steps = shape
+    paths = tuple(np.empty((len(keys), n_maneuvers, n_steps), dtype=np.float32) for _ in range(5))
+
+    def pointer(array: np.ndarray, kind=ctypes.c_float):
+        return array.ctypes.data_as(ctypes.POINTER(kind))
+
+    def trajectory(s: int) -> None:
+        kernel.al_static_trajectory(
+            n_maneuvers,
+            n_steps,
+            dt,
+            *(pointer(a) for a in (means[s, 0], variances[s, 0], means[s, 1], variances[s, 1])),
+            pointer(index, ctypes.c_int64),
+            pointer(yaw0),
+            1,
+            keys[s] & 0xFFFFFFFF,
+            keys[s] >> 32,
+            *(pointer(p[s]) for p in paths),
+        )
+
+    parallel_map(trajectory, range(len(keys)))
+    return paths
+
+
+def _reference_trajectories(means, variances, index, keys, shape, dt, yaw0) -> tuple[np.ndarray, ...]:
+    """What the compiled kernel computes, in NumPy and torch: the fallback without a C compiler."""
+    n_maneuvers, n_steps = shape
+    means, std, index = torch.from_numpy(means), torch.from_numpy(variances).sqrt(), torch.from_numpy(index)
+    start = torch.from_numpy(yaw0)[:, None]
+    paths = tuple(torch.empty((len(keys), n_maneuvers, n_steps)) for _ in range(5))
+
+    def trajectory(s: int) -> None:
+        v, w, x, y, yaw = (p[s] for p in paths)
+        noise = counter_noise.step_noise(keys[s], n_maneuvers, n_steps)
+        for j, (rate, z) in enumerate(zip((v, w), noise, strict=True)):
+            rate.copy_(torch.from_numpy(z))
+            mean_at, std_at = (m[s, j].index_select(0, index).view_as(rate) for m in (means, std))
+            torch.addcmul(mean_at, std_at, rate, out=rate)
+        _integrate(v, w, dt, start, out=(x, y, yaw))
+
+    parallel_map(trajectory, range(len(keys)))
+    return tuple(p.numpy() for p in paths)
 
 
 def simulate(
@@ -215,42 +256,57 @@ def simulate(
     seed: int = 0,
     initial_rates: np.ndarray | None = None,
     initial_yaw: np.ndarray | float = 0.0,
+    backend: str = "auto",
 ) -> Rollout:
     """Forward-simulate `model` along control sequences (each (T, 2) at `rate_hz`) with S samples.
 
-    `initial_rates` (M, 2) seeds the Markov variant's previous rates (default: standing still).
-    Deterministic for a given seed.
+    `initial_rates` (M, 2) seeds the Markov variant's previous rates (default: standing still);
+    `initial_yaw` is one heading or one per maneuver. Deterministic for a given seed.
+
+    `backend` picks how a static model's trajectories are filled: "native" (the compiled kernel),
+    "reference" (NumPy/torch, several times slower) or "auto" (native where a C compiler built
+    it). Both draw the same noise, so they agree up to float rounding.
     """
     if n_samples < 2:
         raise InputError("n_samples", n_samples, "must be at least 2 to form bands")
     if not rate_hz > 0:
         raise InputError("rate_hz", rate_hz, "must be positive")
+    if backend not in BACKENDS:
+        raise InputError("backend", backend, f"must be one of {', '.join(BACKENDS)}")
     stacked, lengths = _stack(controls)
+    try:
+        start_yaw = np.broadcast_to(np.asarray(initial_yaw, dtype=np.float32), (len(stacked),)).copy()
+    except ValueError:
+        raise InputError(
+            "initial_yaw", np.shape(initial_yaw), f"give one heading or one per maneuver ({len(stacked)})"
+        ) from None
     dt = 1.0 / rate_hz
     gen = torch.Generator().manual_seed(int(seed))
     n_inputs = int(model.n_inputs)
     with torch.no_grad():
-        yaw0 = torch.as_tensor(np.asarray(initial_yaw, dtype=np.float32))[..., None]
         if n_inputs == N_CONTROLS:
+            fill = _trajectory_filler(backend)
             (v, w, x, y, yaw), (mean_rates, aleatoric, epistemic) = _static_rollout(
-                model, stacked, n_samples, gen, dt, yaw0
+                model, stacked, n_samples, gen, dt, start_yaw, fill
             )
         elif n_inputs == N_CONTROLS + 2:
             (v, w), (mean_rates, aleatoric, epistemic) = _markov_rollout(
                 model, stacked, n_samples, gen, initial_rates
             )
-            x, y, yaw = _integrate(v, w, dt, yaw0)
+            v, w, x, y, yaw = (
+                p.numpy() for p in (v, w, *_integrate(v, w, dt, torch.from_numpy(start_yaw)[:, None]))
+            )
         else:
             raise InputError(
                 "model.n_inputs", n_inputs, "the surrogate needs 2 (controls) or 4 (controls + rates)"
             )
     return Rollout(
         dt=dt,
-        v=v.numpy(),
-        w=w.numpy(),
-        x=x.numpy(),
-        y=y.numpy(),
-        yaw=yaw.numpy(),
+        v=v,
+        w=w,
+        x=x,
+        y=y,
+        yaw=yaw,
         mean_rates=mean_rates.numpy(),
         aleatoric_var=aleatoric.numpy(),
         epistemic_var=epistemic.numpy(),

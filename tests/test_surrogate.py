@@ -13,6 +13,7 @@ import torch
 import simulator
 from activelearn.collection import arrays, training_rows
 from activelearn.config import DataConfig, ModelConfig, TrainingConfig
+from activelearn.errors import InputError
 from activelearn.models import build_model
 from activelearn.surrogate import _integrate, against_simulator, simulate
 from activelearn.training import fit
@@ -203,3 +204,37 @@ def test_rollout_is_seeded_and_independent_of_the_thread_count(skidpad_model):
     assert not np.array_equal(other.v, one.v)
     # The shorter maneuver is padded with its last control: its tail repeats the last rates' moments.
     np.testing.assert_array_equal(one.mean_rates[1, 120:], np.broadcast_to(one.mean_rates[1, 119], (60, 2)))
+
+
+def test_compiled_kernel_and_reference_give_the_same_rollout(skidpad_model):
+    # Three lengths (a partial last tile, padding) and a heading per maneuver.
+    t = np.linspace(0.0, 20.0, 600)
+    controls = [
+        np.column_stack([np.full_like(t, 0.6), 0.4 * np.sin(t)]),
+        np.tile([0.8, -0.2], (1100, 1)),
+        np.tile([0.4, 0.3], (37, 1)),
+    ]
+    call = dict(n_samples=6, seed=5, initial_yaw=np.array([0.0, 1.0, -2.5]))
+    compiled = simulate(skidpad_model, controls, backend="native", **call)
+    reference = simulate(skidpad_model, controls, backend="reference", **call)
+    for name in ("v", "w", "yaw", "mean_rates", "aleatoric_var", "epistemic_var"):
+        np.testing.assert_allclose(getattr(compiled, name), getattr(reference, name), atol=1e-5, err_msg=name)
+    for name in ("x", "y"):  # metres after up to 37 s: float32 rounding of the heading adds up
+        np.testing.assert_allclose(getattr(compiled, name), getattr(reference, name), atol=1e-4, err_msg=name)
+    assert compiled.yaw[:, 2, 0] == pytest.approx(-2.5)
+
+
+def test_a_maneuvers_rollout_does_not_depend_on_the_rest_of_the_batch(skidpad_model):
+    alone = simulate(skidpad_model, [np.tile([0.5, 0.2], (300, 1))], n_samples=4, seed=9)
+    batch = simulate(skidpad_model, [np.tile([0.5, 0.2], (300, 1)), np.tile([0.9, -0.4], (900, 1))],
+                     n_samples=4, seed=9)
+    for name in ("v", "w", "x", "y"):
+        np.testing.assert_allclose(getattr(batch, name)[:, 0, :300], getattr(alone, name)[:, 0], atol=1e-6)
+
+
+def test_simulate_rejects_an_unknown_backend_or_a_wrong_heading_shape(skidpad_model):
+    controls = [np.tile([0.5, 0.2], (30, 1))]
+    with pytest.raises(InputError, match="backend"):
+        simulate(skidpad_model, controls, backend="cuda")
+    with pytest.raises(InputError, match="initial_yaw"):
+        simulate(skidpad_model, controls, initial_yaw=np.zeros(3))

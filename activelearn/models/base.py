@@ -93,18 +93,19 @@ class SampledModel:
         xs = (x - m.x_mean[:, None]) / m.x_std[:, None]
         return m.columns_forward(xs, self._column_params, self.n_samples)
 
-    def block(self, x: Tensor, out: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    def block(self, x: Tensor, out: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor]:
         """Physical (S, n_outputs, n) means and variances for one block of inputs (d, n) or (S, d, n).
 
-        `out`, when given, receives the means (it may be a slice of a larger tensor).
+        `out`, when given, receives the means and the variances (slices of larger tensors, say).
         """
         m = self.model
         means, var = self.standardised(x)
         if self.epistemic_scale != 1.0 and self.n_samples > 1:
             centre = means.mean(dim=0, keepdim=True)
             means = (means - centre).mul_(self.epistemic_scale**0.5).add_(centre)
-        means = torch.addcmul(m.y_mean[:, None], means, m.y_std[:, None], out=out)
-        return means, var * m.y_std.square()[:, None]
+        out_means, out_var = (None, None) if out is None else out
+        means = torch.addcmul(m.y_mean[:, None], means, m.y_std[:, None], out=out_means)
+        return means, torch.mul(var, m.y_std.square()[:, None], out=out_var)
 
     @torch.no_grad()
     def columns(self, x: Tensor) -> tuple[Tensor, Tensor]:
@@ -115,7 +116,7 @@ class SampledModel:
         means = torch.empty((self.n_samples, self.model.n_outputs, x.shape[-1]))
         var = torch.empty_like(means)
         for rows in even_blocks(x.shape[-1], CHUNK_ROWS):
-            var[..., rows] = self.block(x[..., rows], out=means[..., rows])[1]
+            self.block(x[..., rows], out=(means[..., rows], var[..., rows]))
         return means, var
 
     def __call__(self, x: np.ndarray | Tensor) -> tuple[np.ndarray | Tensor, np.ndarray | Tensor]:

@@ -1,0 +1,120 @@
+"""Compiled kernels, built on first use with the machine's C compiler and loaded through ctypes.
+
+One fused loop that no library provides: noise, rates and pose of one sampled trajectory of the
+static surrogate (`static_rollout.c`), replacing a chain of torch passes over multi-MB arrays. It is
+compiled once per machine (sources, flags, compiler and CPU features form the cache key) into
+`$ACTIVELEARN_CACHE_DIR`, else `$XDG_CACHE_HOME/activelearn`, else `~/.cache/activelearn`, and
+written atomically so concurrent processes can race to build it safely.
+
+Without a working C compiler `library()` returns None once with a warning, and callers take their
+NumPy/torch path, which computes the same numbers (up to float rounding) but runs slower. Set
+`ACTIVELEARN_NATIVE=0` to force that path.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import hashlib
+import os
+import platform
+import shutil
+import subprocess
+import tempfile
+import warnings
+from pathlib import Path
+
+SOURCES = (Path(__file__).with_name("static_rollout.c"),)
+# -ffast-math lets GCC vectorise logf/sinf/cosf through glibc's libmvec; -march=native is safe
+# because the cache key includes this machine's CPU features.
+FLAGS = ("-O3", "-ffast-math", "-march=native", "-fPIC", "-shared")
+LINK_OPTIONS = (("-lmvec", "-lm"), ("-lm",))  # libmvec is glibc's; elsewhere the scalar libm serves
+COMPILE_TIMEOUT_S = 120
+
+_f32 = ctypes.POINTER(ctypes.c_float)
+_i64 = ctypes.POINTER(ctypes.c_int64)
+_u32 = ctypes.POINTER(ctypes.c_uint32)
+SIGNATURES = {
+    "al_tile": ([], ctypes.c_int),
+    "al_philox4x32_10": ([_u32, _u32, _u32], None),
+    "al_static_trajectory": (
+        [ctypes.c_int64, ctypes.c_int64, ctypes.c_float, _f32, _f32, _f32, _f32, _i64, _f32, ctypes.c_int64]
+        + [ctypes.c_uint32, ctypes.c_uint32]
+        + [_f32] * 5,
+        None,
+    ),
+}
+
+
+def cache_dir() -> Path:
+    """Where built kernels are kept."""
+    if os.environ.get("ACTIVELEARN_CACHE_DIR"):
+        return Path(os.environ["ACTIVELEARN_CACHE_DIR"])
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "activelearn"
+
+
+def _compiler() -> str:
+    for name in (os.environ.get("CC"), "cc", "gcc", "clang"):
+        if name and shutil.which(name):
+            return name
+    raise OSError("no C compiler found (looked for $CC, cc, gcc, clang)")
+
+
+def _cpu_features() -> str:
+    try:
+        with open("/proc/cpuinfo") as info:
+            return next((line for line in info if line.startswith(("flags", "Features"))), "")
+    except OSError:
+        return platform.processor()
+
+
+def _build(compiler: str) -> Path:
+    """Compile the kernel into the cache (or find it there) and return the library's path."""
+    version = subprocess.run([compiler, "--version"], capture_output=True, text=True, check=False).stdout
+    sources = [path.read_text() for path in SOURCES]
+    identity = [*sources, " ".join(FLAGS), version, platform.machine(), _cpu_features()]
+    key = hashlib.sha256("\0".join(identity).encode()).hexdigest()[:16]
+    target = cache_dir() / "native" / f"kernels-{key}.so"
+    if target.exists():
+        return target
+    target.parent.mkdir(parents=True, exist_ok=True)
+    errors = []
+    for link in LINK_OPTIONS:
+        fd, tmp = tempfile.mkstemp(suffix=".so", dir=target.parent)
+        os.close(fd)
+        done = subprocess.run(
+            [compiler, *FLAGS, "-o", tmp, *map(str, SOURCES), *link],
+            capture_output=True,
+            text=True,
+            timeout=COMPILE_TIMEOUT_S,
+            check=False,
+        )
+        if done.returncode == 0:
+            os.replace(tmp, target)  # atomic: a concurrent builder's identical file may win, harmlessly
+            return target
+        os.unlink(tmp)
+        message = done.stderr.strip()
+        errors.append(message.splitlines()[-1] if message else f"exit status {done.returncode}")
+    raise OSError(f"{compiler} failed: {' | '.join(errors)}")
+
+
+@functools.cache
+def library() -> ctypes.CDLL | None:
+    """The compiled kernels, or None (warned once) where they cannot be built or are switched off."""
+    if os.environ.get("ACTIVELEARN_NATIVE", "1") == "0":
+        return None
+    try:
+        lib = ctypes.CDLL(str(_build(_compiler())))
+    except (OSError, subprocess.SubprocessError) as error:
+        warnings.warn(
+            f"activelearn: compiled kernel unavailable ({error}); using the slower NumPy/torch path",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+        return None
+    for name, (argtypes, restype) in SIGNATURES.items():
+        function = getattr(lib, name)
+        function.argtypes, function.restype = argtypes, restype
+    return lib
+

@@ -1,0 +1,120 @@
+"""The compiled surrogate kernel and its counter noise: known answers, the NumPy reference, the build."""
+
+from __future__ import annotations
+
+import ctypes
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from activelearn import counter_noise, native
+
+# Random123's published known-answer vectors for Philox4x32-10 (its tests/kat_vectors).
+PHILOX_KAT = [
+    ((0, 0, 0, 0), (0, 0), (0x6627E8D5, 0xE169C58D, 0xBC57AC4C, 0x9B00DBD8)),
+    ((0xFFFFFFFF,) * 4, (0xFFFFFFFF,) * 2, (0x408F276D, 0x41C83B0E, 0xA20BC7C6, 0x6D5451FD)),
+    (
+        (0x243F6A88, 0x85A308D3, 0x13198A2E, 0x03707344),
+        (0xA4093822, 0x299F31D0),
+        (0xD16CFE09, 0x94FDCCEB, 0x5001E420, 0x24126EA1),
+    ),
+]
+
+
+@pytest.fixture(scope="module")
+def kernel():
+    lib = native.library()
+    assert lib is not None, "the C kernel must build on the test machines (gcc is part of the set-up)"
+    return lib
+
+
+def _pointer(array: np.ndarray, kind=ctypes.c_float):
+    return array.ctypes.data_as(ctypes.POINTER(kind))
+
+
+def _noise_from_kernel(kernel, key: int, n_maneuvers: int, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """The kernel's sampled rates for one row of mean 0 and variance 1: its standard normal noise."""
+    zero, one = np.zeros(1, np.float32), np.ones(1, np.float32)
+    index = np.zeros(n_maneuvers * n_steps, np.int64)
+    out = [np.empty((n_maneuvers, n_steps), np.float32) for _ in range(5)]
+    kernel.al_static_trajectory(
+        n_maneuvers, n_steps, 0.1, *(_pointer(a) for a in (zero, one, zero, one)),
+        _pointer(index, ctypes.c_int64), _pointer(zero), 0, key & 0xFFFFFFFF, key >> 32,
+        *(_pointer(a) for a in out),
+    )
+    return out[0], out[1]
+
+
+@pytest.mark.parametrize(("counter", "key", "expected"), PHILOX_KAT)
+def test_philox_matches_the_known_answers_in_c_and_numpy(kernel, counter, key, expected):
+    words = (ctypes.c_uint32 * 4)()
+    kernel.al_philox4x32_10((ctypes.c_uint32 * 4)(*counter), (ctypes.c_uint32 * 2)(*key), words)
+    assert tuple(words) == expected
+    assert tuple(int(w) for w in counter_noise.philox4x32_10(counter, key)) == expected
+
+
+def test_kernel_draws_the_reference_noise(kernel):
+    # 1 300 steps: two full tiles and a partial one; 3 maneuvers: the maneuver is part of the counter.
+    assert kernel.al_tile() == counter_noise.TILE
+    key = 0x0123_4567_89AB
+    zv, zw = _noise_from_kernel(kernel, key, 3, 1300)
+    rv, rw = counter_noise.step_noise(key, 3, 1300)
+    np.testing.assert_allclose(zv, rv, atol=2e-6)
+    np.testing.assert_allclose(zw, rw, atol=2e-6)
+    other_v, _ = _noise_from_kernel(kernel, key + 1, 3, 1300)
+    assert np.abs(other_v - zv).mean() > 0.5
+
+
+def test_counter_noise_is_standard_normal_and_independent():
+    zv, zw = counter_noise.step_noise(7, 16, 8000)
+
+    def within_five_sigma(statistic: float, n: int, scale: float = 1.0) -> bool:
+        return abs(statistic) < 5.0 * scale / np.sqrt(n)
+
+    for z in (zv.ravel(), zw.ravel()):
+        assert within_five_sigma(z.mean(), z.size)
+        assert within_five_sigma(z.var() - 1.0, z.size, np.sqrt(2.0))
+        assert within_five_sigma(np.mean(z**4) - 3.0, z.size, np.sqrt(96.0))  # Gaussian kurtosis
+        assert stats.kstest(z, "norm").pvalue > 0.01
+    pairs = {
+        "v and ω noise of one step": (zv.ravel(), zw.ravel()),
+        "consecutive steps": (zv[:, 1:].ravel(), zv[:, :-1].ravel()),
+        "one counter's two steps": (zv[:, :256].ravel(), zv[:, 256:512].ravel()),
+        "two maneuvers": (zv[0], zv[1]),
+    }
+    for name, (a, b) in pairs.items():
+        assert within_five_sigma(np.corrcoef(a, b)[0, 1], a.size), name
+    # A maneuver's noise depends only on its own counters, not on how many steps the batch has.
+    short_v, _ = counter_noise.step_noise(7, 16, 700)
+    np.testing.assert_array_equal(short_v, zv[:, :700])
+
+
+def test_kernel_builds_once_into_the_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("ACTIVELEARN_CACHE_DIR", str(tmp_path))
+    native.library.cache_clear()
+    try:
+        assert native.library() is not None
+        built = list((tmp_path / "native").glob("*.so"))
+        assert len(built) == 1
+        stamp = built[0].stat().st_mtime_ns
+        native.library.cache_clear()
+        assert native.library() is not None
+        assert built[0].stat().st_mtime_ns == stamp  # reused, not rebuilt
+        assert not list((tmp_path / "native").glob("tmp*"))  # no temporary left behind
+    finally:
+        native.library.cache_clear()
+
+
+def test_a_failing_compiler_warns_and_falls_back(tmp_path, monkeypatch):
+    monkeypatch.setenv("ACTIVELEARN_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("CC", "false")  # exists everywhere, fails every compile
+    native.library.cache_clear()
+    try:
+        with pytest.warns(RuntimeWarning, match="kernel unavailable"):
+            assert native.library() is None
+        monkeypatch.setenv("ACTIVELEARN_NATIVE", "0")
+        native.library.cache_clear()
+        assert native.library() is None
+    finally:
+        native.library.cache_clear()
