@@ -204,7 +204,9 @@ def _native_trajectories(means, variances, index, keys, shape, dt, yaw0) -> tupl
     """
     kernel = native.library()
     n_maneuvers, n_steps = shape
-    paths = tuple(np.empty((len(keys), n_maneuvers, n_steps), dtype=np.float32) for _ in range(5))
+    # torch, not numpy, allocates: numpy advises huge pages for large arrays, and the kernel's
+    # compaction for them made first calls 2-3x slower here.
+    paths = tuple(torch.empty((len(keys), n_maneuvers, n_steps)).numpy() for _ in range(5))
 
     def pointer(array: np.ndarray, kind=ctypes.c_float):
         return array.ctypes.data_as(ctypes.POINTER(kind))

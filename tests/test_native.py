@@ -6,9 +6,14 @@ import ctypes
 
 import numpy as np
 import pytest
+import torch
 from scipy import stats
 
 from activelearn import counter_noise, native
+from activelearn.config import ModelConfig
+from activelearn.errors import InputError
+from activelearn.models import build_model
+from activelearn.surrogate import simulate
 
 # Random123's published known-answer vectors for Philox4x32-10 (its tests/kat_vectors).
 PHILOX_KAT = [
@@ -20,6 +25,13 @@ PHILOX_KAT = [
         (0xD16CFE09, 0x94FDCCEB, 0x5001E420, 0x24126EA1),
     ),
 ]
+
+
+@pytest.fixture(scope="module")
+def untrained_model():
+    """An untrained default hybrid: enough to drive a rollout through either backend."""
+    torch.manual_seed(0)
+    return build_model(ModelConfig())
 
 
 @pytest.fixture(scope="module")
@@ -91,30 +103,34 @@ def test_counter_noise_is_standard_normal_and_independent():
 
 
 def test_kernel_builds_once_into_the_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("ACTIVELEARN_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(native, "CACHE_DIR", tmp_path)
     native.library.cache_clear()
     try:
         assert native.library() is not None
-        built = list((tmp_path / "native").glob("*.so"))
+        built = list(tmp_path.glob("*.so"))
         assert len(built) == 1
         stamp = built[0].stat().st_mtime_ns
         native.library.cache_clear()
         assert native.library() is not None
         assert built[0].stat().st_mtime_ns == stamp  # reused, not rebuilt
-        assert not list((tmp_path / "native").glob("tmp*"))  # no temporary left behind
+        assert not list(tmp_path.glob("tmp*"))  # no temporary left behind
     finally:
         native.library.cache_clear()
 
 
-def test_a_failing_compiler_warns_and_falls_back(tmp_path, monkeypatch):
-    monkeypatch.setenv("ACTIVELEARN_CACHE_DIR", str(tmp_path))
-    monkeypatch.setenv("CC", "false")  # exists everywhere, fails every compile
+def test_a_failing_compiler_warns_and_falls_back(tmp_path, monkeypatch, untrained_model):
+    monkeypatch.setattr(native, "CACHE_DIR", tmp_path)
+    monkeypatch.setattr(native, "COMPILERS", ("false",))  # on every machine, and fails every compile
     native.library.cache_clear()
     try:
         with pytest.warns(RuntimeWarning, match="kernel unavailable"):
             assert native.library() is None
-        monkeypatch.setenv("ACTIVELEARN_NATIVE", "0")
-        native.library.cache_clear()
-        assert native.library() is None
+        controls = [np.tile([0.5, 0.2], (40, 1))]
+        fallback = simulate(untrained_model, controls, n_samples=3, seed=1)  # backend "auto"
+        with pytest.raises(InputError, match="backend"):
+            simulate(untrained_model, controls, n_samples=3, seed=1, backend="native")
     finally:
+        monkeypatch.undo()
         native.library.cache_clear()
+    compiled = simulate(untrained_model, controls, n_samples=3, seed=1, backend="native")
+    np.testing.assert_allclose(fallback.x, compiled.x, atol=1e-5)

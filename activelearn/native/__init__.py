@@ -3,12 +3,12 @@
 One fused loop that no library provides: noise, rates and pose of one sampled trajectory of the
 static surrogate (`static_rollout.c`), replacing a chain of torch passes over multi-MB arrays. It is
 compiled once per machine (sources, flags, compiler and CPU features form the cache key) into
-`$ACTIVELEARN_CACHE_DIR`, else `$XDG_CACHE_HOME/activelearn`, else `~/.cache/activelearn`, and
+`CACHE_DIR` (`~/.cache/activelearn/native`; a temporary directory if that is not writable), and
 written atomically so concurrent processes can race to build it safely.
 
 Without a working C compiler `library()` returns None once with a warning, and callers take their
-NumPy/torch path, which computes the same numbers (up to float rounding) but runs slower. Set
-`ACTIVELEARN_NATIVE=0` to force that path.
+NumPy/torch path, which computes the same numbers (up to float rounding) but runs slower;
+`simulate(..., backend="reference")` picks that path explicitly.
 """
 
 from __future__ import annotations
@@ -30,6 +30,8 @@ SOURCES = (Path(__file__).with_name("static_rollout.c"),)
 FLAGS = ("-O3", "-ffast-math", "-march=native", "-fPIC", "-shared")
 LINK_OPTIONS = (("-lmvec", "-lm"), ("-lm",))  # libmvec is glibc's; elsewhere the scalar libm serves
 COMPILE_TIMEOUT_S = 120
+COMPILERS = ("cc", "gcc", "clang")  # the first found on PATH builds the kernels
+CACHE_DIR = Path.home() / ".cache" / "activelearn" / "native"
 
 _f32 = ctypes.POINTER(ctypes.c_float)
 _i64 = ctypes.POINTER(ctypes.c_int64)
@@ -46,19 +48,11 @@ SIGNATURES = {
 }
 
 
-def cache_dir() -> Path:
-    """Where built kernels are kept."""
-    if os.environ.get("ACTIVELEARN_CACHE_DIR"):
-        return Path(os.environ["ACTIVELEARN_CACHE_DIR"])
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "activelearn"
-
-
 def _compiler() -> str:
-    for name in (os.environ.get("CC"), "cc", "gcc", "clang"):
-        if name and shutil.which(name):
+    for name in COMPILERS:
+        if shutil.which(name):
             return name
-    raise OSError("no C compiler found (looked for $CC, cc, gcc, clang)")
+    raise OSError(f"no C compiler found (looked for {', '.join(COMPILERS)})")
 
 
 def _cpu_features() -> str:
@@ -75,10 +69,14 @@ def _build(compiler: str) -> Path:
     sources = [path.read_text() for path in SOURCES]
     identity = [*sources, " ".join(FLAGS), version, platform.machine(), _cpu_features()]
     key = hashlib.sha256("\0".join(identity).encode()).hexdigest()[:16]
-    target = cache_dir() / "native" / f"kernels-{key}.so"
-    if target.exists():
-        return target
-    target.parent.mkdir(parents=True, exist_ok=True)
+    name = f"kernels-{key}.so"
+    if (CACHE_DIR / name).exists():
+        return CACHE_DIR / name
+    try:
+        CACHE_DIR.mkdir(parents=True, exist_ok=True)
+        target = CACHE_DIR / name
+    except OSError:  # a read-only home: build for this process only
+        target = Path(tempfile.mkdtemp(prefix="activelearn-native-")) / name
     errors = []
     for link in LINK_OPTIONS:
         fd, tmp = tempfile.mkstemp(suffix=".so", dir=target.parent)
@@ -101,9 +99,7 @@ def _build(compiler: str) -> Path:
 
 @functools.cache
 def library() -> ctypes.CDLL | None:
-    """The compiled kernels, or None (warned once) where they cannot be built or are switched off."""
-    if os.environ.get("ACTIVELEARN_NATIVE", "1") == "0":
-        return None
+    """The compiled kernels, or None (warned once) where they cannot be built."""
     try:
         lib = ctypes.CDLL(str(_build(_compiler())))
     except (OSError, subprocess.SubprocessError) as error:
