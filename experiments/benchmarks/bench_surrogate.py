@@ -3,13 +3,14 @@
 1. Trains the static map (controls -> rates) and the Markov-state variant (controls + previous rates
    -> rates) on one set of simulated maneuvers of all five kinds.
 2. Simulates 256 other maneuvers of 90 s at 30 Hz with MuJoCo on all cores, and runs the surrogate
-   (S = 32 sampled trajectories, uncertainty included) on the same control sequences, in one run;
-   prints both wall times and their ratio (target: surrogate >= 100x faster).
+   (S = 32 sampled trajectories, uncertainty included) on the same control sequences, in rounds of
+   MuJoCo then surrogate; prints both wall times and their ratio per round (target: surrogate >= 100x
+   faster).
 3. Prints the accuracy table of both variants per maneuver kind: RMSE of v and omega, position
    error at 10 s, 30 s and the end, and the fraction of ground-truth steps inside the 95% band.
 
 Usage: python experiments/benchmarks/bench_surrogate.py [--maneuvers 256] [--samples 32] [--epochs 120]
-       [--repeats 5]
+       [--rounds 3] [--repeats 3]
 """
 
 from __future__ import annotations
@@ -69,7 +70,8 @@ def main() -> None:
     parser.add_argument("--train-maneuvers", type=int, default=60)
     parser.add_argument("--samples", type=int, default=32)
     parser.add_argument("--epochs", type=int, default=120)
-    parser.add_argument("--repeats", type=int, default=5, help="timed surrogate calls per variant")
+    parser.add_argument("--rounds", type=int, default=3, help="rounds of MuJoCo then surrogate timings")
+    parser.add_argument("--repeats", type=int, default=3, help="timed surrogate calls per variant and round")
     args = parser.parse_args()
     threads = os.cpu_count() or 1
 
@@ -81,43 +83,55 @@ def main() -> None:
         print(f"trained {name} model on {rows} rows of {args.train_maneuvers} maneuvers in {seconds:.1f} s")
 
     test = maneuver_set(args.maneuvers, seed=2)
-    started = time.perf_counter()
-    log = simulator.collect(test, seed=3, threads=threads)
-    sim_seconds = time.perf_counter() - started
-    truth = [part.reset_index(drop=True) for _, part in log.groupby("run_id", sort=False)]
-    controls = [t[["throttle", "steering"]].to_numpy() for t in truth]
-    initial = np.array([[t["speed"].iloc[0], t["angZ"].iloc[0]] for t in truth])
-
-    timings: dict[str, list[float]] = {}
-    rollouts = {}
-    # The static map twice: its compiled kernel ("auto" where a C compiler built it) and the
-    # NumPy/torch reference that draws the same numbers. The Markov variant has one path.
+    # Rounds of (MuJoCo, then every surrogate variant): this machine's speed drifts by a quarter
+    # within minutes, so each round's ratio pairs times taken back to back.
     runs = (("static", "auto"), ("static", "reference"), ("markov", "auto"))
-    for name, backend in runs:
-        model, label = models[name], name if backend == "auto" else f"{name}/{backend}"
-        call = dict(n_samples=args.samples, backend=backend)
-        simulate(model, controls[:4], initial_rates=initial[:4], **call)  # warm-up
-        timings[label] = []
-        for _ in range(args.repeats):
-            rollouts.pop(label, None)  # free the last result first: the timed call allocates afresh
-            started = time.perf_counter()
-            rollouts[label] = simulate(model, controls, initial_rates=initial, **call)
-            timings[label].append(time.perf_counter() - started)
+    labels = [name if backend == "auto" else f"{name}/{backend}" for name, backend in runs]
+    sim_seconds: list[float] = []
+    timings: dict[str, list[list[float]]] = {label: [] for label in labels}
+    rollouts = {}
+    for round_ in range(args.rounds):
+        started = time.perf_counter()
+        log = simulator.collect(test, seed=3, threads=threads)
+        sim_seconds.append(time.perf_counter() - started)
+        truth = [part.reset_index(drop=True) for _, part in log.groupby("run_id", sort=False)]
+        controls = [t[["throttle", "steering"]].to_numpy() for t in truth]
+        initial = np.array([[t["speed"].iloc[0], t["angZ"].iloc[0]] for t in truth])
+        del log
+        # The static map twice: its compiled kernel ("auto" where a C compiler built it) and the
+        # NumPy/torch reference that draws the same numbers. The Markov variant has one path.
+        for (name, backend), label in zip(runs, labels, strict=True):
+            call = dict(n_samples=args.samples, backend=backend)
+            if round_ == 0:
+                simulate(models[name], controls[:4], initial_rates=initial[:4], **call)  # warm-up
+            times = []
+            for _ in range(args.repeats):
+                rollouts.pop(label, None)  # free the last result first: the timed call allocates afresh
+                started = time.perf_counter()
+                rollouts[label] = simulate(models[name], controls, initial_rates=initial, **call)
+                times.append(time.perf_counter() - started)
+            timings[label].append(times)
     del rollouts["static/reference"]  # same numbers as "static": one accuracy row is enough
 
     steps = sum(len(c) for c in controls)
     print(
         f"\n{args.maneuvers} maneuvers x 90 s at 30 Hz ({steps} steps), {threads} threads, "
-        f"S = {args.samples}; surrogate: {args.repeats} timed calls after a small warm-up "
-        "(first / median / min)"
+        f"S = {args.samples}. {args.rounds} rounds of MuJoCo then {args.repeats} surrogate calls per "
+        "variant;\na round's ratio is MuJoCo's time over the median call. 'first' is the run's first "
+        "full-size call (after a small warm-up)."
     )
-    print(f"  MuJoCo                       {sim_seconds:8.2f} s")
-    for name, runs in timings.items():
-        first, median, best = runs[0], float(np.median(runs)), min(runs)
-        print(
-            f"  surrogate ({name:16s}) {first:6.2f} / {median:.2f} / {best:.2f} s   speed-up (median)"
-            f" x{sim_seconds / median:6.1f}   (first call x{sim_seconds / first:.1f})"
-        )
+    print("  round  MuJoCo [s]" + "".join(f"  {label:>18s}" for label in labels))
+    ratios: dict[str, list[float]] = {label: [] for label in labels}
+    for r in range(args.rounds):
+        cells = ""
+        for label in labels:
+            median = float(np.median(timings[label][r]))
+            ratios[label].append(sim_seconds[r] / median)
+            cells += f"  {median:6.2f} s x{ratios[label][-1]:6.1f}"
+        print(f"  {r + 1:5d}  {sim_seconds[r]:10.2f}{cells}")
+    print("  median ratio over rounds:" + "".join(f"  {k} x{np.median(v):.1f}" for k, v in ratios.items()))
+    first = {label: timings[label][0][0] for label in labels}
+    print("  first call:" + "".join(f"  {k} {v:.2f} s (x{sim_seconds[0] / v:.1f})" for k, v in first.items()))
 
     rows = []
     for name, rollout in rollouts.items():
