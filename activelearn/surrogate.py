@@ -37,8 +37,8 @@ from activelearn.threads import even_blocks, parallel_map
 from simulator import Maneuver, nominal_controls
 
 N_CONTROLS = 2
-BANDS = (0.025, 0.25, 0.5, 0.75, 0.975)
-BACKENDS = ("auto", "native", "reference")  # quantiles of the 95% and 50% bands and the median
+BANDS = (0.025, 0.25, 0.5, 0.75, 0.975)  # quantiles of the 95% and 50% bands and the median
+BACKENDS = ("auto", "native", "reference")  # how a static rollout's trajectories are filled
 
 
 @dataclass(frozen=True)
@@ -113,15 +113,13 @@ def _integrate(
     dt: float,
     yaw0: torch.Tensor,
     out: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
-    scratch: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Planar pose from rates (..., T): ψ_{k+1} = ψ_k + ω_k dt, position by the heading at step start.
 
-    `yaw0` broadcasts against (..., 1). Writes into `out` = (x, y, yaw) when given; `scratch`
-    (shaped like v) is a work buffer to reuse across calls.
+    `yaw0` broadcasts against (..., 1). Writes into `out` = (x, y, yaw) when given.
     """
     x, y, yaw = out if out is not None else (torch.empty_like(v) for _ in range(3))
-    scratch = torch.empty_like(v) if scratch is None else scratch
+    scratch = torch.empty_like(v)
 
     def shifted_cumsum(rate: torch.Tensor, into: torch.Tensor) -> torch.Tensor:
         """into[..., k] = sum of rate[..., :k] (the value before step k)."""
@@ -266,7 +264,7 @@ def simulate(
     `initial_yaw` is one heading or one per maneuver. Deterministic for a given seed.
 
     `backend` picks how a static model's trajectories are filled: "native" (the compiled kernel),
-    "reference" (NumPy/torch, several times slower) or "auto" (native where a C compiler built
+    "reference" (NumPy/torch, about 2.5x slower) or "auto" (native where a C compiler built
     it). Both draw the same noise, so they agree up to float rounding.
     """
     if n_samples < 2:

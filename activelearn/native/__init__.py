@@ -113,4 +113,3 @@ def library() -> ctypes.CDLL | None:
         function = getattr(lib, name)
         function.argtypes, function.restype = argtypes, restype
     return lib
-

@@ -2,15 +2,15 @@
  *
  * One call fills one trajectory (one posterior draw) over M maneuvers of T steps. For every tile
  * of TILE steps it draws the aleatoric noise (Philox4x32-10 counters, Box-Muller), forms the
- * sampled rates from the draw's per-row mean and std, and integrates the planar pose, all while the
- * tile is in L1: the torch version made some fifteen passes over multi-MB arrays instead.
+ * sampled rates from the draw's per-row mean and variance, and integrates the planar pose, all while
+ * the tile is in L1: the torch version made some fifteen passes over multi-MB arrays instead.
  *
  * The noise of step t of maneuver m is a pure function of (key, m, t), so it does not depend on
  * the padding, the other maneuvers or the thread that computes it. The Python reference in
  * activelearn/counter_noise.py draws the same numbers (up to the last bit of log/sin/cos).
  *
  * Built with -O3 -ffast-math so that GCC vectorises logf/sinf/cosf through glibc's libmvec; the
- * prefix sums are loop-carried and stay sequential (in double, as torch's cumsum accumulates).
+ * prefix sums of the pose accumulate in double, as torch's cumsum does.
  */
 #include <math.h>
 #include <stdint.h>
@@ -98,8 +98,7 @@ static double exclusive_prefix(const float *restrict values, double *restrict su
 /* One sampled trajectory over M maneuvers of T steps (row-major (M, T) outputs).
  *
  * mean_v/var_v/mean_w/var_w: this draw's predicted means and aleatoric variances per distinct
- * control row; index[m*T + t] is the row
- * step t of maneuver m uses. yaw0[m * yaw0_stride] is maneuver m's initial heading. The pose is
+ * control row; index[m*T + t] is the row step t of maneuver m uses. yaw0[m * yaw0_stride] is maneuver m's initial heading. The pose is
  * torch's reference (`_integrate`): yaw[t] = yaw0 + dt * sum(w[:t]), x[t] = dt * sum(v cos yaw [:t]),
  * likewise y, with the sums in double. A tile is computed in local buffers, zero-padded past the
  * last step, and copied out.
