@@ -23,7 +23,6 @@ Two model variants:
 
 from __future__ import annotations
 
-import ctypes
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -206,22 +205,9 @@ def _native_trajectories(means, variances, index, keys, shape, dt, yaw0) -> tupl
     # compaction for them made first calls 2-3x slower here.
     paths = tuple(torch.empty((len(keys), n_maneuvers, n_steps)).numpy() for _ in range(5))
 
-    def pointer(array: np.ndarray, kind=ctypes.c_float):
-        return array.ctypes.data_as(ctypes.POINTER(kind))
-
     def trajectory(s: int) -> None:
-        kernel.al_static_trajectory(
-            n_maneuvers,
-            n_steps,
-            dt,
-            *(pointer(a) for a in (means[s, 0], variances[s, 0], means[s, 1], variances[s, 1])),
-            pointer(index, ctypes.c_int64),
-            pointer(yaw0),
-            1,
-            keys[s] & 0xFFFFFFFF,
-            keys[s] >> 32,
-            *(pointer(p[s]) for p in paths),
-        )
+        rates = (means[s, 0], variances[s, 0], means[s, 1], variances[s, 1])
+        native.static_trajectory(kernel, rates, index, yaw0, keys[s], dt, tuple(p[s] for p in paths))
 
     parallel_map(trajectory, range(len(keys)))
     return paths

@@ -41,20 +41,12 @@ def kernel():
     return lib
 
 
-def _pointer(array: np.ndarray, kind=ctypes.c_float):
-    return array.ctypes.data_as(ctypes.POINTER(kind))
-
-
 def _noise_from_kernel(kernel, key: int, n_maneuvers: int, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
     """The kernel's sampled rates for one row of mean 0 and variance 1: its standard normal noise."""
     zero, one = np.zeros(1, np.float32), np.ones(1, np.float32)
     index = np.zeros(n_maneuvers * n_steps, np.int64)
-    out = [np.empty((n_maneuvers, n_steps), np.float32) for _ in range(5)]
-    kernel.al_static_trajectory(
-        n_maneuvers, n_steps, 0.1, *(_pointer(a) for a in (zero, one, zero, one)),
-        _pointer(index, ctypes.c_int64), _pointer(zero), 0, key & 0xFFFFFFFF, key >> 32,
-        *(_pointer(a) for a in out),
-    )
+    out = tuple(np.empty((n_maneuvers, n_steps), np.float32) for _ in range(5))
+    native.static_trajectory(kernel, (zero, one, zero, one), index, zero, key, 0.1, out)
     return out[0], out[1]
 
 

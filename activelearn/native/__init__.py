@@ -24,6 +24,8 @@ import tempfile
 import warnings
 from pathlib import Path
 
+import numpy as np
+
 SOURCES = (Path(__file__).with_name("static_rollout.c"),)
 # -ffast-math lets GCC vectorise logf/sinf/cosf through glibc's libmvec; -march=native is safe
 # because the cache key includes this machine's CPU features.
@@ -113,3 +115,37 @@ def library() -> ctypes.CDLL | None:
         function = getattr(lib, name)
         function.argtypes, function.restype = argtypes, restype
     return lib
+
+
+def _pointer(array: np.ndarray, kind: type = ctypes.c_float):
+    return array.ctypes.data_as(ctypes.POINTER(kind))
+
+
+def static_trajectory(
+    lib: ctypes.CDLL,
+    rates: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    index: np.ndarray,
+    yaw0: np.ndarray,
+    key: int,
+    dt: float,
+    out: tuple[np.ndarray, ...],
+) -> None:
+    """Fill one sampled trajectory with `al_static_trajectory` (see static_rollout.c).
+
+    `rates` = (mean_v, var_v, mean_w, var_w) of one draw per distinct control row (float32, unit
+    stride); `index` (M·T,) int64 gives each step's row; `yaw0` holds one heading per maneuver, or
+    one for all; `out` = (v, w, x, y, yaw), each a contiguous float32 (M, T) array, is written.
+    """
+    n_maneuvers, n_steps = out[0].shape
+    lib.al_static_trajectory(
+        n_maneuvers,
+        n_steps,
+        dt,
+        *(_pointer(a) for a in rates),
+        _pointer(index, ctypes.c_int64),
+        _pointer(yaw0),
+        0 if yaw0.size == 1 else 1,
+        key & 0xFFFFFFFF,
+        key >> 32,
+        *(_pointer(a) for a in out),
+    )
