@@ -11,11 +11,12 @@ models), and adds aleatoric noise at every step.
 
 Two model variants:
   * static ("controls"): rates are a function of the current controls. Nothing depends on the past,
-    so every step of every maneuver is evaluated in one vectorised pass (a control row repeated at
-    consecutive steps is evaluated once: skidpads, straights and eights hold a handful of rows for
-    thousands of steps). The S trajectories are then noised and integrated by a compiled kernel
-    (`activelearn.native`, one thread-pool task per trajectory, each step's noise a function of
-    its counter), with a NumPy/torch reference that draws the same numbers where no C compiler is.
+    so maneuvers are independent and a control row repeated at consecutive steps is evaluated once
+    (skidpads, straights and eights hold a handful of rows for thousands of steps). A compiled
+    kernel (`activelearn.native`, one thread-pool task per block of maneuvers) evaluates the S
+    network draws on a tile of steps' distinct rows, then noises (each step's noise a function of
+    its counter) and integrates the S trajectories of that tile while it is in cache; a torch and
+    NumPy reference computes the same numbers where no C compiler is.
   * Markov ("controls+rates", model.n_inputs == 4): rates also depend on the previous rates. The
     rollout is sequential in time but batched over maneuvers and samples; each trajectory feeds its
     own sampled rates back in, so the fans propagate the uncertainty.
@@ -31,13 +32,12 @@ import torch
 
 from activelearn import counter_noise, native
 from activelearn.errors import InputError
-from activelearn.models.base import CHUNK_ROWS
+from activelearn.models.base import BACKENDS, CHUNK_ROWS
 from activelearn.threads import even_blocks, parallel_map
 from simulator import Maneuver, nominal_controls
 
 N_CONTROLS = 2
 BANDS = (0.025, 0.25, 0.5, 0.75, 0.975)  # quantiles of the 95% and 50% bands and the median
-BACKENDS = ("auto", "native", "reference")  # how a static rollout's trajectories are filled
 
 
 @dataclass(frozen=True)
@@ -152,65 +152,71 @@ def _distinct_rows(controls: np.ndarray) -> tuple[np.ndarray, torch.Tensor]:
 
 
 def _static_rollout(
-    model, controls: np.ndarray, n_samples: int, gen: torch.Generator, dt: float, yaw0: np.ndarray, fill
+    model, controls: np.ndarray, n_samples: int, gen: torch.Generator, dt: float, yaw0, backend
 ):
     """Sampled trajectories of a static model: rates and pose, each (S, M, T), and per-step moments.
 
-    Every distinct control row is evaluated once (all S draws in one batched pass per block of
-    rows); the moments are taken over draws on those rows, then spread back to the steps that use
-    them. `fill` (the compiled kernel or its NumPy/torch reference) then draws each trajectory's
-    aleatoric noise from counters under the trajectory's own key (`activelearn.counter_noise`) and
-    integrates the pose, so the result depends neither on the thread count nor on the backend.
+    One posterior draw per trajectory; each trajectory's aleatoric noise comes from counters under
+    its own key (`activelearn.counter_noise`), so the result depends neither on the thread count
+    nor on the backend. Native: the compiled kernel evaluates the network on each tile's distinct
+    control rows and noises and integrates that tile at once, one thread-pool task per block of
+    maneuvers. Reference: torch evaluates every distinct control row, NumPy/torch the rest.
     """
+    seed = int(torch.randint(2**31 - 1, (1,), generator=gen))
+    keys = torch.randint(2**62, (n_samples,), generator=gen).tolist()
+    sampled = model.draw(n_samples, seed=seed, backend=backend)
+    if sampled.kernel is None:
+        return _reference_rollout(sampled, controls, keys, dt, yaw0)
+    n_maneuvers, n_steps, _ = controls.shape
+    # torch, not numpy, allocates: numpy advises huge pages for large arrays, and the kernel's
+    # compaction for them made first calls 2-3x slower here.
+    paths = tuple(torch.empty((n_samples, n_maneuvers, n_steps)).numpy() for _ in range(5))
+    moments = tuple(torch.empty((n_maneuvers, n_steps, 2)).numpy() for _ in range(3))
+    controls = np.ascontiguousarray(controls, dtype=np.float32)
+    key_array = np.array(keys, dtype=np.uint64)
+    y_mean, y_std = model.y_mean.numpy(), model.y_std.numpy()
+
+    def fill(block: slice) -> None:
+        native.static_rollout(
+            sampled.kernel,
+            controls[block],
+            yaw0[block],
+            key_array,
+            dt,
+            tuple(p[:, block] for p in paths),
+            tuple(m[block] for m in moments),
+            out_mean=y_mean,
+            out_std=y_std,
+            spread=sampled.spread,
+            first_maneuver=block.start,
+        )
+
+    # Several blocks per thread: maneuvers differ in cost (a slalom has a distinct control row at
+    # every step, a skidpad one), so small blocks keep both cores busy to the end.
+    parallel_map(fill, even_blocks(n_maneuvers, max(1, n_maneuvers // (8 * torch.get_num_threads()))))
+    return paths, tuple(torch.from_numpy(m) for m in moments)
+
+
+def _reference_rollout(sampled, controls: np.ndarray, keys: list[int], dt: float, yaw0: np.ndarray):
+    """`_static_rollout` in torch and NumPy: each distinct control row through the network, then the paths."""
     n_maneuvers, n_steps, _ = controls.shape
     unique, index = _distinct_rows(controls)
-    sampled = model.draw(n_samples, seed=int(torch.randint(2**31 - 1, (1,), generator=gen)))
     inputs = torch.as_tensor(unique.T, dtype=torch.float32)
     n_unique = inputs.shape[1]
-    means, variances = (torch.empty((n_samples, 2, n_unique)) for _ in range(2))
+    means, variances = (torch.empty((sampled.n_samples, 2, n_unique)) for _ in range(2))
     centre, aleatoric, epistemic = (torch.empty((2, n_unique)) for _ in range(3))
-
     for rows in even_blocks(n_unique, CHUNK_ROWS):
         mu, var = sampled.block(inputs[:, rows], out=(means[..., rows], variances[..., rows]))
         centre[:, rows] = mu.mean(dim=0)
         aleatoric[:, rows] = var.mean(dim=0)
         epistemic[:, rows] = (mu - centre[:, rows]).square_().mean(dim=0)
-    keys = torch.randint(2**62, (n_samples,), generator=gen).tolist()
-    paths = fill(means.numpy(), variances.numpy(), index.numpy(), keys, (n_maneuvers, n_steps), dt, yaw0)
+    shape = (n_maneuvers, n_steps)
+    paths = _reference_trajectories(means.numpy(), variances.numpy(), index.numpy(), keys, shape, dt, yaw0)
 
     def per_step(moment: torch.Tensor) -> torch.Tensor:  # (2, U) → (M, T, 2)
         return moment.index_select(1, index).t().reshape(n_maneuvers, n_steps, 2)
 
     return paths, (per_step(centre), per_step(aleatoric), per_step(epistemic))
-
-
-def _trajectory_filler(backend: str):
-    """The function that fills a static rollout's trajectories for `backend` (see `simulate`)."""
-    if backend == "reference" or (backend == "auto" and native.library() is None):
-        return _reference_trajectories
-    if native.library() is None:
-        raise InputError("backend", backend, "the compiled kernel could not be built on this machine")
-    return _native_trajectories
-
-
-def _native_trajectories(means, variances, index, keys, shape, dt, yaw0) -> tuple[np.ndarray, ...]:
-    """S trajectories (v, w, x, y, yaw), each (S, M, T), from the compiled kernel, one task per trajectory.
-
-    `means`, `variances` (aleatoric) are (S, 2, U) per distinct row, `index` (M·T,) each step's
-    row. ctypes releases the GIL, so the tasks run in parallel.
-    """
-    kernel = native.library()
-    n_maneuvers, n_steps = shape
-    # torch, not numpy, allocates: numpy advises huge pages for large arrays, and the kernel's
-    # compaction for them made first calls 2-3x slower here.
-    paths = tuple(torch.empty((len(keys), n_maneuvers, n_steps)).numpy() for _ in range(5))
-
-    def trajectory(s: int) -> None:
-        rates = (means[s, 0], variances[s, 0], means[s, 1], variances[s, 1])
-        native.static_trajectory(kernel, rates, index, yaw0, keys[s], dt, tuple(p[s] for p in paths))
-
-    parallel_map(trajectory, range(len(keys)))
-    return paths
 
 
 def _reference_trajectories(means, variances, index, keys, shape, dt, yaw0) -> tuple[np.ndarray, ...]:
@@ -249,9 +255,10 @@ def simulate(
     `initial_rates` (M, 2) seeds the Markov variant's previous rates (default: standing still);
     `initial_yaw` is one heading or one per maneuver. Deterministic for a given seed.
 
-    `backend` picks how a static model's trajectories are filled: "native" (the compiled kernel),
-    "reference" (NumPy/torch, about 2.5x slower) or "auto" (native where a C compiler built
-    it). Both draw the same noise, so they agree up to float rounding.
+    `backend` picks the compiled kernels ("native": network, noise and pose fused per tile for a
+    static model; the network kernel for a Markov one), torch and NumPy ("reference", 3-4x slower)
+    or "auto" (native where a C compiler built it). Both draw the same numbers, so they agree up
+    to float rounding.
     """
     if n_samples < 2:
         raise InputError("n_samples", n_samples, "must be at least 2 to form bands")
@@ -271,13 +278,12 @@ def simulate(
     n_inputs = int(model.n_inputs)
     with torch.no_grad():
         if n_inputs == N_CONTROLS:
-            fill = _trajectory_filler(backend)
             (v, w, x, y, yaw), (mean_rates, aleatoric, epistemic) = _static_rollout(
-                model, stacked, n_samples, gen, dt, start_yaw, fill
+                model, stacked, n_samples, gen, dt, start_yaw, backend
             )
         elif n_inputs == N_CONTROLS + 2:
             (v, w), (mean_rates, aleatoric, epistemic) = _markov_rollout(
-                model, stacked, n_samples, gen, initial_rates
+                model, stacked, n_samples, gen, initial_rates, backend
             )
             v, w, x, y, yaw = (
                 p.numpy() for p in (v, w, *_integrate(v, w, dt, torch.from_numpy(start_yaw)[:, None]))
@@ -300,39 +306,50 @@ def simulate(
     )
 
 
-def _markov_rollout(model, controls: np.ndarray, n_samples: int, gen: torch.Generator, initial_rates):
+def _markov_rollout(
+    model, controls: np.ndarray, n_samples: int, gen: torch.Generator, initial_rates, backend: str = "auto"
+):
     """Sequential rollout of a model whose inputs are (throttle, steering, previous v, previous ω).
 
     Each trajectory feeds its own sampled rates (aleatoric noise included) back in, so the spread of
     the fan grows with the uncertainty it propagates. Moments are over the S trajectories per step.
+    Maneuvers are independent, so with the compiled kernel each thread-pool task runs every step
+    of its own block of maneuvers (no per-step synchronisation: 2 700 steps of hand-offs cost more
+    than the kernel); torch runs the whole batch per step on its intra-op threads.
     """
     n_maneuvers, n_steps, _ = controls.shape
-    sampled_model = model.draw(n_samples, seed=int(torch.randint(2**31 - 1, (1,), generator=gen)))
+    seed = int(torch.randint(2**31 - 1, (1,), generator=gen))
+    sampled_model = model.draw(n_samples, seed=seed, backend=backend)
     # Column layout throughout: inputs (S, 4, M), rates (S, 2, M) per step.
-    inputs = torch.zeros((n_samples, N_CONTROLS + 2, n_maneuvers))
+    start = torch.zeros((n_samples, 2, n_maneuvers))
     if initial_rates is not None:
-        inputs[:, N_CONTROLS:] = torch.as_tensor(np.asarray(initial_rates, dtype=np.float32)).t()
+        start[:] = torch.as_tensor(np.asarray(initial_rates, dtype=np.float32)).t()
     step_controls = torch.as_tensor(controls, dtype=torch.float32).permute(1, 2, 0).contiguous()  # (T, 2, M)
     noise = torch.randn((n_steps, n_samples, n_maneuvers, 2), generator=gen).transpose(2, 3)
-    means, variances, sampled = (torch.empty((n_steps, n_samples, 2, n_maneuvers)) for _ in range(3))
-    for k in range(n_steps):
-        inputs[:, :N_CONTROLS] = step_controls[k]
-        m, var = sampled_model.block(inputs)
-        torch.addcmul(m, noise[k], var.sqrt(), out=sampled[k])
-        inputs[:, N_CONTROLS:] = sampled[k]
-        means[k], variances[k] = m, var
+    # Sampled rates are written straight into their (S, 2, M, T) home and the moments per step into
+    # (T, 2, M): no (T, S, 2, M) arrays of every draw's mean and variance, and no transposes of them.
+    rates = torch.empty((n_samples, 2, n_maneuvers, n_steps))
+    moments = tuple(torch.empty((n_steps, 2, n_maneuvers)) for _ in range(3))
 
-    def per_step(moment: torch.Tensor) -> torch.Tensor:  # (T, 2, M) → (M, T, 2)
-        return moment.permute(2, 0, 1).contiguous()
+    def run(block: slice) -> None:
+        width = block.stop - block.start
+        inputs = torch.empty((n_samples, N_CONTROLS + 2, width))
+        inputs[:, N_CONTROLS:] = start[..., block]
+        means, variances = (torch.empty((n_samples, 2, width)) for _ in range(2))
+        for k in range(n_steps):
+            inputs[:, :N_CONTROLS] = step_controls[k, :, block]
+            sampled_model.block(
+                inputs, out=(means, variances), moments=tuple(m[k, :, block] for m in moments)
+            )
+            now = torch.addcmul(means, noise[k, ..., block], variances.sqrt_(), out=rates[:, :, block, k])
+            inputs[:, N_CONTROLS:] = now
 
-    mean = means.mean(dim=1)
-    moments = (
-        per_step(mean),
-        per_step(variances.mean(dim=1)),
-        per_step((means - mean[:, None]).square_().mean(dim=1)),
-    )
-    v, w = (sampled[:, :, j].permute(1, 2, 0).contiguous() for j in range(2))  # (S, M, T) each
-    return (v, w), moments
+    if sampled_model.kernel is None:
+        run(slice(0, n_maneuvers))
+    else:
+        parallel_map(run, even_blocks(n_maneuvers, -(-n_maneuvers // torch.get_num_threads())))
+    # (T, 2, M) → (M, T, 2); v and ω are (S, M, T) views of the rates.
+    return (rates[:, 0], rates[:, 1]), tuple(m.permute(2, 0, 1).contiguous() for m in moments)
 
 
 @dataclass(frozen=True)

@@ -41,13 +41,38 @@ def kernel():
     return lib
 
 
+def _unit_network(kernel, n_samples: int = 1) -> native.NetworkKernel:
+    """A network whose every draw predicts mean 0 and variance exactly 1 (zero weights, fixed variance)."""
+    zeros = np.zeros((2, 2), np.float32)
+    return native.NetworkKernel(
+        kernel,
+        [(zeros, np.zeros(2, np.float32), False, None)],
+        n_samples=n_samples,
+        x_mean=np.zeros(2, np.float32),
+        x_std=np.ones(2, np.float32),
+        min_std=1e-3,
+        head_var=np.ones(2, np.float32),
+    )
+
+
 def _noise_from_kernel(kernel, key: int, n_maneuvers: int, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
-    """The kernel's sampled rates for one row of mean 0 and variance 1: its standard normal noise."""
-    zero, one = np.zeros(1, np.float32), np.ones(1, np.float32)
-    index = np.zeros(n_maneuvers * n_steps, np.int64)
-    out = tuple(np.empty((n_maneuvers, n_steps), np.float32) for _ in range(5))
-    native.static_trajectory(kernel, (zero, one, zero, one), index, zero, key, 0.1, out)
-    return out[0], out[1]
+    """The rollout kernel's sampled rates under mean 0 and variance 1: its standard normal noise."""
+    controls = np.zeros((n_maneuvers, n_steps, 2), np.float32)
+    paths = tuple(np.empty((1, n_maneuvers, n_steps), np.float32) for _ in range(5))
+    moments = tuple(np.empty((n_maneuvers, n_steps, 2), np.float32) for _ in range(3))
+    native.static_rollout(
+        _unit_network(kernel),
+        controls,
+        np.zeros(1, np.float32),
+        np.array([key], np.uint64),
+        0.1,
+        paths,
+        moments,
+        out_mean=np.zeros(2),
+        out_std=np.ones(2),
+        spread=1.0,
+    )
+    return paths[0][0], paths[1][0]
 
 
 @pytest.mark.parametrize(("counter", "key", "expected"), PHILOX_KAT)

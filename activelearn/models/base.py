@@ -13,12 +13,29 @@ from torch import Tensor, nn
 
 from activelearn.config import ModelConfig
 from activelearn.errors import InputError
-from activelearn.threads import even_blocks
+from activelearn.native import NetworkKernel
+from activelearn.threads import even_blocks, parallel_map
 
 # Rows evaluated per block by `SampledModel.columns` and `predict`. Blocks bound the S × rows × width
 # activations; the per-sample GEMMs of big blocks split well over torch's intra-op threads, while
 # running small blocks on a pool of Python threads was slower (GEMMs in concurrent threads contend).
 CHUNK_ROWS = 4096
+# How sampled networks are evaluated: "native" (the compiled tile kernel, activelearn/native/network.c),
+# "reference" (torch) or "auto" (native where a C compiler built it). Both compute the same numbers
+# up to float rounding.
+BACKENDS = ("auto", "native", "reference")
+# Rows per compiled-kernel task. Each task costs ~0.1 ms of Python and thread hand-off, so small
+# inputs get one task per thread (2 700 rows on 2 threads: 1.9 ms as 2 tasks, 2.8 ms as 8); large
+# ones get blocks of at most KERNEL_MAX_ROWS, so a core slowed by the host does not hold the rest up.
+KERNEL_MIN_ROWS = 512
+KERNEL_MAX_ROWS = 16384
+
+
+def _kernel_blocks(n_rows: int, row_cost: int = 1) -> list[slice]:
+    """Row blocks for compiled-kernel tasks (see KERNEL_MIN_ROWS); a row costs `row_cost` shared rows."""
+    per_thread = -(-n_rows // torch.get_num_threads())
+    smallest, largest = max(1, KERNEL_MIN_ROWS // row_cost), max(1, KERNEL_MAX_ROWS // row_cost)
+    return even_blocks(n_rows, max(smallest, min(per_thread, largest)))
 
 
 @dataclass(frozen=True)
@@ -56,6 +73,14 @@ class Prediction:
         return np.sqrt(self.total_var)
 
 
+def _kernel_input(x: Tensor) -> Tensor:
+    """x (d, N) or (S, d, N) as the kernel reads it: float32, unit stride along N, whole sets per draw."""
+    x = x.to(torch.float32)
+    if (x.shape[-1] > 1 and x.stride(-1) != 1) or (x.dim() == 3 and x.stride(0) != x.shape[1] * x.stride(1)):
+        x = x.contiguous()
+    return x
+
+
 def _as_tensor(x: np.ndarray | Tensor, n_inputs: int) -> Tensor:
     t = torch.as_tensor(x, dtype=torch.float32)
     if t.dim() not in (2, 3) or t.shape[-1] != n_inputs:
@@ -75,49 +100,123 @@ class SampledModel:
 
     `sampled.columns(x)` is the fast path for large inputs: torch x in column layout, (d, N) or
     (S, d, N), and torch (S, n_outputs, N) results.
+
+    `backend` (see `BACKENDS`) picks the compiled tile kernel or torch; `kernel` is None on torch.
     """
 
-    def __init__(self, model: Model, params: list, n_samples: int, seed: int) -> None:
+    def __init__(self, model: Model, params: list, n_samples: int, seed: int, backend: str = "auto") -> None:
+        if backend not in BACKENDS:
+            raise InputError("backend", backend, f"must be one of {', '.join(BACKENDS)}")
         self.model = model
         self.n_samples = n_samples
         self.seed = seed
         self.epistemic_scale = float(model.epistemic_scale)
         self._column_params = model.columns_params(params)
+        self.kernel = None if backend == "reference" else model.network_kernel(self._column_params, n_samples)
+        if backend == "native" and self.kernel is None:
+            raise InputError("backend", backend, "the compiled kernel could not be built on this machine")
 
     def standardised(self, x: Tensor) -> tuple[Tensor, Tensor]:
         """Standardised (S, n_outputs, n) means and variances for one block of physical column inputs.
 
-        The epistemic scale is not applied.
+        The epistemic scale is not applied. Always torch (the reference the kernel is tested against).
         """
         m = self.model
         xs = (x - m.x_mean[:, None]) / m.x_std[:, None]
         return m.columns_forward(xs, self._column_params, self.n_samples)
 
-    def block(self, x: Tensor, out: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor]:
+    def block(
+        self,
+        x: Tensor,
+        out: tuple[Tensor, Tensor] | None = None,
+        moments: tuple[Tensor, Tensor, Tensor] | None = None,
+    ) -> tuple[Tensor, Tensor]:
         """Physical (S, n_outputs, n) means and variances for one block of inputs (d, n) or (S, d, n).
 
-        `out`, when given, receives the means and the variances (slices of larger tensors, say).
+        `out`, when given, receives the means and the variances (slices of larger tensors, say, with
+        unit stride along n). `moments`, when given, receives the (n_outputs, n) mean, aleatoric and
+        epistemic variance over these draws. Runs on the calling thread.
         """
         m = self.model
+        if self.kernel is not None:
+            if out is None:
+                out = tuple(torch.empty((self.n_samples, m.n_outputs, x.shape[-1])) for _ in range(2))
+            self.kernel.forward(
+                _kernel_input(x).numpy(),
+                draws=(out[0].numpy(), out[1].numpy()),
+                moments=None if moments is None else tuple(t.numpy() for t in moments),
+                out_mean=m.y_mean.numpy(),
+                out_std=m.y_std.numpy(),
+                spread=self.spread,
+            )
+            return out
         means, var = self.standardised(x)
-        if self.epistemic_scale != 1.0 and self.n_samples > 1:
+        if self.spread != 1.0:
             centre = means.mean(dim=0, keepdim=True)
-            means = (means - centre).mul_(self.epistemic_scale**0.5).add_(centre)
+            means = (means - centre).mul_(self.spread).add_(centre)
         out_means, out_var = (None, None) if out is None else out
         means = torch.addcmul(m.y_mean[:, None], means, m.y_std[:, None], out=out_means)
-        return means, torch.mul(var, m.y_std.square()[:, None], out=out_var)
+        var = torch.mul(var, m.y_std.square()[:, None], out=out_var)
+        if moments is not None:
+            centre, aleatoric, epistemic = moments
+            torch.mean(means, dim=0, out=centre)
+            torch.mean(var, dim=0, out=aleatoric)
+            # Population variance (ddof 0): the mixture's variance.
+            torch.mean((means - centre).square_(), dim=0, out=epistemic)
+        return means, var
+
+    @property
+    def spread(self) -> float:
+        """Factor on each draw's deviation from the average draw: √(epistemic scale)."""
+        return self.epistemic_scale**0.5 if self.n_samples > 1 else 1.0
 
     @torch.no_grad()
-    def columns(self, x: Tensor) -> tuple[Tensor, Tensor]:
+    def columns(self, x: Tensor, out: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor]:
         """Physical means and variances (S, n_outputs, N) for physical inputs x of shape (d, N) or (S, d, N).
 
-        Evaluated in blocks of `CHUNK_ROWS` rows, which bounds the (S, width, rows) activations.
+        Evaluated in blocks of rows: on the compiled kernel's tasks on a thread pool, or in blocks of
+        `CHUNK_ROWS` on torch (which bounds the (S, width, rows) activations). `out` as in `block`.
         """
-        means = torch.empty((self.n_samples, self.model.n_outputs, x.shape[-1]))
-        var = torch.empty_like(means)
+        if out is None:
+            out = tuple(torch.empty((self.n_samples, self.model.n_outputs, x.shape[-1])) for _ in range(2))
+        means, var = out
+        if self.kernel is not None:
+            x = _kernel_input(x)  # once, not per block
+            blocks = _kernel_blocks(x.shape[-1], self.n_samples if x.dim() == 3 else 1)
+            parallel_map(
+                lambda rows: self.block(x[..., rows], out=(means[..., rows], var[..., rows])), blocks
+            )
+            return means, var
         for rows in even_blocks(x.shape[-1], CHUNK_ROWS):
             self.block(x[..., rows], out=(means[..., rows], var[..., rows]))
         return means, var
+
+    @torch.no_grad()
+    def moments(self, x: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """Standardised (n_outputs, N) mean, aleatoric and epistemic variance over the draws at x (d, N).
+
+        The population moments of the S draws (the epistemic scale is not applied); the per-draw
+        values are never stored.
+        """
+        n_rows = x.shape[-1]
+        centre, aleatoric, epistemic = (torch.empty((self.model.n_outputs, n_rows)) for _ in range(3))
+        if self.kernel is not None:
+            x = _kernel_input(x)
+            parallel_map(
+                lambda rows: self.kernel.forward(
+                    x[..., rows].numpy(),
+                    moments=tuple(t[:, rows].numpy() for t in (centre, aleatoric, epistemic)),
+                ),
+                _kernel_blocks(n_rows),
+            )
+            return centre, aleatoric, epistemic
+        for rows in even_blocks(n_rows, CHUNK_ROWS):
+            means, var = self.standardised(x[..., rows])
+            mean = means.mean(dim=0)
+            # Population variance (ddof 0): the mixture's variance.
+            centre[:, rows], aleatoric[:, rows] = mean, var.mean(dim=0)
+            epistemic[:, rows] = (means - mean).square_().mean(dim=0)
+        return centre, aleatoric, epistemic
 
     def __call__(self, x: np.ndarray | Tensor) -> tuple[np.ndarray | Tensor, np.ndarray | Tensor]:
         """Evaluate every draw on x; see the class docstring for shapes and units."""
@@ -125,7 +224,7 @@ class SampledModel:
         xt = _as_tensor(x, self.model.n_inputs)
         if xt.dim() == 3 and xt.shape[0] != self.n_samples:
             raise InputError("x", tuple(xt.shape), f"leading dimension must equal n_samples={self.n_samples}")
-        means, var = self.columns(xt.transpose(-1, -2))
+        means, var = self.columns(xt.transpose(-1, -2).contiguous())
         means, var = means.transpose(1, 2).contiguous(), var.transpose(1, 2).contiguous()
         if numpy_in:
             return means.numpy(), var.numpy()
@@ -202,44 +301,48 @@ class Model(nn.Module, ABC):
             std = t.std(dim=0, unbiased=False)
             std_buf.copy_(torch.where(std > 1e-8, std, torch.ones_like(std)))
 
-    def draw(self, n_samples: int, *, seed: int = 0) -> SampledModel:
+    def draw(self, n_samples: int, *, seed: int = 0, backend: str = "auto") -> SampledModel:
         """Draw `n_samples` posterior weight sets, fixed across calls (same seed → same draws).
 
         Deep ensemble: sample s is member s mod K. DNN and PNN: every sample is the same network.
+        `backend` picks how the draws are evaluated (see `BACKENDS`).
         """
         if n_samples < 1:
             raise InputError("n_samples", n_samples, "must be >= 1")
         gen = torch.Generator().manual_seed(int(seed))
         with torch.no_grad():
             params = self.sample_params(n_samples, gen)
-        return SampledModel(self, params, n_samples, seed)
+        return SampledModel(self, params, n_samples, seed, backend)
+
+    def network_kernel(self, column_params: list, n_samples: int) -> NetworkKernel | None:
+        """`columns_params` weights packed for the compiled kernel; None where it is unavailable."""
+        return None
 
     @torch.no_grad()
     def predict(
-        self, x: np.ndarray | Tensor, n_samples: int = 32, *, seed: int = 0, return_samples: bool = False
+        self,
+        x: np.ndarray | Tensor,
+        n_samples: int = 32,
+        *,
+        seed: int = 0,
+        return_samples: bool = False,
+        backend: str = "auto",
     ) -> Prediction:
         """Predictive mean and aleatoric/epistemic/total variance at x (N × d), physical units.
 
         Deterministic for a given seed. For a deep ensemble the moments are over its K members
         (S = K whatever `n_samples` says), so they are the ensemble's exact mixture moments.
+        `backend` is "auto", "native" (compiled kernel) or "reference" (torch); see `BACKENDS`.
         """
         xt = _as_tensor(x, self.n_inputs)
         if xt.dim() != 2:
             raise InputError("x", tuple(xt.shape), f"predict expects shape (N, {self.n_inputs})")
         s = self.n_members if self.n_members is not None else n_samples
-        sampled = self.draw(s, seed=seed)
-        # Moments per block of rows in standardised units, then scaled: the (S, n_outputs, N)
-        # samples are never rescaled or copied unless asked for.
-        columns = xt.t()
-
-        def moments(rows: slice) -> tuple[Tensor, Tensor, Tensor]:
-            means, var = sampled.standardised(columns[:, rows])
-            mean = means.mean(dim=0)
-            # Population variance (ddof 0): the mixture's variance.
-            return mean, var.mean(dim=0), (means - mean).square_().mean(dim=0)
-
-        parts = [moments(rows) for rows in even_blocks(len(xt), CHUNK_ROWS)]
-        mean, alea, epi = (torch.cat(p, dim=-1) for p in zip(*parts, strict=True))
+        sampled = self.draw(s, seed=seed, backend=backend)
+        # Moments in standardised units, then scaled: the (S, n_outputs, N) samples are never
+        # stored, rescaled or copied unless asked for.
+        columns = xt.t().contiguous()
+        mean, alea, epi = sampled.moments(columns)
         y_std, y_mean = self.y_std[:, None].double(), self.y_mean[:, None].double()
         mean = mean.double() * y_std + y_mean
         alea = alea.double() * y_std.square() if self.has_aleatoric else torch.zeros_like(mean)
@@ -247,7 +350,7 @@ class Model(nn.Module, ABC):
         epi = epi.double() * epi_scale if self.has_epistemic else torch.zeros_like(mean)
         sample_means = None
         if return_samples:  # a second pass, in physical units (a rarely used diagnostic)
-            sample_means = sampled.columns(xt.t())[0].transpose(1, 2).contiguous().numpy()
+            sample_means = sampled.columns(columns)[0].transpose(1, 2).contiguous().numpy()
         return Prediction(
             mean=mean.t().numpy(),
             aleatoric_var=alea.t().numpy(),

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 from typing import ClassVar, Literal
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from activelearn import native
 from activelearn.config import ModelConfig
 from activelearn.models.base import Model
 from activelearn.models.layers import BayesianLinear, DenseLinear
@@ -217,6 +219,32 @@ class StackModel(Model):
             h = h.expand(n_samples, *h.shape[1:])
         mean, var = self._head(h, dim=1, inplace=True)
         return mean, torch.zeros_like(mean) if var is None else var
+
+    def network_kernel(self, column_params: list, n_samples: int) -> native.NetworkKernel | None:
+        """`columns_params` weights packed for the compiled kernel; None where it is unavailable."""
+        lib = native.library()
+        if lib is None:
+            return None
+        layers = []
+        for (w, b, _), act in zip(column_params, self.activations, strict=True):
+            per_sample = w.dim() == 3
+            if per_sample and w.shape[0] != n_samples:  # posterior-mean weights broadcast to S
+                w, b = w.expand(n_samples, -1, -1), b.expand(n_samples, -1, -1)
+            layers.append((w.numpy(), b.reshape(*w.shape[:-1]).numpy(), per_sample, act))
+        head_var = None
+        if self.head == "homoscedastic":
+            head_var = (F.softplus(self.noise_rho.detach()) + self.config.min_std).square().numpy()
+        elif self.head == "none":
+            head_var = np.zeros(self.n_outputs, dtype=np.float32)
+        return native.NetworkKernel(
+            lib,
+            layers,
+            n_samples=n_samples,
+            x_mean=self.x_mean.numpy(),
+            x_std=self.x_std.numpy(),
+            min_std=self.config.min_std,
+            head_var=head_var,
+        )
 
 
 class HybridPBNN(StackModel):

@@ -1,8 +1,13 @@
 """Compiled kernels, built on first use with the machine's C compiler and loaded through ctypes.
 
-One fused loop that no library provides: noise, rates and pose of one sampled trajectory of the
-static surrogate (`static_rollout.c`), replacing a chain of torch passes over multi-MB arrays. It is
-compiled once per machine (sources, flags, compiler and CPU features form the cache key) into
+Two fused loops that no library provides:
+  * `static_rollout.c`: noise, rates and pose of one sampled trajectory of the static surrogate,
+    replacing a chain of torch passes over multi-MB arrays;
+  * `network.c`: S sampled weight sets of a layer stack evaluated tile by tile with the activations
+    in L1, the head and the moments over draws included (`NetworkKernel`), where torch writes every
+    layer's (S x width x rows) output to memory and reads it back.
+
+They are compiled once per machine (sources, flags, compiler and CPU features form the cache key) into
 `CACHE_DIR` (`~/.cache/activelearn/native`; a temporary directory if that is not writable), and
 written atomically so concurrent processes can race to build it safely.
 
@@ -26,7 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-SOURCES = (Path(__file__).with_name("static_rollout.c"),)
+SOURCES = tuple(Path(__file__).with_name(name) for name in ("static_rollout.c", "network.c"))
+HEADERS = (Path(__file__).with_name("network.h"),)  # part of the cache key, not compiled on their own
 # -ffast-math lets GCC vectorise logf/sinf/cosf through glibc's libmvec; -march=native is safe
 # because the cache key includes this machine's CPU features.
 FLAGS = ("-O3", "-ffast-math", "-march=native", "-fPIC", "-shared")
@@ -38,16 +44,78 @@ CACHE_DIR = Path.home() / ".cache" / "activelearn" / "native"
 _f32 = ctypes.POINTER(ctypes.c_float)
 _i64 = ctypes.POINTER(ctypes.c_int64)
 _u32 = ctypes.POINTER(ctypes.c_uint32)
+
+
+class _Layer(ctypes.Structure):
+    """network.c's al_layer."""
+
+    _fields_ = [
+        ("n_in", ctypes.c_int64),
+        ("n_out", ctypes.c_int64),
+        ("per_sample", ctypes.c_int64),
+        ("activation", ctypes.c_int64),
+        ("weight", _f32),
+        ("bias", _f32),
+    ]
+
+
+class _Network(ctypes.Structure):
+    """network.c's al_network."""
+
+    _fields_ = [
+        ("n_layers", ctypes.c_int64),
+        ("n_samples", ctypes.c_int64),
+        ("n_inputs", ctypes.c_int64),
+        ("n_outputs", ctypes.c_int64),
+        ("layers", ctypes.POINTER(_Layer)),
+        ("x_mean", _f32),
+        ("x_std", _f32),
+        ("gaussian_head", ctypes.c_int64),
+        ("min_std", ctypes.c_float),
+        ("head_var", _f32),
+    ]
+
+
+class _Outputs(ctypes.Structure):
+    """network.c's al_outputs."""
+
+    _fields_ = [
+        ("means", _f32),
+        ("variances", _f32),
+        ("ld_draws", ctypes.c_int64),
+        ("centre", _f32),
+        ("aleatoric", _f32),
+        ("epistemic", _f32),
+        ("ld_moments", ctypes.c_int64),
+        ("out_mean", _f32),
+        ("out_std", _f32),
+        ("spread", ctypes.c_float),
+    ]
+
+
 SIGNATURES = {
     "al_tile": ([], ctypes.c_int),
     "al_philox4x32_10": ([_u32, _u32, _u32], None),
-    "al_static_trajectory": (
-        [ctypes.c_int64, ctypes.c_int64, ctypes.c_float, _f32, _f32, _f32, _f32, _i64, _f32, ctypes.c_int64]
-        + [ctypes.c_uint32, ctypes.c_uint32]
-        + [_f32] * 5,
-        None,
+    "al_static_rollout": (
+        [ctypes.POINTER(_Network), ctypes.POINTER(_Outputs), ctypes.c_int64, ctypes.c_int64, ctypes.c_int64]
+        + [ctypes.c_float, _f32, _f32, ctypes.c_int64, ctypes.POINTER(ctypes.c_uint64), ctypes.c_int64]
+        + [_f32] * 8,
+        ctypes.c_int,
+    ),
+    "al_tile_rows": ([], ctypes.c_int),
+    "al_network_forward": (
+        [
+            ctypes.POINTER(_Network),
+            ctypes.c_int64,
+            _f32,
+            ctypes.c_int64,
+            ctypes.c_int64,
+            ctypes.POINTER(_Outputs),
+        ],
+        ctypes.c_int,
     ),
 }
+ACTIVATION_CODES = {None: 0, "relu": 1, "tanh": 2, "sigmoid": 3, "elu": 4, "selu": 5, "softplus": 6}
 
 
 def _compiler() -> str:
@@ -68,7 +136,7 @@ def _cpu_features() -> str:
 def _build(compiler: str) -> Path:
     """Compile the kernel into the cache (or find it there) and return the library's path."""
     version = subprocess.run([compiler, "--version"], capture_output=True, text=True, check=False).stdout
-    sources = [path.read_text() for path in SOURCES]
+    sources = [path.read_text() for path in (*SOURCES, *HEADERS)]
     identity = [*sources, " ".join(FLAGS), version, platform.machine(), _cpu_features()]
     key = hashlib.sha256("\0".join(identity).encode()).hexdigest()[:16]
     name = f"kernels-{key}.so"
@@ -117,35 +185,179 @@ def library() -> ctypes.CDLL | None:
     return lib
 
 
-def _pointer(array: np.ndarray, kind: type = ctypes.c_float):
-    return array.ctypes.data_as(ctypes.POINTER(kind))
+def _f32_pointer(array: np.ndarray | None):
+    return None if array is None else array.ctypes.data_as(_f32)
 
 
-def static_trajectory(
-    lib: ctypes.CDLL,
-    rates: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
-    index: np.ndarray,
-    yaw0: np.ndarray,
-    key: int,
-    dt: float,
-    out: tuple[np.ndarray, ...],
-) -> None:
-    """Fill one sampled trajectory with `al_static_trajectory` (see static_rollout.c).
+def _unit_stride(array: np.ndarray) -> bool:
+    """Consecutive along the last axis (a length-1 axis has any stride)."""
+    return array.shape[-1] == 1 or array.strides[-1] == array.itemsize
 
-    `rates` = (mean_v, var_v, mean_w, var_w) of one draw per distinct control row (float32, unit
-    stride); `index` (M·T,) int64 gives each step's row; `yaw0` holds one heading per maneuver, or
-    one for all; `out` = (v, w, x, y, yaw), each a contiguous float32 (M, T) array, is written.
+
+class NetworkKernel:
+    """S sampled weight sets of a layer stack packed for `al_network_forward` (network.c).
+
+    `layers` lists (weight, bias, per_sample, activation) per layer: weight (out, in) and bias (out,)
+    shared by every draw, or (S, out, in) and (S, out) per draw; activation is a name or None (the
+    last layer has none). The head is Gaussian (the last layer gives mean and raw scale, variance
+    (softplus(raw) + min_std)²) when `head_var` is None, else a fixed standardised variance per
+    output. The kernel standardises inputs with `x_mean`, `x_std`. Arrays are copied to contiguous
+    float32 and kept alive with the instance.
     """
-    n_maneuvers, n_steps = out[0].shape
-    lib.al_static_trajectory(
+
+    def __init__(
+        self,
+        lib: ctypes.CDLL,
+        layers: list[tuple[np.ndarray, np.ndarray, bool, str | None]],
+        *,
+        n_samples: int,
+        x_mean: np.ndarray,
+        x_std: np.ndarray,
+        min_std: float,
+        head_var: np.ndarray | None,
+    ) -> None:
+        self.lib = lib
+        self._keep: list[np.ndarray] = []
+        packed = (_Layer * len(layers))()
+        for slot, (weight, bias, per_sample, activation) in zip(packed, layers, strict=True):
+            w, b = self._own(weight), self._own(bias)
+            slot.n_in, slot.n_out = w.shape[-1], w.shape[-2]
+            slot.per_sample, slot.activation = int(per_sample), ACTIVATION_CODES[activation]
+            slot.weight, slot.bias = _f32_pointer(w), _f32_pointer(b)
+        self._layers = packed
+        self.n_inputs = int(packed[0].n_in)
+        self.n_outputs = int(packed[len(layers) - 1].n_out) // (2 if head_var is None else 1)
+        self.n_samples = n_samples
+        self.net = _Network(
+            n_layers=len(layers),
+            n_samples=n_samples,
+            n_inputs=self.n_inputs,
+            n_outputs=self.n_outputs,
+            layers=packed,
+            x_mean=_f32_pointer(self._own(x_mean)),
+            x_std=_f32_pointer(self._own(x_std)),
+            gaussian_head=int(head_var is None),
+            min_std=min_std,
+            head_var=None if head_var is None else _f32_pointer(self._own(head_var)),
+        )
+
+    def _own(self, array: np.ndarray) -> np.ndarray:
+        kept = np.ascontiguousarray(array, dtype=np.float32)
+        self._keep.append(kept)
+        return kept
+
+    def forward(
+        self,
+        x: np.ndarray,
+        *,
+        draws: tuple[np.ndarray, np.ndarray] | None = None,
+        moments: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+        out_mean: np.ndarray | None = None,
+        out_std: np.ndarray | None = None,
+        spread: float = 1.0,
+    ) -> None:
+        """Evaluate every draw on the N columns of x and write the requested results.
+
+        x is (d, N), shared by every draw, or (S, d, N), one input set per draw; float32 with unit
+        stride along N (row strides are passed on). `draws` = (means, variances), each (S, o, N),
+        and `moments` = (centre, aleatoric, epistemic), each (o, N), are float32 arrays (or views
+        with unit stride along N) to fill. Draws are mapped to out_mean + out_std · (c + spread ·
+        (m − c)) with c their average (identity when the scalers are None), variances scaled by
+        out_std²; moments are of the mapped draws.
+        """
+        per_sample = x.ndim == 3
+        if (
+            x.dtype != np.float32
+            or not _unit_stride(x)
+            or (per_sample and x.strides[0] != x.shape[1] * x.strides[1])
+        ):
+            raise ValueError("x must be float32 with unit stride along N (and whole input sets per draw)")
+        out, scalers = _output_map(out_mean, out_std, spread)
+        if draws is not None:
+            means, variances = draws
+            whole = means.strides[0] == means.shape[1] * means.strides[1]
+            if means.strides != variances.strides or not _unit_stride(means) or not whole:
+                raise ValueError("draws must share one layout with unit stride along N")
+            out.means, out.variances, out.ld_draws = (
+                _f32_pointer(means),
+                _f32_pointer(variances),
+                means.strides[1] // 4,
+            )
+        if moments is not None:
+            if len({m.strides for m in moments}) != 1 or not _unit_stride(moments[0]):
+                raise ValueError("moments must share one layout with unit stride along N")
+            out.centre, out.aleatoric, out.epistemic = (_f32_pointer(m) for m in moments)
+            out.ld_moments = moments[0].strides[0] // 4
+        status = self.lib.al_network_forward(
+            ctypes.byref(self.net),
+            x.shape[-1],
+            _f32_pointer(x),
+            x.strides[-2] // 4,
+            int(per_sample),
+            ctypes.byref(out),
+        )
+        del scalers  # kept alive through the call above (locals, so concurrent calls are safe)
+        if status != 0:
+            raise MemoryError("al_network_forward could not allocate its scratch memory")
+
+
+def _output_map(
+    out_mean: np.ndarray | None, out_std: np.ndarray | None, spread: float
+) -> tuple[_Outputs, list]:
+    """An al_outputs holding only the map of draws to outputs, and the arrays its pointers refer to."""
+    scalers = [None if a is None else np.ascontiguousarray(a, dtype=np.float32) for a in (out_mean, out_std)]
+    return _Outputs(
+        out_mean=_f32_pointer(scalers[0]), out_std=_f32_pointer(scalers[1]), spread=spread
+    ), scalers
+
+
+def static_rollout(
+    kernel: NetworkKernel,
+    controls: np.ndarray,
+    yaw0: np.ndarray,
+    keys: np.ndarray,
+    dt: float,
+    paths: tuple[np.ndarray, ...],
+    moments: tuple[np.ndarray, np.ndarray, np.ndarray],
+    *,
+    out_mean: np.ndarray,
+    out_std: np.ndarray,
+    spread: float,
+    first_maneuver: int = 0,
+) -> None:
+    """Fill S sampled trajectories of a block of maneuvers with `al_static_rollout` (static_rollout.c).
+
+    `kernel` holds the S network draws; `controls` (M, T, 2) float32 are the block's control rows
+    and `first_maneuver` its first maneuver's index in the whole batch (the noise key of each step).
+    `yaw0` holds one heading per maneuver of the block, or one for all; `keys` (S,) uint64 are the
+    draws' noise keys. `paths` = (v, w, x, y, yaw), each an (S, M, T) float32 view with unit stride
+    along T and whole maneuvers per draw, and `moments` = (centre, aleatoric, epistemic), each
+    (M, T, 2) contiguous, are written. Draws are mapped as in `NetworkKernel.forward`.
+    """
+    n_maneuvers, n_steps, _ = controls.shape
+    if controls.dtype != np.float32 or not controls.flags.c_contiguous:
+        raise ValueError("controls must be contiguous float32 (M, T, 2)")
+    ld_sample = paths[0].strides[0] // 4
+    if any(p.strides != paths[0].strides or p.strides[1:] != (n_steps * 4, 4) for p in paths):
+        raise ValueError("paths must share one (S, M, T) layout with whole maneuvers per draw")
+    if any(not m.flags.c_contiguous or m.shape != (n_maneuvers, n_steps, 2) for m in moments):
+        raise ValueError("moments must be contiguous (M, T, 2) arrays")
+    mapping, scalers = _output_map(out_mean, out_std, spread)
+    keys = np.ascontiguousarray(keys, dtype=np.uint64)
+    status = kernel.lib.al_static_rollout(
+        ctypes.byref(kernel.net),
+        ctypes.byref(mapping),
         n_maneuvers,
         n_steps,
+        first_maneuver,
         dt,
-        *(_pointer(a) for a in rates),
-        _pointer(index, ctypes.c_int64),
-        _pointer(yaw0),
+        _f32_pointer(controls),
+        _f32_pointer(yaw0),
         0 if yaw0.size == 1 else 1,
-        key & 0xFFFFFFFF,
-        key >> 32,
-        *(_pointer(a) for a in out),
+        keys.ctypes.data_as(ctypes.POINTER(ctypes.c_uint64)),
+        ld_sample,
+        *(_f32_pointer(a) for a in (*paths, *moments)),
     )
+    del scalers  # kept alive through the call above
+    if status != 0:
+        raise MemoryError("al_static_rollout could not allocate its scratch memory")

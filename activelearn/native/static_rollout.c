@@ -1,9 +1,11 @@
-/* Fused sampled trajectory of a static surrogate: noise, rates and pose in one pass per tile.
+/* Fused sampled trajectories of a static surrogate: network, noise, rates and pose in one pass per tile.
  *
- * One call fills one trajectory (one posterior draw) over M maneuvers of T steps. For every tile
- * of TILE steps it draws the aleatoric noise (Philox4x32-10 counters, Box-Muller), forms the
- * sampled rates from the draw's per-row mean and variance, and integrates the planar pose, all while
- * the tile is in L1: the torch version made some fifteen passes over multi-MB arrays instead.
+ * For every tile of TILE steps of a maneuver, the sampled network (network.c) is evaluated on the
+ * tile's distinct control rows for all S draws while they are in cache; then each draw's tile gets
+ * its aleatoric noise (Philox4x32-10 counters, Box-Muller), its sampled rates and its integrated
+ * planar pose, all in L1. The unfused version wrote every draw's rates per distinct row (137 MB
+ * for 256 maneuvers of 90 s with S = 32) and read them back; torch before it made some fifteen
+ * passes over multi-MB arrays.
  *
  * The noise of step t of maneuver m is a pure function of (key, m, t), so it does not depend on
  * the padding, the other maneuvers or the thread that computes it. The Python reference in
@@ -14,7 +16,10 @@
  */
 #include <math.h>
 #include <stdint.h>
+#include <stdlib.h>
 #include <string.h>
+
+#include "network.h"
 
 #define TILE 512
 #define HALF (TILE / 2)
@@ -95,53 +100,122 @@ static double exclusive_prefix(const float *restrict values, double *restrict su
     return offset;
 }
 
-/* One sampled trajectory over M maneuvers of T steps (row-major (M, T) outputs).
+/* Sampled rates and pose of one draw over one tile of `n` steps of a maneuver (zero-padded to TILE).
  *
- * mean_v/var_v/mean_w/var_w: this draw's predicted means and aleatoric variances per distinct
- * control row; index[m*T + t] is the row step t of maneuver m uses. yaw0[m * yaw0_stride] is maneuver m's initial heading. The pose is
- * torch's reference (`_integrate`): yaw[t] = yaw0 + dt * sum(w[:t]), x[t] = dt * sum(v cos yaw [:t]),
- * likewise y, with the sums in double. A tile is computed in local buffers, zero-padded past the
- * last step, and copied out.
- */
-void al_static_trajectory(int64_t n_maneuvers, int64_t n_steps, float dt, const float *restrict mean_v,
-                          const float *restrict var_v, const float *restrict mean_w,
-                          const float *restrict var_w, const int64_t *restrict index,
-                          const float *restrict yaw0, int64_t yaw0_stride, uint32_t k0, uint32_t k1,
-                          float *restrict v, float *restrict w, float *restrict x, float *restrict y,
-                          float *restrict yaw) {
+ * mean_v/var_v/mean_w/var_w hold this draw's mean and aleatoric variance per distinct control row
+ * and row[i] is the row of step i. `sums` carries the running sums of w, v cos(yaw) and v sin(yaw)
+ * from tile to tile. Writes n steps at v, w, x, y, yaw. The pose is torch's reference
+ * (`_integrate`): yaw[t] = yaw0 + dt * sum(w[:t]), x[t] = dt * sum(v cos yaw [:t]), likewise y,
+ * with the sums in double. */
+static void trajectory_tile(int64_t n, uint32_t tile, uint32_t m, uint32_t k0, uint32_t k1, float dt,
+                            float start_yaw, const float *restrict mean_v, const float *restrict var_v,
+                            const float *restrict mean_w, const float *restrict var_w,
+                            const int32_t *restrict row, double sums_carried[3], float *restrict v,
+                            float *restrict w, float *restrict x, float *restrict y, float *restrict yaw) {
     float zv[TILE], zw[TILE], vt[TILE], wt[TILE], var_vt[TILE], var_wt[TILE], yt[TILE], c[TILE], s[TILE];
     double sums[TILE];
+    tile_noise(tile, m, k0, k1, zv, zw);
+    for (int64_t i = 0; i < n; ++i) { /* gather this draw's moments of each step's row */
+        const int32_t r = row[i];
+        vt[i] = mean_v[r];
+        wt[i] = mean_w[r];
+        var_vt[i] = var_v[r];
+        var_wt[i] = var_w[r];
+    }
+    for (int64_t i = n; i < TILE; ++i) vt[i] = wt[i] = var_vt[i] = var_wt[i] = 0.0f;
+    for (int i = 0; i < TILE; ++i) vt[i] += sqrtf(var_vt[i]) * zv[i];
+    for (int i = 0; i < TILE; ++i) wt[i] += sqrtf(var_wt[i]) * zw[i];
+    const double total_w = exclusive_prefix(wt, sums);
+    for (int i = 0; i < TILE; ++i) yt[i] = start_yaw + dt * (float)(sums_carried[0] + sums[i]);
+    sums_carried[0] += total_w;
+    for (int i = 0; i < TILE; ++i) c[i] = cosf(yt[i]) * vt[i];
+    for (int i = 0; i < TILE; ++i) s[i] = sinf(yt[i]) * vt[i];
+    const double total_x = exclusive_prefix(c, sums);
+    for (int64_t i = 0; i < n; ++i) x[i] = (float)(sums_carried[1] + sums[i]) * dt;
+    sums_carried[1] += total_x;
+    const double total_y = exclusive_prefix(s, sums);
+    for (int64_t i = 0; i < n; ++i) y[i] = (float)(sums_carried[2] + sums[i]) * dt;
+    sums_carried[2] += total_y;
+    memcpy(v, vt, (size_t)n * sizeof(float));
+    memcpy(w, wt, (size_t)n * sizeof(float));
+    memcpy(yaw, yt, (size_t)n * sizeof(float));
+}
+
+/* S sampled trajectories of maneuvers [0, n_maneuvers) of a static surrogate, network included.
+ *
+ * For every tile of TILE steps of a maneuver, the network (`net`, S draws, outputs mapped by
+ * `map`'s out_mean/out_std/spread) is evaluated once on the tile's distinct consecutive control
+ * rows, while they are in cache; then each draw's tile is noised and integrated. controls is
+ * (n_maneuvers, n_steps, 2) float32 (throttle, steering); m_first is the first maneuver's index in
+ * the whole batch (the noise of step t of maneuver m depends only on (key, m, t)); keys[s] is draw
+ * s's 64-bit noise key. Sampled paths v, w, x, y, yaw are (S, ., n_steps) with draw stride
+ * ld_sample, maneuver 0 of this call at offset 0. The per-step moments over draws (centre,
+ * aleatoric, epistemic) are (n_maneuvers, n_steps, 2). Returns 0, or -1 when out of memory. */
+int al_static_rollout(const al_network *net, const al_outputs *map, int64_t n_maneuvers, int64_t n_steps,
+                      int64_t m_first, float dt, const float *restrict controls, const float *restrict yaw0,
+                      int64_t yaw0_stride, const uint64_t *restrict keys, int64_t ld_sample, float *v, float *w,
+                      float *x, float *y, float *yaw, float *centre, float *aleatoric, float *epistemic) {
+    const int64_t S = net->n_samples;
+    al_scratch *scratch = al_scratch_new(net);
+    float *rows_x = malloc(2 * TILE * sizeof(float));               /* distinct rows, column layout */
+    float *draws = malloc((size_t)(4 * S * TILE) * sizeof(float));  /* (2 [mean, var], S, 2, TILE) */
+    float *moments = malloc(3 * 2 * TILE * sizeof(float));          /* (3, 2, TILE) */
+    int32_t *row = malloc(TILE * sizeof(int32_t));
+    double *sums = malloc((size_t)(3 * S) * sizeof(double));
+    int status = 0;
+    if (!scratch || !rows_x || !draws || !moments || !row || !sums) {
+        status = -1;
+        goto done;
+    }
+    float *draw_means = draws, *draw_vars = draws + 2 * S * TILE;
+    al_outputs out = *map;
+    out.means = draw_means;
+    out.variances = draw_vars;
+    out.ld_draws = TILE;
+    out.centre = moments;
+    out.aleatoric = moments + 2 * TILE;
+    out.epistemic = moments + 4 * TILE;
+    out.ld_moments = TILE;
     for (int64_t m = 0; m < n_maneuvers; ++m) {
         const float start_yaw = yaw0[m * yaw0_stride];
-        double sum_w = 0.0, sum_x = 0.0, sum_y = 0.0;
+        for (int64_t k = 0; k < 3 * S; ++k) sums[k] = 0.0;
         for (int64_t t0 = 0; t0 < n_steps; t0 += TILE) {
             const int64_t n = n_steps - t0 < TILE ? n_steps - t0 : TILE;
             const int64_t at = m * n_steps + t0;
-            tile_noise((uint32_t)(t0 / TILE), (uint32_t)m, k0, k1, zv, zw);
-            for (int64_t i = 0; i < n; ++i) { /* gather this draw's moments of each step's row */
-                const int64_t r = index[at + i];
-                vt[i] = mean_v[r];
-                wt[i] = mean_w[r];
-                var_vt[i] = var_v[r];
-                var_wt[i] = var_w[r];
+            const float *u = controls + 2 * at;
+            /* Distinct consecutive rows: skidpads and straights hold one row for the whole tile. */
+            int32_t n_rows = 0;
+            for (int64_t i = 0; i < n; ++i) {
+                if (i == 0 || u[2 * i] != u[2 * i - 2] || u[2 * i + 1] != u[2 * i - 1]) {
+                    rows_x[n_rows] = u[2 * i];
+                    rows_x[TILE + n_rows] = u[2 * i + 1];
+                    ++n_rows;
+                }
+                row[i] = n_rows - 1;
             }
-            for (int64_t i = n; i < TILE; ++i) vt[i] = wt[i] = var_vt[i] = var_wt[i] = 0.0f;
-            for (int i = 0; i < TILE; ++i) vt[i] += sqrtf(var_vt[i]) * zv[i];
-            for (int i = 0; i < TILE; ++i) wt[i] += sqrtf(var_wt[i]) * zw[i];
-            const double total_w = exclusive_prefix(wt, sums);
-            for (int i = 0; i < TILE; ++i) yt[i] = start_yaw + dt * (float)(sum_w + sums[i]);
-            sum_w += total_w;
-            for (int i = 0; i < TILE; ++i) c[i] = cosf(yt[i]) * vt[i];
-            for (int i = 0; i < TILE; ++i) s[i] = sinf(yt[i]) * vt[i];
-            const double total_x = exclusive_prefix(c, sums);
-            for (int64_t i = 0; i < n; ++i) x[at + i] = (float)(sum_x + sums[i]) * dt;
-            sum_x += total_x;
-            const double total_y = exclusive_prefix(s, sums);
-            for (int64_t i = 0; i < n; ++i) y[at + i] = (float)(sum_y + sums[i]) * dt;
-            sum_y += total_y;
-            memcpy(v + at, vt, (size_t)n * sizeof(float));
-            memcpy(w + at, wt, (size_t)n * sizeof(float));
-            memcpy(yaw + at, yt, (size_t)n * sizeof(float));
+            al_network_rows(net, scratch, n_rows, rows_x, TILE, 0, &out);
+            for (int64_t i = 0; i < n; ++i)
+                for (int j = 0; j < 2; ++j) {
+                    const int64_t to = 2 * (at + i) + j, from = j * TILE + row[i];
+                    centre[to] = out.centre[from];
+                    aleatoric[to] = out.aleatoric[from];
+                    epistemic[to] = out.epistemic[from];
+                }
+            for (int64_t s = 0; s < S; ++s) {
+                const float *mean = draw_means + 2 * s * TILE, *var = draw_vars + 2 * s * TILE;
+                const int64_t o = s * ld_sample + at;
+                trajectory_tile(n, (uint32_t)(t0 / TILE), (uint32_t)(m_first + m), (uint32_t)keys[s],
+                                (uint32_t)(keys[s] >> 32), dt, start_yaw, mean, var, mean + TILE, var + TILE,
+                                row, sums + 3 * s, v + o, w + o, x + o, y + o, yaw + o);
+            }
         }
     }
+done:
+    al_scratch_free(scratch);
+    free(rows_x);
+    free(draws);
+    free(moments);
+    free(row);
+    free(sums);
+    return status;
 }
