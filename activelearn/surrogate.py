@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from activelearn import counter_noise, native
+from activelearn import buffers, counter_noise, native
 from activelearn.errors import InputError
 from activelearn.models.base import BACKENDS, CHUNK_ROWS
 from activelearn.threads import even_blocks, parallel_map
@@ -168,10 +168,10 @@ def _static_rollout(
     if sampled.kernel is None:
         return _reference_rollout(sampled, controls, keys, dt, yaw0)
     n_maneuvers, n_steps, _ = controls.shape
-    # torch, not numpy, allocates: numpy advises huge pages for large arrays, and the kernel's
-    # compaction for them made first calls 2-3x slower here.
-    paths = tuple(torch.empty((n_samples, n_maneuvers, n_steps)).numpy() for _ in range(5))
-    moments = tuple(torch.empty((n_maneuvers, n_steps, 2)).numpy() for _ in range(3))
+    # Reused memory where an earlier rollout's arrays have been dropped: first-touch page faults
+    # of 440 MB of fans cost a third of a 256-maneuver rollout (`activelearn.buffers`).
+    paths = tuple(buffers.empty((n_samples, n_maneuvers, n_steps)) for _ in range(5))
+    moments = tuple(buffers.empty((n_maneuvers, n_steps, 2)) for _ in range(3))
     controls = np.ascontiguousarray(controls, dtype=np.float32)
     key_array = np.array(keys, dtype=np.uint64)
     y_mean, y_std = model.y_mean.numpy(), model.y_std.numpy()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import subprocess
 import sys
 
@@ -238,3 +239,18 @@ def test_simulate_rejects_an_unknown_backend_or_a_wrong_heading_shape(skidpad_mo
         simulate(skidpad_model, controls, backend="cuda")
     with pytest.raises(InputError, match="initial_yaw"):
         simulate(skidpad_model, controls, initial_yaw=np.zeros(3))
+
+
+def test_rollouts_alive_together_never_share_memory_and_reuse_changes_nothing(skidpad_model):
+    controls = [np.tile([0.5, 0.2], (40_000, 1))]  # 8 draws x 40 000 steps: arrays large enough to be cached
+    first = simulate(skidpad_model, controls, n_samples=8, seed=1)
+    kept = {name: getattr(first, name).copy() for name in ("v", "x", "yaw", "mean_rates")}
+    second = simulate(skidpad_model, controls, n_samples=8, seed=2)
+    assert not np.shares_memory(first.x, second.x)
+    for name, values in kept.items():
+        np.testing.assert_array_equal(getattr(first, name), values, err_msg=name)
+    del first, second
+    gc.collect()
+    third = simulate(skidpad_model, controls, n_samples=8, seed=1)  # on the dropped rollouts' memory
+    for name, values in kept.items():
+        np.testing.assert_array_equal(getattr(third, name), values, err_msg=name)
