@@ -13,7 +13,7 @@ Two model variants:
   * static ("controls"): rates are a function of the current controls. Nothing depends on the past,
     so maneuvers are independent and a control row repeated at consecutive steps is evaluated once
     (skidpads, straights and eights hold a handful of rows for thousands of steps). A compiled
-    kernel (`activelearn.native`, one thread-pool task per block of maneuvers) evaluates the S
+    kernel (`activelearn.native`, its threads taking one maneuver at a time) evaluates the S
     network draws on a tile of steps' distinct rows, then noises (each step's noise a function of
     its counter) and integrates the S trajectories of that tile while it is in cache; a torch and
     NumPy reference computes the same numbers where no C compiler is.
@@ -159,8 +159,8 @@ def _static_rollout(
     One posterior draw per trajectory; each trajectory's aleatoric noise comes from counters under
     its own key (`activelearn.counter_noise`), so the result depends neither on the thread count
     nor on the backend. Native: the compiled kernel evaluates the network on each tile's distinct
-    control rows and noises and integrates that tile at once, one thread-pool task per block of
-    maneuvers. Reference: torch evaluates every distinct control row, NumPy/torch the rest.
+    control rows and noises and integrates that tile at once, its threads taking one maneuver at a
+    time. Reference: torch evaluates every distinct control row, NumPy/torch the rest.
     """
     seed = int(torch.randint(2**31 - 1, (1,), generator=gen))
     keys = torch.randint(2**62, (n_samples,), generator=gen).tolist()
@@ -172,28 +172,19 @@ def _static_rollout(
     # of 440 MB of fans cost a third of a 256-maneuver rollout (`activelearn.buffers`).
     paths = tuple(buffers.empty((n_samples, n_maneuvers, n_steps)) for _ in range(5))
     moments = tuple(buffers.empty((n_maneuvers, n_steps, 2)) for _ in range(3))
-    controls = np.ascontiguousarray(controls, dtype=np.float32)
-    key_array = np.array(keys, dtype=np.uint64)
-    y_mean, y_std = model.y_mean.numpy(), model.y_std.numpy()
-
-    def fill(block: slice) -> None:
-        native.static_rollout(
-            sampled.kernel,
-            controls[block],
-            yaw0[block],
-            key_array,
-            dt,
-            tuple(p[:, block] for p in paths),
-            tuple(m[block] for m in moments),
-            out_mean=y_mean,
-            out_std=y_std,
-            spread=sampled.spread,
-            first_maneuver=block.start,
-        )
-
-    # Several blocks per thread: maneuvers differ in cost (a slalom has a distinct control row at
-    # every step, a skidpad one), so small blocks keep both cores busy to the end.
-    parallel_map(fill, even_blocks(n_maneuvers, max(1, n_maneuvers // (8 * torch.get_num_threads()))))
+    native.static_rollout(
+        sampled.kernel,
+        np.ascontiguousarray(controls, dtype=np.float32),
+        yaw0,
+        np.array(keys, dtype=np.uint64),
+        dt,
+        paths,
+        moments,
+        out_mean=model.y_mean.numpy(),
+        out_std=model.y_std.numpy(),
+        spread=sampled.spread,
+        threads=torch.get_num_threads(),
+    )
     return paths, tuple(torch.from_numpy(m) for m in moments)
 
 

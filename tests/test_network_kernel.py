@@ -106,9 +106,9 @@ def test_a_wrong_activation_would_be_caught():
     model = _model(CASES["activation tanh"])
     sampled = model.draw(4, seed=0, backend="native")
     layers = []
-    for (w, b, _), act in zip(sampled._column_params, model.activations, strict=True):
+    for (w, b), act in zip(sampled._params, model.activations, strict=True):
         per_sample = w.dim() == 3
-        layers.append((w.numpy(), b.reshape(*w.shape[:-1]).numpy(), per_sample, "relu" if act else None))
+        layers.append((w.numpy(), b.reshape(*w.shape[:-2], -1).numpy(), per_sample, "relu" if act else None))
     wrong = native.NetworkKernel(
         native.library(),
         layers,

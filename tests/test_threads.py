@@ -57,9 +57,11 @@ def test_parallel_map_nested_in_a_task_runs_and_the_pool_is_reused():
         return parallel_map(lambda j: i * 10 + j, range(3), workers=2)  # sequential inside a task
 
     assert parallel_map(inner, range(4), workers=2) == [[i * 10 + j for j in range(3)] for i in range(4)]
-    names = set(parallel_map(lambda _: threading.current_thread().name, range(8), workers=2))
-    again = set(parallel_map(lambda _: threading.current_thread().name, range(8), workers=2))
-    assert names and names == again  # the same pool threads, not new ones per call
+    names: set[str] = set()
+    for _ in range(5):
+        names |= set(parallel_map(lambda _: threading.current_thread().name, range(8), workers=2))
+    # The same two pool threads serve every call, not new ones per call.
+    assert 1 <= len(names) <= 2 and all(name.startswith("activelearn") for name in names)
 
 
 def _child_squares(_: int) -> list[int]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,7 +15,7 @@ from torch import Tensor, nn
 from activelearn.config import ModelConfig
 from activelearn.errors import InputError
 from activelearn.native import NetworkKernel
-from activelearn.threads import even_blocks, parallel_map
+from activelearn.threads import even_blocks, intra_op_threads
 
 # Rows evaluated per block by `SampledModel.columns` and `predict`. Blocks bound the S × rows × width
 # activations; the per-sample GEMMs of big blocks split well over torch's intra-op threads, while
@@ -24,20 +25,6 @@ CHUNK_ROWS = 4096
 # "reference" (torch) or "auto" (native where a C compiler built it). Both compute the same numbers
 # up to float rounding.
 BACKENDS = ("auto", "native", "reference")
-# Rows per compiled-kernel task. Each task costs ~0.1 ms of Python and thread hand-off, so small
-# inputs get one task per thread (2 700 rows on 2 threads: 1.9 ms as 2 tasks, 2.8 ms as 8); large
-# ones get blocks of at most KERNEL_MAX_ROWS, so a core slowed by the host does not hold the rest up.
-KERNEL_MIN_ROWS = 512
-KERNEL_MAX_ROWS = 16384
-
-
-def _kernel_blocks(n_rows: int, row_cost: int = 1) -> list[slice]:
-    """Row blocks for compiled-kernel tasks (see KERNEL_MIN_ROWS); a row costs `row_cost` shared rows."""
-    per_thread = -(-n_rows // torch.get_num_threads())
-    smallest, largest = max(1, KERNEL_MIN_ROWS // row_cost), max(1, KERNEL_MAX_ROWS // row_cost)
-    return even_blocks(n_rows, max(smallest, min(per_thread, largest)))
-
-
 @dataclass(frozen=True)
 class Prediction:
     """Predictive moments in physical units; every array is N × n_outputs.
@@ -111,8 +98,8 @@ class SampledModel:
         self.n_samples = n_samples
         self.seed = seed
         self.epistemic_scale = float(model.epistemic_scale)
-        self._column_params = model.columns_params(params)
-        self.kernel = None if backend == "reference" else model.network_kernel(self._column_params, n_samples)
+        self._params = params
+        self.kernel = None if backend == "reference" else model.network_kernel(params, n_samples)
         if backend == "native" and self.kernel is None:
             raise InputError("backend", backend, "the compiled kernel could not be built on this machine")
 
@@ -124,6 +111,12 @@ class SampledModel:
         m = self.model
         xs = (x - m.x_mean[:, None]) / m.x_std[:, None]
         return m.columns_forward(xs, self._column_params, self.n_samples)
+
+    @functools.cached_property
+    def _column_params(self) -> list:
+        """The draws rearranged for torch's column-layout pass (built on first use: the kernel reads
+        `sample_params`' layout as it is)."""
+        return self.model.columns_params(self._params)
 
     def block(
         self,
@@ -141,14 +134,7 @@ class SampledModel:
         if self.kernel is not None:
             if out is None:
                 out = tuple(torch.empty((self.n_samples, m.n_outputs, x.shape[-1])) for _ in range(2))
-            self.kernel.forward(
-                _kernel_input(x).numpy(),
-                draws=(out[0].numpy(), out[1].numpy()),
-                moments=None if moments is None else tuple(t.numpy() for t in moments),
-                out_mean=m.y_mean.numpy(),
-                out_std=m.y_std.numpy(),
-                spread=self.spread,
-            )
+            self._kernel_forward(x, 1, draws=out, moments=moments)
             return out
         means, var = self.standardised(x)
         if self.spread != 1.0:
@@ -165,6 +151,25 @@ class SampledModel:
             torch.mean((means - centre).square_(), dim=0, out=epistemic)
         return means, var
 
+    def _kernel_forward(
+        self,
+        x: Tensor,
+        threads: int,
+        draws: tuple[Tensor, Tensor],
+        moments: tuple[Tensor, Tensor, Tensor] | None = None,
+    ) -> None:
+        """Physical draws (and their moments) from the compiled kernel, written into the given tensors."""
+        m = self.model
+        self.kernel.forward(
+            _kernel_input(x).numpy(),
+            draws=(draws[0].numpy(), draws[1].numpy()),
+            moments=None if moments is None else tuple(t.numpy() for t in moments),
+            out_mean=m.y_mean.numpy(),
+            out_std=m.y_std.numpy(),
+            spread=self.spread,
+            threads=threads,
+        )
+
     @property
     def spread(self) -> float:
         """Factor on each draw's deviation from the average draw: √(epistemic scale)."""
@@ -180,12 +185,8 @@ class SampledModel:
         if out is None:
             out = tuple(torch.empty((self.n_samples, self.model.n_outputs, x.shape[-1])) for _ in range(2))
         means, var = out
-        if self.kernel is not None:
-            x = _kernel_input(x)  # once, not per block
-            blocks = _kernel_blocks(x.shape[-1], self.n_samples if x.dim() == 3 else 1)
-            parallel_map(
-                lambda rows: self.block(x[..., rows], out=(means[..., rows], var[..., rows])), blocks
-            )
+        if self.kernel is not None:  # the kernel splits the rows over threads itself
+            self._kernel_forward(x, torch.get_num_threads(), draws=(means, var))
             return means, var
         for rows in even_blocks(x.shape[-1], CHUNK_ROWS):
             self.block(x[..., rows], out=(means[..., rows], var[..., rows]))
@@ -201,13 +202,10 @@ class SampledModel:
         n_rows = x.shape[-1]
         centre, aleatoric, epistemic = (torch.empty((self.model.n_outputs, n_rows)) for _ in range(3))
         if self.kernel is not None:
-            x = _kernel_input(x)
-            parallel_map(
-                lambda rows: self.kernel.forward(
-                    x[..., rows].numpy(),
-                    moments=tuple(t[:, rows].numpy() for t in (centre, aleatoric, epistemic)),
-                ),
-                _kernel_blocks(n_rows),
+            self.kernel.forward(
+                _kernel_input(x).numpy(),
+                moments=tuple(t.numpy() for t in (centre, aleatoric, epistemic)),
+                threads=torch.get_num_threads(),
             )
             return centre, aleatoric, epistemic
         for rows in even_blocks(n_rows, CHUNK_ROWS):
@@ -310,12 +308,15 @@ class Model(nn.Module, ABC):
         if n_samples < 1:
             raise InputError("n_samples", n_samples, "must be >= 1")
         gen = torch.Generator().manual_seed(int(seed))
-        with torch.no_grad():
+        # One intra-op thread: these ops are small, and a multi-threaded one leaves torch's OpenMP
+        # workers spin-waiting afterwards on the cores the kernel's threads are about to use
+        # (2 700-row predict on 2 threads: 2.7 ms against 1.9 ms).
+        with torch.no_grad(), intra_op_threads(1):
             params = self.sample_params(n_samples, gen)
         return SampledModel(self, params, n_samples, seed, backend)
 
-    def network_kernel(self, column_params: list, n_samples: int) -> NetworkKernel | None:
-        """`columns_params` weights packed for the compiled kernel; None where it is unavailable."""
+    def network_kernel(self, params: list, n_samples: int) -> NetworkKernel | None:
+        """`sample_params` weights packed for the compiled kernel; None where it is unavailable."""
         return None
 
     @torch.no_grad()

@@ -220,17 +220,15 @@ class StackModel(Model):
         mean, var = self._head(h, dim=1, inplace=True)
         return mean, torch.zeros_like(mean) if var is None else var
 
-    def network_kernel(self, column_params: list, n_samples: int) -> native.NetworkKernel | None:
-        """`columns_params` weights packed for the compiled kernel; None where it is unavailable."""
+    def network_kernel(self, params: list, n_samples: int) -> native.NetworkKernel | None:
+        """`sample_params` weights packed for the compiled kernel; None where it is unavailable."""
         lib = native.library()
         if lib is None:
             return None
         layers = []
-        for (w, b, _), act in zip(column_params, self.activations, strict=True):
-            per_sample = w.dim() == 3
-            if per_sample and w.shape[0] != n_samples:  # posterior-mean weights broadcast to S
-                w, b = w.expand(n_samples, -1, -1), b.expand(n_samples, -1, -1)
-            layers.append((w.numpy(), b.reshape(*w.shape[:-1]).numpy(), per_sample, act))
+        for (w, b), act in zip(params, self.activations, strict=True):
+            per_sample = w.dim() == 3  # (S, in, out): sampled, or one ensemble member per draw
+            layers.append((w.numpy(), b.reshape(*w.shape[:-2], -1).numpy(), per_sample, act))
         head_var = None
         if self.head == "homoscedastic":
             head_var = (F.softplus(self.noise_rho.detach()) + self.config.min_std).square().numpy()

@@ -97,20 +97,22 @@ SIGNATURES = {
     "al_tile": ([], ctypes.c_int),
     "al_philox4x32_10": ([_u32, _u32, _u32], None),
     "al_static_rollout": (
-        [ctypes.POINTER(_Network), ctypes.POINTER(_Outputs), ctypes.c_int64, ctypes.c_int64, ctypes.c_int64]
+        [ctypes.POINTER(_Network), ctypes.POINTER(_Outputs), ctypes.c_int64, ctypes.c_int64]
         + [ctypes.c_float, _f32, _f32, ctypes.c_int64, ctypes.POINTER(ctypes.c_uint64), ctypes.c_int64]
-        + [_f32] * 8,
+        + [_f32] * 8
+        + [ctypes.c_int64],
         ctypes.c_int,
     ),
     "al_tile_rows": ([], ctypes.c_int),
     "al_network_forward": (
         [
             ctypes.POINTER(_Network),
-            ctypes.c_int64,
-            _f32,
-            ctypes.c_int64,
-            ctypes.c_int64,
+            ctypes.c_int64,  # rows
+            _f32,  # x
+            ctypes.c_int64,  # ld_x
+            ctypes.c_int64,  # x_per_sample
             ctypes.POINTER(_Outputs),
+            ctypes.c_int64,  # threads
         ],
         ctypes.c_int,
     ),
@@ -197,12 +199,12 @@ def _unit_stride(array: np.ndarray) -> bool:
 class NetworkKernel:
     """S sampled weight sets of a layer stack packed for `al_network_forward` (network.c).
 
-    `layers` lists (weight, bias, per_sample, activation) per layer: weight (out, in) and bias (out,)
-    shared by every draw, or (S, out, in) and (S, out) per draw; activation is a name or None (the
-    last layer has none). The head is Gaussian (the last layer gives mean and raw scale, variance
-    (softplus(raw) + min_std)²) when `head_var` is None, else a fixed standardised variance per
-    output. The kernel standardises inputs with `x_mean`, `x_std`. Arrays are copied to contiguous
-    float32 and kept alive with the instance.
+    `layers` lists (weight, bias, per_sample, activation) per layer: weight (in, out) and bias (out,)
+    shared by every draw, or (S, in, out) and (S, out) per draw (torch's layouts); activation is a
+    name or None (the last layer gets none). The head is Gaussian (the last layer gives mean and
+    raw scale, variance (softplus(raw) + min_std)²) when `head_var` is None, else a fixed
+    standardised variance per output. The kernel standardises inputs with `x_mean`, `x_std`.
+    Arrays are copied to contiguous float32 and kept alive with the instance.
     """
 
     def __init__(
@@ -221,7 +223,7 @@ class NetworkKernel:
         packed = (_Layer * len(layers))()
         for slot, (weight, bias, per_sample, activation) in zip(packed, layers, strict=True):
             w, b = self._own(weight), self._own(bias)
-            slot.n_in, slot.n_out = w.shape[-1], w.shape[-2]
+            slot.n_in, slot.n_out = w.shape[-2], w.shape[-1]
             slot.per_sample, slot.activation = int(per_sample), ACTIVATION_CODES[activation]
             slot.weight, slot.bias = _f32_pointer(w), _f32_pointer(b)
         self._layers = packed
@@ -255,8 +257,9 @@ class NetworkKernel:
         out_mean: np.ndarray | None = None,
         out_std: np.ndarray | None = None,
         spread: float = 1.0,
+        threads: int = 1,
     ) -> None:
-        """Evaluate every draw on the N columns of x and write the requested results.
+        """Evaluate every draw on the N columns of x on up to `threads` threads; write the results.
 
         x is (d, N), shared by every draw, or (S, d, N), one input set per draw; float32 with unit
         stride along N (row strides are passed on). `draws` = (means, variances), each (S, o, N),
@@ -295,6 +298,7 @@ class NetworkKernel:
             x.strides[-2] // 4,
             int(per_sample),
             ctypes.byref(out),
+            threads,
         )
         del scalers  # kept alive through the call above (locals, so concurrent calls are safe)
         if status != 0:
@@ -323,16 +327,15 @@ def static_rollout(
     out_mean: np.ndarray,
     out_std: np.ndarray,
     spread: float,
-    first_maneuver: int = 0,
+    threads: int = 1,
 ) -> None:
-    """Fill S sampled trajectories of a block of maneuvers with `al_static_rollout` (static_rollout.c).
+    """Fill S sampled trajectories of M maneuvers with `al_static_rollout` on up to `threads` threads.
 
-    `kernel` holds the S network draws; `controls` (M, T, 2) float32 are the block's control rows
-    and `first_maneuver` its first maneuver's index in the whole batch (the noise key of each step).
-    `yaw0` holds one heading per maneuver of the block, or one for all; `keys` (S,) uint64 are the
-    draws' noise keys. `paths` = (v, w, x, y, yaw), each an (S, M, T) float32 view with unit stride
-    along T and whole maneuvers per draw, and `moments` = (centre, aleatoric, epistemic), each
-    (M, T, 2) contiguous, are written. Draws are mapped as in `NetworkKernel.forward`.
+    `kernel` holds the S network draws; `controls` (M, T, 2) float32 are the control rows (see
+    static_rollout.c). `yaw0` holds one heading per maneuver, or one for all; `keys` (S,) uint64
+    are the draws' noise keys. `paths` = (v, w, x, y, yaw), each an (S, M, T) float32 array with
+    unit stride along T and whole maneuvers per draw, and `moments` = (centre, aleatoric,
+    epistemic), each (M, T, 2) contiguous, are written. Draws are mapped as in `NetworkKernel.forward`.
     """
     n_maneuvers, n_steps, _ = controls.shape
     if controls.dtype != np.float32 or not controls.flags.c_contiguous:
@@ -349,7 +352,6 @@ def static_rollout(
         ctypes.byref(mapping),
         n_maneuvers,
         n_steps,
-        first_maneuver,
         dt,
         _f32_pointer(controls),
         _f32_pointer(yaw0),
@@ -357,6 +359,7 @@ def static_rollout(
         keys.ctypes.data_as(ctypes.POINTER(ctypes.c_uint64)),
         ld_sample,
         *(_f32_pointer(a) for a in (*paths, *moments)),
+        threads,
     )
     del scalers  # kept alive through the call above
     if status != 0:

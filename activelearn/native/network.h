@@ -6,7 +6,8 @@
 
 enum { ACT_NONE = 0, ACT_RELU, ACT_TANH, ACT_SIGMOID, ACT_ELU, ACT_SELU, ACT_SOFTPLUS };
 
-/* One layer: weight (out, in) row-major and bias (out), or S of each back to back when per_sample. */
+/* One layer: weight (in, out) row-major (torch's layout) and bias (out), or S of each back to back
+ * when per_sample. */
 typedef struct {
     int64_t n_in, n_out, per_sample, activation;
     const float *weight, *bias;
@@ -39,15 +40,31 @@ typedef struct al_scratch al_scratch;
 al_scratch *al_scratch_new(const al_network *net);
 void al_scratch_free(al_scratch *scratch);
 
-/* Evaluate every draw on n_rows rows and write what `out` asks for. x holds n_inputs rows of stride
- * ld_x (one set shared by every draw), or S such sets back to back, each n_inputs * ld_x floats,
- * when x_per_sample. */
-void al_network_rows(const al_network *net, al_scratch *scratch, int64_t n_rows, const float *x, int64_t ld_x,
-                     int64_t x_per_sample, const al_outputs *out);
+/* Evaluate every draw on rows [begin, end) and write what `out` asks for (at those rows). x holds
+ * n_inputs rows of stride ld_x (one set shared by every draw), or S such sets back to back, each
+ * n_inputs * ld_x floats, when x_per_sample. */
+void al_network_rows(const al_network *net, al_scratch *scratch, int64_t begin, int64_t end, const float *x,
+                     int64_t ld_x, int64_t x_per_sample, const al_outputs *out);
 
-/* al_network_rows with its own scratch: 0, or -1 if the scratch could not be allocated. */
+/* al_network_rows over all n_rows on up to n_threads threads: 0, or -1 if scratch memory ran out. */
 int al_network_forward(const al_network *net, int64_t n_rows, const float *x, int64_t ld_x,
-                       int64_t x_per_sample, const al_outputs *out);
+                       int64_t x_per_sample, const al_outputs *out, int64_t n_threads);
+
+/* Chunks of work shared out to threads: run_chunk(context, scratch, chunk) for chunk in [0, n_chunks),
+ * each worker thread with its own scratch from make_scratch (NULL: out of memory). */
+#define AL_MAX_THREADS 256
+typedef struct {
+    void *(*make_scratch)(void *context);
+    void (*free_scratch)(void *scratch);
+    void (*run_chunk)(void *context, void *scratch, int64_t chunk);
+    void *context;
+    int64_t n_chunks;
+    int64_t next;   /* the next chunk to take (atomic) */
+    int failed;     /* set when a worker could not get scratch memory */
+} al_job;
+
+/* Runs a job on the calling thread and up to n_threads - 1 more: 0, or -1 if a worker failed. */
+int al_run_parallel(al_job *job, int64_t n_threads);
 
 int al_tile_rows(void);
 

@@ -141,81 +141,119 @@ static void trajectory_tile(int64_t n, uint32_t tile, uint32_t m, uint32_t k0, u
     memcpy(yaw, yt, (size_t)n * sizeof(float));
 }
 
-/* S sampled trajectories of maneuvers [0, n_maneuvers) of a static surrogate, network included.
+typedef struct {
+    const al_network *net;
+    al_outputs map; /* the draws' mapping to outputs; the rest is filled per worker */
+    int64_t n_steps, yaw0_stride, ld_sample;
+    float dt;
+    const float *controls, *yaw0;
+    const uint64_t *keys;
+    float *v, *w, *x, *y, *yaw, *centre, *aleatoric, *epistemic;
+} rollout_context;
+
+typedef struct {
+    al_scratch *network;
+    float *rows_x;  /* a tile's distinct control rows, column layout (2, TILE) */
+    float *draws;   /* (2 [mean, var], S, 2, TILE) */
+    float *moments; /* (3, 2, TILE) */
+    int32_t *row;   /* each step's distinct row */
+    double *sums;   /* (S, 3) running sums of w, v cos(yaw), v sin(yaw) */
+} rollout_scratch;
+
+static void rollout_free(void *scratch) {
+    rollout_scratch *r = scratch;
+    if (!r) return;
+    al_scratch_free(r->network);
+    free(r->rows_x);
+    free(r->draws);
+    free(r->moments);
+    free(r->row);
+    free(r->sums);
+    free(r);
+}
+
+static void *rollout_scratch_new(void *context) {
+    const al_network *net = ((rollout_context *)context)->net;
+    const int64_t S = net->n_samples;
+    rollout_scratch *r = calloc(1, sizeof(rollout_scratch));
+    if (!r) return NULL;
+    r->network = al_scratch_new(net);
+    r->rows_x = malloc(2 * TILE * sizeof(float));
+    r->draws = malloc((size_t)(4 * S * TILE) * sizeof(float));
+    r->moments = malloc(3 * 2 * TILE * sizeof(float));
+    r->row = malloc(TILE * sizeof(int32_t));
+    r->sums = malloc((size_t)(3 * S) * sizeof(double));
+    if (!r->network || !r->rows_x || !r->draws || !r->moments || !r->row || !r->sums) {
+        rollout_free(r);
+        return NULL;
+    }
+    return r;
+}
+
+/* All S trajectories of maneuver m, tile by tile. */
+static void rollout_maneuver(void *context, void *scratch, int64_t m) {
+    const rollout_context *c = context;
+    rollout_scratch *r = scratch;
+    const int64_t S = c->net->n_samples, T = c->n_steps;
+    float *draw_means = r->draws, *draw_vars = r->draws + 2 * S * TILE;
+    al_outputs out = c->map;
+    out.means = draw_means;
+    out.variances = draw_vars;
+    out.ld_draws = TILE;
+    out.centre = r->moments;
+    out.aleatoric = r->moments + 2 * TILE;
+    out.epistemic = r->moments + 4 * TILE;
+    out.ld_moments = TILE;
+    const float start_yaw = c->yaw0[m * c->yaw0_stride];
+    for (int64_t k = 0; k < 3 * S; ++k) r->sums[k] = 0.0;
+    for (int64_t t0 = 0; t0 < T; t0 += TILE) {
+        const int64_t n = T - t0 < TILE ? T - t0 : TILE;
+        const int64_t at = m * T + t0;
+        const float *u = c->controls + 2 * at;
+        /* Distinct consecutive rows: skidpads and straights hold one row for the whole tile. */
+        int32_t n_rows = 0;
+        for (int64_t i = 0; i < n; ++i) {
+            if (i == 0 || u[2 * i] != u[2 * i - 2] || u[2 * i + 1] != u[2 * i - 1]) {
+                r->rows_x[n_rows] = u[2 * i];
+                r->rows_x[TILE + n_rows] = u[2 * i + 1];
+                ++n_rows;
+            }
+            r->row[i] = n_rows - 1;
+        }
+        al_network_rows(c->net, r->network, 0, n_rows, r->rows_x, TILE, 0, &out);
+        for (int64_t i = 0; i < n; ++i)
+            for (int j = 0; j < 2; ++j) {
+                const int64_t to = 2 * (at + i) + j, from = j * TILE + r->row[i];
+                c->centre[to] = out.centre[from];
+                c->aleatoric[to] = out.aleatoric[from];
+                c->epistemic[to] = out.epistemic[from];
+            }
+        for (int64_t s = 0; s < S; ++s) {
+            const float *mean = draw_means + 2 * s * TILE, *var = draw_vars + 2 * s * TILE;
+            const int64_t o = s * c->ld_sample + at;
+            trajectory_tile(n, (uint32_t)(t0 / TILE), (uint32_t)m, (uint32_t)c->keys[s],
+                            (uint32_t)(c->keys[s] >> 32), c->dt, start_yaw, mean, var, mean + TILE, var + TILE,
+                            r->row, r->sums + 3 * s, c->v + o, c->w + o, c->x + o, c->y + o, c->yaw + o);
+        }
+    }
+}
+
+/* S sampled trajectories of maneuvers [0, n_maneuvers) of a static surrogate, network included, on
+ * up to n_threads threads (one maneuver at a time each).
  *
  * For every tile of TILE steps of a maneuver, the network (`net`, S draws, outputs mapped by
  * `map`'s out_mean/out_std/spread) is evaluated once on the tile's distinct consecutive control
  * rows, while they are in cache; then each draw's tile is noised and integrated. controls is
- * (n_maneuvers, n_steps, 2) float32 (throttle, steering); m_first is the first maneuver's index in
- * the whole batch (the noise of step t of maneuver m depends only on (key, m, t)); keys[s] is draw
- * s's 64-bit noise key. Sampled paths v, w, x, y, yaw are (S, ., n_steps) with draw stride
- * ld_sample, maneuver 0 of this call at offset 0. The per-step moments over draws (centre,
+ * (n_maneuvers, n_steps, 2) float32 (throttle, steering); keys[s] is draw s's 64-bit noise key (the
+ * noise of step t of maneuver m depends only on (key, m, t)). Sampled paths v, w, x, y, yaw are
+ * (S, n_maneuvers, n_steps) with draw stride ld_sample. The per-step moments over draws (centre,
  * aleatoric, epistemic) are (n_maneuvers, n_steps, 2). Returns 0, or -1 when out of memory. */
 int al_static_rollout(const al_network *net, const al_outputs *map, int64_t n_maneuvers, int64_t n_steps,
-                      int64_t m_first, float dt, const float *restrict controls, const float *restrict yaw0,
-                      int64_t yaw0_stride, const uint64_t *restrict keys, int64_t ld_sample, float *v, float *w,
-                      float *x, float *y, float *yaw, float *centre, float *aleatoric, float *epistemic) {
-    const int64_t S = net->n_samples;
-    al_scratch *scratch = al_scratch_new(net);
-    float *rows_x = malloc(2 * TILE * sizeof(float));               /* distinct rows, column layout */
-    float *draws = malloc((size_t)(4 * S * TILE) * sizeof(float));  /* (2 [mean, var], S, 2, TILE) */
-    float *moments = malloc(3 * 2 * TILE * sizeof(float));          /* (3, 2, TILE) */
-    int32_t *row = malloc(TILE * sizeof(int32_t));
-    double *sums = malloc((size_t)(3 * S) * sizeof(double));
-    int status = 0;
-    if (!scratch || !rows_x || !draws || !moments || !row || !sums) {
-        status = -1;
-        goto done;
-    }
-    float *draw_means = draws, *draw_vars = draws + 2 * S * TILE;
-    al_outputs out = *map;
-    out.means = draw_means;
-    out.variances = draw_vars;
-    out.ld_draws = TILE;
-    out.centre = moments;
-    out.aleatoric = moments + 2 * TILE;
-    out.epistemic = moments + 4 * TILE;
-    out.ld_moments = TILE;
-    for (int64_t m = 0; m < n_maneuvers; ++m) {
-        const float start_yaw = yaw0[m * yaw0_stride];
-        for (int64_t k = 0; k < 3 * S; ++k) sums[k] = 0.0;
-        for (int64_t t0 = 0; t0 < n_steps; t0 += TILE) {
-            const int64_t n = n_steps - t0 < TILE ? n_steps - t0 : TILE;
-            const int64_t at = m * n_steps + t0;
-            const float *u = controls + 2 * at;
-            /* Distinct consecutive rows: skidpads and straights hold one row for the whole tile. */
-            int32_t n_rows = 0;
-            for (int64_t i = 0; i < n; ++i) {
-                if (i == 0 || u[2 * i] != u[2 * i - 2] || u[2 * i + 1] != u[2 * i - 1]) {
-                    rows_x[n_rows] = u[2 * i];
-                    rows_x[TILE + n_rows] = u[2 * i + 1];
-                    ++n_rows;
-                }
-                row[i] = n_rows - 1;
-            }
-            al_network_rows(net, scratch, n_rows, rows_x, TILE, 0, &out);
-            for (int64_t i = 0; i < n; ++i)
-                for (int j = 0; j < 2; ++j) {
-                    const int64_t to = 2 * (at + i) + j, from = j * TILE + row[i];
-                    centre[to] = out.centre[from];
-                    aleatoric[to] = out.aleatoric[from];
-                    epistemic[to] = out.epistemic[from];
-                }
-            for (int64_t s = 0; s < S; ++s) {
-                const float *mean = draw_means + 2 * s * TILE, *var = draw_vars + 2 * s * TILE;
-                const int64_t o = s * ld_sample + at;
-                trajectory_tile(n, (uint32_t)(t0 / TILE), (uint32_t)(m_first + m), (uint32_t)keys[s],
-                                (uint32_t)(keys[s] >> 32), dt, start_yaw, mean, var, mean + TILE, var + TILE,
-                                row, sums + 3 * s, v + o, w + o, x + o, y + o, yaw + o);
-            }
-        }
-    }
-done:
-    al_scratch_free(scratch);
-    free(rows_x);
-    free(draws);
-    free(moments);
-    free(row);
-    free(sums);
-    return status;
+                      float dt, const float *controls, const float *yaw0, int64_t yaw0_stride,
+                      const uint64_t *keys, int64_t ld_sample, float *v, float *w, float *x, float *y, float *yaw,
+                      float *centre, float *aleatoric, float *epistemic, int64_t n_threads) {
+    rollout_context context = {net, *map, n_steps, yaw0_stride, ld_sample, dt, controls, yaw0, keys,
+                               v, w, x, y, yaw, centre, aleatoric, epistemic};
+    al_job job = {rollout_scratch_new, rollout_free, rollout_maneuver, &context, n_maneuvers, 0, 0};
+    return al_run_parallel(&job, n_threads);
 }
