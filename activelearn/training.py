@@ -147,6 +147,16 @@ _RMS_ALPHA = 0.99  # torch.optim.RMSprop's default
 _STEP_CACHE: dict[str, Callable] = {}
 # `compile="auto"` compiles when a fit runs at least this many steps (compiling costs ~5-20 s).
 AUTO_COMPILE_STEPS = 40_000
+# A step of a small network at batch 32 is mostly per-call overhead, so both options trim that:
+#   cpp_wrapper: the compiled graph is entered through generated C++, not a Python wrapper that
+#     allocated each intermediate buffer (reference arrangement, b32: 0.50 -> 0.41 s/epoch);
+#   guard_filter_fn: no per-call guards on the template module (0.41 -> 0.35 s/epoch). Safe here:
+#     the template is a private structural twin that is never modified, and each cache key (every
+#     config value that shapes the graph) has its own template and compiled step.
+_COMPILE_OPTIONS = {
+    "cpp_wrapper": True,
+    "guard_filter_fn": torch.compiler.skip_guard_on_all_nn_modules_unsafe,
+}
 
 
 def _flat_step(template: Model, loss: str, optimizer: str) -> Callable:
@@ -215,7 +225,11 @@ class _FlatTrainer:
             # Every key closes over the same `step` code object: isolate its compile cache, or all
             # architectures would share dynamo's per-code-object limit of 8 recompilations.
             _STEP_CACHE[ckey] = torch.compile(
-                self.eager_step, dynamic=False, isolate_recompiles=True, recompile_limit=32
+                self.eager_step,
+                dynamic=False,
+                isolate_recompiles=True,
+                recompile_limit=32,
+                options=_COMPILE_OPTIONS,
             )
         self.compiled_step = _STEP_CACHE.get(ckey) if compiled else None
 
