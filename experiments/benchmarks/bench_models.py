@@ -1,12 +1,13 @@
 """Model benchmark: training speed, prediction speed, and hybrid vs ensemble calibration.
 
-    python experiments/benchmarks/bench_models.py [--quick] [--skip-naive] [--seeds 0 1]
+    python experiments/benchmarks/bench_models.py [--quick] [--skip-naive] [--seeds 0 1] [--rounds 3]
+                                                  [--sections 1234]
 
 1. Where the training time goes: the reference arrangement (V8-D32-D32-D8-V, 60,000 rows, batch 32)
    trained by a straightforward PyTorch loop, then with each fix applied in turn.
 2. Training time per epoch on 60,000 rows for every model kind, batch 32 and 256, eager and compiled.
-3. `predict` time with S = 32 posterior samples over 2,700 inputs (one 90-s maneuver at 30 Hz), and the
-   MuJoCo time of that maneuver when the simulator is importable.
+3. `predict` time with S = 32 posterior samples over 2,700 inputs (one 90-s maneuver at 30 Hz), compiled
+   kernel and torch; then paired rounds of MuJoCo simulating one such maneuver and `predict`, with ratios.
 4. Hybrid (default) vs deep ensemble vs the reference hybrid: accuracy and the epistemic calibration
    diagnostic on held-out operating points, before and after recalibration.
 
@@ -183,49 +184,74 @@ def training_speed(epochs: int, quick: bool) -> None:
         print(_row(cells), flush=True)
 
 
-def predict_speed(quick: bool) -> dict[int, float]:
-    """Section 3: predict(S=32) on 2,700 distinct inputs per kind; returns the hybrid's times by threads."""
+def predict_speed(quick: bool) -> None:
+    """Section 3: predict(S=32) on 2,700 distinct inputs per kind, compiled kernel and torch."""
     all_threads = torch.get_num_threads()
     print(f"\n## 3. predict(S=32) over {MANEUVER_ROWS} distinct inputs (one 90-s maneuver at 30 Hz)\n")
     print("Median of 51 calls. Distinct random inputs are the worst case: a maneuver's repeated control")
-    print("rows would be cheaper, but fishhooks and slaloms change steering at almost every step.\n")
-    print(_row(["model", "ms, 1 thread", f"ms, {all_threads} threads"]))
-    print(_row(["---", "---", "---"]))
+    print("rows would be cheaper, but fishhooks and slaloms change steering at almost every step.")
+    print("native = the compiled tile kernel (activelearn/native/network.c), reference = torch.\n")
+    threads = sorted({1, all_threads})
+    backends = ("native", "reference")
+    cells = [f"{backend} ms, {n} thread{'s' * (n > 1)}" for backend in backends for n in threads]
+    print(_row(["model", *cells]))
+    print(_row(["---"] * (len(cells) + 1)))
     x, y = syn.uniform_rows(2000, seed=0)
     pts = syn.random_points(MANEUVER_ROWS, steering=(-syn.STEER_MAX, syn.STEER_MAX), seed=1)
-    hybrid: dict[int, float] = {}
     kinds = ["hybrid", "pbnn", "pnn", "bnn", "dnn", "ensemble"]
+    hybrid = None
     for kind in kinds[:2] if quick else kinds:
         model = build_model(ModelConfig(kind=kind))
         fit(model, x, y, TrainingConfig(epochs=1, patience=None))
-        times = {}
-        for threads in sorted({1, all_threads}):
-            with intra_op_threads(threads):
-                times[threads] = _median_time(lambda m=model: m.predict(pts, 32), repeats=51)
-        if kind == "hybrid":
-            hybrid = times
-            xt = torch.as_tensor(pts, dtype=torch.float32)
-            with torch.no_grad(), intra_op_threads(1):
-                t_mean = _median_time(lambda m=model, xt=xt: m(xt), repeats=51)
-        print(_row([kind, f"{1000 * times[1]:.2f}", f"{1000 * times[all_threads]:.2f}"]))
-    print(_row(["hybrid posterior-mean network only (forward, S=1)", f"{1000 * t_mean:.2f}", ""]))
-    return hybrid
+        hybrid = model if kind == "hybrid" else hybrid
+        times = []
+        for backend in ("native", "reference"):
+            for n in threads:
+                with intra_op_threads(n):
+                    call = lambda m=model, b=backend: m.predict(pts, 32, backend=b)  # noqa: E731
+                    times.append(f"{1000 * _median_time(call, repeats=51):.2f}")
+        print(_row([kind, *times]))
+    xt = torch.as_tensor(pts, dtype=torch.float32)
+    with torch.no_grad(), intra_op_threads(1):
+        t_mean = _median_time(lambda m=hybrid, xt=xt: m(xt), repeats=51)
+    label = "hybrid posterior-mean network only (torch forward, S=1, 1 thread)"
+    print(_row([label, f"{1000 * t_mean:.2f}"]))
 
 
-def simulator_ratio(predict_seconds: dict[int, float]) -> None:
-    """MuJoCo time for one 90-s skidpad maneuver vs the surrogate's predict."""
+def simulator_ratio(rounds: int) -> None:
+    """MuJoCo time for one 90-s maneuver vs the default hybrid's predict, in paired rounds."""
     try:
         import simulator
-
-        maneuver = simulator.Maneuver("skidpad", 0.6, 0.3142, "ccw", 90.0)
-        t = _median_time(lambda: simulator.collect(maneuver, threads=1), repeats=5)
     except Exception as exc:  # the simulator is optional for this benchmark
         print(f"\nsimulator unavailable ({type(exc).__name__}: {exc}); no MuJoCo comparison")
         return
-    print(f"\nMuJoCo, one 90-s skidpad maneuver (one maneuver runs on one thread): {t:.3f} s")
-    for threads, seconds in predict_seconds.items():
-        print(f"surrogate predict(S=32), {threads} thread(s): {1000 * seconds:.2f} ms; "
-              f"ratio {t / seconds:.0f}x (goal >= 100x)")  # fmt: skip
+    all_threads = torch.get_num_threads()
+    threads = sorted({1, all_threads})
+    x, y = syn.uniform_rows(2000, seed=0)
+    pts = syn.random_points(MANEUVER_ROWS, steering=(-syn.STEER_MAX, syn.STEER_MAX), seed=1)
+    model = build_model(ModelConfig())
+    fit(model, x, y, TrainingConfig(epochs=1, patience=None))
+    maneuvers = [simulator.Maneuver(kind, 0.6, steering, "ccw", 90.0)
+                 for kind, steering in (("skidpad", 0.3142), ("slalom", 0.4))]  # fmt: skip
+    print(f"\n## 3b. Against MuJoCo: one 90-s maneuver ({MANEUVER_ROWS} steps at 30 Hz) vs predict(S=32)\n")
+    print("One maneuver runs on one MuJoCo thread. Each round times MuJoCo (median of 3 runs of a skidpad")
+    print("and of a slalom; the faster kind counts) and then predict (median of 51 calls) back to back:")
+    print("this machine's speed drifts within minutes. Goal: predict >= 100x faster.\n")
+    heads = [f"predict {n} thr ms" for n in threads] + [f"ratio {n} thr" for n in threads]
+    print(_row(["round", "MuJoCo s", *heads]))
+    print(_row(["---"] * (2 + 2 * len(threads))))
+    ratios: dict[int, list[float]] = {n: [] for n in threads}
+    for r in range(rounds):
+        mujoco = min(_median_time(lambda m=m: simulator.collect(m, threads=1), repeats=3) for m in maneuvers)
+        times = {}
+        for n in threads:
+            with intra_op_threads(n):
+                times[n] = _median_time(lambda: model.predict(pts, 32), repeats=51)
+            ratios[n].append(mujoco / times[n])
+        cells = [f"{1000 * times[n]:.2f}" for n in threads] + [f"{ratios[n][-1]:.0f}x" for n in threads]
+        print(_row([r + 1, f"{mujoco:.3f}", *cells]), flush=True)
+    medians = ", ".join(f"{n} thread(s) {np.median(v):.0f}x" for n, v in ratios.items())
+    print(f"\nmedian ratio over rounds: {medians}")
 
 
 def calibration(seeds: list[int]) -> None:
@@ -285,13 +311,22 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="fewer kinds and epochs")
     parser.add_argument("--skip-naive", action="store_true", help="skip the slow naive baseline")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    parser.add_argument("--rounds", type=int, default=3, help="paired MuJoCo/predict rounds (section 3b)")
+    parser.add_argument(
+        "--sections", default="1234", help="which sections to run, e.g. 3 for predict and MuJoCo only"
+    )
     args = parser.parse_args()
     epochs = 2 if args.quick else 3
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads available")
-    where_time_goes(epochs, args.skip_naive)
-    training_speed(epochs, args.quick)
-    simulator_ratio(predict_speed(args.quick))
-    calibration(args.seeds[:1] if args.quick else args.seeds)
+    if "1" in args.sections:
+        where_time_goes(epochs, args.skip_naive)
+    if "2" in args.sections:
+        training_speed(epochs, args.quick)
+    if "3" in args.sections:
+        predict_speed(args.quick)
+        simulator_ratio(args.rounds)
+    if "4" in args.sections:
+        calibration(args.seeds[:1] if args.quick else args.seeds)
 
 
 if __name__ == "__main__":
