@@ -35,7 +35,7 @@ SOURCES = tuple(Path(__file__).with_name(name) for name in ("static_rollout.c", 
 HEADERS = (Path(__file__).with_name("network.h"),)  # part of the cache key, not compiled on their own
 # -ffast-math lets GCC vectorise logf/sinf/cosf through glibc's libmvec; -march=native is safe
 # because the cache key includes this machine's CPU features.
-FLAGS = ("-O3", "-ffast-math", "-march=native", "-fPIC", "-shared")
+FLAGS = ("-O3", "-ffast-math", "-march=native", "-fPIC", "-shared", "-pthread")
 LINK_OPTIONS = (("-lmvec", "-lm"), ("-lm",))  # libmvec is glibc's; elsewhere the scalar libm serves
 COMPILE_TIMEOUT_S = 120
 COMPILERS = ("cc", "gcc", "clang")  # the first found on PATH builds the kernels
