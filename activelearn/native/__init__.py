@@ -1,11 +1,13 @@
 """Compiled kernels, built on first use with the machine's C compiler and loaded through ctypes.
 
 Two fused loops that no library provides:
-  * `static_rollout.c`: noise, rates and pose of one sampled trajectory of the static surrogate,
-    replacing a chain of torch passes over multi-MB arrays;
   * `network.c`: S sampled weight sets of a layer stack evaluated tile by tile with the activations
     in L1, the head and the moments over draws included (`NetworkKernel`), where torch writes every
-    layer's (S x width x rows) output to memory and reads it back.
+    layer's (S x width x rows) output to memory and reads it back;
+  * `static_rollout.c`: the static surrogate's S trajectories, per tile of steps the network on the
+    tile's distinct control rows, then each draw's noise, rates and pose while the tile is in cache
+    (`static_rollout`), replacing a chain of torch passes over multi-MB arrays.
+Both start their own threads (`threads` arguments), which take chunks of work from a shared counter.
 
 They are compiled once per machine (sources, flags, compiler and CPU features form the cache key) into
 `CACHE_DIR` (`~/.cache/activelearn/native`; a temporary directory if that is not writable), and
@@ -42,7 +44,6 @@ COMPILERS = ("cc", "gcc", "clang")  # the first found on PATH builds the kernels
 CACHE_DIR = Path.home() / ".cache" / "activelearn" / "native"
 
 _f32 = ctypes.POINTER(ctypes.c_float)
-_i64 = ctypes.POINTER(ctypes.c_int64)
 _u32 = ctypes.POINTER(ctypes.c_uint32)
 
 
@@ -103,7 +104,6 @@ SIGNATURES = {
         + [ctypes.c_int64],
         ctypes.c_int,
     ),
-    "al_tile_rows": ([], ctypes.c_int),
     "al_network_forward": (
         [
             ctypes.POINTER(_Network),

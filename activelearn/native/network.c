@@ -39,9 +39,6 @@
 #endif
 
 typedef float vf __attribute__((vector_size(VL * sizeof(float))));
-
-int al_tile_rows(void) { return TILE_ROWS; }
-
 typedef int32_t vi __attribute__((vector_size(VL * sizeof(int32_t))));
 
 static inline vf splat(float value) { return (vf){} + value; }
@@ -169,7 +166,7 @@ static int64_t max_width(const al_network *net) {
     return width;
 }
 
-/* Maps a tile's draws to outputs and writes rows [0, n) of the requested arrays. */
+/* Maps a tile's draws to outputs and writes its n valid rows, at row0, to the requested arrays. */
 static void write_tile(const al_network *net, const al_outputs *out, float *restrict means,
                        float *restrict vars, int64_t row0, int64_t n) {
     const int64_t S = net->n_samples, o = net->n_outputs;

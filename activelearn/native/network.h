@@ -66,6 +66,5 @@ typedef struct {
 /* Runs a job on the calling thread and up to n_threads - 1 more: 0, or -1 if a worker failed. */
 int al_run_parallel(al_job *job, int64_t n_threads);
 
-int al_tile_rows(void);
 
 #endif
