@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import multiprocessing
-import threading
-
 import pytest
 import torch
 
@@ -50,27 +47,3 @@ def test_parallel_map_restores_threads_when_a_task_fails():
     with pytest.raises(ValueError, match="boom"):
         parallel_map(task, range(6), workers=2)
     assert torch.get_num_threads() == before
-
-
-def test_parallel_map_nested_in_a_task_runs_and_the_pool_is_reused():
-    def inner(i: int) -> list[int]:
-        return parallel_map(lambda j: i * 10 + j, range(3), workers=2)  # sequential inside a task
-
-    assert parallel_map(inner, range(4), workers=2) == [[i * 10 + j for j in range(3)] for i in range(4)]
-    names: set[str] = set()
-    for _ in range(5):
-        names |= set(parallel_map(lambda _: threading.current_thread().name, range(8), workers=2))
-    # The same two pool threads serve every call, not new ones per call.
-    assert 1 <= len(names) <= 2 and all(name.startswith("activelearn") for name in names)
-
-
-def _child_squares(_: int) -> list[int]:
-    return parallel_map(lambda i: i * i, range(5), workers=2)
-
-
-def test_a_forked_child_gets_fresh_pools():
-    # The parent's pool threads do not survive a fork: a child reusing that pool would hang.
-    assert parallel_map(lambda i: i, range(4), workers=2) == [0, 1, 2, 3]
-    with multiprocessing.get_context("fork").Pool(1) as pool:
-        result = pool.map_async(_child_squares, [0])
-        assert result.get(timeout=60) == [[0, 1, 4, 9, 16]]

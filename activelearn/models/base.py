@@ -17,7 +17,7 @@ from activelearn.errors import InputError
 from activelearn.native import NetworkKernel
 from activelearn.threads import even_blocks, intra_op_threads
 
-# Rows evaluated per block by `SampledModel.columns` and `predict`. Blocks bound the S × rows × width
+# Rows per block on the torch path of `SampledModel` and `predict`. Blocks bound the S × rows × width
 # activations; the per-sample GEMMs of big blocks split well over torch's intra-op threads, while
 # running small blocks on a pool of Python threads was slower (GEMMs in concurrent threads contend).
 CHUNK_ROWS = 4096
@@ -25,6 +25,8 @@ CHUNK_ROWS = 4096
 # "reference" (torch) or "auto" (native where a C compiler built it). Both compute the same numbers
 # up to float rounding.
 BACKENDS = ("auto", "native", "reference")
+
+
 @dataclass(frozen=True)
 class Prediction:
     """Predictive moments in physical units; every array is N × n_outputs.
@@ -179,13 +181,13 @@ class SampledModel:
     def columns(self, x: Tensor, out: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor]:
         """Physical means and variances (S, n_outputs, N) for physical inputs x of shape (d, N) or (S, d, N).
 
-        Evaluated in blocks of rows: on the compiled kernel's tasks on a thread pool, or in blocks of
-        `CHUNK_ROWS` on torch (which bounds the (S, width, rows) activations). `out` as in `block`.
+        The compiled kernel splits the rows over its own threads (torch's thread count); torch runs
+        blocks of `CHUNK_ROWS` rows (which bounds the (S, width, rows) activations). `out` as in `block`.
         """
         if out is None:
             out = tuple(torch.empty((self.n_samples, self.model.n_outputs, x.shape[-1])) for _ in range(2))
         means, var = out
-        if self.kernel is not None:  # the kernel splits the rows over threads itself
+        if self.kernel is not None:
             self._kernel_forward(x, torch.get_num_threads(), draws=(means, var))
             return means, var
         for rows in even_blocks(x.shape[-1], CHUNK_ROWS):
