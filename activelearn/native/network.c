@@ -175,12 +175,14 @@ static void write_tile(const al_network *net, const al_outputs *out, float *rest
     for (int64_t j = 0; j < o; ++j) {
         const float loc = out->out_mean ? out->out_mean[j] : 0.0f;
         const float scale = out->out_std ? out->out_std[j] : 1.0f;
-        for (int64_t r = 0; r < TILE_ROWS; ++r) centre[r] = 0.0f;
-        for (int64_t s = 0; s < S; ++s) {
-            const float *m = means + (s * o + j) * TILE_ROWS;
-            for (int64_t r = 0; r < TILE_ROWS; ++r) centre[r] += m[r];
+        if (out->spread != 1.0f) { /* the widening needs the centre before the draws are mapped */
+            for (int64_t r = 0; r < TILE_ROWS; ++r) centre[r] = 0.0f;
+            for (int64_t s = 0; s < S; ++s) {
+                const float *m = means + (s * o + j) * TILE_ROWS;
+                for (int64_t r = 0; r < TILE_ROWS; ++r) centre[r] += m[r];
+            }
+            for (int64_t r = 0; r < TILE_ROWS; ++r) centre[r] *= inv_s;
         }
-        for (int64_t r = 0; r < TILE_ROWS; ++r) centre[r] *= inv_s;
         /* Map every draw: m' = loc + scale * (c + spread (m - c)); v' = scale^2 v. */
         for (int64_t s = 0; s < S; ++s) {
             float *m = means + (s * o + j) * TILE_ROWS, *v = vars + (s * o + j) * TILE_ROWS;
