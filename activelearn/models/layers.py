@@ -180,9 +180,15 @@ class BayesianLinear(nn.Module):
         proj = torch.einsum("ni,ijp->njp", x1, lower)
         return mean, proj.square().sum(dim=-1)
 
-    def sample(self, n_samples: int, generator: torch.Generator | None = None) -> tuple[Tensor, Tensor]:
-        """Draw S weight sets: W of shape (S, in, out) and b of shape (S, 1, out)."""
-        eps = torch.randn(n_samples, self.n_params, generator=generator, dtype=self.weight_mu.dtype)
+    def sample(
+        self, n_samples: int, generator: torch.Generator | None = None, *, eps: Tensor | None = None
+    ) -> tuple[Tensor, Tensor]:
+        """Draw S weight sets: W of shape (S, in, out) and b of shape (S, 1, out).
+
+        `eps`, (S, n_params) standard normals, replaces the draw from `generator` when given.
+        """
+        if eps is None:
+            eps = torch.randn(n_samples, self.n_params, generator=generator, dtype=self.weight_mu.dtype)
         mu = self.mean_vector()
         if self.posterior == "mean_field":
             w = mu + eps * self.std_vector()

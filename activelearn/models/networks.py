@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from typing import ClassVar, Literal
 
 import numpy as np
@@ -14,6 +15,20 @@ from activelearn.config import ModelConfig
 from activelearn.models.base import Model
 from activelearn.models.layers import BayesianLinear, DenseLinear
 from activelearn.models.spec import LayerSpec, parse_arch
+
+
+@functools.lru_cache(maxsize=4)
+def standard_normals(seed: int, n_samples: int, sizes: tuple[int, ...]) -> tuple[Tensor, ...]:
+    """The standard normals behind `draw(n_samples, seed=seed)`: one (S, size) block per variational layer.
+
+    A pure function of its arguments (the generator is seeded here, the blocks drawn in layer order),
+    so repeated draws with one seed reuse them: drawing 33 000 normals was 0.11 ms of a 2.6-ms
+    `predict`. The weights themselves are computed afresh from the current posterior at every draw.
+    Callers must not modify the returned tensors.
+    """
+    gen = torch.Generator().manual_seed(seed)
+    return tuple(torch.randn(n_samples, size, generator=gen) for size in sizes)
+
 
 _ACT = {
     "tanh": torch.tanh,
@@ -139,12 +154,14 @@ class StackModel(Model):
         return total
 
     # ----- sampling ---------------------------------------------------------------------------
-    def sample_params(self, n_samples: int, generator: torch.Generator) -> list:
+    def sample_params(self, n_samples: int, seed: int) -> list:
         """Per layer: sampled (W, b) for variational layers, member-gathered (W, b) for ensembles."""
+        sizes = tuple(layer.n_params for layer, v in zip(self.layers, self.variational, strict=True) if v)
+        normals = iter(standard_normals(int(seed), n_samples, sizes))
         params: list = []
         for layer, is_var in zip(self.layers, self.variational, strict=True):
             if is_var:
-                w, b = layer.sample(n_samples, generator)  # type: ignore[operator]
+                w, b = layer.sample(n_samples, eps=next(normals))  # type: ignore[operator]
                 params.append((w, b))
             elif self.n_members is not None:
                 # Sample s is member s mod K.

@@ -43,7 +43,9 @@ COMPILE_TIMEOUT_S = 120
 COMPILERS = ("cc", "gcc", "clang")  # the first found on PATH builds the kernels
 CACHE_DIR = Path.home() / ".cache" / "activelearn" / "native"
 
-_f32 = ctypes.POINTER(ctypes.c_float)
+# Array arguments travel as plain addresses (c_void_p): `array.ctypes.data` costs half of
+# `data_as(POINTER(c_float))`, and a predict call passes a dozen of them.
+_ptr = ctypes.c_void_p
 _u32 = ctypes.POINTER(ctypes.c_uint32)
 
 
@@ -55,8 +57,8 @@ class _Layer(ctypes.Structure):
         ("n_out", ctypes.c_int64),
         ("per_sample", ctypes.c_int64),
         ("activation", ctypes.c_int64),
-        ("weight", _f32),
-        ("bias", _f32),
+        ("weight", _ptr),
+        ("bias", _ptr),
     ]
 
 
@@ -69,11 +71,11 @@ class _Network(ctypes.Structure):
         ("n_inputs", ctypes.c_int64),
         ("n_outputs", ctypes.c_int64),
         ("layers", ctypes.POINTER(_Layer)),
-        ("x_mean", _f32),
-        ("x_std", _f32),
+        ("x_mean", _ptr),
+        ("x_std", _ptr),
         ("gaussian_head", ctypes.c_int64),
         ("min_std", ctypes.c_float),
-        ("head_var", _f32),
+        ("head_var", _ptr),
     ]
 
 
@@ -81,15 +83,15 @@ class _Outputs(ctypes.Structure):
     """network.c's al_outputs."""
 
     _fields_ = [
-        ("means", _f32),
-        ("variances", _f32),
+        ("means", _ptr),
+        ("variances", _ptr),
         ("ld_draws", ctypes.c_int64),
-        ("centre", _f32),
-        ("aleatoric", _f32),
-        ("epistemic", _f32),
+        ("centre", _ptr),
+        ("aleatoric", _ptr),
+        ("epistemic", _ptr),
         ("ld_moments", ctypes.c_int64),
-        ("out_mean", _f32),
-        ("out_std", _f32),
+        ("out_mean", _ptr),
+        ("out_std", _ptr),
         ("spread", ctypes.c_float),
     ]
 
@@ -99,8 +101,8 @@ SIGNATURES = {
     "al_philox4x32_10": ([_u32, _u32, _u32], None),
     "al_static_rollout": (
         [ctypes.POINTER(_Network), ctypes.POINTER(_Outputs), ctypes.c_int64, ctypes.c_int64]
-        + [ctypes.c_float, _f32, _f32, ctypes.c_int64, ctypes.POINTER(ctypes.c_uint64), ctypes.c_int64]
-        + [_f32] * 8
+        + [ctypes.c_float, _ptr, _ptr, ctypes.c_int64, _ptr, ctypes.c_int64]
+        + [_ptr] * 8
         + [ctypes.c_int64],
         ctypes.c_int,
     ),
@@ -108,7 +110,7 @@ SIGNATURES = {
         [
             ctypes.POINTER(_Network),
             ctypes.c_int64,  # rows
-            _f32,  # x
+            _ptr,  # x
             ctypes.c_int64,  # ld_x
             ctypes.c_int64,  # x_per_sample
             ctypes.POINTER(_Outputs),
@@ -187,8 +189,9 @@ def library() -> ctypes.CDLL | None:
     return lib
 
 
-def _f32_pointer(array: np.ndarray | None):
-    return None if array is None else array.ctypes.data_as(_f32)
+def _address(array: np.ndarray | None) -> int | None:
+    """Where an array's data starts (None for no array: a NULL pointer)."""
+    return None if array is None else array.ctypes.data
 
 
 def _unit_stride(array: np.ndarray) -> bool:
@@ -225,7 +228,7 @@ class NetworkKernel:
             w, b = self._own(weight), self._own(bias)
             slot.n_in, slot.n_out = w.shape[-2], w.shape[-1]
             slot.per_sample, slot.activation = int(per_sample), ACTIVATION_CODES[activation]
-            slot.weight, slot.bias = _f32_pointer(w), _f32_pointer(b)
+            slot.weight, slot.bias = _address(w), _address(b)
         self._layers = packed
         self.n_inputs = int(packed[0].n_in)
         self.n_outputs = int(packed[len(layers) - 1].n_out) // (2 if head_var is None else 1)
@@ -236,11 +239,11 @@ class NetworkKernel:
             n_inputs=self.n_inputs,
             n_outputs=self.n_outputs,
             layers=packed,
-            x_mean=_f32_pointer(self._own(x_mean)),
-            x_std=_f32_pointer(self._own(x_std)),
+            x_mean=_address(self._own(x_mean)),
+            x_std=_address(self._own(x_std)),
             gaussian_head=int(head_var is None),
             min_std=min_std,
-            head_var=None if head_var is None else _f32_pointer(self._own(head_var)),
+            head_var=None if head_var is None else _address(self._own(head_var)),
         )
 
     def _own(self, array: np.ndarray) -> np.ndarray:
@@ -282,19 +285,19 @@ class NetworkKernel:
             if means.strides != variances.strides or not _unit_stride(means) or not whole:
                 raise ValueError("draws must share one layout with unit stride along N")
             out.means, out.variances, out.ld_draws = (
-                _f32_pointer(means),
-                _f32_pointer(variances),
+                _address(means),
+                _address(variances),
                 means.strides[1] // 4,
             )
         if moments is not None:
             if len({m.strides for m in moments}) != 1 or not _unit_stride(moments[0]):
                 raise ValueError("moments must share one layout with unit stride along N")
-            out.centre, out.aleatoric, out.epistemic = (_f32_pointer(m) for m in moments)
+            out.centre, out.aleatoric, out.epistemic = (_address(m) for m in moments)
             out.ld_moments = moments[0].strides[0] // 4
         status = self.lib.al_network_forward(
             ctypes.byref(self.net),
             x.shape[-1],
-            _f32_pointer(x),
+            _address(x),
             x.strides[-2] // 4,
             int(per_sample),
             ctypes.byref(out),
@@ -311,7 +314,7 @@ def _output_map(
     """An al_outputs holding only the map of draws to outputs, and the arrays its pointers refer to."""
     scalers = [None if a is None else np.ascontiguousarray(a, dtype=np.float32) for a in (out_mean, out_std)]
     return _Outputs(
-        out_mean=_f32_pointer(scalers[0]), out_std=_f32_pointer(scalers[1]), spread=spread
+        out_mean=_address(scalers[0]), out_std=_address(scalers[1]), spread=spread
     ), scalers
 
 
@@ -353,12 +356,12 @@ def static_rollout(
         n_maneuvers,
         n_steps,
         dt,
-        _f32_pointer(controls),
-        _f32_pointer(yaw0),
+        _address(controls),
+        _address(yaw0),
         0 if yaw0.size == 1 else 1,
-        keys.ctypes.data_as(ctypes.POINTER(ctypes.c_uint64)),
+        _address(keys),
         ld_sample,
-        *(_f32_pointer(a) for a in (*paths, *moments)),
+        *(_address(a) for a in (*paths, *moments)),
         threads,
     )
     del scalers  # kept alive through the call above
