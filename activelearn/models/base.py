@@ -305,7 +305,8 @@ class Model(nn.Module, ABC):
         """Draw `n_samples` posterior weight sets, fixed across calls (same seed → same draws).
 
         Deep ensemble: sample s is member s mod K. DNN and PNN: every sample is the same network.
-        `backend` picks how the draws are evaluated (see `BACKENDS`).
+        `backend` picks how the draws are evaluated (see `BACKENDS`). The weights are computed from
+        the current posterior at every call; only the seeded standard normals behind them are reused.
         """
         if n_samples < 1:
             raise InputError("n_samples", n_samples, "must be >= 1")
