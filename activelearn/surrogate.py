@@ -197,10 +197,11 @@ def _reference_rollout(sampled, controls: np.ndarray, keys: list[int], dt: float
     means, variances = (torch.empty((sampled.n_samples, 2, n_unique)) for _ in range(2))
     centre, aleatoric, epistemic = (torch.empty((2, n_unique)) for _ in range(3))
     for rows in even_blocks(n_unique, CHUNK_ROWS):
-        mu, var = sampled.block(inputs[:, rows], out=(means[..., rows], variances[..., rows]))
-        centre[:, rows] = mu.mean(dim=0)
-        aleatoric[:, rows] = var.mean(dim=0)
-        epistemic[:, rows] = (mu - centre[:, rows]).square_().mean(dim=0)
+        sampled.block(
+            inputs[:, rows],
+            out=(means[..., rows], variances[..., rows]),
+            moments=(centre[:, rows], aleatoric[:, rows], epistemic[:, rows]),
+        )
     shape = (n_maneuvers, n_steps)
     paths = _reference_trajectories(means.numpy(), variances.numpy(), index.numpy(), keys, shape, dt, yaw0)
 

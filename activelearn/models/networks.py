@@ -129,11 +129,14 @@ class StackModel(Model):
             var = std.add_(self.config.min_std).square_() if inplace else (std + self.config.min_std).square()
             return h.narrow(dim, 0, o), var
         if self.head == "homoscedastic":
-            std = F.softplus(self.noise_rho) + self.config.min_std
             shape = [1] * h.dim()
             shape[dim] = -1
-            return h, std.square().view(shape).expand_as(h)
+            return h, self._noise_var().view(shape).expand_as(h)
         return h, None
+
+    def _noise_var(self) -> Tensor:
+        """The homoscedastic head's variance per output, standardised: (softplus(rho) + min_std)²."""
+        return (F.softplus(self.noise_rho) + self.config.min_std).square()
 
     # ----- training ---------------------------------------------------------------------------
     def train_forward(self, x: Tensor) -> tuple[Tensor, Tensor | None]:
@@ -248,7 +251,7 @@ class StackModel(Model):
             layers.append((w.numpy(), b.reshape(*w.shape[:-2], -1).numpy(), per_sample, act))
         head_var = None
         if self.head == "homoscedastic":
-            head_var = (F.softplus(self.noise_rho.detach()) + self.config.min_std).square().numpy()
+            head_var = self._noise_var().detach().numpy()
         elif self.head == "none":
             head_var = np.zeros(self.n_outputs, dtype=np.float32)
         return native.NetworkKernel(
