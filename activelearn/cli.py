@@ -216,7 +216,7 @@ def _campaign_run(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from activelearn.campaign import Campaign, CampaignInterrupted, default_directory, total_rounds
+    from activelearn.loop.campaign import Campaign, CampaignInterrupted, default_directory, total_rounds
 
     overrides: dict[str, object] = {}
     if args.strategy is not None:
@@ -227,7 +227,7 @@ def _campaign_run(args: argparse.Namespace) -> int:
     directory = Path(args.out) if args.out else default_directory(cfg)
     tracker = None
     if cfg.tracking.enabled and not args.no_tracking:
-        from activelearn.tracking import Tracker
+        from activelearn.studies.tracking import Tracker
 
         tracker = Tracker(cfg.tracking.uri, cfg.tracking.experiment)
     campaign = Campaign(cfg, directory, tracker=tracker)
@@ -288,8 +288,8 @@ def _register_compare(sub: argparse._SubParsersAction) -> None:
 def _compare(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from activelearn.compare import compare
     from activelearn.errors import InputError
+    from activelearn.studies.compare import compare
 
     strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
     if args.seeds < 1:
@@ -355,7 +355,7 @@ _BEST_COLUMNS = {
 }
 
 
-# Mirrors activelearn.tuning.DEFAULT_STORAGE / PRUNERS: importing that module (Optuna, torch) here
+# Mirrors activelearn.studies.tuning.DEFAULT_STORAGE / PRUNERS: importing that module (Optuna, torch) here
 # would slow down every command; tests check the copies agree.
 _TUNE_STORAGE = "sqlite:///mlruns/optuna.db"
 _TUNE_PRUNERS = ("median", "hyperband", "none")
@@ -401,7 +401,7 @@ def _tune(args: argparse.Namespace) -> int:
 
     from activelearn.config import load_config
     from activelearn.errors import InputError
-    from activelearn.tuning import TuningInterrupted, parse_objectives, tune
+    from activelearn.studies.tuning import TuningInterrupted, parse_objectives, tune
 
     # Argument checks first: a mistake never creates a study, a run or a file.
     if args.n_trials < 1:
@@ -507,7 +507,7 @@ def _load_any_model(spec: str, tracking_uri: str):
     from pathlib import Path
 
     from activelearn.errors import InputError
-    from activelearn.models import load_model
+    from activelearn.numerics.models import load_model
 
     path = Path(spec)
     if path.is_dir():
@@ -519,7 +519,7 @@ def _load_any_model(spec: str, tracking_uri: str):
             raise InputError("--model", spec, f"cannot read the model file: {exc}") from None
     if "://" not in spec and not spec.startswith(("runs:/", "models:/")):
         raise InputError("--model", spec, "no such file, directory or MLflow model URI")
-    from activelearn.tracking import load_model as load_mlflow_model
+    from activelearn.studies.tracking import load_model as load_mlflow_model
 
     return load_mlflow_model(spec, tracking_uri)
 
@@ -538,12 +538,12 @@ def _predict(args: argparse.Namespace) -> int:
     model = _load_any_model(args.model, args.tracking_uri)
     tracker = None
     if args.run_id is not None:
-        from activelearn.tracking import Tracker
+        from activelearn.studies.tracking import Tracker
 
         tracker = Tracker(args.tracking_uri)
         tracker.run_status(args.run_id)  # fails early, naming the run, before simulating
 
-    from activelearn.surrogate import against_simulator
+    from activelearn.numerics.surrogate import against_simulator
 
     result = against_simulator(model, [maneuver], n_samples=args.samples, seed=args.seed)
     m = result.metrics[0]

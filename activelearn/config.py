@@ -22,24 +22,11 @@ from pydantic import (
 )
 
 from activelearn.errors import ConfigError
+from activelearn.numerics.arch import ACTIVATIONS, parse_arch
 
 ModelKind = Literal["hybrid", "pbnn", "pnn", "bnn", "dnn", "ensemble"]
-Activation = Literal["tanh", "sigmoid", "elu", "relu", "selu", "softplus"]
-ACTIVATIONS: tuple[str, ...] = ("tanh", "sigmoid", "elu", "relu", "selu", "softplus")
+Activation = Literal[ACTIVATIONS]  # type: ignore[valid-type]
 MAX_STEERING = 0.5236  # rad, Nigel's steering limit
-
-# Named architectures. Tokens: V = variational (Bayesian) layer, D = dense layer, number = width,
-# optional ":activation"; the last token has no width and produces the Gaussian head's parameters.
-ARCH_PRESETS: dict[str, str] = {
-    # The reference study's hybrid (3D-2V): saturating first variational layer, relu dense layers.
-    "reference": "V8:sigmoid-D32:relu-D32:relu-D8:relu-V",
-    # Chosen by measurement (experiments/model_selection.py): a dense relu feature extractor and a
-    # variational read-out (the last two layers). Relu features grow linearly away from the data, so
-    # the read-out's spread grows too: novelty ratio ~20 vs ~1.1 for `reference`, in-between (gap)
-    # ratio ~3.7; as accurate as the alternatives and faster to train than D32-V32-V16-V.
-    "default": "D64:relu-D64:relu-V16:relu-V",
-}
-
 
 class _Section(BaseModel):
     """Base of every config section: unknown keys are errors, values are re-validated on assignment."""
@@ -72,9 +59,6 @@ class ModelConfig(_Section):
     @field_validator("arch")
     @classmethod
     def _check_arch(cls, value: str) -> str:
-        # Imported here: the parser lives with the networks, which import this module.
-        from activelearn.models.spec import parse_arch
-
         try:
             parse_arch(value)
         except ValueError as exc:
@@ -107,7 +91,7 @@ KLCount = Literal["rows", "maneuvers", "sqrt"]
 
 
 class TrainingConfig(_Section):
-    """How `activelearn.training.fit` trains a model."""
+    """How `activelearn.numerics.training.fit` trains a model."""
 
     # Data term of the ELBO. "nll" = Gaussian NLL (the head's variance is learnt); "mse"/"mae" fit the
     # mean only, as the reference study did (the head's scale then receives no gradient).
@@ -369,7 +353,7 @@ class CampaignConfig(_Section):
     @field_validator("strategy")
     @classmethod
     def _check_strategy(cls, value: str) -> str:
-        from activelearn.acquisition import STRATEGIES  # acquisition does not import this module's users
+        from activelearn.loop.acquisition import STRATEGIES  # acquisition does not import this module's users
 
         if value not in STRATEGIES:
             raise ValueError(f"unknown strategy {value!r}; choose from {', '.join(STRATEGIES)}")

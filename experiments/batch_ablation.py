@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from activelearn.campaign import STATE_FILE, CampaignState
-from activelearn.compare import compare
 from activelearn.config import load_config
-from activelearn.pool import operating_features, pool_maneuvers
+from activelearn.loop.campaign import STATE_FILE, CampaignState
+from activelearn.loop.pool import operating_features, pool_maneuvers
+from activelearn.studies.compare import compare
 
 CONFIGS = Path(__file__).resolve().parent / "configs"
 

@@ -29,11 +29,11 @@ from collections.abc import Callable
 import numpy as np
 from scipy import stats
 
-from activelearn import synthetic as syn
 from activelearn.config import ModelConfig, TrainingConfig
-from activelearn.models import build_model
-from activelearn.training import fit
-from activelearn.uncertainty import epistemic_diagnostic, recalibrate_epistemic, rmse
+from activelearn.numerics import synthetic as syn
+from activelearn.numerics.models import build_model
+from activelearn.numerics.training import fit
+from activelearn.numerics.uncertainty import epistemic_diagnostic, recalibrate_epistemic, rmse
 
 STEER = syn.STEER_MAX
 
@@ -322,7 +322,7 @@ LEVERS3: list[tuple[str, dict, dict]] = [
 
 def issue_tests(seed: int) -> dict[str, float]:
     """The measured values behind tests 1-3, 6 and 7 (same data and schedules as the test suite)."""
-    from activelearn.uncertainty import coverage
+    from activelearn.numerics.uncertainty import coverage
 
     fast = {"epochs": 150, "batch_size": 64, "lr": 3e-3, "patience": None}
     nov = novelty_run({}, seed, fast)

@@ -7,8 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from activelearn import synthetic
-from activelearn.acquisition import (
+from activelearn.config import CampaignConfig, ModelConfig, TrainingConfig
+from activelearn.errors import InputError
+from activelearn.loop.acquisition import (
     STRATEGIES,
     BaldStrategy,
     FunctionSamples,
@@ -17,11 +18,10 @@ from activelearn.acquisition import (
     greedy_maximin,
     make_strategy,
 )
-from activelearn.config import CampaignConfig, ModelConfig, TrainingConfig
-from activelearn.errors import InputError
-from activelearn.models import build_model
-from activelearn.pool import build_pool, pool_maneuvers
-from activelearn.training import fit
+from activelearn.loop.pool import build_pool, pool_maneuvers
+from activelearn.numerics import synthetic
+from activelearn.numerics.models import build_model
+from activelearn.numerics.training import fit
 
 
 @pytest.fixture(scope="module")

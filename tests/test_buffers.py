@@ -7,8 +7,8 @@ import gc
 import numpy as np
 import torch
 
-from activelearn import buffers
-from activelearn.buffers import ArrayCache
+from activelearn.numerics import buffers
+from activelearn.numerics.buffers import ArrayCache
 
 BIG = (3, 256, 1024)  # 3 MiB of float32: above the cache's lower size limit
 

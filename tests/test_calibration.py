@@ -1,6 +1,6 @@
 """Issue tests 1-3, 6 and 7: the default model's uncertainty is informative and calibrated.
 
-All on synthetic Ackermann data (activelearn.synthetic), with the default ModelConfig and the default
+All on synthetic Ackermann data (activelearn.numerics.synthetic), with the default ModelConfig and the default
 KL counting. Tests 1-3 and 6 use a shorter schedule (150 epochs at lr 3e-3 instead of up to 400 at
 1e-3) to keep the suite fast; test 7 uses the default TrainingConfig as is. Epistemic novelty only
 appears once the posterior has contracted on the data: at lr 1e-3 it takes ~400 epochs
@@ -12,11 +12,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from activelearn import synthetic as syn
 from activelearn.config import ModelConfig, TrainingConfig
-from activelearn.models import build_model
-from activelearn.training import fit
-from activelearn.uncertainty import coverage, epistemic_diagnostic, recalibrate_epistemic, rmse
+from activelearn.numerics import synthetic as syn
+from activelearn.numerics.models import build_model
+from activelearn.numerics.training import fit
+from activelearn.numerics.uncertainty import coverage, epistemic_diagnostic, recalibrate_epistemic, rmse
 
 STEER = syn.STEER_MAX
 TRAIN = TrainingConfig(epochs=150, batch_size=64, lr=3e-3, patience=None)

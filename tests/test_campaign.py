@@ -12,11 +12,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from activelearn.campaign import Campaign, CampaignState
-from activelearn.compare import compare
 from activelearn.config import load_config, validate_config
 from activelearn.errors import ConfigError
-from activelearn.tracking import Tracker
+from activelearn.loop.campaign import Campaign, CampaignState
+from activelearn.studies.compare import compare
+from activelearn.studies.tracking import Tracker
 
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
 ROUND_METRICS = (

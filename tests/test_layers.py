@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from activelearn.models.layers import BayesianLinear, DenseLinear, inverse_softplus
+from activelearn.numerics.models.layers import BayesianLinear, DenseLinear, inverse_softplus
 
 
 def _randomise(layer: BayesianLinear, seed: int = 0) -> None:

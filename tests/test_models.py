@@ -7,10 +7,11 @@ import pytest
 import torch
 from pydantic import ValidationError
 
-from activelearn import synthetic as syn
-from activelearn.config import ARCH_PRESETS, ModelConfig, TrainingConfig
+from activelearn.config import ModelConfig, TrainingConfig
 from activelearn.errors import DataFormatError, InputError
-from activelearn.models import (
+from activelearn.numerics import synthetic as syn
+from activelearn.numerics.arch import ARCH_PRESETS
+from activelearn.numerics.models import (
     BNN,
     DNN,
     PBNN,
@@ -24,9 +25,10 @@ from activelearn.models import (
     build_model,
     load_model,
     parse_arch,
+    save_model,
 )
-from activelearn.models.base import CHUNK_ROWS
-from activelearn.training import fit
+from activelearn.numerics.models.base import CHUNK_ROWS
+from activelearn.numerics.training import fit
 
 KINDS = ["hybrid", "pbnn", "pnn", "bnn", "dnn", "ensemble"]
 SMALL = {"arch": "D8-V8-V", "ensemble_size": 3}
@@ -228,7 +230,7 @@ def test_save_and_load_round_trip(trained, data, tmp_path, kind):
     with torch.no_grad():
         m.epistemic_scale.fill_(2.5)
     path = tmp_path / "sub" / f"{kind}.pt"
-    m.save(path)
+    save_model(m, path)
     loaded = load_model(path)
     assert type(loaded) is type(m) and loaded.config == m.config
     torch.testing.assert_close(loaded.y_std, m.y_std)

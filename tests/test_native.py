@@ -9,11 +9,11 @@ import pytest
 import torch
 from scipy import stats
 
-from activelearn import counter_noise, native
 from activelearn.config import ModelConfig
 from activelearn.errors import InputError
-from activelearn.models import build_model
-from activelearn.surrogate import simulate
+from activelearn.numerics import counter_noise, native
+from activelearn.numerics.models import build_model
+from activelearn.numerics.surrogate import simulate
 
 # Random123's published known-answer vectors for Philox4x32-10 (its tests/kat_vectors).
 PHILOX_KAT = [

@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 import torch
 
-from activelearn import native
-from activelearn.config import ACTIVATIONS, ModelConfig
+from activelearn.config import ModelConfig
 from activelearn.errors import InputError
-from activelearn.models import build_model
+from activelearn.numerics import native
+from activelearn.numerics.arch import ACTIVATIONS
+from activelearn.numerics.models import build_model
 
 # Every kind, every activation, a full-covariance posterior, the reference preset (sigmoid first,
 # a variational layer first), a sampled layer between dense ones, and a Markov-state model.

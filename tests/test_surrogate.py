@@ -12,12 +12,12 @@ import pytest
 import torch
 
 import simulator
-from activelearn.collection import arrays, training_rows
 from activelearn.config import DataConfig, ModelConfig, TrainingConfig
 from activelearn.errors import InputError
-from activelearn.models import build_model
-from activelearn.surrogate import _integrate, against_simulator, simulate
-from activelearn.training import fit
+from activelearn.loop.collection import arrays, training_rows
+from activelearn.numerics.models import build_model, save_model
+from activelearn.numerics.surrogate import _integrate, against_simulator, simulate
+from activelearn.numerics.training import fit
 from simulator import Maneuver
 
 TRAIN_THROTTLES = (0.3, 0.5, 0.7, 0.9)
@@ -133,7 +133,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
 
 def test_predict_cli_bad_input_is_one_line_and_exit_2(tmp_path, skidpad_model):
     path = tmp_path / "model.pt"
-    skidpad_model.save(path)
+    save_model(skidpad_model, path)
     cases = [
         (["--model", str(tmp_path / "missing.pt"), "--maneuver", "skidpad", "--throttle", "0.5"], "--model"),
         (["--model", str(path), "--maneuver", "drift", "--throttle", "0.5"], "--maneuver"),
@@ -149,7 +149,7 @@ def test_predict_cli_bad_input_is_one_line_and_exit_2(tmp_path, skidpad_model):
 
 def test_predict_cli_prints_metrics_and_writes_the_figure(tmp_path, skidpad_model):
     path = tmp_path / "model.pt"
-    skidpad_model.save(path)
+    save_model(skidpad_model, path)
     out = tmp_path / "fig.png"
     proc = _cli(
         "--model",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from activelearn.threads import even_blocks, intra_op_threads, parallel_map
+from activelearn.numerics.threads import even_blocks, intra_op_threads, parallel_map
 
 
 @pytest.mark.parametrize(("n", "block"), [(2700, 1024), (10, 4), (1, 1024), (4096, 4096), (4097, 4096)])

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import torch
 
-from activelearn import synthetic as syn
 from activelearn.config import ModelConfig, TrainingConfig
 from activelearn.errors import InputError
-from activelearn.models import build_model
-from activelearn.training import History, fit, kl_count_value
-from activelearn.uncertainty import rmse
+from activelearn.numerics import synthetic as syn
+from activelearn.numerics.models import build_model
+from activelearn.numerics.training import History, fit, kl_count_value
+from activelearn.numerics.uncertainty import rmse
 
 FAST = {"epochs": 3, "batch_size": 64, "patience": None}
 
@@ -99,7 +99,7 @@ def test_early_stopping_restores_the_best_epoch(data):
     assert h.best_epoch == int(np.argmin(h.val_nll))
     if h.stopped_early:
         assert h.n_epochs == h.best_epoch + 1 + 4
-    from activelearn.training import _validate
+    from activelearn.numerics.training import _validate
 
     val_nll, _ = _validate(m, xv, yv, 8, 0)
     assert val_nll == pytest.approx(h.val_nll[h.best_epoch], rel=1e-5)

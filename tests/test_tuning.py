@@ -14,12 +14,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from activelearn import cli, synthetic
+from activelearn import cli
 from activelearn.config import load_config
 from activelearn.data import write_table
 from activelearn.errors import ConfigError, InputError
-from activelearn.tracking import Tracker
-from activelearn.tuning import (
+from activelearn.numerics import synthetic
+from activelearn.studies.tracking import Tracker
+from activelearn.studies.tuning import (
     DEFAULT_STORAGE,
     PRUNERS,
     collect_dataset,

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from activelearn.models import Prediction
-from activelearn.uncertainty import (
+from activelearn.numerics.models import Prediction
+from activelearn.numerics.uncertainty import (
     calibration_curve,
     calibration_error,
     coverage,

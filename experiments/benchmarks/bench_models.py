@@ -28,12 +28,12 @@ from torch import nn
 from torch.distributions import Normal, kl_divergence
 from torch.utils.data import DataLoader, TensorDataset
 
-from activelearn import synthetic as syn
 from activelearn.config import ModelConfig, TrainingConfig
-from activelearn.models import build_model
-from activelearn.threads import intra_op_threads
-from activelearn.training import fit
-from activelearn.uncertainty import coverage, epistemic_diagnostic, recalibrate_epistemic
+from activelearn.numerics import synthetic as syn
+from activelearn.numerics.models import build_model
+from activelearn.numerics.threads import intra_op_threads
+from activelearn.numerics.training import fit
+from activelearn.numerics.uncertainty import coverage, epistemic_diagnostic, recalibrate_epistemic
 
 N_ROWS = 60_000
 MANEUVER_ROWS = 2_700  # 90 s at 30 Hz
@@ -190,7 +190,7 @@ def predict_speed(quick: bool) -> None:
     print(f"\n## 3. predict(S=32) over {MANEUVER_ROWS} distinct inputs (one 90-s maneuver at 30 Hz)\n")
     print("Median of 51 calls. Distinct random inputs are the worst case: a maneuver's repeated control")
     print("rows would be cheaper, but fishhooks and slaloms change steering at almost every step.")
-    print("native = the compiled tile kernel (activelearn/native/network.c), reference = torch.\n")
+    print("native = the compiled tile kernel (activelearn/numerics/native/network.c), reference = torch.\n")
     threads = sorted({1, all_threads})
     backends = ("native", "reference")
     cells = [f"{backend} ms, {n} thread{'s' * (n > 1)}" for backend in backends for n in threads]

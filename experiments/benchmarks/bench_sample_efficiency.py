@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from activelearn.campaign import STATE_FILE, CampaignState
-from activelearn.compare import compare
 from activelearn.config import CampaignConfig, load_config
-from activelearn.pool import pool_maneuvers
+from activelearn.loop.campaign import STATE_FILE, CampaignState
+from activelearn.loop.pool import pool_maneuvers
+from activelearn.studies.compare import compare
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 

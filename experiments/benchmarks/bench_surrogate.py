@@ -23,11 +23,11 @@ import numpy as np
 import pandas as pd
 
 import simulator
-from activelearn.collection import arrays, training_rows
 from activelearn.config import DataConfig, ModelConfig, TrainingConfig
-from activelearn.models import build_model
-from activelearn.surrogate import simulate, track_metrics
-from activelearn.training import fit
+from activelearn.loop.collection import arrays, training_rows
+from activelearn.numerics.models import build_model
+from activelearn.numerics.surrogate import simulate, track_metrics
+from activelearn.numerics.training import fit
 from simulator import Maneuver
 
 KINDS = ("straight", "skidpad", "fishhook", "slalom", "eight")

@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 from activelearn.config import load_config
-from activelearn.tuning import collect_dataset, split_data, study_trials, tune
+from activelearn.studies.tuning import collect_dataset, split_data, study_trials, tune
 
 ROOT = Path(__file__).resolve().parents[2]
 SKIDPAD = ROOT / "experiments" / "configs" / "skidpad.toml"

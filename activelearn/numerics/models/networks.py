@@ -10,11 +10,11 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from activelearn import native
 from activelearn.config import ModelConfig
-from activelearn.models.base import Model
-from activelearn.models.layers import BayesianLinear, DenseLinear
-from activelearn.models.spec import LayerSpec, parse_arch
+from activelearn.numerics import native
+from activelearn.numerics.arch import LayerSpec, parse_arch
+from activelearn.numerics.models.base import Model
+from activelearn.numerics.models.layers import BayesianLinear, DenseLinear
 
 
 @functools.lru_cache(maxsize=4)

@@ -10,7 +10,8 @@ import torch
 
 from activelearn.config import ModelConfig
 from activelearn.errors import DataFormatError
-from activelearn.models.base import Model
+from activelearn.numerics.models.base import Model
+from activelearn.numerics.models.networks import build_model
 
 FORMAT_VERSION = 1
 
@@ -37,9 +38,7 @@ def save_model(model: Model, path: str | Path) -> None:
 
 
 def load_model(path: str | Path) -> Model:
-    """Rebuild a model written by `save_model` / `Model.save`."""
-    from activelearn.models.networks import build_model
-
+    """Rebuild a model written by `save_model`."""
     try:
         payload = torch.load(Path(path), map_location="cpu", weights_only=True)
     except FileNotFoundError:

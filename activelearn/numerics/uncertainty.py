@@ -12,7 +12,7 @@ import numpy as np
 from scipy import optimize, stats
 
 if TYPE_CHECKING:
-    from activelearn.models.base import Model, Prediction
+    from activelearn.numerics.models.base import Model, Prediction
 
 _LEVELS = np.round(np.arange(0.05, 0.951, 0.05), 2)
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import functools
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
@@ -14,16 +13,16 @@ from torch import Tensor, nn
 
 from activelearn.config import ModelConfig
 from activelearn.errors import InputError
-from activelearn.native import NetworkKernel
-from activelearn.threads import even_blocks, intra_op_threads
+from activelearn.numerics.native import NetworkKernel
+from activelearn.numerics.threads import even_blocks, intra_op_threads
 
 # Rows per block on the torch path of `SampledModel` and `predict`. Blocks bound the S × rows × width
 # activations; the per-sample GEMMs of big blocks split well over torch's intra-op threads, while
 # running small blocks on a pool of Python threads was slower (GEMMs in concurrent threads contend).
 CHUNK_ROWS = 4096
-# How sampled networks are evaluated: "native" (the compiled tile kernel, activelearn/native/network.c),
-# "reference" (torch) or "auto" (native where a C compiler built it). Both compute the same numbers
-# up to float rounding.
+# How sampled networks are evaluated: "native" (the compiled tile kernel,
+# activelearn/numerics/native/network.c), "reference" (torch) or "auto" (native where a C compiler
+# built it). Both compute the same numbers up to float rounding.
 BACKENDS = ("auto", "native", "reference")
 
 
@@ -235,8 +234,8 @@ class Model(nn.Module, ABC):
     """Common interface of every model kind (hybrid PBNN, PBNN, PNN, BNN, DNN, deep ensemble).
 
     Inputs and outputs are standardised internally; the scalers (`x_mean`, `x_std`, `y_mean`,
-    `y_std`) are buffers fitted by `activelearn.training.fit` and saved with the state dict, as is
-    `epistemic_scale` (fitted by `activelearn.uncertainty.recalibrate_epistemic`).
+    `y_std`) are buffers fitted by `activelearn.numerics.training.fit` and saved with the state dict, as is
+    `epistemic_scale` (fitted by `activelearn.numerics.uncertainty.recalibrate_epistemic`).
     """
 
     kind: ClassVar[str] = ""
@@ -371,9 +370,3 @@ class Model(nn.Module, ABC):
         mean = means.mean(dim=0) * self.y_std + self.y_mean
         std = var.mean(dim=0).sqrt() * self.y_std
         return torch.cat([mean, std], dim=-1)
-
-    def save(self, path: str | Path) -> None:
-        """Write config, scalers and weights to `path` (atomically); read back with `load_model`."""
-        from activelearn.models.persistence import save_model
-
-        save_model(self, path)

@@ -7,8 +7,8 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.stats import qmc
 
-from activelearn.acquisition import Pool
 from activelearn.config import MAX_STEERING, CampaignConfig, PoolConfig, TestSetConfig
+from activelearn.loop.acquisition import Pool
 from simulator import Maneuver, nominal_controls
 
 KIND_ORDER: tuple[str, ...] = ("straight", "skidpad", "fishhook", "slalom", "eight")

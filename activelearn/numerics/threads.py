@@ -6,7 +6,7 @@ when every op splits itself (measured on 2 cores: pose integration of 32 × 256 
 against 135 ms). Torch releases the GIL inside its ops, so the threads run in parallel. GEMM-heavy
 work does not gain: matmuls in concurrent Python threads contended (two threads took longer than
 one doing both), so torch's network evaluation stays on its own intra-op threads. The compiled
-kernels (`activelearn.native`) start threads of their own.
+kernels (`activelearn.numerics.native`) start threads of their own.
 """
 
 from __future__ import annotations

@@ -28,9 +28,9 @@ from torch.func import functional_call, grad_and_value
 
 from activelearn.config import TrainingConfig
 from activelearn.errors import InputError
-from activelearn.models.base import Model
-from activelearn.threads import intra_op_threads
-from activelearn.uncertainty import gaussian_nll, recalibrate_epistemic, rmse
+from activelearn.numerics.models.base import Model
+from activelearn.numerics.threads import intra_op_threads
+from activelearn.numerics.uncertainty import gaussian_nll, recalibrate_epistemic, rmse
 
 Callback = Callable[[int, dict[str, float]], "bool | None"]
 

@@ -1,8 +1,9 @@
 """Bayesian layers, the hybrid PBNN and its baselines, all behind one `Model` interface."""
 
-from activelearn.models.base import Model, Prediction, SampledModel
-from activelearn.models.layers import BayesianLinear, DenseLinear
-from activelearn.models.networks import (
+from activelearn.numerics.arch import LayerSpec, parse_arch, resolve_arch
+from activelearn.numerics.models.base import Model, Prediction, SampledModel
+from activelearn.numerics.models.layers import BayesianLinear, DenseLinear
+from activelearn.numerics.models.networks import (
     BNN,
     DNN,
     PBNN,
@@ -12,8 +13,7 @@ from activelearn.models.networks import (
     StackModel,
     build_model,
 )
-from activelearn.models.persistence import load_model, save_model
-from activelearn.models.spec import LayerSpec, parse_arch, resolve_arch
+from activelearn.numerics.models.persistence import load_model, save_model
 
 __all__ = [
     "BNN",

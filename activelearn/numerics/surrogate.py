@@ -13,7 +13,7 @@ Two model variants:
   * static ("controls"): rates are a function of the current controls. Nothing depends on the past,
     so maneuvers are independent and a control row repeated at consecutive steps is evaluated once
     (skidpads, straights and eights hold a handful of rows for thousands of steps). A compiled
-    kernel (`activelearn.native`, its threads taking one maneuver at a time) evaluates the S
+    kernel (`activelearn.numerics.native`, its threads taking one maneuver at a time) evaluates the S
     network draws on a tile of steps' distinct rows, then noises (each step's noise a function of
     its counter) and integrates the S trajectories of that tile while it is in cache; a torch and
     NumPy reference computes the same numbers where no C compiler is.
@@ -30,10 +30,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from activelearn import buffers, counter_noise, native
 from activelearn.errors import InputError
-from activelearn.models.base import BACKENDS, CHUNK_ROWS
-from activelearn.threads import even_blocks, parallel_map
+from activelearn.numerics import buffers, counter_noise, native
+from activelearn.numerics.models.base import BACKENDS, CHUNK_ROWS
+from activelearn.numerics.threads import even_blocks, parallel_map
 from simulator import Maneuver, nominal_controls
 
 N_CONTROLS = 2
@@ -157,7 +157,7 @@ def _static_rollout(
     """Sampled trajectories of a static model: rates and pose, each (S, M, T), and per-step moments.
 
     One posterior draw per trajectory; each trajectory's aleatoric noise comes from counters under
-    its own key (`activelearn.counter_noise`), so the result depends neither on the thread count
+    its own key (`activelearn.numerics.counter_noise`), so the result depends neither on the thread count
     nor on the backend. Native: the compiled kernel evaluates the network on each tile's distinct
     control rows and noises and integrates that tile at once, its threads taking one maneuver at a
     time. Reference: torch evaluates every distinct control row, NumPy/torch the rest.
@@ -169,7 +169,7 @@ def _static_rollout(
         return _reference_rollout(sampled, controls, keys, dt, yaw0)
     n_maneuvers, n_steps, _ = controls.shape
     # Reused memory where an earlier rollout's arrays have been dropped: first-touch page faults
-    # of 440 MB of fans cost a third of a 256-maneuver rollout (`activelearn.buffers`).
+    # of 440 MB of fans cost a third of a 256-maneuver rollout (`activelearn.numerics.buffers`).
     paths = tuple(buffers.empty((n_samples, n_maneuvers, n_steps)) for _ in range(5))
     moments = tuple(buffers.empty((n_maneuvers, n_steps, 2)) for _ in range(3))
     native.static_rollout(

@@ -2,7 +2,7 @@
 
 The noise of step t of maneuver m in the trajectory keyed `key` is a pure function of (key, m, t).
 So a maneuver's noise does not depend on the other maneuvers in the batch, on padding, or on which
-thread computes it, and the compiled kernel (`activelearn/native/static_rollout.c`) and this
+thread computes it, and the compiled kernel (`activelearn/numerics/native/static_rollout.c`) and this
 reference draw the same numbers, up to the last bit of log/sin/cos.
 
 Layout (mirrored in the C kernel): steps go in tiles of TILE; Philox counter

@@ -15,11 +15,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from activelearn.campaign import Campaign
 from activelearn.config import CampaignConfig
 from activelearn.data import atomic_write_bytes
 from activelearn.errors import InputError
-from activelearn.pool import pool_maneuvers, test_maneuvers
+from activelearn.loop.campaign import Campaign
+from activelearn.loop.pool import pool_maneuvers, test_maneuvers
 
 Progress = Callable[[dict[str, Any]], None]
 CURVE_METRICS: tuple[str, ...] = ("epistemic_std_mean", "test_rmse", "test_nll")
@@ -53,7 +53,7 @@ def _run_job(
     cfg = CampaignConfig.model_validate_json(cfg_json)
     tracker = None
     if tracking is not None:
-        from activelearn.tracking import Tracker
+        from activelearn.studies.tracking import Tracker
 
         tracker = Tracker(*tracking)
     campaign = Campaign(cfg, directory, cache_dir=cache_dir, tracker=tracker, parent_run_id=parent_run_id)
@@ -112,7 +112,7 @@ def compare(
     progress: Progress | None = None,
 ) -> Comparison:
     """Run every strategy with every seed on one config and compare them against `uniform`."""
-    from activelearn.acquisition import STRATEGIES
+    from activelearn.loop.acquisition import STRATEGIES
 
     for name in strategies:
         if name not in STRATEGIES:
@@ -131,7 +131,7 @@ def compare(
     workers = max(1, min(workers or os.cpu_count() or 1, len(strategies) * len(seeds)))
 
     # Simulate the whole pool and the test set once, with every core, before the workers start.
-    from activelearn.collection import SimulationCache
+    from activelearn.loop.collection import SimulationCache
 
     cache = SimulationCache(cache_dir, cfg.simulation)
     todo = cache.missing(pool_maneuvers(cfg.pool) + test_maneuvers(cfg.test))
@@ -145,7 +145,7 @@ def compare(
     tracker, parent_run_id = None, None
     manifest = directory / "compare.json"
     if tracking:
-        from activelearn.tracking import Tracker
+        from activelearn.studies.tracking import Tracker
 
         tracker = Tracker(cfg.tracking.uri, cfg.tracking.experiment)
         previous = (

@@ -26,9 +26,11 @@ import numpy as np
 import pandas as pd
 import torch
 
-from activelearn import uncertainty
-from activelearn.acquisition import Pool, Strategy, greedy_maximin, make_strategy
-from activelearn.collection import (
+from activelearn.config import CampaignConfig
+from activelearn.data import atomic_write_bytes, read_table, write_table
+from activelearn.errors import ActiveLearnError, InputError
+from activelearn.loop.acquisition import Pool, Strategy, greedy_maximin, make_strategy
+from activelearn.loop.collection import (
     SimulationCache,
     TestSet,
     arrays,
@@ -37,14 +39,12 @@ from activelearn.collection import (
     rows_per_maneuver,
     training_rows,
 )
-from activelearn.config import CampaignConfig
-from activelearn.data import atomic_write_bytes, read_table, write_table
-from activelearn.errors import ActiveLearnError, InputError
-from activelearn.models import Prediction, build_model, load_model
-from activelearn.pool import build_pool, evaluation_grid, pool_maneuvers, test_maneuvers
-from activelearn.surrogate import model_inputs
-from activelearn.training import fit
-from activelearn.uncertainty import recalibrate_epistemic
+from activelearn.loop.pool import build_pool, evaluation_grid, pool_maneuvers, test_maneuvers
+from activelearn.numerics import uncertainty
+from activelearn.numerics.models import Prediction, build_model, load_model, save_model
+from activelearn.numerics.surrogate import model_inputs
+from activelearn.numerics.training import fit
+from activelearn.numerics.uncertainty import recalibrate_epistemic
 
 STATE_FILE = "state.json"
 SAMPLES_FILE = "samples.parquet"
@@ -352,7 +352,7 @@ class Campaign:
         self.directory.mkdir(parents=True, exist_ok=True)
         write_table(samples, self.directory / SAMPLES_FILE)
         if model is not None:
-            model.save(self.directory / MODEL_FILE)
+            save_model(model, self.directory / MODEL_FILE)
         state.save(self.directory)  # last: the commit point
 
     # ------------------------------------------------------------------ tracking

@@ -32,13 +32,6 @@ import pandas as pd
 import sqlalchemy
 from optuna.trial import FrozenTrial, TrialState
 
-from activelearn.collection import (
-    SimulationCache,
-    arrays,
-    noisy_logs,
-    simulator_fingerprint,
-    training_rows,
-)
 from activelearn.config import (
     SPACE_PARAMS,
     CampaignConfig,
@@ -50,9 +43,16 @@ from activelearn.config import (
 )
 from activelearn.data import atomic_write_bytes, read_autodrive_log, read_table, write_table
 from activelearn.errors import ActiveLearnError, DataFormatError, InputError
-from activelearn.models import build_model
-from activelearn.pool import pool_maneuvers
-from activelearn.training import fit
+from activelearn.loop.collection import (
+    SimulationCache,
+    arrays,
+    noisy_logs,
+    simulator_fingerprint,
+    training_rows,
+)
+from activelearn.loop.pool import pool_maneuvers
+from activelearn.numerics.models import build_model
+from activelearn.numerics.training import fit
 
 DEFAULT_STORAGE = "sqlite:///mlruns/optuna.db"
 OBJECTIVES: tuple[str, ...] = ("nll", "rmse")
@@ -552,7 +552,7 @@ def _run_worker(job: _Job, worker: int, take: Callable[[], bool], emit: Progress
     )
     tracker = None
     if job.tracking is not None:
-        from activelearn.tracking import Tracker
+        from activelearn.studies.tracking import Tracker
 
         tracker = Tracker(*job.tracking)
     objective = _Objective(job, tracker, worker)
@@ -881,7 +881,7 @@ def tune(
 
     tracker, parent_run_id = None, None
     if tracking and cfg.tracking.enabled:
-        from activelearn.tracking import Tracker
+        from activelearn.studies.tracking import Tracker
 
         tracker = Tracker(cfg.tracking.uri, cfg.tracking.experiment)
         # One parent run per call: a resumed study gets a new parent run with the same study tag,

@@ -9,7 +9,7 @@
  *
  * The noise of step t of maneuver m is a pure function of (key, m, t), so it does not depend on
  * the padding, the other maneuvers or the thread that computes it. The Python reference in
- * activelearn/counter_noise.py draws the same numbers (up to the last bit of log/sin/cos).
+ * activelearn/numerics/counter_noise.py draws the same numbers (up to the last bit of log/sin/cos).
  *
  * Built with -O3 -ffast-math so that GCC vectorises logf/sinf/cosf through glibc's libmvec; the
  * prefix sums of the pose accumulate in double, as torch's cumsum does.
