@@ -210,8 +210,15 @@ class PoolConfig(_Section):
     size: Annotated[int, Field(ge=2)] | None = None
     seed: int = 0
     duration: Positive = 90.0
+    # Seconds per maneuver kind, overriding `duration` (e.g. {straight = 20, eight = 90}): maneuvers
+    # differ in what they cost on a track, and a seconds budget (design.max_sim_seconds) counts it.
+    durations: dict[Kind, Positive] = {}
     # Distance added between candidates of different kinds, in units of the [0, 1] operating-point cube.
     kind_distance: NonNegative = 0.5
+
+    def duration_of(self, kind: str) -> float:
+        """Seconds a maneuver of `kind` lasts in this pool."""
+        return float(self.durations.get(kind, self.duration))  # type: ignore[call-overload]
 
     @field_validator("kinds", "directions", "throttles", "steerings")
     @classmethod
@@ -264,10 +271,73 @@ class DataConfig(_Section):
     inputs: Literal["controls", "controls+rates"] = "controls"
 
 
+class PriorGridConfig(_Section):
+    """A maneuver grid already driven: simulated once by the nominal simulator (cached), fixed noise."""
+
+    kinds: list[Kind] = ["skidpad"]
+    directions: list[Direction] = ["ccw", "cw"]
+    throttles: list[Throttle]
+    steerings: list[Steering] = [0.0]
+    duration: Positive = 30.0
+    # The prior is data already in hand: the same rows for every campaign seed and strategy.
+    noise_seed: int = 2_000_003
+
+    @field_validator("kinds", "directions", "throttles", "steerings")
+    @classmethod
+    def _non_empty_unique(cls, value: list[Any], info: ValidationInfo) -> list[Any]:
+        return _unique(value, info.field_name)
+
+
+PriorUse = Literal["data", "finetune", "residual"]
+
+
+class PriorConfig(_Section):
+    """Warm start: what is known before the campaign spends its budget.
+
+    Sources (any mix): `grid`, a maneuver grid simulated once and cached; `paths`, earlier campaign
+    directories, sample tables (.parquet/.csv in the sample schema) and AutoDRIVE logs (.csv).
+    `use` says what the prior rows do: "data" trains every round beside the new maneuvers (the same
+    system); "finetune" trains a prior model once, and every round starts from its weights and trains
+    on the new maneuvers only; "residual" keeps the prior model fixed and learns the new system's
+    difference from it (sim-to-real). `model` starts from trained weights (a model.pt or a campaign
+    directory) instead of fitting the prior model on the prior rows.
+    """
+
+    grid: PriorGridConfig | None = None
+    paths: list[str] = []
+    use: PriorUse = "data"
+    model: str | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _shorthand(cls, value: Any) -> Any:
+        # `prior = "runs/x/seed0"` or `prior = ["a.parquet", "logs/"]` name paths only.
+        if isinstance(value, str):
+            return {"paths": [value]}
+        if isinstance(value, list):
+            return {"paths": value}
+        return value
+
+    @model_validator(mode="after")
+    def _has_a_source(self) -> PriorConfig:
+        if self.grid is None and not self.paths and self.model is None:
+            raise ValueError("a prior needs a grid, paths or a model")
+        if self.use == "data" and self.grid is None and not self.paths:
+            raise ValueError("use = 'data' needs prior rows: give a grid or paths")
+        if self.use != "data" and self.model is None and self.grid is None and not self.paths:
+            raise ValueError(f"use = {self.use!r} needs a model, or rows (grid, paths) to train one")
+        return self
+
+
 class DesignConfig(_Section):
     """Initial design, batch size, budget and stop rule of the outer loop."""
 
-    initial: Count = 4
+    # Warm start (see PriorConfig); prior maneuvers count against no budget. Declared first: the
+    # checks of `initial` read it.
+    prior: PriorConfig | None = None
+    # Maneuvers of the strategy-independent initial design (greedy maximin); 0 only with a prior,
+    # whose model then chooses from the first round on.
+    initial: Annotated[int, Field(ge=0)] = 4
     per_round: Count = 2
     # Budget: the loop stops at the first limit reached (at least one must be given).
     max_maneuvers: Count | None = 24
@@ -280,6 +350,18 @@ class DesignConfig(_Section):
     # default: strategies pick where the model errs most, so those points overstate its error
     # (measured: scales of 40-60 that left the test set 3-6x underconfident).
     recalibrate: Literal["none", "prequential"] = "none"
+    # Seconds of set-up per maneuver (drive to the start, reset, check): part of each maneuver's cost.
+    setup_seconds: NonNegative = 0.0
+
+    @field_validator("initial")
+    @classmethod
+    def _initial_needs_data(cls, value: int, info: ValidationInfo) -> int:
+        prior = info.data.get("prior")
+        if value == 0 and prior is None:
+            raise ValueError("initial = 0 needs a prior (design.prior): a cold start has no model to ask")
+        if value == 0 and prior is not None and prior.use == "residual":
+            raise ValueError("initial = 0 with prior.use = 'residual': a residual is learnt from new maneuvers")
+        return value
 
     @model_validator(mode="after")
     def _needs_budget(self) -> DesignConfig:
@@ -299,9 +381,43 @@ class AcquisitionConfig(_Section):
     penalty_length: Positive = 0.15
     # Points along each candidate's control sequence at which it is scored.
     score_points: Count = 24
-    # Evaluation grid (throttle × signed steering): uncertainty metrics, maps, integrated variance.
+    # Evaluation grid (throttle × signed steering): uncertainty metrics and maps.
     grid_throttles: Annotated[int, Field(ge=2)] = 15
     grid_steerings: Annotated[int, Field(ge=2)] = 15
+    # Score information per second of track time (score / (duration + design.setup_seconds)).
+    cost_aware: bool = False
+
+
+class TargetConfig(_Section):
+    """Where the model must be good: integrated variance and error-reduction scores integrate here.
+
+    region = "test" (default): the controls the test maneuvers apply, i.e. where the error is measured;
+    "pool": a throttle × signed-steering grid spanning the pool (the generic evaluation grid);
+    "box": a grid over `throttle_range` × `steering_range` (unsigned; `directions` give the signs).
+    """
+
+    region: Literal["test", "pool", "box"] = "test"
+    throttle_range: tuple[Throttle, Throttle] | None = None
+    steering_range: tuple[Steering, Steering] | None = None
+    directions: list[Direction] = ["ccw", "cw"]
+    # Most target points kept (evenly thinned): integrated variance costs O(points x draws^2).
+    max_points: Annotated[int, Field(ge=4)] = 400
+    grid_size: Annotated[int, Field(ge=2)] = 12
+
+    @model_validator(mode="after")
+    def _box(self) -> TargetConfig:
+        boxed = self.throttle_range is not None or self.steering_range is not None
+        if self.region == "box":
+            if self.throttle_range is None or self.steering_range is None:
+                raise ValueError("region = 'box' needs throttle_range and steering_range")
+            for name in ("throttle_range", "steering_range"):
+                low, high = getattr(self, name)
+                if not low <= high:
+                    raise ValueError(f"{name} must be [low, high] with low <= high, got {[low, high]}")
+        elif boxed:
+            raise ValueError(f"throttle_range and steering_range need region = 'box', got {self.region!r}")
+        _unique(self.directions, "directions")
+        return self
 
 
 class TestSetConfig(_Section):
@@ -315,11 +431,53 @@ class TestSetConfig(_Section):
     steerings: list[Steering] = [0.05, 0.1571, 0.2618, 0.3665, 0.4712]
     duration: Positive = 30.0
     noise_seed: int = 1_000_003
+    # Recorded logs (a folder or files) to test on instead of the simulated grid: a real car's test set.
+    logs: list[str] | None = None
 
     @field_validator("kinds", "directions", "throttles", "steerings")
     @classmethod
     def _non_empty_unique(cls, value: list[Any], info: ValidationInfo) -> list[Any]:
         return _unique(value, info.field_name)
+
+    @field_validator("logs", mode="before")
+    @classmethod
+    def _one_or_many(cls, value: Any) -> Any:
+        return [value] if isinstance(value, str) else value
+
+
+OracleKind = Literal["simulator", "twin", "external", "logs"]
+
+
+class OracleConfig(_Section):
+    """Who answers the maneuvers a campaign proposes.
+
+    "simulator" (default): the nominal MuJoCo model. "twin": MuJoCo with parameter `overrides` (a
+    stand-in for the real car while rehearsing, validated by the simulator). "external": a person or
+    script drives the proposals and hands back logs (`activelearn campaign propose` / `ingest`).
+    "logs": a folder of recorded logs in the AutoDRIVE layout (`<maneuver>_30_hz/<variation> Log.csv`)
+    is the finite pool; strategies choose among the recorded maneuvers.
+    """
+
+    kind: OracleKind = "simulator"
+    overrides: dict[str, float] = {}
+    path: str | None = None
+    # logs: share of the recorded maneuvers held out as the test set when [test] logs is not given.
+    test_fraction: Annotated[float, Field(gt=0, lt=1)] = 0.25
+    # external: how far a log's controls may be from a proposal's and still be that maneuver, and how
+    # much shorter than proposed a log may be before it counts as cut off.
+    throttle_tolerance: Positive = 0.05
+    steering_tolerance: Positive = 0.05
+    duration_tolerance: Annotated[float, Field(gt=0, lt=1)] = 0.1
+
+    @model_validator(mode="after")
+    def _fields_of_kind(self) -> OracleConfig:
+        if self.overrides and self.kind != "twin":
+            raise ValueError(f"overrides apply to kind = 'twin' only, got kind = {self.kind!r}")
+        if self.kind == "logs" and self.path is None:
+            raise ValueError("kind = 'logs' needs path: the folder of recorded logs")
+        if self.path is not None and self.kind != "logs":
+            raise ValueError(f"path applies to kind = 'logs' only, got kind = {self.kind!r}")
+        return self
 
 
 class TrackingConfig(_Section):
@@ -345,6 +503,8 @@ class CampaignConfig(_Section):
     model: ModelConfig = ModelConfig()
     training: TrainingConfig = TrainingConfig()
     test: TestSetConfig = TestSetConfig()
+    target: TargetConfig = TargetConfig()
+    oracle: OracleConfig = OracleConfig()
     tracking: TrackingConfig = TrackingConfig()
     # [tuning] (issue 5) is read by `activelearn tune` only; excluded from dumps, so campaign hashes,
     # logged params and the configs sent to workers do not depend on it. Defined at the end of the file.

@@ -86,18 +86,20 @@ def epistemic_map(
     *,
     taken: Sequence[Any],
     picks: Sequence[Any],
+    prior: Sequence[Any] = (),
     title: str = "",
 ) -> Figure:
-    """Heat map of epistemic std over throttle × signed steering, with collected and chosen maneuvers.
+    """Heat map of epistemic std over throttle × signed steering, with known, collected and chosen maneuvers.
 
     `std` has shape (len(throttles), len(steerings)); maneuvers are marked at their operating point
-    (throttle, signed steering), one marker shape per kind.
+    (throttle, signed steering), one marker shape per kind; `prior` (a warm start's maneuvers) in grey.
     """
     fig = _new_figure(6.4, 5.2)
     ax = fig.add_subplot()
     mesh = ax.pcolormesh(steerings, throttles, std, shading="nearest", cmap="viridis")
     fig.colorbar(mesh, ax=ax, label="epistemic std (standardised, mean of v and ω)")
     styles = (
+        (prior, {"facecolor": "0.6", "edgecolor": "0.3", "s": 20}),
         (taken, {"facecolor": "white", "edgecolor": "black", "s": 36}),
         (picks, {"facecolor": "red", "edgecolor": "black", "s": 90}),
     )
@@ -105,9 +107,11 @@ def epistemic_map(
         for kind in sorted({m.kind for m in group}):
             pts = np.array([(_signed_steering(m), m.throttle) for m in group if m.kind == kind])
             ax.scatter(pts[:, 0], pts[:, 1], marker=_KIND_MARKERS.get(kind, "o"), **style)
+    if len(prior):
+        ax.scatter([], [], facecolor="0.6", edgecolor="0.3", label="prior (known)")
     ax.scatter([], [], facecolor="white", edgecolor="black", label="collected")
     ax.scatter([], [], facecolor="red", edgecolor="black", label="chosen this round")
-    for kind in sorted({m.kind for m in [*taken, *picks]}):
+    for kind in sorted({m.kind for m in [*prior, *taken, *picks]}):
         ax.scatter([], [], marker=_KIND_MARKERS.get(kind, "o"), color="gray", label=kind)
     ax.set_xlabel("signed steering (rad, + = left, ccw)")
     ax.set_ylabel("throttle")

@@ -18,7 +18,7 @@ from activelearn.loop.acquisition import (
     greedy_maximin,
     make_strategy,
 )
-from activelearn.loop.pool import build_pool, pool_maneuvers
+from activelearn.loop.pool import build_pool, pool_maneuvers, target_points, test_maneuvers
 from activelearn.numerics import synthetic
 from activelearn.numerics.models import build_model
 from activelearn.numerics.training import fit
@@ -54,7 +54,8 @@ def _pool(cfg: CampaignConfig, taken: list[int] | None = None):
     maneuvers = pool_maneuvers(cfg.pool)
     mask = np.zeros(len(maneuvers), dtype=bool)
     mask[taken or []] = True
-    return build_pool(cfg, maneuvers, mask, np.array([0.1, 0.3]), rows_per_maneuver=80.0, design_seed=3)
+    target = target_points(cfg, maneuvers, test_maneuvers(cfg.test))
+    return build_pool(cfg, maneuvers, mask, np.array([0.1, 0.3]), target, design_seed=3)
 
 
 @pytest.mark.parametrize("name", sorted(STRATEGIES))

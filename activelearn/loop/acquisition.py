@@ -42,9 +42,15 @@ class Pool:
     points / owner / weights: stacked model inputs along each candidate's control sequence, the
         candidate each point belongs to, and how many training rows each point stands for.
     taken: (n,) True where the candidate was already collected.
-    eval_grid: (G, n_inputs) inputs over which integrated variance and the uncertainty maps are taken.
+    target: (G, n_inputs) inputs where the model must be good (`[target]`): integrated variance and
+        error-reduction scores integrate over them, weighted by `target_weights` (default equal).
     output_scale: (n_outputs,) divide outputs by this so v and omega weigh alike.
     design_seed: seeds quasi-random sequences so they continue across rounds.
+    costs: (n,) seconds each candidate costs (duration + set-up); None = all alike.
+    affordable: (n,) False where a candidate no longer fits the budget; None = all fit.
+    prior_features / prior_kinds: operating points (scaled like `features`) and kind codes of the
+        maneuvers a warm start already holds (-1 = kind unknown: no kind distance). Space-filling
+        designs treat them as taken.
     truth_x / truth_y / truth_owner: noise-free rows of every candidate, set only for the diagnostic
         `oracle_error` strategy (a real campaign cannot know them).
     """
@@ -56,28 +62,39 @@ class Pool:
     owner: np.ndarray
     weights: np.ndarray
     taken: np.ndarray
-    eval_grid: np.ndarray
+    target: np.ndarray
     output_scale: np.ndarray
     design_seed: int = 0
     kind_distance: float = 0.5
+    target_weights: np.ndarray | None = None
+    costs: np.ndarray | None = None
+    affordable: np.ndarray | None = None
+    prior_features: np.ndarray | None = None
+    prior_kinds: np.ndarray | None = None
     truth_x: np.ndarray | None = None
     truth_y: np.ndarray | None = None
     truth_owner: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.maneuvers)
-        for name in ("features", "kinds", "taken"):
-            if len(getattr(self, name)) != n:
-                raise ValueError(f"Pool.{name} has {len(getattr(self, name))} rows for {n} maneuvers")
+        for name in ("features", "kinds", "taken", "costs", "affordable"):
+            value = getattr(self, name)
+            if value is not None and len(value) != n:
+                raise ValueError(f"Pool.{name} has {len(value)} rows for {n} maneuvers")
         if not (len(self.points) == len(self.owner) == len(self.weights)):
             raise ValueError("Pool.points, owner and weights must have the same length")
         if len(self.owner) and (self.owner.min() < 0 or self.owner.max() >= n):
             raise ValueError("Pool.owner refers to a candidate outside the pool")
+        if self.target_weights is not None and len(self.target_weights) != len(self.target):
+            raise ValueError("Pool.target_weights needs one weight per target point")
+        if (self.prior_features is None) != (self.prior_kinds is None):
+            raise ValueError("Pool.prior_features and prior_kinds go together")
 
     @property
     def available(self) -> np.ndarray:
-        """Indices of candidates not yet collected."""
-        return np.flatnonzero(~self.taken)
+        """Indices of candidates not yet collected (and within the budget)."""
+        open_ = ~self.taken if self.affordable is None else ~self.taken & self.affordable
+        return np.flatnonzero(open_)
 
     def with_taken(self, indices: Sequence[int]) -> Pool:
         """Return a copy with `indices` marked as collected."""
@@ -90,6 +107,21 @@ class Pool:
         diff = self.features[rows][:, None, :] - self.features[to][None, :, :]
         dist = np.sqrt((diff**2).sum(-1))
         return dist + self.kind_distance * (self.kinds[rows][:, None] != self.kinds[to][None, :])
+
+    def design_gap(self, rows: np.ndarray) -> np.ndarray:
+        """Distance from candidates `rows` to the nearest collected or prior maneuver (inf: none yet)."""
+        rows = np.asarray(rows, dtype=int)
+        gap = np.full(len(rows), np.inf)
+        taken = np.flatnonzero(self.taken)
+        if len(taken):
+            gap = self.distances(rows, taken).min(axis=1)
+        if self.prior_features is not None and len(self.prior_features):
+            diff = self.features[rows][:, None, :] - self.prior_features[None, :, :]
+            dist = np.sqrt((diff**2).sum(-1))
+            prior_kinds = self.prior_kinds[None, :]  # type: ignore[index]
+            other_kind = (prior_kinds >= 0) & (self.kinds[rows][:, None] != prior_kinds)
+            gap = np.minimum(gap, (dist + self.kind_distance * other_kind).min(axis=1))
+        return gap
 
 
 def _check_k(pool: Pool, k: int) -> np.ndarray:
@@ -134,20 +166,24 @@ class RandomStrategy(Strategy):
 
 
 def greedy_maximin(pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
-    """Greedy maximin: repeatedly add the candidate farthest from everything taken or chosen."""
+    """Greedy maximin: repeatedly add the candidate farthest from everything taken, known or chosen.
+
+    Prior maneuvers (a warm start) count as taken, so the design fills the unknown part first.
+    """
     available = list(_check_k(pool, k))
-    chosen_or_taken = list(np.flatnonzero(pool.taken))
+    everyone = np.arange(len(pool.maneuvers))
+    design_gap = pool.design_gap(everyone)
     picks: list[int] = []
     for _ in range(k):
-        if chosen_or_taken:
-            gaps = pool.distances(np.array(available), np.array(chosen_or_taken)).min(axis=1)
+        if np.isfinite(design_gap).any():
+            gaps = design_gap[available]
         else:  # empty design: start from the candidate nearest the centre of the pool
             centre = pool.features.mean(axis=0)
             gaps = -np.linalg.norm(pool.features[available] - centre, axis=1)
         best = np.flatnonzero(gaps >= gaps.max() - 1e-9)
         pick = available[int(rng.choice(best))]  # ties broken at random, so seeds differ
         picks.append(int(pick))
-        chosen_or_taken.append(pick)
+        design_gap = np.minimum(design_gap, pool.distances(everyone, np.array([pick]))[:, 0])
         available.remove(pick)
     return picks
 
@@ -262,6 +298,7 @@ class UncertaintyStrategy(Strategy):
     batch: "fantasy" conditions the function-space posterior on each pick before the next (default),
         "penalty" damps scores near earlier picks, "topk" takes the k best scores (no diversity).
     n_samples: posterior draws S; fantasy_weight scales the rows each scoring point stands for.
+    cost_aware: divide each candidate's score by its cost in seconds (information per second).
     """
 
     uses_model = True
@@ -274,6 +311,7 @@ class UncertaintyStrategy(Strategy):
         fantasy_weight: float = 1.0,
         penalty_length: float = 0.15,
         seed: int = 0,
+        cost_aware: bool = False,
     ) -> None:
         if batch not in ("fantasy", "penalty", "topk"):
             raise InputError("acquisition.batch", batch, "must be one of fantasy, penalty, topk")
@@ -288,6 +326,13 @@ class UncertaintyStrategy(Strategy):
         self.fantasy_weight = fantasy_weight
         self.penalty_length = penalty_length
         self.seed = seed
+        self.cost_aware = cost_aware
+
+    def per_second(self, scores: np.ndarray, costs: np.ndarray | None) -> np.ndarray:
+        """Scores per second of track time when cost-aware (scores unchanged otherwise)."""
+        if not self.cost_aware or costs is None:
+            return scores
+        return scores / costs
 
     @abstractmethod
     def point_scores(self, samples: FunctionSamples, cov: np.ndarray) -> np.ndarray:
@@ -319,7 +364,7 @@ class UncertaintyStrategy(Strategy):
         for _ in range(k):
             penalise = self.batch == "penalty" and picks
             damped = scores * _proximity_penalty(pool, picks, self.penalty_length) if penalise else scores
-            masked = np.where(open_mask, damped, -np.inf)
+            masked = np.where(open_mask, self.per_second(damped, pool.costs), -np.inf)
             pick = int(np.argmax(masked))
             picks.append(pick)
             open_mask[pick] = False
@@ -393,19 +438,22 @@ class EpistemicMaximinStrategy(MaxEpistemicStrategy):
         self, samples: FunctionSamples, pool: Pool, cov: np.ndarray, picks: Sequence[int] = ()
     ) -> np.ndarray:
         scores = super().candidate_scores(samples, pool, cov, picks)
-        design = np.concatenate([np.flatnonzero(pool.taken), np.asarray(picks, dtype=int)])
-        if len(design) == 0:
+        everyone = np.arange(len(pool.maneuvers))
+        gap = pool.design_gap(everyone)
+        if len(picks):
+            gap = np.minimum(gap, pool.distances(everyone, np.asarray(picks, dtype=int)).min(axis=1))
+        if not np.isfinite(gap).any():
             return scores
-        gap = pool.distances(np.arange(len(pool.maneuvers)), design).min(axis=1)
         return scores * gap**2
 
 
 class IntegratedVarianceStrategy(UncertaintyStrategy):
-    """Integrated variance reduction: pick the maneuver that most lowers epistemic variance on the grid.
+    """Integrated variance reduction: pick the maneuver that most lowers epistemic variance on the target.
 
     The reduction is exact for the linear-Gaussian sample-space posterior: observing candidate c
-    with precision P_c changes the grid variance from tr(C M) to tr((C^-1 + P_c)^-1 M), where
-    M = sum over grid points and outputs of phi phi^T. Batches always use fantasised updates.
+    with precision P_c changes the target variance from tr(C M) to tr((C^-1 + P_c)^-1 M), where
+    M = sum over target points (weighted) and outputs of phi phi^T. The target is `pool.target`
+    (`[target]`: by default the controls of the test maneuvers). Batches always use fantasised updates.
     """
 
     name = "integrated_variance"
@@ -420,27 +468,35 @@ class IntegratedVarianceStrategy(UncertaintyStrategy):
     def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
         available = list(_check_k(pool, k))
         seed = int(rng.integers(2**31 - 1))
-        stacked = np.concatenate([pool.points, pool.eval_grid])
+        stacked = np.concatenate([pool.points, pool.target])
         samples = FunctionSamples.from_model(model, stacked, pool.output_scale, self.n_samples, seed)
         cand = FunctionSamples(samples.phi[: len(pool.points)], samples.aleatoric[: len(pool.points)])
-        grid_phi = samples.phi[len(pool.points) :]  # (G, O, S)
-        m = np.einsum("gos,got->st", grid_phi, grid_phi)
+        m = _target_moment(samples.phi[len(pool.points) :], pool.target_weights)
         weights = pool.weights * self.fantasy_weight
         precisions = {c: cand.precision(np.flatnonzero(pool.owner == c), weights) for c in available}
         cov = np.eye(cand.n_samples)
         picks: list[int] = []
         for _ in range(k):
             before = np.trace(cov @ m)
-            gains = [before - np.trace(_condition(cov, precisions[c]) @ m) for c in available]
-            pick = available.pop(int(np.argmax(gains)))
+            gains = np.array([before - np.trace(_condition(cov, precisions[c]) @ m) for c in available])
+            costs = None if pool.costs is None else pool.costs[available]
+            pick = available.pop(int(np.argmax(self.per_second(gains, costs))))
             picks.append(int(pick))
             cov = _condition(cov, precisions[pick])
         return picks
 
-    def grid_variance(self, model: Any, pool: Pool, seed: int = 0) -> float:
-        """Integrated epistemic variance over the evaluation grid (standardised units)."""
-        samples = FunctionSamples.from_model(model, pool.eval_grid, pool.output_scale, self.n_samples, seed)
-        return float(samples.epistemic().sum())
+    def target_variance(self, model: Any, pool: Pool, seed: int = 0) -> float:
+        """Integrated epistemic variance over the target (standardised units, weighted)."""
+        samples = FunctionSamples.from_model(model, pool.target, pool.output_scale, self.n_samples, seed)
+        return float(np.trace(_target_moment(samples.phi, pool.target_weights)))
+
+
+def _target_moment(phi: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
+    """M = sum over target points g (weight w_g) and outputs of phi phi^T, an S x S matrix."""
+    if weights is None:
+        return np.einsum("gos,got->st", phi, phi)
+    return np.einsum("gos,g,got->st", phi, weights, phi)
+
 
 
 class OracleErrorStrategy(Strategy):

@@ -1,13 +1,21 @@
-"""The active-learning outer loop: fit, evaluate, select, collect, checkpoint, repeat.
+"""The active-learning outer loop: fit, evaluate, propose, collect, checkpoint, repeat.
 
 One campaign = one config, one strategy, one seed. Every strategy shares the initial design, the
 budget, the candidate pool, the test set and the training recipe; only `Strategy.select` differs.
 
-Round r fits a fresh model on the data collected so far (seeded by (seed, r)), evaluates it on the
-fixed test set and logs the metrics at step = number of training samples, then selects and collects
-the next batch. After every round the directory holds a consistent checkpoint (samples.parquet,
-model.pt, state.json, the latter written last as the commit point), so a campaign killed at any
-moment resumes from its last round and ends with the same data and metrics as an uninterrupted run.
+The loop is ask/tell. `propose()` fits the model on everything collected so far (round r, seeded by
+(seed, r)), evaluates it on the fixed test set, logs the metrics at step = number of training rows and
+proposes the next batch; `tell(logs)` takes the logs of that batch. `run()` is that loop with an
+automatic oracle answering (the simulator, a twin of it, or a folder of recorded logs); with the
+external oracle a person drives the proposals and `activelearn campaign ingest` tells.
+
+After every step the directory holds a consistent checkpoint (samples.parquet, model.pt, state.json,
+the latter written last as the commit point), so a campaign killed at any moment resumes from its
+last step and ends with the same data and metrics as an uninterrupted run.
+
+A warm start (`[design] prior`) adds rows that train every round without counting against the budget
+(or, for sim-to-real, a prior model to fine-tune or to learn a residual on); learning curves then start
+at the prior: round 0 is the prior alone when `design.initial` is 0.
 """
 
 from __future__ import annotations
@@ -17,8 +25,8 @@ import hashlib
 import json
 import math
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -31,25 +39,47 @@ from activelearn.data import atomic_write_bytes, read_table, write_table
 from activelearn.errors import ActiveLearnError, InputError
 from activelearn.loop.acquisition import Pool, Strategy, greedy_maximin, make_strategy
 from activelearn.loop.collection import (
+    TARGETS,
     SimulationCache,
     TestSet,
     arrays,
-    build_test_set,
-    noisy_logs,
-    rows_per_maneuver,
+    feature_columns,
     training_rows,
 )
-from activelearn.loop.pool import build_pool, evaluation_grid, pool_maneuvers, test_maneuvers
+from activelearn.loop.oracles import Oracle, make_oracle
+from activelearn.loop.pool import build_pool, evaluation_grid, maneuver_costs, target_points
+from activelearn.loop.prior import PRIOR_FILE, Prior, load_prior, prior_from_rows
+from activelearn.loop.state import (
+    CONFIG_FILE,
+    MODEL_FILE,
+    PRIOR_MODEL_FILE,
+    PROPOSALS_DIR,
+    SAMPLES_FILE,
+    STATE_FILE,
+    CampaignState,
+)
 from activelearn.numerics import uncertainty
-from activelearn.numerics.models import Prediction, build_model, load_model, save_model
+from activelearn.numerics.models import Prediction, ResidualModel, build_model, load_model, save_model
 from activelearn.numerics.surrogate import model_inputs
 from activelearn.numerics.training import fit
 from activelearn.numerics.uncertainty import recalibrate_epistemic
 
-STATE_FILE = "state.json"
-SAMPLES_FILE = "samples.parquet"
-MODEL_FILE = "model.pt"
+__all__ = [
+    "MODEL_FILE",
+    "SAMPLES_FILE",
+    "STATE_FILE",
+    "Campaign",
+    "CampaignInterrupted",
+    "CampaignResult",
+    "CampaignState",
+    "config_hash",
+    "default_directory",
+    "load_campaign_model",
+    "total_rounds",
+]
+
 EVAL_SAMPLES = 64  # posterior draws for test metrics and uncertainty maps
+PROPOSAL_COLUMNS = ("maneuver", "direction", "throttle", "steering", "duration")
 
 Progress = Callable[[dict[str, Any]], None]
 
@@ -62,37 +92,6 @@ def config_hash(cfg: CampaignConfig) -> str:
     """Hash of everything that determines a campaign's data except strategy and seed."""
     payload = cfg.model_dump(mode="json", exclude={"strategy", "seed", "tracking", "output_dir", "name"})
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:16]
-
-
-@dataclass
-class CampaignState:
-    """What a checkpoint records besides the samples and the model."""
-
-    config_hash: str
-    strategy: str
-    seed: int
-    batches: list[list[int]] = field(default_factory=list)  # pool indices collected, batch 0 = initial
-    rounds: list[dict[str, Any]] = field(default_factory=list)  # metrics of each fitted round
-    logged: int = 0  # rounds already written to MLflow
-    model_logged: bool = False
-    run_id: str | None = None
-    finished: bool = False
-    stop_reason: str | None = None
-    wall_seconds: float = 0.0
-
-    @property
-    def taken(self) -> list[int]:
-        """All collected pool indices in collection order."""
-        return [i for batch in self.batches for i in batch]
-
-    def save(self, directory: Path) -> None:
-        """Write the state atomically (the checkpoint's commit point)."""
-        atomic_write_bytes(directory / STATE_FILE, json.dumps(dataclasses.asdict(self), indent=1).encode())
-
-    @classmethod
-    def load(cls, directory: Path) -> CampaignState:
-        """Read a saved state."""
-        return cls(**json.loads((directory / STATE_FILE).read_text()))
 
 
 @dataclass(frozen=True)
@@ -144,71 +143,101 @@ class Campaign:
             n_samples=acq.n_samples,
             fantasy_weight=acq.fantasy_weight,
             penalty_length=acq.penalty_length,
+            cost_aware=acq.cost_aware,
         )
-        self.cache = SimulationCache(cache_dir or Path(cfg.output_dir) / "cache", cfg.simulation)
+        cache_root = Path(cache_dir or Path(cfg.output_dir) / "cache")
+        self.nominal = SimulationCache(cache_root, cfg.simulation)  # prior grids: the nominal simulator
+        self.oracle: Oracle = make_oracle(cfg, cache_root)
         self.tracker = tracker
         self.parent_run_id = parent_run_id
         self.progress = progress or (lambda event: None)
-        self.maneuvers = pool_maneuvers(cfg.pool)
+        self.maneuvers = self.oracle.candidates()
         if len(self.maneuvers) < cfg.design.initial + 1:
             raise InputError(
                 "pool", len(self.maneuvers), "the pool must hold more maneuvers than design.initial"
             )
-        self.rows_per_maneuver = rows_per_maneuver(cfg.pool.duration, cfg.simulation, cfg.data)
-        self._test: TestSet | None = None
+        self.costs = maneuver_costs(cfg, self.maneuvers)
+        self.prior: Prior | None = None
+        self._prior_model: Any | None = None
+        self._model: Any | None = None  # the model of the last fitted round, while in memory
+        self._target: tuple[np.ndarray, np.ndarray] | None = None
+        self._clock = (0.0, time.perf_counter())
         self._truth: dict[str, np.ndarray] | None = None
 
     # ------------------------------------------------------------------ data
 
     @property
     def test_set(self) -> TestSet:
-        """The fixed test set (simulated once per config, then read from the cache)."""
-        if self._test is None:
-            self._test = build_test_set(
-                test_maneuvers(self.cfg.test),
-                self.cache,
-                self.cfg.simulation.noise,
-                self.cfg.data,
-                self.cfg.test.noise_seed,
-            )
-        return self._test
+        """The fixed test set (simulated once per config and cached, or recorded logs)."""
+        return self.oracle.test_set()
 
-    def _collect(self, indices: list[int], batch: int) -> pd.DataFrame:
-        """Simulate (or read from cache) the chosen maneuvers and add this campaign's noise."""
-        chosen = [self.maneuvers[i] for i in indices]
-        clean = self.cache.get(chosen)
-        frames = noisy_logs(clean, chosen, self.cfg.simulation.noise, self.cfg.seed)
+    def _label(self, frames: Sequence[pd.DataFrame], indices: Sequence[int], batch: int) -> pd.DataFrame:
+        """Tag logs with the pool index they answer and the batch they belong to."""
+        tagged = []
         for frame, index in zip(frames, indices, strict=True):
+            frame = frame.copy()
             frame["pool_index"] = index
             frame["batch"] = batch
-        return pd.concat(frames, ignore_index=True)
+            tagged.append(frame)
+        return pd.concat(tagged, ignore_index=True)
 
-    def _training_data(self, samples: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _collect(self, indices: list[int], batch: int) -> pd.DataFrame:
+        """Ask the oracle for the chosen maneuvers (simulated, noised with this campaign's seed)."""
+        chosen = [self.maneuvers[i] for i in indices]
+        return self._label(self.oracle.answer(chosen, self.cfg.seed), indices, batch)
+
+    def _rows(self, samples: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if samples.empty:
+            n_in = len(feature_columns(self.cfg.data))
+            return np.zeros((0, n_in)), np.zeros((0, len(TARGETS))), np.zeros(0, dtype=int)
         rows = pd.concat(
             [training_rows(part, self.cfg.data) for _, part in samples.groupby("pool_index", sort=False)]
         )
         x, y = arrays(rows, self.cfg.data)
         return x, y, rows["pool_index"].to_numpy()
 
-    def pool(self, taken: list[int], model: Any | None = None) -> Pool:
+    def _training_data(self, samples: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Inputs, targets and maneuver ids the model of a round trains on (prior rows included)."""
+        if self.prior is not None and self.prior.trains:
+            samples = pd.concat([self.prior.rows, samples], ignore_index=True)
+        return self._rows(samples)
+
+    def target(self) -> tuple[np.ndarray, np.ndarray]:
+        """Controls (and weights) of the target region (`[target]`, default: the test maneuvers')."""
+        if self._target is None:
+            self._target = target_points(self.cfg, self.maneuvers, self.oracle.test_maneuvers())
+        return self._target
+
+    def pool(self, taken: list[int], model: Any | None = None, affordable: np.ndarray | None = None) -> Pool:
         """The candidate pool with `taken` marked as collected, its points as `model` inputs."""
         mask = np.zeros(len(self.maneuvers), dtype=bool)
         mask[taken] = True
         pool = build_pool(
-            self.cfg, self.maneuvers, mask, self.test_set.scale, self.rows_per_maneuver, self.cfg.seed
+            self.cfg,
+            self.maneuvers,
+            mask,
+            self.test_set.scale,
+            self.target(),
+            self.cfg.seed,
+            affordable=affordable,
+            prior=self.prior.runs if self.prior is not None else (),
         )
         if self.cfg.strategy == "oracle_error":
             pool = dataclasses.replace(pool, **self._pool_truth())
         if model is None or model.n_inputs == pool.points.shape[1]:
             return pool
         return dataclasses.replace(
-            pool, points=model_inputs(model, pool.points), eval_grid=model_inputs(model, pool.eval_grid)
+            pool, points=model_inputs(model, pool.points), target=model_inputs(model, pool.target)
         )
 
     def _pool_truth(self) -> dict[str, np.ndarray]:
         """Noise-free training rows of every candidate, for the diagnostic oracle strategy only."""
         if self._truth is None:
-            clean = self.cache.get(self.maneuvers)
+            clean = self.oracle.truth(self.maneuvers)
+            if clean is None:
+                raise InputError(
+                    "strategy", "oracle_error", f"needs a simulated oracle, not {self.oracle.kind!r}"
+                )
             xs, ys, owner = [], [], []
             for i, frame in enumerate(clean):
                 x, y = arrays(training_rows(frame, self.cfg.data), self.cfg.data)
@@ -224,11 +253,52 @@ class Campaign:
 
     # ------------------------------------------------------------------ model
 
+    def prior_model(self) -> Any | None:
+        """The model a warm start begins from (fine-tune, residual base, or given weights), else None.
+
+        Given weights (`prior.model`) are loaded and checked against [model]; otherwise the model is
+        trained once on the prior rows (seeded by the campaign seed) and kept in the directory.
+        """
+        prior_cfg = self.cfg.design.prior
+        if prior_cfg is None or (prior_cfg.use == "data" and prior_cfg.model is None):
+            return None
+        if self._prior_model is None:
+            stored = self.directory / PRIOR_MODEL_FILE
+            if stored.exists():
+                self._prior_model = load_model(stored)
+            elif prior_cfg.model is not None:
+                self._prior_model = _load_prior_model(prior_cfg.model, self.cfg)
+            else:
+                assert self.prior is not None
+                x, y, groups = self._rows(self.prior.rows)
+                model = build_model(self.cfg.model)
+                fit(model, x, y, self.cfg.training, groups=groups, seed=self.cfg.seed * 10_007 + 0x9210)
+                self._prior_model = model
+        return self._prior_model
+
     def fit_model(self, samples: pd.DataFrame, round_index: int, epistemic_scale: float = 1.0) -> Any:
-        """Train a fresh model on all samples, seeded by (seed, round), with a given epistemic scale."""
+        """Train the model of a round on its data, seeded by (seed, round), with a given epistemic scale.
+
+        A fresh model by default; with a warm-start model, a copy fine-tuned from its weights (and its
+        input/output scalers), or, for use = "residual", a fresh model of the difference from it.
+        """
         x, y, groups = self._training_data(samples)
-        model = build_model(self.cfg.model)
-        fit(model, x, y, self.cfg.training, groups=groups, seed=self.cfg.seed * 10_007 + round_index)
+        seed = self.cfg.seed * 10_007 + round_index
+        base = self.prior_model()
+        use = self.cfg.design.prior.use if self.cfg.design.prior is not None else "data"
+        if base is not None and use == "residual":
+            residual = build_model(self.cfg.model)
+            fit(residual, x, y - base.predict(x, n_samples=EVAL_SAMPLES, seed=0).mean, self.cfg.training,
+                groups=groups, seed=seed)  # fmt: skip
+            model: Any = ResidualModel(base, residual)
+        elif base is not None:
+            model = load_model_copy(base)
+            if len(x):
+                training = self.cfg.training.model_copy(update={"reinit": False})
+                fit(model, x, y, training, groups=groups, seed=seed, keep_scalers=True)
+        else:
+            model = build_model(self.cfg.model)
+            fit(model, x, y, self.cfg.training, groups=groups, seed=seed)
         with torch.no_grad():
             model.epistemic_scale.fill_(epistemic_scale)
         return model
@@ -240,7 +310,7 @@ class Campaign:
         points. Rows with the same controls in one maneuver are averaged (steady maneuvers become one
         nearly noise-free target); the rest keep their aleatoric variance in the likelihood.
         """
-        x, y, pool_index = self._training_data(new_samples)
+        x, y, pool_index = self._rows(new_samples)
         keys = np.column_stack([pool_index, np.round(x[:, :2], 4)])
         _, groups = np.unique(keys, axis=0, return_inverse=True)
         previous = float(model.epistemic_scale)
@@ -269,15 +339,15 @@ class Campaign:
         err = pred.mean - test.y_clean
         metrics = {
             "test_rmse": float(np.sqrt(np.mean((std_pred.mean - clean) ** 2))),
-            "test_rmse_v": float(np.sqrt(np.mean(err[:, 0] ** 2))),
-            "test_rmse_w": float(np.sqrt(np.mean(err[:, 1] ** 2))),
+            "test_rmse_v": float(np.sqrt(np.mean(err[:, 0] ** 2))),  # m/s
+            "test_rmse_w": float(np.sqrt(np.mean(err[:, 1] ** 2))),  # rad/s
             "test_nll": float(uncertainty.gaussian_nll(noisy, std_pred)),
             "test_crps": float(uncertainty.crps(noisy, std_pred)),
             "coverage_95": float(uncertainty.coverage(noisy, std_pred, level=0.95)),
         }
         diag = uncertainty.epistemic_diagnostic(clean, std_pred)
         metrics.update({f"calib_{k}": float(v) for k, v in diag.items() if np.isscalar(v)})
-        _, _, grid = evaluation_grid(self.cfg)
+        _, _, grid = evaluation_grid(self.cfg, self.maneuvers)
         grid_pred = _standardise(
             model.predict(model_inputs(model, grid), n_samples=EVAL_SAMPLES, seed=0), test.scale
         )
@@ -299,26 +369,53 @@ class Campaign:
     def _sim_seconds(self, taken: list[int]) -> float:
         return float(sum(self.maneuvers[i].duration for i in taken))
 
+    def _track_seconds(self, taken: list[int]) -> float:
+        """Seconds of track time spent: durations plus the set-up time of every maneuver."""
+        return float(self.costs[taken].sum()) if taken else 0.0
+
+    def _affordable(self, state: CampaignState) -> np.ndarray | None:
+        """Candidates that still fit the seconds budget (None without one)."""
+        budget = self.cfg.design.max_sim_seconds
+        if budget is None:
+            return None
+        return self.costs <= budget - self._track_seconds(state.taken) + 1e-9
+
     def next_batch_size(self, state: CampaignState) -> tuple[int, str | None]:
         """How many maneuvers the next round may collect, or 0 and the reason to stop."""
         design = self.cfg.design
         n = len(state.taken)
         k = design.per_round
-        if design.max_rounds is not None and len(state.batches) - 1 >= design.max_rounds:
+        # rounds after the initial design (or after the prior alone, without one)
+        if design.max_rounds is not None and len(state.batches) - (design.initial > 0) >= design.max_rounds:
             return 0, "max_rounds"
         if design.max_maneuvers is not None:
             k = min(k, design.max_maneuvers - n)
             if k <= 0:
                 return 0, "max_maneuvers"
-        if design.max_sim_seconds is not None:
-            room = int((design.max_sim_seconds - self._sim_seconds(state.taken)) // self.cfg.pool.duration)
-            k = min(k, room)
+        affordable = self._affordable(state)
+        open_ = np.ones(len(self.maneuvers), dtype=bool)
+        open_[state.taken] = False
+        if affordable is not None:
+            k = min(k, int((affordable & open_).sum()))
             if k <= 0:
                 return 0, "max_sim_seconds"
-        k = min(k, len(self.maneuvers) - n)
+        k = min(k, int(open_.sum()))
         if k <= 0:
             return 0, "pool_exhausted"
         return k, None
+
+    def _within_budget(self, state: CampaignState, picks: list[int]) -> list[int]:
+        """The picks, in pick order, that fit the seconds budget together (later ones wait a round)."""
+        budget = self.cfg.design.max_sim_seconds
+        if budget is None:
+            return picks
+        room = budget - self._track_seconds(state.taken) + 1e-9
+        kept = []
+        for pick in picks:
+            if self.costs[pick] <= room:
+                kept.append(pick)
+                room -= self.costs[pick]
+        return kept
 
     # ------------------------------------------------------------------ checkpoints
 
@@ -342,15 +439,36 @@ class Campaign:
                     str(self.directory),
                     "the checkpoint was made with another config, strategy or seed",
                 )
-            samples = read_table(self.directory / SAMPLES_FILE)
-            # Rows of a batch whose state never committed are dropped; the round is redone identically.
-            samples = samples[samples["batch"] < len(state.batches)].reset_index(drop=True)
+            if state.prior_digest is not None:
+                self.prior = prior_from_rows(
+                    read_table(self.directory / PRIOR_FILE), self.cfg.design.prior.use
+                )  # type: ignore[union-attr]
+            samples = (
+                read_table(self.directory / SAMPLES_FILE)
+                if (self.directory / SAMPLES_FILE).exists()
+                else pd.DataFrame()
+            )
+            if not samples.empty:
+                # Rows of a batch whose state never committed are dropped; the step is redone identically.
+                samples = samples[samples["batch"] < len(state.batches)].reset_index(drop=True)
             return state, samples
-        return CampaignState(expected, self.cfg.strategy, self.cfg.seed), pd.DataFrame()
-
-    def _checkpoint(self, state: CampaignState, samples: pd.DataFrame, model: Any | None) -> None:
+        # A new campaign: everything is checked before the directory is created.
+        self.prior = load_prior(self.cfg, self.nominal)
+        self.prior_model()
+        state = CampaignState(expected, self.cfg.strategy, self.cfg.seed)
         self.directory.mkdir(parents=True, exist_ok=True)
-        write_table(samples, self.directory / SAMPLES_FILE)
+        atomic_write_bytes(self.directory / CONFIG_FILE, self.cfg.model_dump_json(indent=1).encode())
+        if self.prior is not None:
+            write_table(self.prior.rows, self.directory / PRIOR_FILE)
+            state.prior_digest = self.prior.digest
+        if self._prior_model is not None:
+            save_model(self._prior_model, self.directory / PRIOR_MODEL_FILE)
+        return state, pd.DataFrame()
+
+    def _checkpoint(self, state: CampaignState, samples: pd.DataFrame | None, model: Any | None) -> None:
+        self.directory.mkdir(parents=True, exist_ok=True)
+        if samples is not None and not samples.empty:
+            write_table(samples, self.directory / SAMPLES_FILE)
         if model is not None:
             save_model(model, self.directory / MODEL_FILE)
         state.save(self.directory)  # last: the commit point
@@ -367,7 +485,12 @@ class Campaign:
             resume_run_id=state.run_id,
             tags={"strategy": self.cfg.strategy, "seed": str(self.cfg.seed), "config": self.cfg.name},
         )
-        self.tracker.log_params(state.run_id, self.cfg.model_dump(mode="json"))
+        params: dict[str, Any] = self.cfg.model_dump(mode="json")
+        params["oracle_info"] = self.oracle.params()
+        if self.prior is not None:
+            params["prior_info"] = {"maneuvers": len(self.prior.runs), "rows": len(self.prior.rows),
+                                    "digest": self.prior.digest}  # fmt: skip
+        self.tracker.log_params(state.run_id, params)
 
     def _flush_metrics(self, state: CampaignState) -> None:
         if self.tracker is None or state.run_id is None:
@@ -383,7 +506,7 @@ class Campaign:
     def _figure(self, model: Any, state: CampaignState, picks: list[int], round_index: int) -> None:
         from activelearn.plots import epistemic_map  # matplotlib only when figures are drawn
 
-        throttles, steerings, grid = evaluation_grid(self.cfg)
+        throttles, steerings, grid = evaluation_grid(self.cfg, self.maneuvers)
         pred = _standardise(
             model.predict(model_inputs(model, grid), n_samples=EVAL_SAMPLES, seed=0), self.test_set.scale
         )
@@ -394,6 +517,7 @@ class Campaign:
             std,
             taken=[self.maneuvers[i] for i in state.taken],
             picks=[self.maneuvers[i] for i in picks],
+            prior=list(self.prior.runs) if self.prior is not None else (),
             title=f"{self.cfg.strategy}, seed {self.cfg.seed}, round {round_index}",
         )
         path = self.directory / "figures" / f"epistemic_round{round_index:02d}.png"
@@ -402,81 +526,202 @@ class Campaign:
         fig.savefig(tmp, dpi=90)
         tmp.replace(path)
 
-    # ------------------------------------------------------------------ the loop
+    # ------------------------------------------------------------------ the steps
 
-    def run(self, *, resume: bool = False, figures: bool = True, log_model: bool = True) -> CampaignResult:
-        """Run (or resume) the campaign to its budget or stop rule."""
-        state, samples = self._load(resume)
-        self._start_tracking(state)
-        started = time.perf_counter()
-        base_wall = state.wall_seconds
-        model = None
+    def _propose(self, state: CampaignState, samples: pd.DataFrame, figures: bool) -> None:
+        """Fit and evaluate the round's model (or take the initial design), then propose the next batch."""
+        if not state.batches and self.cfg.design.initial > 0:
+            initial = greedy_maximin(self.pool([]), self.cfg.design.initial, _rng(self.cfg.seed, 0x1D))
+            state.pending = initial
+            self._checkpoint(state, None, None)
+            return
+        round_index = len(state.rounds)
+        self.progress({"event": "fit", "round": round_index, "n_maneuvers": len(state.taken)})
+        scale = self._applied_scale(state)
+        model = self.fit_model(samples, round_index, scale)
+        x, _, _ = self._training_data(samples)
+        metrics: dict[str, Any] = {"round": round_index, "epistemic_scale": scale, **self.evaluate(model)}
+        metrics.update(
+            n_samples=len(x),
+            n_maneuvers=len(state.taken),
+            sim_seconds=self._sim_seconds(state.taken),
+            track_seconds=self._track_seconds(state.taken),
+        )
+        metrics["wall_seconds"] = state.wall_seconds = self._wall()
+        k, reason = self.next_batch_size(state)
+        pool = self.pool(state.taken, model, self._affordable(state))
+        if reason is None and self.cfg.design.stop_epistemic_std is not None:
+            metrics["pool_epistemic_std_max"] = self.pool_epistemic_max(model, pool)
+            if metrics["pool_epistemic_std_max"] < self.cfg.design.stop_epistemic_std:
+                reason = "stop_epistemic_std"
+        picks: list[int] = []
+        if reason is None:
+            picks = self.strategy.select(model, pool, k, _rng(self.cfg.seed, round_index, 0x5E1))
+            picks = self._within_budget(state, picks)
+        if figures:
+            self._figure(model, state, picks, round_index)
+        state.rounds.append(metrics)
+        if picks:
+            state.pending = picks
+        else:
+            state.finished, state.stop_reason = True, reason or "max_sim_seconds"
+        self._model = model
+        self._checkpoint(state, None, model)
+        self._flush_metrics(state)
+        self.progress({"event": "round", **metrics, "picks": [self.maneuvers[i].name for i in picks]})
+
+    def _receive(self, state: CampaignState, samples: pd.DataFrame, new: pd.DataFrame) -> pd.DataFrame:
+        """Append the logs of the pending batch; measure the prequential scale on them if asked."""
+        assert state.pending is not None
+        if self.cfg.design.recalibrate == "prequential" and state.rounds:
+            model = self._model or load_model(self.directory / MODEL_FILE)
+            if model.has_epistemic:
+                scale = self.prequential_scale(model, new)
+                state.rounds[-1]["prequential_scale"] = scale
+                if self.tracker is not None and state.run_id is not None:
+                    step = int(state.rounds[-1]["n_samples"])
+                    self.tracker.log_metrics(state.run_id, {"prequential_scale": scale}, step=step)
+        samples = pd.concat([samples, new], ignore_index=True)
+        state.batches.append(state.pending)
+        state.pending = None
+        state.staged = {}
+        self._checkpoint(state, samples, None)
+        return samples
+
+    def _finish(self, state: CampaignState, log_model: bool) -> None:
+        if self.tracker is None or state.run_id is None:
+            return
+        if log_model and not state.model_logged:
+            self.tracker.log_model(state.run_id, self._model or load_model(self.directory / MODEL_FILE))
+            state.model_logged = True
+            state.save(self.directory)
+        self.tracker.end_run(state.run_id, "FINISHED")
+
+    def _guarded(self, state: CampaignState, step: Callable[[], Any]) -> Any:
+        """Run a step; Ctrl-C marks the MLflow run KILLED, any other error FAILED."""
         try:
-            if state.rounds:  # a resumed run may hold rounds that never reached MLflow
-                self._flush_metrics(state)
-            if not state.batches:
-                initial = greedy_maximin(self.pool([]), self.cfg.design.initial, _rng(self.cfg.seed, 0x1D))
-                samples = self._collect(initial, 0)
-                state.batches.append(initial)
-                self._checkpoint(state, samples, None)
-            while not state.finished:
-                round_index = len(state.rounds)
-                self.progress({"event": "fit", "round": round_index, "n_maneuvers": len(state.taken)})
-                scale = self._applied_scale(state)
-                model = self.fit_model(samples, round_index, scale)
-                x, _, _ = self._training_data(samples)
-                metrics: dict[str, Any] = {
-                    "round": round_index,
-                    "epistemic_scale": scale,
-                    **self.evaluate(model),
-                }
-                metrics.update(
-                    n_samples=len(x),
-                    n_maneuvers=len(state.taken),
-                    sim_seconds=self._sim_seconds(state.taken),
-                )
-                pool = self.pool(state.taken, model)
-                k, reason = self.next_batch_size(state)
-                if reason is None and self.cfg.design.stop_epistemic_std is not None:
-                    metrics["pool_epistemic_std_max"] = self.pool_epistemic_max(model, pool)
-                    if metrics["pool_epistemic_std_max"] < self.cfg.design.stop_epistemic_std:
-                        reason = "stop_epistemic_std"
-                picks: list[int] = []
-                if reason is None:
-                    picks = self.strategy.select(model, pool, k, _rng(self.cfg.seed, round_index, 0x5E1))
-                if figures:
-                    self._figure(model, state, picks, round_index)
-                if picks:
-                    new = self._collect(picks, len(state.batches))
-                    if self.cfg.design.recalibrate == "prequential" and model.has_epistemic:
-                        metrics["prequential_scale"] = self.prequential_scale(model, new)
-                    samples = pd.concat([samples, new], ignore_index=True)
-                    state.batches.append(picks)
-                metrics["wall_seconds"] = base_wall + time.perf_counter() - started
-                state.wall_seconds = metrics["wall_seconds"]
-                state.rounds.append(metrics)
-                if reason is not None:
-                    state.finished, state.stop_reason = True, reason
-                self._checkpoint(state, samples, model)
-                self._flush_metrics(state)
-                self.progress({"event": "round", **metrics, "picks": [self.maneuvers[i].name for i in picks]})
+            return step()
         except KeyboardInterrupt:
             if self.tracker is not None and state.run_id is not None:
                 self.tracker.end_run(state.run_id, "KILLED")
             raise CampaignInterrupted(
-                f"interrupted; {self.directory} holds the last finished round: rerun with --resume"
+                f"interrupted; {self.directory} holds the last finished step: rerun with --resume"
             ) from None
         except BaseException:
             if self.tracker is not None and state.run_id is not None:
                 self.tracker.end_run(state.run_id, "FAILED")
             raise
-        if self.tracker is not None and state.run_id is not None:
-            if log_model and not state.model_logged:
-                self.tracker.log_model(state.run_id, model or load_model(self.directory / MODEL_FILE))
-                state.model_logged = True
-                state.save(self.directory)
-            self.tracker.end_run(state.run_id, "FINISHED")
+
+    # ------------------------------------------------------------------ the loop
+
+    def _open(self, resume: bool) -> tuple[CampaignState, pd.DataFrame]:
+        """Load or create the directory's state, start the clock and the MLflow run."""
+        state, samples = self._load(resume)
+        self._clock = (state.wall_seconds, time.perf_counter())
+        self._start_tracking(state)
+        if state.rounds:  # a resumed run may hold rounds that never reached MLflow
+            self._flush_metrics(state)
+        return state, samples
+
+    def _wall(self) -> float:
+        """Wall seconds spent on this campaign, over every command that worked on it."""
+        base, started = self._clock
+        return base + time.perf_counter() - started
+
+    def run(self, *, resume: bool = False, figures: bool = True, log_model: bool = True) -> CampaignResult:
+        """Run (or resume) the campaign to its budget or stop rule, the oracle answering every batch."""
+        if not self.oracle.automatic:
+            raise InputError(
+                "oracle.kind", self.cfg.oracle.kind,
+                "a person drives these maneuvers: use `activelearn campaign propose` and `campaign ingest`",
+            )  # fmt: skip
+        state, samples = self._open(resume)
+
+        def loop() -> None:
+            nonlocal samples
+            while not state.finished:
+                if state.pending is None:
+                    self._propose(state, samples, figures)
+                else:
+                    new = self._collect(state.pending, len(state.batches))
+                    samples = self._receive(state, samples, new)
+
+        self._guarded(state, loop)
+        self._finish(state, log_model)
         return CampaignResult(self.directory, state)
+
+    def propose(self, *, resume: bool = False, figures: bool = True) -> list[Any]:
+        """Ask: the maneuvers to drive next (written to proposals/round-NNN.csv); [] once finished."""
+        state, samples = self._open(resume)
+        if state.pending is None and not state.finished:
+            self._guarded(state, lambda: self._propose(state, samples, figures))
+        if state.finished:
+            self._finish(state, log_model=True)
+            return []
+        assert state.pending is not None
+        self._write_proposals(state)
+        return [self.maneuvers[i] for i in state.pending]
+
+    def proposal_path(self, state: CampaignState) -> Path:
+        """proposals/round-NNN.csv of the pending batch (NNN = batches collected so far)."""
+        return self.directory / PROPOSALS_DIR / f"round-{len(state.batches):03d}.csv"
+
+    def _write_proposals(self, state: CampaignState) -> Path:
+        assert state.pending is not None
+        rows = [
+            {"maneuver": m.kind, "direction": m.direction, "throttle": m.throttle, "steering": m.steering,
+             "duration": m.duration}
+            for m in (self.maneuvers[i] for i in state.pending)
+        ]  # fmt: skip
+        path = self.proposal_path(state)
+        atomic_write_bytes(
+            path, pd.DataFrame(rows, columns=list(PROPOSAL_COLUMNS)).to_csv(index=False).encode()
+        )
+        return path
+
+    def tell(self, logs: Sequence[pd.DataFrame], *, figures: bool = True) -> list[Any]:
+        """Tell: logs of the pending batch, one per proposal, in proposal order; then propose the next.
+
+        `activelearn campaign ingest` matches logs to proposals first (see `activelearn.loop.asktell`);
+        this is the plain Python form. Returns the next proposals ([] once finished).
+        """
+        if not (self.directory / STATE_FILE).exists():
+            raise InputError("directory", str(self.directory), "holds no campaign: call propose() first")
+        state, samples = self._open(resume=True)
+        if state.pending is None:
+            raise InputError("logs", len(logs), "no batch is pending: call propose() first")
+        if len(logs) != len(state.pending):
+            raise InputError("logs", len(logs), f"the pending batch has {len(state.pending)} maneuvers")
+        new = self._label(logs, state.pending, len(state.batches))
+        samples = self._guarded(state, lambda: self._receive(state, samples, new))
+        return self.propose(resume=True, figures=figures)
+
+
+def _load_prior_model(spec: str, cfg: CampaignConfig) -> Any:
+    """Weights to start from: a model.pt or a campaign directory; they must fit the config's inputs."""
+    path = Path(spec)
+    if path.is_dir():
+        path = path / MODEL_FILE
+    if not path.is_file():
+        raise InputError("design.prior.model", spec, "no such model file or campaign directory")
+    try:
+        model = load_model(path)
+    except Exception as exc:
+        raise InputError("design.prior.model", spec, f"cannot read the model: {exc}") from None
+    if model.n_inputs != cfg.model.n_inputs or model.config.n_outputs != cfg.model.n_outputs:
+        raise InputError(
+            "design.prior.model", spec,
+            f"has {model.n_inputs} inputs / {model.config.n_outputs} outputs, the config "
+            f"{cfg.model.n_inputs} / {cfg.model.n_outputs} (data.inputs = {cfg.data.inputs!r})",
+        )  # fmt: skip
+    return model
+
+
+def load_model_copy(model: Any) -> Any:
+    """An independent copy of a model (same class, config and weights), to fine-tune."""
+    copy = build_model(model.config)
+    copy.load_state_dict(model.state_dict())
+    return copy
 
 
 def load_campaign_model(directory: str | Path) -> Any:
@@ -493,7 +738,8 @@ def total_rounds(cfg: CampaignConfig, pool_size: int) -> int:
     """Upper bound on the number of fitted rounds (for progress bars)."""
     n = min(cfg.design.max_maneuvers or pool_size, pool_size)
     if cfg.design.max_sim_seconds is not None:
-        n = min(n, int(cfg.design.max_sim_seconds // cfg.pool.duration))
+        shortest = min([cfg.pool.duration, *cfg.pool.durations.values()]) + cfg.design.setup_seconds
+        n = min(n, int(cfg.design.max_sim_seconds // shortest))
     rounds = math.ceil(max(0, n - cfg.design.initial) / cfg.design.per_round) + 1
     if cfg.design.max_rounds is not None:
         rounds = min(rounds, cfg.design.max_rounds + 1)

@@ -14,6 +14,7 @@ import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -38,11 +39,19 @@ def simulator_fingerprint() -> str:
 
 
 class SimulationCache:
-    """Noise-free maneuver logs, simulated on demand and kept as one Parquet file per maneuver."""
+    """Noise-free maneuver logs, simulated on demand and kept as one Parquet file per maneuver.
 
-    def __init__(self, root: str | Path, settings: SimulationConfig) -> None:
+    `vehicle` swaps in an edited model (a twin); `variant` names it in the cache path, so the logs of
+    different vehicles never mix.
+    """
+
+    def __init__(
+        self, root: str | Path, settings: SimulationConfig, *, vehicle: Any = None, variant: str = ""
+    ) -> None:
         self.settings = settings
-        self.root = Path(root) / f"sim-{simulator_fingerprint()}-{settings.rate_hz:g}hz"
+        self.vehicle = vehicle
+        suffix = f"-{variant}" if variant else ""
+        self.root = Path(root) / f"sim-{simulator_fingerprint()}{suffix}-{settings.rate_hz:g}hz"
 
     def path(self, maneuver: Maneuver) -> Path:
         """Cache file of one maneuver."""
@@ -63,6 +72,7 @@ class SimulationCache:
                 noise=None,
                 threads=self.settings.threads,
                 progress=progress,
+                vehicle=self.vehicle,
             )
             self.root.mkdir(parents=True, exist_ok=True)
             for m, (_, part) in zip(todo, frame.groupby("run_id", sort=False), strict=True):
@@ -134,6 +144,24 @@ class TestSet:
     y_noisy: np.ndarray
     scale: np.ndarray
     groups: np.ndarray
+
+
+def test_set_from_logs(tables: Sequence[pd.DataFrame], data: DataConfig) -> TestSet:
+    """A test set of recorded logs: their measured rates are the only truth there is (noise included)."""
+    xs, ys, groups = [], [], []
+    for i, table in enumerate(tables):
+        rows = training_rows(table, data)
+        x, y = arrays(rows, data)
+        xs.append(x)
+        ys.append(y)
+        groups.append(np.full(len(x), i))
+    y_all = np.concatenate(ys)
+    scale = y_all.std(axis=0)
+    scale = np.where(scale > 1e-9, scale, 1.0)
+    return TestSet(np.concatenate(xs), y_all, y_all, scale, np.concatenate(groups))
+
+
+test_set_from_logs.__test__ = False  # type: ignore[attr-defined]  # not a pytest test
 
 
 def build_test_set(

@@ -1,14 +1,16 @@
-"""Candidate pools, the evaluation grid and the fixed test set, built from a campaign config."""
+"""Candidate pools, the evaluation grid, the target region and the fixed test set, from a campaign config."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 from scipy.stats import qmc
 
 from activelearn.config import MAX_STEERING, CampaignConfig, PoolConfig, TestSetConfig
 from activelearn.loop.acquisition import Pool
+from activelearn.loop.collection import rows_per_maneuver
 from simulator import Maneuver, nominal_controls
 
 KIND_ORDER: tuple[str, ...] = ("straight", "skidpad", "fishhook", "slalom", "eight")
@@ -28,13 +30,17 @@ def _operating_points(cfg: PoolConfig) -> list[tuple[float, float]]:
 
 
 def _expand(
-    kinds: Sequence[str], directions: Sequence[str], points: Sequence[tuple[float, float]], duration: float
+    kinds: Sequence[str],
+    directions: Sequence[str],
+    points: Sequence[tuple[float, float]],
+    duration: float | Callable[[str], float],
 ) -> list[Maneuver]:
     """All maneuvers of the given kinds over the operating points, without duplicates.
 
     Straight maneuvers have no steering and no direction; fishhooks ramp to full lock whatever the
-    grid says, so they vary in throttle and direction only.
+    grid says, so they vary in throttle and direction only. `duration` is seconds, or seconds per kind.
     """
+    seconds = duration if callable(duration) else (lambda kind: float(duration))
     seen: set[str] = set()
     maneuvers: list[Maneuver] = []
     for kind in sorted(kinds, key=KIND_ORDER.index):
@@ -43,11 +49,11 @@ def _expand(
                 continue
             for direction in directions:
                 if kind == "straight":
-                    m = Maneuver(kind, throttle, 0.0, "ccw", duration)
+                    m = Maneuver(kind, throttle, 0.0, "ccw", seconds(kind))
                 elif kind == "fishhook":
-                    m = Maneuver(kind, throttle, MAX_STEERING, direction, duration)
+                    m = Maneuver(kind, throttle, MAX_STEERING, direction, seconds(kind))
                 else:
-                    m = Maneuver(kind, throttle, steering, direction, duration)
+                    m = Maneuver(kind, throttle, steering, direction, seconds(kind))
                 if m.name not in seen:
                     seen.add(m.name)
                     maneuvers.append(m)
@@ -56,76 +62,186 @@ def _expand(
 
 def pool_maneuvers(cfg: PoolConfig) -> list[Maneuver]:
     """The candidate maneuvers of a pool config, in a stable order (kind, throttle, steering, direction)."""
-    return _expand(cfg.kinds, cfg.directions, _operating_points(cfg), cfg.duration)
+    return _expand(cfg.kinds, cfg.directions, _operating_points(cfg), cfg.duration_of)
+
+
+def grid_maneuvers(
+    kinds: Sequence[str],
+    directions: Sequence[str],
+    throttles: Sequence[float],
+    steerings: Sequence[float],
+    duration: float,
+) -> list[Maneuver]:
+    """The maneuvers of a kinds x directions x throttles x steerings grid (test sets, prior grids)."""
+    points = [(float(t), float(s)) for t in throttles for s in steerings]
+    return _expand(kinds, directions, points, duration)
 
 
 def test_maneuvers(cfg: TestSetConfig) -> list[Maneuver]:
     """The fixed test maneuvers: a grid independent of every campaign seed."""
-    points = [(float(t), float(s)) for t in cfg.throttles for s in cfg.steerings]
-    return _expand(cfg.kinds, cfg.directions, points, cfg.duration)
+    return grid_maneuvers(cfg.kinds, cfg.directions, cfg.throttles, cfg.steerings, cfg.duration)
 
 
 test_maneuvers.__test__ = False  # type: ignore[attr-defined]  # not a pytest test
 
 
-def evaluation_grid(cfg: CampaignConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def maneuver_controls(maneuver: Any, rate_hz: float = 30.0) -> np.ndarray:
+    """(T, 2) throttle and signed steering a candidate applies: recorded if it has them, else nominal."""
+    recorded = getattr(maneuver, "recorded_controls", None)
+    return (
+        np.asarray(recorded, dtype=np.float64)
+        if recorded is not None
+        else nominal_controls(maneuver, rate_hz)
+    )
+
+
+def evaluation_grid(
+    cfg: CampaignConfig, maneuvers: Sequence[Any] | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Throttle values, signed steering values and the (T*S, 2) grid of controls spanning the pool."""
-    controls = np.concatenate([nominal_controls(m, 1.0) for m in pool_maneuvers(cfg.pool)])
+    maneuvers = pool_maneuvers(cfg.pool) if maneuvers is None else maneuvers
+    controls = np.concatenate([maneuver_controls(m, 1.0) for m in maneuvers])
     t_low, t_high = float(controls[:, 0].min()), float(controls[:, 0].max())
     s_max = float(np.abs(controls[:, 1]).max()) or MAX_STEERING
-    s_low = -s_max if "cw" in cfg.pool.directions else 0.0
-    s_high = s_max if "ccw" in cfg.pool.directions or "straight" in cfg.pool.kinds else 0.0
+    s_low = -s_max if (controls[:, 1] < 0).any() or "cw" in cfg.pool.directions else 0.0
+    s_high = s_max if (controls[:, 1] >= 0).any() else 0.0
     throttles = np.linspace(t_low, t_high, cfg.acquisition.grid_throttles)
     steerings = np.linspace(s_low, s_high, cfg.acquisition.grid_steerings)
     tt, ss = np.meshgrid(throttles, steerings, indexing="ij")
     return throttles, steerings, np.column_stack([tt.ravel(), ss.ravel()])
 
 
-def operating_features(maneuvers: Sequence[Maneuver]) -> np.ndarray:
-    """(n, 2) operating point (throttle, signed steering) of each maneuver, scaled to [0, 1]."""
-    raw = np.array([[m.throttle, m.sign * m.steering if m.kind != "straight" else 0.0] for m in maneuvers])
-    low, high = raw.min(axis=0), raw.max(axis=0)
+def target_points(
+    cfg: CampaignConfig, pool: Sequence[Any], test: Sequence[Any]
+) -> tuple[np.ndarray, np.ndarray]:
+    """(G, 2) controls where the model must be good (`[target]`) and the weight of each point.
+
+    "test": the distinct controls the test maneuvers apply, weighted by how many log steps hold them
+    (a skidpad is one point held for its whole duration, a slalom sweeps); "pool": the evaluation grid
+    spanning the pool; "box": a grid over the configured region. At most `max_points` points are kept
+    (a seeded, weight-proportional subset), so the integral's cost stays bounded.
+    """
+    target = cfg.target
+    if target.region == "pool":
+        _, _, grid = evaluation_grid(cfg, pool)
+        return grid, np.ones(len(grid))
+    if target.region == "box":
+        assert target.throttle_range is not None and target.steering_range is not None
+        throttles = np.linspace(*target.throttle_range, target.grid_size)
+        magnitudes = np.linspace(*target.steering_range, target.grid_size)
+        signs = [1.0 if d == "ccw" else -1.0 for d in target.directions]
+        steerings = np.unique(np.concatenate([s * magnitudes for s in signs]))
+        tt, ss = np.meshgrid(throttles, steerings, indexing="ij")
+        grid = np.column_stack([tt.ravel(), ss.ravel()])
+        return grid, np.ones(len(grid))
+    controls = np.concatenate([maneuver_controls(m, cfg.simulation.rate_hz) for m in test])
+    points, counts = np.unique(np.round(controls, 3), axis=0, return_counts=True)
+    weights = counts / counts.sum() * len(points)
+    if len(points) > target.max_points:
+        keep = np.random.default_rng(0).choice(
+            len(points), target.max_points, replace=False, p=counts / counts.sum()
+        )
+        keep.sort()
+        points, weights = points[keep], np.full(target.max_points, 1.0)
+    return points, weights
+
+
+def operating_bounds(maneuvers: Sequence[Any]) -> tuple[np.ndarray, np.ndarray]:
+    """Lowest and highest (throttle, signed steering) operating point of a set of candidates."""
+    raw = np.array([operating_point(m) for m in maneuvers])
+    return raw.min(axis=0), raw.max(axis=0)
+
+
+def operating_point(maneuver: Any) -> tuple[float, float]:
+    """(throttle, signed steering amplitude) of a candidate; a straight has no steering."""
+    return float(maneuver.throttle), (
+        maneuver.sign * maneuver.steering if maneuver.kind != "straight" else 0.0
+    )
+
+
+def operating_features(
+    maneuvers: Sequence[Any], bounds: tuple[np.ndarray, np.ndarray] | None = None
+) -> np.ndarray:
+    """(n, 2) operating point (throttle, signed steering) of each maneuver, scaled to [0, 1] by `bounds`.
+
+    `bounds` default to the maneuvers' own; pass the pool's to scale other maneuvers (a prior) alike.
+    """
+    raw = np.array([operating_point(m) for m in maneuvers], dtype=np.float64).reshape(-1, 2)
+    low, high = bounds if bounds is not None else operating_bounds(maneuvers)
     span = np.where(high > low, high - low, 1.0)
     return (raw - low) / span
 
 
-def scoring_points(
-    maneuver: Maneuver, n_points: int, rows_per_maneuver: float
-) -> tuple[np.ndarray, np.ndarray]:
+def kind_codes(maneuvers: Sequence[Any]) -> tuple[list[str], np.ndarray]:
+    """Contiguous integer codes of the candidates' kinds (in KIND_ORDER) and the kind names."""
+    names = sorted({m.kind for m in maneuvers}, key=KIND_ORDER.index)
+    return names, np.array([names.index(m.kind) for m in maneuvers])
+
+
+def scoring_points(maneuver: Any, n_points: int, rows_per_maneuver: float) -> tuple[np.ndarray, np.ndarray]:
     """Distinct control points along a maneuver's schedule and how many training rows each stands for."""
-    controls = nominal_controls(maneuver, 30.0)
+    controls = maneuver_controls(maneuver, 30.0)
     index = np.linspace(0, len(controls) - 1, n_points).round().astype(int)
     points, counts = np.unique(np.round(controls[index], 6), axis=0, return_counts=True)
     return points, counts * (rows_per_maneuver / n_points)
 
 
+def maneuver_costs(cfg: CampaignConfig, maneuvers: Sequence[Any]) -> np.ndarray:
+    """Seconds each maneuver costs on the track: its duration plus the per-maneuver set-up time."""
+    return np.array([m.duration + cfg.design.setup_seconds for m in maneuvers], dtype=np.float64)
+
+
 def build_pool(
     cfg: CampaignConfig,
-    maneuvers: Sequence[Maneuver],
+    maneuvers: Sequence[Any],
     taken: np.ndarray,
     output_scale: np.ndarray,
-    rows_per_maneuver: float,
+    target: tuple[np.ndarray, np.ndarray],
     design_seed: int,
+    *,
+    affordable: np.ndarray | None = None,
+    prior: Sequence[Any] = (),
 ) -> Pool:
-    """Assemble the `Pool` strategies select from."""
+    """Assemble the `Pool` strategies select from; `prior` are the maneuvers a warm start holds."""
     points, owner, weights = [], [], []
     for i, m in enumerate(maneuvers):
-        p, w = scoring_points(m, cfg.acquisition.score_points, rows_per_maneuver)
+        rows = rows_per_maneuver(m.duration, cfg.simulation, cfg.data)
+        p, w = scoring_points(m, cfg.acquisition.score_points, rows)
         points.append(p)
         weights.append(w)
         owner.append(np.full(len(p), i))
-    _, _, grid = evaluation_grid(cfg)
-    kind_names = sorted({m.kind for m in maneuvers}, key=KIND_ORDER.index)  # contiguous kind codes
+    bounds = operating_bounds(maneuvers)
+    kind_names, kinds = kind_codes(maneuvers)
+    prior_features = prior_kinds = None
+    if len(prior):
+        prior_features = operating_features(prior, bounds)
+        # a prior kind outside the pool gets its own code (always "another kind"); unknown = -1
+        prior_kinds = np.array(
+            [
+                -1
+                if m.kind not in KIND_ORDER
+                else kind_names.index(m.kind)
+                if m.kind in kind_names
+                else len(kind_names) + KIND_ORDER.index(m.kind)
+                for m in prior
+            ]
+        )
+    target_x, target_w = target
     return Pool(
         maneuvers=tuple(maneuvers),
-        features=operating_features(maneuvers),
-        kinds=np.array([kind_names.index(m.kind) for m in maneuvers]),
+        features=operating_features(maneuvers, bounds),
+        kinds=kinds,
         points=np.concatenate(points),
         owner=np.concatenate(owner),
         weights=np.concatenate(weights),
         taken=np.asarray(taken, dtype=bool),
-        eval_grid=grid,
+        target=np.asarray(target_x, dtype=np.float64),
+        target_weights=np.asarray(target_w, dtype=np.float64),
         output_scale=np.asarray(output_scale, dtype=np.float64),
         design_seed=design_seed,
         kind_distance=cfg.pool.kind_distance,
+        costs=maneuver_costs(cfg, maneuvers),
+        affordable=affordable,
+        prior_features=prior_features,
+        prior_kinds=prior_kinds,
     )

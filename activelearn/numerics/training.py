@@ -274,6 +274,7 @@ def fit(
     groups_val: np.ndarray | None = None,
     seed: int = 0,
     callback: Callback | None = None,
+    keep_scalers: bool = False,
 ) -> History:
     """Train `model` on (x, y) in physical units; return the per-epoch History.
 
@@ -286,7 +287,8 @@ def fit(
     and val_nll / val_rmse when validation data are given; returning True stops training, and
     exceptions (e.g. optuna.TrialPruned) propagate. Same seed and inputs → identical weights; the
     global torch RNG is restored on return. `groups_val` lets `recalibrate="validation"` average
-    validation rows per operating point.
+    validation rows per operating point. `keep_scalers` keeps the model's input/output standardisation
+    (fine-tuning weights learnt under it, with `config.reinit = False`) instead of refitting it to (x, y).
     """
     x, y = _check_xy(model, x, y, "")
     has_val = x_val is not None and y_val is not None
@@ -308,7 +310,7 @@ def fit(
     with intra_op_threads(config.num_threads), torch.random.fork_rng(devices=[]):
         return _fit(
             model, x, y, config, x_val, y_val, groups_val, seed, callback,
-            history, kl_weight, batch, use_compile,
+            history, kl_weight, batch, use_compile, keep_scalers,
         )  # fmt: skip
 
 
@@ -326,6 +328,7 @@ def _fit(
     kl_weight: float,
     batch: int,
     use_compile: bool,
+    keep_scalers: bool,
 ) -> History:
     """The training loop of `fit` (arguments validated, RNG forked, threads set)."""
     has_val = x_val is not None and y_val is not None
@@ -336,7 +339,8 @@ def _fit(
         model.reset_parameters(gen)
         with torch.no_grad():
             model.epistemic_scale.fill_(1.0)
-    model.set_scalers(x, y)
+    if not keep_scalers:
+        model.set_scalers(x, y)
     xs = ((torch.from_numpy(x) - model.x_mean) / model.x_std).contiguous()
     ys = ((torch.from_numpy(y) - model.y_mean) / model.y_std).contiguous()
     stepper = _Stepper(model, config, kl_weight, batch, use_compile)

@@ -14,6 +14,7 @@ from activelearn.numerics.models.networks import (
     build_model,
 )
 from activelearn.numerics.models.persistence import load_model, save_model
+from activelearn.numerics.models.residual import ResidualModel
 
 __all__ = [
     "BNN",
@@ -27,6 +28,7 @@ __all__ = [
     "LayerSpec",
     "Model",
     "Prediction",
+    "ResidualModel",
     "SampledModel",
     "StackModel",
     "build_model",

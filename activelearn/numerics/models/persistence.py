@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -12,20 +13,38 @@ from activelearn.config import ModelConfig
 from activelearn.errors import DataFormatError
 from activelearn.numerics.models.base import Model
 from activelearn.numerics.models.networks import build_model
+from activelearn.numerics.models.residual import ResidualModel
 
 FORMAT_VERSION = 1
 
 
-def save_model(model: Model, path: str | Path) -> None:
-    """Write the model's config, scalers, epistemic scale and weights to `path` atomically."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    payload = {
-        "format_version": FORMAT_VERSION,
+def _payload(model: Model | ResidualModel) -> dict[str, Any]:
+    if isinstance(model, ResidualModel):
+        return {"kind": model.kind, "base": _payload(model.base), "residual": _payload(model.residual)}
+    return {
         "kind": model.kind,
         "config": model.config.model_dump(mode="json"),
         "state_dict": {k: v.detach().clone() for k, v in model.state_dict().items()},
     }
+
+
+def _rebuild(payload: dict[str, Any]) -> Model | ResidualModel:
+    if payload.get("kind") == ResidualModel.kind:
+        return ResidualModel(_rebuild(payload["base"]), _rebuild(payload["residual"]))  # type: ignore[arg-type]
+    model = build_model(ModelConfig(**payload["config"]))  # weights replaced below
+    model.load_state_dict(payload["state_dict"])
+    model.eval()
+    return model
+
+
+def save_model(model: Model | ResidualModel, path: str | Path) -> None:
+    """Write the model's config, scalers, epistemic scale and weights to `path` atomically.
+
+    A `ResidualModel` is written as its base and its residual, each in the same form.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {"format_version": FORMAT_VERSION, **_payload(model)}
     # Write to a temporary name in the same directory, then rename: readers never see half a file.
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     os.close(fd)
@@ -37,7 +56,7 @@ def save_model(model: Model, path: str | Path) -> None:
         raise
 
 
-def load_model(path: str | Path) -> Model:
+def load_model(path: str | Path) -> Model | ResidualModel:
     """Rebuild a model written by `save_model`."""
     try:
         payload = torch.load(Path(path), map_location="cpu", weights_only=True)
@@ -47,7 +66,4 @@ def load_model(path: str | Path) -> Model:
         raise DataFormatError(f"{path}: not a saved activelearn model ({exc})") from exc
     if not isinstance(payload, dict) or payload.get("format_version") != FORMAT_VERSION:
         raise DataFormatError(f"{path}: unknown model file format")
-    model = build_model(ModelConfig(**payload["config"]))  # weights replaced below
-    model.load_state_dict(payload["state_dict"])
-    model.eval()
-    return model
+    return _rebuild(payload)
