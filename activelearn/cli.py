@@ -204,11 +204,112 @@ def _register_campaign(sub: argparse._SubParsersAction) -> None:
     campaign_sub = p.add_subparsers(dest="campaign_command", required=True, parser_class=_Parser)
     run = campaign_sub.add_parser("run", help="run (or resume) a campaign")
     _add_config_options(run)
-    run.add_argument("--strategy", default=None, metavar="S",
-                     help="acquisition strategy (default: the config's)")
-    run.add_argument("--seed", type=int, default=None, metavar="N",
-                     help="campaign seed (default: the config's)")
+    _add_strategy_seed(run)
     run.set_defaults(handler=_campaign_run)
+
+    propose = campaign_sub.add_parser(
+        "propose", help="start a campaign a person drives: write the first maneuvers to drive",
+        description="Ask: run the initial design (or the prior's model) and write "
+                    "DIR/proposals/round-NNN.csv with the maneuvers to drive (the values `activelearn "
+                    "simulate` takes).",
+    )  # fmt: skip
+    _add_config_options(propose)
+    _add_strategy_seed(propose)
+    propose.set_defaults(handler=_campaign_propose)
+
+    ingest = campaign_sub.add_parser(
+        "ingest", help="tell a campaign the logs of its proposals; retrain and propose the next batch",
+        description="Tell: match each log to the proposal it answers (by its recorded controls), append the "
+                    "samples, retrain, log the round to MLflow and write the next proposals.",
+    )  # fmt: skip
+    ingest.add_argument("directory", metavar="DIR", help="the campaign directory `campaign propose` made")
+    ingest.add_argument("logs", nargs="*", metavar="LOG", help="logs (AutoDRIVE layout, .csv or .parquet)")
+    ingest.add_argument("--resume", action="store_true",
+                        help="finish a step an interrupted ingest left (no logs needed)")
+    ingest.add_argument("--tracking-uri", default=None, metavar="URI",
+                        help="MLflow tracking URI (default: the campaign config's)")
+    ingest.add_argument("--no-tracking", action="store_true", help="do not log to MLflow")
+    ingest.set_defaults(handler=_campaign_ingest)
+
+
+def _add_strategy_seed(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--strategy", default=None, metavar="S", help="strategy (default: the config's)")
+    p.add_argument("--seed", type=int, default=None, metavar="N", help="seed (default: the config's)")
+
+
+def _strategy_seed(args: argparse.Namespace) -> dict[str, object]:
+    """Config overrides of --strategy and --seed."""
+    return {k: v for k, v in (("strategy", args.strategy), ("seed", args.seed)) if v is not None}
+
+
+def _print_proposals(maneuvers: list, path) -> None:
+    import pandas as pd
+
+    rows = [{"#": i + 1, "maneuver": m.kind, "direction": m.direction, "throttle": m.throttle,
+             "steering": m.steering, "duration": m.duration} for i, m in enumerate(maneuvers)]  # fmt: skip
+    print(f"drive these {len(rows)} maneuvers ({path}):")
+    print(pd.DataFrame(rows).to_string(index=False))
+    print("e.g. activelearn simulate --maneuver {maneuver} --direction {direction} --throttle {throttle} "
+          "--steering {steering} --duration {duration} --out LOG.csv".format(**rows[0]))  # fmt: skip
+
+
+def _campaign_tracker(cfg, args):
+    if not cfg.tracking.enabled or args.no_tracking:
+        return None
+    from activelearn.studies.tracking import Tracker
+
+    return Tracker(args.tracking_uri or cfg.tracking.uri, cfg.tracking.experiment)
+
+
+def _campaign_propose(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from activelearn.loop.campaign import Campaign, CampaignInterrupted, default_directory
+
+    cfg = _load_campaign_config(args, **_strategy_seed(args))
+    directory = Path(args.out) if args.out else default_directory(cfg)
+    campaign = Campaign(cfg, directory, tracker=_campaign_tracker(cfg, args))
+    try:
+        proposals = campaign.propose(resume=args.resume)
+    except CampaignInterrupted as exc:
+        print(_red(f"interrupted: {exc}"), file=sys.stderr)
+        return 130
+    if not proposals:
+        print(f"the campaign has finished; directory: {directory}")
+        return 0
+    from activelearn.loop.state import CampaignState
+
+    _print_proposals(proposals, campaign.proposal_path(CampaignState.load(directory)))
+    print(f"then: activelearn campaign ingest {directory} LOG...")
+    return 0
+
+
+def _campaign_ingest(args: argparse.Namespace) -> int:
+    from activelearn.loop.asktell import ingest, open_campaign
+    from activelearn.loop.campaign import CampaignInterrupted
+
+    campaign = open_campaign(args.directory)
+    campaign.tracker = _campaign_tracker(campaign.cfg, args)
+    try:
+        report = ingest(campaign, args.logs, resume=args.resume)
+    except CampaignInterrupted as exc:
+        print(_red(f"interrupted: {exc}"), file=sys.stderr)
+        return 130
+    for log, name in report.matched.items():
+        print(f"{log} -> {name}")
+    if report.missing:
+        print("still missing: " + ", ".join(m.name for m in report.missing))
+        return 0
+    history = campaign.history()
+    if not history.empty:
+        columns = [c for c in _ROUND_COLUMNS if c in history]
+        last = history[columns].tail(1).rename(columns=_ROUND_COLUMNS)
+        print(last.to_string(index=False, float_format="%.4g"))
+    if report.finished:
+        print(f"the campaign has finished; directory: {campaign.directory}")
+    else:
+        _print_proposals(report.proposals, report.proposals_path)
+    return 0
 
 
 def _campaign_run(args: argparse.Namespace) -> int:
@@ -218,18 +319,9 @@ def _campaign_run(args: argparse.Namespace) -> int:
 
     from activelearn.loop.campaign import Campaign, CampaignInterrupted, default_directory, total_rounds
 
-    overrides: dict[str, object] = {}
-    if args.strategy is not None:
-        overrides["strategy"] = args.strategy
-    if args.seed is not None:
-        overrides["seed"] = args.seed
-    cfg = _load_campaign_config(args, **overrides)
+    cfg = _load_campaign_config(args, **_strategy_seed(args))
     directory = Path(args.out) if args.out else default_directory(cfg)
-    tracker = None
-    if cfg.tracking.enabled and not args.no_tracking:
-        from activelearn.studies.tracking import Tracker
-
-        tracker = Tracker(cfg.tracking.uri, cfg.tracking.experiment)
+    tracker = _campaign_tracker(cfg, args)
     campaign = Campaign(cfg, directory, tracker=tracker)
     bar = tqdm(total=total_rounds(cfg, len(campaign.maneuvers)), unit="round",
                desc=f"{cfg.name} {cfg.strategy} seed {cfg.seed}", disable=None)

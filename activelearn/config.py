@@ -360,7 +360,7 @@ class DesignConfig(_Section):
         if value == 0 and prior is None:
             raise ValueError("initial = 0 needs a prior (design.prior): a cold start has no model to ask")
         if value == 0 and prior is not None and prior.use == "residual":
-            raise ValueError("initial = 0 with prior.use = 'residual': a residual is learnt from new maneuvers")
+            raise ValueError("initial = 0 with prior.use = 'residual': the residual needs new maneuvers")
         return value
 
     @model_validator(mode="after")

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import warnings
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
@@ -53,6 +53,9 @@ class Pool:
         designs treat them as taken.
     truth_x / truth_y / truth_owner: noise-free rows of every candidate, set only for the diagnostic
         `oracle_error` strategy (a real campaign cannot know them).
+    context: what the campaign measured about its model so far (e.g. `prequential_spearman`, the rank
+        correlation of the last models' epistemic std with their errors on the maneuvers collected
+        after them), for strategies that decide from it (`auto`).
     """
 
     maneuvers: tuple[Any, ...]
@@ -74,6 +77,7 @@ class Pool:
     truth_x: np.ndarray | None = None
     truth_y: np.ndarray | None = None
     truth_owner: np.ndarray | None = None
+    context: Mapping[str, float] | None = None
 
     def __post_init__(self) -> None:
         n = len(self.maneuvers)
@@ -534,6 +538,91 @@ class OracleErrorStrategy(Strategy):
         return picks
 
 
+Trial = Callable[[list[int]], float]
+
+
+class LookaheadOracleStrategy(Strategy):
+    """Benchmark-only reference: the batch whose retrained model has the lowest TRUE test error.
+
+    Each round it proposes a handful of candidate batches (what uniform, max_epistemic and
+    integrated_variance would pick, and a few random batches), has the campaign collect each, retrain
+    the next round's model on it and measure the test error (`trial`), and keeps the best. No real
+    campaign can do this; the gap between uniform and it is the room any acquisition rule has.
+    """
+
+    name = "oracle_lookahead"
+    uses_model = True
+    needs_trial: ClassVar[bool] = True
+    proposers: ClassVar[tuple[str, ...]] = ("uniform", "max_epistemic", "integrated_variance")
+
+    def __init__(self, n_random: int = 3, **options: Any) -> None:
+        self.n_random = n_random
+        self.options = options
+
+    def candidate_batches(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[list[int]]:
+        """Distinct candidate batches of k maneuvers (as sorted lists)."""
+        batches: list[list[int]] = []
+        for name in self.proposers:
+            batch = sorted(make_strategy(name, **self.options).select(model, pool, k, rng))
+            if batch not in batches:
+                batches.append(batch)
+        for _ in range(self.n_random):
+            batch = sorted(int(i) for i in rng.choice(pool.available, size=k, replace=False))
+            if batch not in batches:
+                batches.append(batch)
+        return batches
+
+    def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
+        raise InputError("strategy", self.name, "needs a campaign to retrain on each candidate batch")
+
+    def select_with_trials(
+        self, model: Any, pool: Pool, k: int, rng: np.random.Generator, trial: Trial
+    ) -> list[int]:
+        """The candidate batch with the lowest test error after retraining (ties: the first)."""
+        _check_k(pool, k)
+        batches = self.candidate_batches(model, pool, k, rng)
+        errors = [trial(batch) for batch in batches]
+        return batches[int(np.argmin(errors))]
+
+
+class AutoStrategy(Strategy):
+    """`auto`, the recommended strategy: decides each round from what the campaign knows.
+
+    - Cold start (no prior): greedy maximin (`uniform`). Measured on every cold-start pool, no
+      model-based rule beat it (README, "When does active learning pay?").
+    - Warm start (a prior holds part of the domain): integrated variance over the target region, in
+      the function space of the model's posterior draws; per second of track time when candidates
+      differ in cost.
+    - Guard: when the last models' epistemic std ranked their errors on the maneuvers collected after
+      them the wrong way round (`prequential_spearman` < 0 over the recent rounds), the uncertainty is
+      not to be trusted this round and maximin picks instead.
+    `last_choice` records what it did (for the round's metrics).
+    """
+
+    name = "auto"
+    uses_model = True
+
+    def __init__(self, **options: Any) -> None:
+        self.options = options
+        self.last_choice = ""
+
+    def decide(self, pool: Pool) -> str:
+        """The strategy this round uses: "uniform" or "integrated_variance"."""
+        if pool.prior_features is None or len(pool.prior_features) == 0:
+            return "uniform"
+        spearman = (pool.context or {}).get("prequential_spearman")
+        if spearman is not None and np.isfinite(spearman) and spearman < 0:
+            return "uniform"
+        return "integrated_variance"
+
+    def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
+        self.last_choice = self.decide(pool)
+        options = dict(self.options)
+        if pool.costs is not None and pool.costs.max() > 1.2 * pool.costs.min():
+            options["cost_aware"] = True
+        return make_strategy(self.last_choice, **options).select(model, pool, k, rng)
+
+
 STRATEGIES: dict[str, type[Strategy]] = {
     cls.name: cls
     for cls in (
@@ -547,7 +636,9 @@ STRATEGIES: dict[str, type[Strategy]] = {
         MaxTotalStrategy,
         BaldStrategy,
         IntegratedVarianceStrategy,
+        AutoStrategy,
         OracleErrorStrategy,
+        LookaheadOracleStrategy,
     )
 }
 
@@ -555,13 +646,14 @@ STRATEGIES: dict[str, type[Strategy]] = {
 def make_strategy(name: str, **options: Any) -> Strategy:
     """Build a strategy by name with the acquisition options it uses (the others are ignored).
 
-    Uncertainty strategies take batch, n_samples, fantasy_weight, penalty_length and seed; the
-    oracle takes penalty_length; space-filling designs take none.
+    Uncertainty strategies take batch, n_samples, fantasy_weight, penalty_length, seed and
+    cost_aware; the oracle takes penalty_length; `auto` and the lookahead oracle pass them on to the
+    strategies they use; space-filling designs take none.
     """
     if name not in STRATEGIES:
         raise InputError("strategy", name, f"unknown strategy; choose from {', '.join(STRATEGIES)}")
     cls = STRATEGIES[name]
-    if issubclass(cls, UncertaintyStrategy):
+    if issubclass(cls, UncertaintyStrategy | AutoStrategy | LookaheadOracleStrategy):
         return cls(**options)
     if cls is OracleErrorStrategy:
         return cls(**{k: v for k, v in options.items() if k == "penalty_length"})

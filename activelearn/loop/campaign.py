@@ -37,7 +37,14 @@ import torch
 from activelearn.config import CampaignConfig
 from activelearn.data import atomic_write_bytes, read_table, write_table
 from activelearn.errors import ActiveLearnError, InputError
-from activelearn.loop.acquisition import Pool, Strategy, greedy_maximin, make_strategy
+from activelearn.loop.acquisition import (
+    AutoStrategy,
+    LookaheadOracleStrategy,
+    Pool,
+    Strategy,
+    greedy_maximin,
+    make_strategy,
+)
 from activelearn.loop.collection import (
     TARGETS,
     SimulationCache,
@@ -319,6 +326,43 @@ class Campaign:
             model.epistemic_scale.fill_(previous)  # the checkpointed model keeps the scale it was used with
         return scale
 
+    def prequential_check(self, model: Any, new_samples: pd.DataFrame) -> dict[str, float]:
+        """How well `model`'s epistemic std ranked its errors on the maneuvers collected after it.
+
+        Rows of one maneuver with the same controls are averaged (a steady maneuver becomes one nearly
+        noise-free point); `prequential_spearman` is the rank correlation of the epistemic std with
+        |error| over those points (NaN with fewer than 3), `prequential_points` their number.
+        """
+        x, y, pool_index = self._rows(new_samples)
+        keys = np.column_stack([pool_index, np.round(x[:, :2], 4)])
+        _, groups = np.unique(keys, axis=0, return_inverse=True)
+        groups = groups.ravel()
+        counts = np.bincount(groups)
+        x_mean = np.stack([np.bincount(groups, weights=col) / counts for col in x.T], axis=1)
+        y_mean = np.stack([np.bincount(groups, weights=col) / counts for col in y.T], axis=1)
+        if len(counts) < 3:
+            return {"prequential_spearman": float("nan"), "prequential_points": float(len(counts))}
+        pred = _standardise(model.predict(x_mean, n_samples=EVAL_SAMPLES, seed=0), self.test_set.scale)
+        diag = uncertainty.epistemic_diagnostic(y_mean / self.test_set.scale, pred)
+        return {"prequential_spearman": float(diag["spearman"]), "prequential_points": float(len(counts))}
+
+    def _context(self, state: CampaignState) -> dict[str, float]:
+        """What strategies may read about the model so far: the recent prequential checks (mean of 3)."""
+        recent = [
+            r["prequential_spearman"]
+            for r in state.rounds
+            if np.isfinite(r.get("prequential_spearman", np.nan))
+        ]
+        return {"prequential_spearman": float(np.mean(recent[-3:]))} if recent else {}
+
+    def _trial(
+        self, state: CampaignState, samples: pd.DataFrame, batch: list[int], round_index: int
+    ) -> float:
+        """Test RMSE of the next round's model if `batch` were collected (the lookahead oracle only)."""
+        new = self._collect(batch, len(state.batches))
+        model = self.fit_model(pd.concat([samples, new], ignore_index=True), round_index + 1)
+        return self.evaluate(model)["test_rmse"]
+
     def _applied_scale(self, state: CampaignState) -> float:
         """Geometric mean of the last two prequential scales (1 before any was measured).
 
@@ -549,15 +593,24 @@ class Campaign:
         )
         metrics["wall_seconds"] = state.wall_seconds = self._wall()
         k, reason = self.next_batch_size(state)
-        pool = self.pool(state.taken, model, self._affordable(state))
+        pool = dataclasses.replace(
+            self.pool(state.taken, model, self._affordable(state)), context=self._context(state)
+        )
         if reason is None and self.cfg.design.stop_epistemic_std is not None:
             metrics["pool_epistemic_std_max"] = self.pool_epistemic_max(model, pool)
             if metrics["pool_epistemic_std_max"] < self.cfg.design.stop_epistemic_std:
                 reason = "stop_epistemic_std"
         picks: list[int] = []
         if reason is None:
-            picks = self.strategy.select(model, pool, k, _rng(self.cfg.seed, round_index, 0x5E1))
+            rng = _rng(self.cfg.seed, round_index, 0x5E1)
+            if isinstance(self.strategy, LookaheadOracleStrategy):
+                trial = lambda batch: self._trial(state, samples, batch, round_index)  # noqa: E731
+                picks = self.strategy.select_with_trials(model, pool, k, rng, trial)
+            else:
+                picks = self.strategy.select(model, pool, k, rng)
             picks = self._within_budget(state, picks)
+            if isinstance(self.strategy, AutoStrategy):
+                metrics["auto_model_based"] = float(self.strategy.last_choice != "uniform")
         if figures:
             self._figure(model, state, picks, round_index)
         state.rounds.append(metrics)
@@ -573,17 +626,20 @@ class Campaign:
     def _receive(self, state: CampaignState, samples: pd.DataFrame, new: pd.DataFrame) -> pd.DataFrame:
         """Append the logs of the pending batch; measure the prequential scale on them if asked."""
         assert state.pending is not None
-        if self.cfg.design.recalibrate == "prequential" and state.rounds:
-            model = self._model or load_model(self.directory / MODEL_FILE)
-            if model.has_epistemic:
-                scale = self.prequential_scale(model, new)
-                state.rounds[-1]["prequential_scale"] = scale
-                if self.tracker is not None and state.run_id is not None:
-                    step = int(state.rounds[-1]["n_samples"])
-                    self.tracker.log_metrics(state.run_id, {"prequential_scale": scale}, step=step)
+        model = (self._model or load_model(self.directory / MODEL_FILE)) if state.rounds else None
+        if model is not None and model.has_epistemic:
+            # The model of the last round meets maneuvers it never saw: an honest calibration check.
+            checks = self.prequential_check(model, new)
+            if self.cfg.design.recalibrate == "prequential":
+                checks["prequential_scale"] = self.prequential_scale(model, new)
+            state.rounds[-1].update(checks)
+            if self.tracker is not None and state.run_id is not None:
+                step = int(state.rounds[-1]["n_samples"])
+                self.tracker.log_metrics(state.run_id, checks, step=step)
         samples = pd.concat([samples, new], ignore_index=True)
         state.batches.append(state.pending)
         state.pending = None
+        state.ingested.extend(state.staged.values())  # content hashes of the logs a person handed in
         state.staged = {}
         self._checkpoint(state, samples, None)
         return samples
@@ -661,6 +717,10 @@ class Campaign:
         assert state.pending is not None
         self._write_proposals(state)
         return [self.maneuvers[i] for i in state.pending]
+
+    def history(self) -> pd.DataFrame:
+        """One row per fitted round with every logged metric (from the directory's state)."""
+        return pd.DataFrame(CampaignState.load(self.directory).rounds)
 
     def proposal_path(self, state: CampaignState) -> Path:
         """proposals/round-NNN.csv of the pending batch (NNN = batches collected so far)."""

@@ -71,7 +71,7 @@ class ResidualModel(nn.Module):
         backend: str = "auto",
     ) -> Prediction:  # fmt: skip
         """Base mean plus the residual's predictive moments (see `Model.predict`)."""
-        x = x.numpy() if isinstance(x, Tensor) else np.asarray(x)
+        x = np.array(x.numpy() if isinstance(x, Tensor) else x, dtype=np.float32)  # a writable copy
         pred = self.residual.predict(x, n_samples, seed=seed, return_samples=return_samples, backend=backend)
         shift = self.base_mean(x)
         samples = None if pred.sample_means is None else pred.sample_means + shift[None]

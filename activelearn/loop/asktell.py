@@ -1,0 +1,218 @@
+"""Ask/tell with a real car: match recorded logs to the proposals they answer, then tell the campaign.
+
+A person (or a script feeding the AutoDRIVE open-loop controller) drives the rows of
+`proposals/round-NNN.csv` and hands back one log per maneuver, in any order and any number of
+`ingest` calls. Each log is matched to an open proposal by the controls recorded in it: median
+throttle, steering amplitude and direction, and the shape of the steering signal (none, constant,
+ramp, oscillating), within the `[oracle]` tolerances. Everything is checked before anything is
+written: a malformed or cut-off log, a log already ingested (same content) or one that answers no open
+proposal is one error naming the file and the reason, and the campaign directory stays as it was.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from activelearn.config import CampaignConfig, validate_config
+from activelearn.data import read_autodrive_log, read_table, write_table
+from activelearn.errors import DataFormatError, InputError
+from activelearn.loop.campaign import Campaign
+from activelearn.loop.pool import maneuver_controls
+from activelearn.loop.state import CONFIG_FILE, STAGED_DIR, STATE_FILE, CampaignState
+
+
+@dataclass(frozen=True)
+class Signature:
+    """What a maneuver's controls look like: enough to tell which proposal a log answers."""
+
+    throttle: float  # median
+    amplitude: float  # 95th percentile of |steering|
+    sign: int  # +1 if the first clear turn is left (ccw), -1 if right, 0 for none
+    shape: str  # "none", "constant", "ramp" or "oscillating"
+    flips_per_minute: float
+
+
+def signature(controls: np.ndarray, rate_hz: float, steering_tolerance: float) -> Signature:
+    """The signature of a (T, 2) throttle/steering sequence sampled at `rate_hz`."""
+    throttle, steering = controls[:, 0], controls[:, 1]
+    amplitude = float(np.quantile(np.abs(steering), 0.95)) if len(steering) else 0.0
+    if amplitude <= steering_tolerance:
+        return Signature(float(np.median(throttle)), amplitude, 0, "none", 0.0)
+    clear = steering[np.abs(steering) > 0.5 * amplitude]
+    signs = np.sign(clear)
+    flips = int((signs[1:] != signs[:-1]).sum())
+    minutes = len(steering) / rate_hz / 60.0
+    if flips:
+        shape = "oscillating"
+    elif (
+        np.ptp(np.abs(steering)) > 0.5 * amplitude
+        and np.corrcoef(np.abs(steering), np.arange(len(steering)))[0, 1] > 0.9
+    ):
+        shape = "ramp"
+    else:
+        shape = "constant"
+    return Signature(float(np.median(throttle)), amplitude, int(signs[0]), shape, flips / max(minutes, 1e-9))
+
+
+@dataclass(frozen=True)
+class LogFile:
+    """A log handed to `ingest`: its path, table and content hash."""
+
+    path: Path
+    table: pd.DataFrame
+    digest: str
+
+
+def read_log(path: str | Path) -> LogFile:
+    """Read one log (AutoDRIVE CSV, our CSV or Parquet); a malformed file is a DataFormatError naming it."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("LOG", str(path), "no such file")
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    if path.suffix.lower() == ".parquet":
+        try:
+            table = read_table(path)
+        except Exception as exc:  # pyarrow raises several types for a damaged file
+            raise DataFormatError(f"{path}: unreadable Parquet log ({exc})") from None
+    else:
+        table = read_autodrive_log(path)
+    missing = [c for c in ("time", "throttle", "steering", "speed", "angZ") if c not in table]
+    if missing:
+        raise DataFormatError(f"{path}: lacks the column(s) {', '.join(missing)}")
+    values = table[["time", "throttle", "steering", "speed", "angZ"]].to_numpy(dtype=np.float64)
+    if not np.isfinite(values).all():
+        raise DataFormatError(f"{path}: has missing or non-finite values")
+    return LogFile(path, table, digest)
+
+
+def _describe(sig: Signature) -> str:
+    turn = (
+        ""
+        if sig.shape == "none"
+        else f", steering {'+' if sig.sign > 0 else '-'}{sig.amplitude:.3g} ({sig.shape})"
+    )
+    return f"throttle {sig.throttle:.3g}{turn}"
+
+
+def match_logs(campaign: Campaign, state: CampaignState, logs: Sequence[LogFile]) -> dict[int, LogFile]:
+    """Pool index of the open proposal each log answers; raise (naming the file) for any log that fails."""
+    assert state.pending is not None
+    cfg = campaign.cfg.oracle
+    rate = campaign.cfg.simulation.rate_hz
+    seen = set(state.ingested) | set(state.staged.values())
+    open_ = [i for i in state.pending if str(i) not in state.staged]
+    expected = {
+        i: signature(maneuver_controls(campaign.maneuvers[i], rate), rate, cfg.steering_tolerance)
+        for i in open_
+    }
+    matched: dict[int, LogFile] = {}
+    for log in logs:
+        if log.digest in seen:
+            raise InputError(
+                "LOG", str(log.path), "was ingested already (the same content as an earlier log)"
+            )
+        seen.add(log.digest)
+        got = signature(
+            log.table[["throttle", "steering"]].to_numpy(dtype=np.float64), rate, cfg.steering_tolerance
+        )
+        candidates = [
+            i
+            for i in open_
+            if i not in matched
+            and abs(got.throttle - expected[i].throttle) <= cfg.throttle_tolerance
+            and abs(got.amplitude - expected[i].amplitude) <= cfg.steering_tolerance
+            and got.sign == expected[i].sign
+            and got.shape == expected[i].shape
+        ]
+        if not candidates:
+            still = "; ".join(
+                f"{campaign.maneuvers[i].name} ({_describe(expected[i])})" for i in open_ if i not in matched
+            )
+            raise InputError(
+                "LOG",
+                str(log.path),
+                f"matches no open proposal: it drove {_describe(got)}; open: {still or 'none'}",
+            )
+        best = min(candidates, key=lambda i: abs(got.flips_per_minute - expected[i].flips_per_minute))
+        proposed = campaign.maneuvers[best].duration
+        span = float(log.table["time"].iloc[-1] - log.table["time"].iloc[0])
+        if span < (1.0 - cfg.duration_tolerance) * proposed:
+            raise InputError("LOG", str(log.path), f"is cut off: {span:.1f} s of the proposed {proposed:g} s")
+        matched[best] = log
+    return matched
+
+
+def open_campaign(directory: str | Path, *, tracker: Any | None = None) -> Campaign:
+    """The campaign of a directory made by `propose` (its config and strategy, seed from its state)."""
+    directory = Path(directory)
+    if not (directory / STATE_FILE).is_file() or not (directory / CONFIG_FILE).is_file():
+        raise InputError(
+            "DIR", str(directory), "holds no campaign (run `activelearn campaign propose` first)"
+        )
+    cfg: CampaignConfig = validate_config(json.loads((directory / CONFIG_FILE).read_text()))
+    return Campaign(cfg, directory, tracker=tracker)
+
+
+@dataclass(frozen=True)
+class IngestReport:
+    """What an ingest did: logs matched to proposals, proposals still missing, the next proposals."""
+
+    matched: dict[str, str]  # log path -> maneuver name
+    missing: list[Any]
+    proposals: list[Any]
+    proposals_path: Path | None
+    finished: bool
+
+
+def ingest(campaign: Campaign, paths: Sequence[str | Path], *, resume: bool = False) -> IngestReport:
+    """Take logs of the pending batch; once it is complete, retrain and propose the next batch.
+
+    Without --resume, a directory whose last ingest was interrupted after its logs were appended is
+    refused (its step must be finished first); `resume=True` finishes it, with or without new logs.
+    """
+    directory = campaign.directory
+    state = CampaignState.load(directory)
+    if state.finished:
+        raise InputError("DIR", str(directory), f"the campaign has finished ({state.stop_reason})")
+    if state.pending is None:
+        if not resume:
+            raise InputError(
+                "DIR", str(directory), "an earlier ingest stopped before proposing: rerun with --resume"
+            )
+        if paths:
+            raise InputError(
+                "LOG", str(paths[0]), "no batch is pending yet: run with --resume and no logs first"
+            )
+        proposals = campaign.propose(resume=True)
+        return _report(campaign, {}, proposals)
+    if not paths and not resume:
+        raise InputError("LOG", "", "give at least one log of the pending proposals")
+    logs = [read_log(p) for p in paths]  # every check before any write
+    matched = match_logs(campaign, state, logs) if logs else {}
+    for index, log in matched.items():
+        write_table(log.table, directory / STAGED_DIR / f"{index}.parquet")
+        state.staged[str(index)] = log.digest
+    names = {str(log.path): campaign.maneuvers[i].name for i, log in matched.items()}
+    missing = [campaign.maneuvers[i] for i in state.pending if str(i) not in state.staged]
+    state.save(directory)  # staged logs are kept: a later ingest (or --resume) completes the batch
+    if missing:
+        return IngestReport(names, missing, [], None, False)
+    frames = [read_table(directory / STAGED_DIR / f"{i}.parquet") for i in state.pending]
+    proposals = campaign.tell(frames)
+    for i in list(CampaignState.load(directory).batches[-1]):
+        (directory / STAGED_DIR / f"{i}.parquet").unlink(missing_ok=True)
+    return _report(campaign, names, proposals)
+
+
+def _report(campaign: Campaign, names: dict[str, str], proposals: list[Any]) -> IngestReport:
+    state = CampaignState.load(campaign.directory)
+    path = campaign.proposal_path(state) if proposals else None
+    return IngestReport(names, [], proposals, path, state.finished)

@@ -1,0 +1,243 @@
+"""Warm starts, target regions and costs: real MuJoCo, real models, shrunk sizes."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from activelearn.cli import main
+from activelearn.config import ModelConfig, TrainingConfig, load_config
+from activelearn.data import read_table, write_table
+from activelearn.errors import InputError
+from activelearn.loop.acquisition import (
+    IntegratedVarianceStrategy,
+    MaxEpistemicStrategy,
+    greedy_maximin,
+)
+from activelearn.loop.campaign import Campaign, CampaignState
+from activelearn.loop.pool import build_pool, operating_features, pool_maneuvers, target_points, test_maneuvers
+from activelearn.loop.prior import PRIOR_FILE
+from activelearn.numerics import synthetic
+from activelearn.numerics.models import build_model, save_model
+from activelearn.numerics.training import fit
+
+SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
+PRIOR_GRID = {"kinds": ["skidpad"], "throttles": [0.3, 0.6], "steerings": [0.15], "duration": 10.0}
+
+
+def warm_config(tmp_path: Path, **overrides):
+    """The smoke config with a small prior grid; the initial design is the prior alone."""
+    data = {
+        "output_dir": str(tmp_path / "runs"),
+        "tracking": {"enabled": False},
+        "training": {"epochs": 20},
+        "design": {"initial": 0, "per_round": 2, "max_maneuvers": 4, "prior": {"grid": PRIOR_GRID}},
+        **overrides,
+    }
+    return load_config(SMOKE, overrides=data)
+
+
+def test_prior_rows_train_every_round_but_count_against_no_budget(tmp_path):
+    cfg = warm_config(tmp_path)
+    result = Campaign(cfg, tmp_path / "c").run(figures=False, log_model=False)
+    prior = read_table(tmp_path / "c" / PRIOR_FILE)
+    assert set(prior["pool_index"]) == {-1, -2, -3, -4}  # 2 throttles x 1 steering x 2 directions
+    assert (prior["batch"] == -1).all()
+    history = result.history
+    # round 0 is the prior alone: the curve starts there, with no budget spent
+    assert history["n_maneuvers"].tolist() == [0, 2, 4]
+    assert history["track_seconds"].iloc[0] == 0.0
+    prior_rows = history["n_samples"].iloc[0]
+    assert prior_rows > 0
+    # every later round trains on the prior rows plus the new ones
+    samples = read_table(tmp_path / "c" / "samples.parquet")
+    x, _, _ = Campaign(cfg, tmp_path / "other")._rows(samples)
+    assert history["n_samples"].iloc[-1] == prior_rows + len(x)
+    assert len(result.state.taken) == cfg.design.max_maneuvers
+    assert result.state.stop_reason == "max_maneuvers"
+
+
+def test_a_killed_warm_campaign_resumes_with_its_prior(tmp_path):
+    cfg = warm_config(tmp_path)
+    reference = Campaign(cfg, tmp_path / "ref").run(figures=False, log_model=False)
+    victim = Campaign(cfg, tmp_path / "kill")
+    state, samples = victim._open(resume=False)
+    victim._propose(state, samples, figures=False)  # round 0 fitted, first batch proposed: then "killed"
+    resumed = Campaign(cfg, tmp_path / "kill").run(resume=True, figures=False, log_model=False)
+    assert resumed.state.prior_digest == reference.state.prior_digest is not None
+    assert resumed.state.batches == reference.state.batches
+    assert [r["test_rmse"] for r in resumed.state.rounds] == [r["test_rmse"] for r in reference.state.rounds]
+    pd.testing.assert_frame_equal(read_table(tmp_path / "ref" / PRIOR_FILE), read_table(tmp_path / "kill" / PRIOR_FILE))
+
+
+def test_a_prior_campaign_directory_and_table_feed_a_new_campaign(tmp_path):
+    earlier = Campaign(warm_config(tmp_path), tmp_path / "earlier").run(figures=False, log_model=False)
+    table = tmp_path / "known.parquet"
+    write_table(read_table(tmp_path / "earlier" / "samples.parquet"), table)
+    cfg = warm_config(tmp_path, design={"initial": 0, "max_maneuvers": 2, "prior": [str(tmp_path / "earlier"), str(table)]})
+    campaign = Campaign(cfg, tmp_path / "c")
+    result = campaign.run(figures=False, log_model=False)
+    runs = campaign.prior.runs
+    # the earlier campaign's own prior (4) and its 4 maneuvers, then the table's 4 maneuvers again
+    assert len(runs) == 4 + len(earlier.state.taken) * 2
+    assert result.history["n_maneuvers"].tolist() == [0, 2]
+
+
+@pytest.mark.parametrize(
+    ("column", "value", "reason"),
+    [("steering", 20.0, "degrees"), ("speed", 25.0, "m/s"), ("time", None, "Hz")],
+)
+def test_a_prior_in_other_units_is_one_clear_error_and_writes_nothing(tmp_path, capsys, column, value, reason):
+    source = read_table(_simulated_log(tmp_path))
+    if value is None:
+        source["time"] = source["time"] * 3.0  # logged at 10 Hz
+    else:
+        source.loc[5, column] = value
+    bad = tmp_path / "bad.parquet"
+    write_table(source, bad)
+    config = tmp_path / "warm.toml"
+    config.write_text(SMOKE.read_text().replace("[design]", f'[design]\nprior = ["{bad}"]'))
+    out = tmp_path / "out"
+    code = main(["campaign", "run", str(config), "--out", str(out), "--no-tracking"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "design.prior.paths[0]" in err and reason in err and err.count("\n") == 1
+    assert not out.exists()
+
+
+def _simulated_log(tmp_path: Path) -> Path:
+    path = tmp_path / "log.parquet"
+    assert main(["simulate", "--maneuver", "skidpad", "--throttle", "0.5", "--steering", "0.2",
+                 "--duration", "6", "--out", str(path)]) == 0  # fmt: skip
+    return path
+
+
+def test_a_prior_model_with_other_inputs_is_rejected(tmp_path):
+    model = build_model(ModelConfig(n_inputs=4))
+    save_model(model, tmp_path / "markov.pt")
+    cfg = warm_config(
+        tmp_path, design={"initial": 1, "prior": {"model": str(tmp_path / "markov.pt"), "use": "finetune"}}
+    )
+    with pytest.raises(InputError, match="design.prior.model.*4 inputs"):
+        Campaign(cfg, tmp_path / "c").run(figures=False, log_model=False)
+    assert not (tmp_path / "c").exists()
+
+
+@pytest.mark.parametrize("use", ["finetune", "residual"])
+def test_finetune_and_residual_warm_starts_run_and_keep_their_prior_model(tmp_path, use):
+    initial = 1 if use == "residual" else 0
+    cfg = warm_config(tmp_path, design={"initial": initial, "max_maneuvers": 3,
+                                        "prior": {"grid": PRIOR_GRID, "use": use}})  # fmt: skip
+    result = Campaign(cfg, tmp_path / "c").run(figures=False, log_model=False)
+    assert (tmp_path / "c" / "prior_model.pt").exists()
+    assert np.isfinite(result.history["test_rmse"]).all()
+    # the prior rows do not train the rounds: only the new maneuvers' rows count
+    samples = read_table(tmp_path / "c" / "samples.parquet")
+    x, _, _ = Campaign(cfg, tmp_path / "other")._rows(samples)
+    assert result.history["n_samples"].iloc[-1] == len(x)
+
+
+# --------------------------------------------------------------------------------------- strategies
+
+
+@pytest.fixture(scope="module")
+def pool_cfg(tmp_path_factory):
+    return load_config(
+        SMOKE,
+        overrides={
+            "output_dir": str(tmp_path_factory.mktemp("runs")),
+            "pool": {"throttles": [-0.8, -0.4, 0.2, 0.6, 1.0], "steerings": [0.1, 0.3, 0.5], "duration": 10.0},
+            "test": {"throttles": [0.5], "steerings": [0.2], "duration": 10.0},
+        },
+    )
+
+
+@pytest.fixture(scope="module")
+def forward_model():
+    """A hybrid trained on forward throttle only: unsure in reverse."""
+    x = synthetic.random_points(500, throttle=(0.2, 1.0), steering=(-0.5, 0.5), seed=3)
+    y = synthetic.observe(x, np.random.default_rng(0))
+    model = build_model(ModelConfig())
+    fit(model, x, y, TrainingConfig(epochs=40, patience=None), seed=0)
+    return model
+
+
+def _pool(cfg, **kwargs):
+    maneuvers = pool_maneuvers(cfg.pool)
+    target = kwargs.pop("target", None) or target_points(cfg, maneuvers, test_maneuvers(cfg.test))
+    taken = np.zeros(len(maneuvers), dtype=bool)
+    return build_pool(cfg, maneuvers, taken, np.array([0.1, 0.3]), target, 0, **kwargs)
+
+
+def test_uniform_treats_the_prior_as_taken(pool_cfg):
+    maneuvers = pool_maneuvers(pool_cfg.pool)
+    forward = [m for m in maneuvers if m.throttle > 0]
+    pool = _pool(pool_cfg, prior=forward)
+    picks = greedy_maximin(pool, 4, np.random.default_rng(0))
+    assert all(maneuvers[i].throttle < 0 for i in picks)  # the unknown part first
+    cold = greedy_maximin(_pool(pool_cfg), 4, np.random.default_rng(0))
+    assert any(maneuvers[i].throttle > 0 for i in cold)
+
+
+def test_the_target_region_decides_what_integrated_variance_integrates(pool_cfg, forward_model):
+    strategy = IntegratedVarianceStrategy(n_samples=32)
+    picks = {}
+    for name, box in {"reverse": (-0.8, -0.4), "forward": (0.6, 1.0)}.items():
+        cfg = pool_cfg.model_copy(
+            update={"target": pool_cfg.target.model_copy(update={"region": "box", "throttle_range": box,
+                                                                   "steering_range": (0.1, 0.5)})}
+        )  # fmt: skip
+        maneuvers = pool_maneuvers(cfg.pool)
+        pool = _pool(cfg, target=target_points(cfg, maneuvers, []))
+        chosen = strategy.select(forward_model, pool, 2, np.random.default_rng(0))
+        picks[name] = [maneuvers[i].throttle for i in chosen]
+    assert all(t < 0 for t in picks["reverse"])
+    assert all(t > 0 for t in picks["forward"])
+
+
+def test_cost_aware_picks_prefer_the_cheaper_of_two_equally_informative_candidates(pool_cfg, forward_model):
+    maneuvers = pool_maneuvers(pool_cfg.pool)
+    pool = _pool(pool_cfg)
+    plain = MaxEpistemicStrategy(n_samples=32, batch="topk")
+    best = plain.select(forward_model, pool, 1, np.random.default_rng(0))[0]
+    # a copy of the best candidate that costs three times as much, placed first in the pool
+    twin = dataclasses.replace(maneuvers[best], duration=maneuvers[best].duration * 3)
+    both = [twin, *maneuvers]
+    features = operating_features(both)
+    points = np.concatenate([pool.points[pool.owner == best], pool.points])
+    owner = np.concatenate([np.zeros((pool.owner == best).sum(), dtype=int), pool.owner + 1])
+    weights = np.concatenate([pool.weights[pool.owner == best], pool.weights])
+    priced = dataclasses.replace(
+        pool, maneuvers=tuple(both), features=features, kinds=np.concatenate([[pool.kinds[best]], pool.kinds]),
+        points=points, owner=owner, weights=weights, taken=np.zeros(len(both), dtype=bool),
+        costs=np.array([m.duration for m in both]), affordable=None,
+    )  # fmt: skip
+    assert plain.select(forward_model, priced, 1, np.random.default_rng(0)) == [0]  # a tie: the first
+    aware = MaxEpistemicStrategy(n_samples=32, batch="topk", cost_aware=True)
+    assert aware.select(forward_model, priced, 1, np.random.default_rng(0)) == [best + 1]
+
+
+def test_a_seconds_budget_with_kind_durations_stops_before_it_is_exceeded(tmp_path):
+    cfg = load_config(
+        SMOKE,
+        overrides={
+            "output_dir": str(tmp_path / "runs"),
+            "tracking": {"enabled": False},
+            "training": {"epochs": 15},
+            "pool": {"kinds": ["straight", "skidpad"], "durations": {"straight": 6.0, "skidpad": 12.0}},
+            "design": {"initial": 2, "per_round": 2, "max_maneuvers": None, "max_sim_seconds": 70.0,
+                       "setup_seconds": 5.0},
+        },
+    )  # fmt: skip
+    result = Campaign(cfg, tmp_path / "c").run(figures=False, log_model=False)
+    spent = result.history["track_seconds"].iloc[-1]
+    assert spent <= 70.0
+    costs = {m.name: m.duration + 5.0 for m in pool_maneuvers(cfg.pool)}
+    cheapest = min(costs.values())
+    assert spent > 70.0 - 2 * cheapest  # it did not stop early with room for more
+    state = CampaignState.load(tmp_path / "c")
+    assert state.stop_reason == "max_sim_seconds"
