@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test lint clean
+.PHONY: setup demo demo-cold test lint clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -18,11 +18,16 @@ $(STAMP): pyproject.toml
 
 setup: $(STAMP)
 
-# The main job: a small comparison of max_epistemic against uniform sampling, 3 seeds each, tracked in
-# the embedded SQLite MLflow store (mlruns/mlflow.db). Each run gets its own output directory.
+# The main job: uniform, max_epistemic and auto extending a model to the whole operating domain (a warm
+# start), 3 seeds each, tracked in the embedded SQLite MLflow store (mlruns/mlflow.db). Each run gets
+# its own output directory. `make demo-cold` is the cold-start comparison on the skidpad grid.
 demo: setup
-	$(BIN)/activelearn compare experiments/configs/demo.toml --strategies uniform,max_epistemic \
+	$(BIN)/activelearn compare experiments/configs/demo.toml --strategies uniform,max_epistemic,auto \
 		--seeds 3 --workers 2 --out runs/demo/$$(date +%Y%m%d-%H%M%S)
+
+demo-cold: setup
+	$(BIN)/activelearn compare experiments/configs/demo_cold.toml --strategies uniform,max_epistemic \
+		--seeds 3 --workers 2 --out runs/demo-cold/$$(date +%Y%m%d-%H%M%S)
 
 test: setup
 	$(BIN)/ruff check .

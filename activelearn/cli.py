@@ -357,11 +357,15 @@ _SUMMARY_COLUMNS = {
     "seeds": "seeds",
     "final_rmse": "final RMSE",
     "final_rmse_sem": "± s.e.",
+    "final_rmse_v": "v (m/s)",
+    "final_rmse_w": "ω (rad/s)",
     "final_nll": "final NLL",
     "rmse_auc": "RMSE AUC",
     "reached": "reached",
     "maneuvers_to_target": "maneuvers to target",
     "ratio_to_reference": "ratio",
+    "seconds_to_target": "seconds to target",
+    "seconds_ratio": "s ratio",
 }
 
 
@@ -414,8 +418,9 @@ def _compare(args: argparse.Namespace) -> int:
         for bar in bars.values():
             bar.close()
     table = result.table
-    print(f"target: {table.attrs['reference']}'s final RMSE {table.attrs['target_rmse']:.4g}")
-    summary = table[list(_SUMMARY_COLUMNS)].rename(columns=_SUMMARY_COLUMNS)
+    print(f"target: {table.attrs['reference']}'s final RMSE {table.attrs['target_rmse']:.4g} (standardised; "
+          "RMSE of v in m/s and ω in rad/s beside it)")
+    summary = table[[c for c in _SUMMARY_COLUMNS if c in table]].rename(columns=_SUMMARY_COLUMNS)
     print(summary.to_string(index=False, float_format="%.4g"))
     print(f"figure: {result.figure_path}")
     print(f"curves and table: {result.directory}")

@@ -122,44 +122,59 @@ def epistemic_map(
 
 _METRIC_LABELS = {
     "epistemic_std_mean": "mean epistemic std on the grid (standardised)",
-    "test_rmse": "test RMSE (standardised)",
+    "test_rmse": "test RMSE (standardised, v and ω)",
+    "test_rmse_v": "test RMSE of v (m/s)",
+    "test_rmse_w": "test RMSE of ω (rad/s)",
     "test_nll": "test NLL (standardised)",
 }
+_BUDGETS = {"n_maneuvers": "maneuvers collected", "track_seconds": "track seconds (durations + set-up)"}
 
 
 def comparison_figure(
-    curves: pd.DataFrame, metrics: Sequence[str], *, reference: str = "uniform", title: str = ""
+    curves: pd.DataFrame,
+    metrics: Sequence[str],
+    *,
+    reference: str = "uniform",
+    title: str = "",
+    seconds: bool = False,
 ) -> Figure:
     """Metric-versus-data curves, one line per strategy, mean ± 1 standard error over seeds.
 
     `curves` has one row per (strategy, seed, round) with `n_maneuvers` and the metric columns; the
-    reference strategy is drawn dashed and thicker.
+    reference strategy is drawn dashed and thicker. With `seconds`, a second row of panels draws the
+    same metrics against the track seconds spent (`track_seconds`, averaged over seeds per round).
     """
-    fig = _new_figure(5.0 * len(metrics), 4.2)
-    axes = fig.subplots(1, len(metrics), squeeze=False)[0]
+    budgets = ["n_maneuvers", *(["track_seconds"] if seconds else [])]
+    fig = _new_figure(4.4 * len(metrics), 3.9 * len(budgets))
+    grid = fig.subplots(len(budgets), len(metrics), squeeze=False)
     strategies = list(dict.fromkeys(curves["strategy"]))
-    for ax, metric in zip(axes, metrics, strict=True):
-        for i, strategy in enumerate(strategies):
-            part = curves[curves["strategy"] == strategy]
-            stats = part.groupby("n_maneuvers")[metric].agg(["mean", "std", "count"])
-            sem = (stats["std"] / np.sqrt(stats["count"])).fillna(0.0)
-            color = f"C{i % 10}"
-            style = {"linewidth": 2.6, "linestyle": "--"} if strategy == reference else {"linewidth": 1.6}
-            ax.plot(stats.index, stats["mean"], color=color, label=strategy, **style)
-            ax.fill_between(stats.index, stats["mean"] - sem, stats["mean"] + sem, color=color, alpha=0.2)
-        ax.set_xlabel("maneuvers collected")
-        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-        ax.set_ylabel(_METRIC_LABELS.get(metric, metric))
-        if metric != "test_nll":
-            ax.set_yscale("log")
-            # plain decimals at 1-2-5 steps: the default gives "1.3 x 10^-1"-style labels; minor
-            # ticks are labelled only when the range spans less than a decade (else they crowd)
-            low, high = ax.get_ylim()
-            ax.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
-            ax.yaxis.set_major_formatter(FormatStrFormatter("%.3g"))
-            ax.yaxis.set_minor_formatter(FormatStrFormatter("%.3g") if high < 10 * low else NullFormatter())
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8)
+    for axes, budget in zip(grid, budgets, strict=True):
+        for ax, metric in zip(axes, metrics, strict=True):
+            for i, strategy in enumerate(strategies):
+                part = curves[curves["strategy"] == strategy]
+                stats = part.groupby("round").agg(
+                    x=(budget, "mean"), mean=(metric, "mean"), std=(metric, "std"), count=(metric, "count")
+                )
+                sem = (stats["std"] / np.sqrt(stats["count"])).fillna(0.0)
+                color = f"C{i % 10}"
+                style = {"linewidth": 2.6, "linestyle": "--"} if strategy == reference else {"linewidth": 1.6}
+                ax.plot(stats["x"], stats["mean"], color=color, label=strategy, **style)
+                ax.fill_between(stats["x"], stats["mean"] - sem, stats["mean"] + sem, color=color, alpha=0.2)
+            ax.set_xlabel(_BUDGETS[budget])
+            if budget == "n_maneuvers":
+                ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+            ax.set_ylabel(_METRIC_LABELS.get(metric, metric))
+            if metric != "test_nll":
+                ax.set_yscale("log")
+                # plain decimals at 1-2-5 steps: the default gives "1.3 x 10^-1"-style labels; minor
+                # ticks are labelled only when the range spans less than a decade (else they crowd)
+                low, high = ax.get_ylim()
+                ax.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+                ax.yaxis.set_major_formatter(FormatStrFormatter("%.3g"))
+                minor = FormatStrFormatter("%.3g") if high < 10 * low else NullFormatter()
+                ax.yaxis.set_minor_formatter(minor)
+            ax.grid(alpha=0.3)
+    grid[0][0].legend(fontsize=8)
     fig.suptitle(title or "strategy comparison")
     return fig
 

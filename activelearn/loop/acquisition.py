@@ -591,8 +591,8 @@ class AutoStrategy(Strategy):
     - Cold start (no prior): greedy maximin (`uniform`). Measured on every cold-start pool, no
       model-based rule beat it (README, "When does active learning pay?").
     - Warm start (a prior holds part of the domain): integrated variance over the target region, in
-      the function space of the model's posterior draws; per second of track time when candidates
-      differ in cost.
+      the function space of the model's posterior draws; per second of track time when the budget is
+      in seconds (`seconds_budget` in the pool's context) and candidates differ in cost.
     - Guard: when the last models' epistemic std ranked their errors on the maneuvers collected after
       them the wrong way round (`prequential_spearman` < 0 over the recent rounds), the uncertainty is
       not to be trusted this round and maximin picks instead.
@@ -618,7 +618,8 @@ class AutoStrategy(Strategy):
     def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
         self.last_choice = self.decide(pool)
         options = dict(self.options)
-        if pool.costs is not None and pool.costs.max() > 1.2 * pool.costs.min():
+        seconds = bool((pool.context or {}).get("seconds_budget"))
+        if seconds and pool.costs is not None and pool.costs.max() > 1.2 * pool.costs.min():
             options["cost_aware"] = True
         return make_strategy(self.last_choice, **options).select(model, pool, k, rng)
 

@@ -347,13 +347,16 @@ class Campaign:
         return {"prequential_spearman": float(diag["spearman"]), "prequential_points": float(len(counts))}
 
     def _context(self, state: CampaignState) -> dict[str, float]:
-        """What strategies may read about the model so far: the recent prequential checks (mean of 3)."""
+        """What strategies may read: the recent prequential checks (mean of 3), the kind of budget."""
         recent = [
             r["prequential_spearman"]
             for r in state.rounds
             if np.isfinite(r.get("prequential_spearman", np.nan))
         ]
-        return {"prequential_spearman": float(np.mean(recent[-3:]))} if recent else {}
+        context = {"prequential_spearman": float(np.mean(recent[-3:]))} if recent else {}
+        if self.cfg.design.max_sim_seconds is not None:  # the budget is track time: costs matter
+            context["seconds_budget"] = 1.0
+        return context
 
     def _trial(
         self, state: CampaignState, samples: pd.DataFrame, batch: list[int], round_index: int

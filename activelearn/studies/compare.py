@@ -22,7 +22,8 @@ from activelearn.loop.campaign import Campaign
 from activelearn.loop.pool import pool_maneuvers, test_maneuvers
 
 Progress = Callable[[dict[str, Any]], None]
-CURVE_METRICS: tuple[str, ...] = ("epistemic_std_mean", "test_rmse", "test_nll")
+# Curves of the comparison figure: the standardised aggregate beside v in m/s and ω in rad/s.
+CURVE_METRICS: tuple[str, ...] = ("test_rmse", "test_rmse_v", "test_rmse_w", "epistemic_std_mean", "test_nll")
 
 
 @dataclass(frozen=True)
@@ -61,39 +62,58 @@ def _run_job(
     return result.state.rounds
 
 
+def _first_reach(budget: np.ndarray, rmse: np.ndarray, target: float) -> float:
+    """The smallest budget at which the curve is at or below `target` (NaN if never)."""
+    hit = np.flatnonzero(rmse <= target)
+    return float(budget[hit[0]]) if len(hit) else math.nan
+
+
+def _sem(values: np.ndarray) -> float:
+    return float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) > 1 else 0.0
+
+
 def _summary(curves: pd.DataFrame, reference: str) -> pd.DataFrame:
-    """Per strategy: final RMSE and NLL, area under the RMSE curve, maneuvers to reach the reference."""
+    """Per strategy: final RMSE (standardised, and v in m/s, ω in rad/s), NLL, area under the RMSE
+    curve, and the maneuvers and track seconds each seed needed to reach the reference's final RMSE."""
     rows = []
     ref = curves[curves["strategy"] == reference]
     ref_final = ref.sort_values("n_maneuvers").groupby("seed").last()
     target = float(ref_final["test_rmse"].mean()) if len(ref_final) else math.nan
     ref_budget = float(ref_final["n_maneuvers"].mean()) if len(ref_final) else math.nan
+    has_seconds = "track_seconds" in curves
+    ref_seconds = float(ref_final["track_seconds"].mean()) if has_seconds and len(ref_final) else math.nan
     for strategy, part in curves.groupby("strategy", sort=False):
         finals = part.sort_values("n_maneuvers").groupby("seed").last()
-        aucs, reach = [], []
+        aucs, reach, reach_s = [], [], []
         for _, run in part.groupby("seed"):
             run = run.sort_values("n_maneuvers")
             n, rmse = run["n_maneuvers"].to_numpy(float), run["test_rmse"].to_numpy(float)
             span = n[-1] - n[0]
             aucs.append(float(np.trapezoid(rmse, n) / span) if span > 0 else float(rmse[-1]))
-            hit = np.flatnonzero(rmse <= target)
-            reach.append(float(n[hit[0]]) if len(hit) else math.nan)
+            reach.append(_first_reach(n, rmse, target))
+            if has_seconds:
+                reach_s.append(_first_reach(run["track_seconds"].to_numpy(float), rmse, target))
         reach_arr = np.array(reach)
         reached = reach_arr[~np.isnan(reach_arr)]
-        sem = lambda v: float(np.std(v, ddof=1) / np.sqrt(len(v))) if len(v) > 1 else 0.0  # noqa: E731
-        rows.append(
-            {
-                "strategy": strategy,
-                "seeds": len(finals),
-                "final_rmse": float(finals["test_rmse"].mean()),
-                "final_rmse_sem": sem(finals["test_rmse"].to_numpy()),
-                "final_nll": float(finals["test_nll"].mean()),
-                "rmse_auc": float(np.mean(aucs)),
-                "reached": f"{len(reached)}/{len(reach_arr)}",
-                "maneuvers_to_target": float(np.median(reached)) if len(reached) else math.nan,
-                "ratio_to_reference": float(np.median(reached) / ref_budget) if len(reached) else math.nan,
-            }
-        )
+        seconds = np.array(reach_s)
+        seconds = seconds[~np.isnan(seconds)]
+        row = {
+            "strategy": strategy,
+            "seeds": len(finals),
+            "final_rmse": float(finals["test_rmse"].mean()),
+            "final_rmse_sem": _sem(finals["test_rmse"].to_numpy()),
+            "final_rmse_v": float(finals["test_rmse_v"].mean()),
+            "final_rmse_w": float(finals["test_rmse_w"].mean()),
+            "final_nll": float(finals["test_nll"].mean()),
+            "rmse_auc": float(np.mean(aucs)),
+            "reached": f"{len(reached)}/{len(reach_arr)}",
+            "maneuvers_to_target": float(np.median(reached)) if len(reached) else math.nan,
+            "ratio_to_reference": float(np.median(reached) / ref_budget) if len(reached) else math.nan,
+        }
+        if has_seconds:
+            row["seconds_to_target"] = float(np.median(seconds)) if len(seconds) else math.nan
+            row["seconds_ratio"] = float(np.median(seconds) / ref_seconds) if len(seconds) else math.nan
+        rows.append(row)
     table = pd.DataFrame(rows)
     table.attrs["target_rmse"] = target
     table.attrs["reference"] = reference
@@ -220,8 +240,9 @@ def compare(
     from activelearn.plots import comparison_figure
 
     fig = comparison_figure(
-        curves, CURVE_METRICS, reference=reference, title=f"{cfg.name}: {len(seeds)} seeds"
-    )
+        curves, CURVE_METRICS, reference=reference, title=f"{cfg.name}: {len(seeds)} seeds",
+        seconds="track_seconds" in curves,
+    )  # fmt: skip
     figure_path = directory / "comparison.png"
     fig.savefig(figure_path, dpi=110)
     if tracker is not None and parent_run_id is not None:
@@ -231,7 +252,12 @@ def compare(
         for row in table.itertuples():
             tracker.log_metrics(
                 parent_run_id,
-                {f"{row.strategy}.final_rmse": row.final_rmse, f"{row.strategy}.rmse_auc": row.rmse_auc},
+                {
+                    f"{row.strategy}.final_rmse": row.final_rmse,
+                    f"{row.strategy}.final_rmse_v_mps": row.final_rmse_v,
+                    f"{row.strategy}.final_rmse_w_radps": row.final_rmse_w,
+                    f"{row.strategy}.rmse_auc": row.rmse_auc,
+                },
                 step=0,
             )
         tracker.end_run(parent_run_id, "FINISHED")

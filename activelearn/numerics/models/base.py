@@ -70,6 +70,8 @@ def _kernel_input(x: Tensor) -> Tensor:
 
 
 def _as_tensor(x: np.ndarray | Tensor, n_inputs: int) -> Tensor:
+    if isinstance(x, np.ndarray) and not x.flags.writeable:
+        x = x.copy()  # torch would share a read-only buffer (pandas' copy-on-write views are read-only)
     t = torch.as_tensor(x, dtype=torch.float32)
     if t.dim() not in (2, 3) or t.shape[-1] != n_inputs:
         raise InputError("x", tuple(t.shape), f"expected shape (N, {n_inputs}) or (S, N, {n_inputs})")
