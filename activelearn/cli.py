@@ -99,6 +99,8 @@ def _register_simulate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--noise", action=argparse.BooleanOptionalAction, default=True,
                    help="add the default sensor noise (default: on)")
     p.add_argument("--out", required=True, metavar="PATH", help="output log, .csv or .parquet")
+    p.add_argument("--autodrive", action="store_true",
+                   help="write the AutoDRIVE dataset's layout (headerless 21-field CSV), not a table")
     p.add_argument("--plot", default=None, metavar="PNG", help="also draw the log figure (.png, .pdf, .svg)")
     p.set_defaults(handler=_simulate)
 
@@ -122,6 +124,8 @@ def _simulate(args: argparse.Namespace) -> int:
         raise InputError("--out", args.out, "must end in .csv or .parquet")
     if out.is_dir():
         raise InputError("--out", args.out, "is a directory")
+    if args.autodrive and out.suffix.lower() != ".csv":
+        raise InputError("--out", args.out, "an AutoDRIVE log (--autodrive) is a .csv file")
     plot = Path(args.plot) if args.plot else None
     if plot is not None and plot.suffix.lower() not in _PLOT_SUFFIXES:
         raise InputError("--plot", args.plot, f"must end in {', '.join(_PLOT_SUFFIXES)}")
@@ -151,7 +155,12 @@ def _simulate(args: argparse.Namespace) -> int:
         tmp = plot.with_name(f".{plot.name}.tmp{plot.suffix}")
         fig.savefig(tmp, dpi=120)
         tmp.replace(plot)
-    write_table(table, out)
+    if args.autodrive:
+        from activelearn.data import write_autodrive_log
+
+        write_autodrive_log(table, out)
+    else:
+        write_table(table, out)
     print(f"{maneuver.name}: {len(table)} rows, mean speed {table['speed'].mean():.4f} m/s, "
           f"mean yaw rate {table['angZ'].mean():+.4f} rad/s")
     print(f"wrote {out}" + (f" and {plot}" if plot is not None else ""))

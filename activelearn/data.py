@@ -205,3 +205,20 @@ def read_autodrive_log(path: str | Path) -> pd.DataFrame:
         table[c] = table[c].astype("str")
     table["diverged"] = table["diverged"].astype(bool)
     return table[list(SAMPLE_COLUMNS)]
+
+
+def write_autodrive_log(table: pd.DataFrame, path: str | Path, start: datetime | None = None) -> Path:
+    """Write a sample table as an AutoDRIVE Nigel log: headerless CSV, 21 fields, atomically.
+
+    Timestamps are wall-clock strings (yyyy_MM_dd_HH_mm_ss_fff) from `start` (default 2026-01-01 UTC)
+    plus `time`; the perception columns (cam0, cam1, lidar) stay empty. `read_autodrive_log` reads it.
+    """
+    start = start or datetime(2026, 1, 1, tzinfo=UTC)
+    stamps = [
+        (start + pd.Timedelta(seconds=float(t))).strftime(_AUTODRIVE_TIME_FORMAT)[:-3] for t in table["time"]
+    ]
+    out = table[list(AUTODRIVE_COLUMNS)].copy()
+    out["timestamp"] = stamps
+    for column in AUTODRIVE_UNUSED_COLUMNS:
+        out[column] = ""
+    return atomic_write_bytes(path, out.to_csv(index=False, header=False, float_format="%.9g").encode())
