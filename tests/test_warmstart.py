@@ -17,6 +17,7 @@ from activelearn.loop.acquisition import (
     IntegratedVarianceStrategy,
     MaxEpistemicStrategy,
     greedy_maximin,
+    make_strategy,
 )
 from activelearn.loop.campaign import Campaign, CampaignState
 from activelearn.loop.pool import build_pool, operating_features, pool_maneuvers, target_points, test_maneuvers
@@ -241,3 +242,34 @@ def test_a_seconds_budget_with_kind_durations_stops_before_it_is_exceeded(tmp_pa
     assert spent > 70.0 - 2 * cheapest  # it did not stop early with room for more
     state = CampaignState.load(tmp_path / "c")
     assert state.stop_reason == "max_sim_seconds"
+
+
+def test_auto_decides_from_the_warm_start_and_is_deterministic(pool_cfg, forward_model):
+    maneuvers = pool_maneuvers(pool_cfg.pool)
+    auto = make_strategy("auto", n_samples=32)
+    cold = _pool(pool_cfg)
+    assert auto.decide(cold) == "uniform"
+    assert auto.select(forward_model, cold, 3, np.random.default_rng(5)) == greedy_maximin(
+        cold, 3, np.random.default_rng(5)
+    )
+    warm = dataclasses.replace(_pool(pool_cfg, prior=[m for m in maneuvers if m.throttle > 0]),
+                               context={"warm_start": 1.0})  # fmt: skip
+    assert auto.decide(warm) == "integrated_variance"
+    first = auto.select(forward_model, warm, 3, np.random.default_rng(5))
+    assert first == auto.select(forward_model, warm, 3, np.random.default_rng(5))
+    assert first == make_strategy("integrated_variance", n_samples=32).select(
+        forward_model, warm, 3, np.random.default_rng(5)
+    )
+    # the guard: a model whose std ranked its recent errors the wrong way round is not asked
+    distrusted = dataclasses.replace(warm, context={"warm_start": 1.0, "prequential_spearman": -0.4})
+    assert auto.decide(distrusted) == "uniform"
+
+
+def test_auto_campaigns_are_deterministic_for_a_seed(tmp_path):
+    cfg = warm_config(tmp_path, strategy="auto")
+    a = Campaign(cfg, tmp_path / "a").run(figures=False, log_model=False)
+    b = Campaign(cfg, tmp_path / "b").run(figures=False, log_model=False)
+    assert a.state.batches == b.state.batches
+    assert a.history["test_rmse"].tolist() == b.history["test_rmse"].tolist()
+    # a warm start: integrated variance in every round that picked (the last round only stops)
+    assert a.history["auto_model_based"].dropna().tolist() == [1.0, 1.0]

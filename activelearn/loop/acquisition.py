@@ -590,9 +590,10 @@ class AutoStrategy(Strategy):
 
     - Cold start (no prior): greedy maximin (`uniform`). Measured on every cold-start pool, no
       model-based rule beat it (README, "When does active learning pay?").
-    - Warm start (a prior holds part of the domain): integrated variance over the target region, in
-      the function space of the model's posterior draws; per second of track time when the budget is
-      in seconds (`seconds_budget` in the pool's context) and candidates differ in cost.
+    - Warm start (`warm_start` in the pool's context: prior data or a prior model): integrated
+      variance over the target region, in the function space of the model's posterior draws; per
+      second of track time when the budget is in seconds (`seconds_budget` in the pool's context)
+      and candidates differ in cost.
     - Guard: when the last models' epistemic std ranked their errors on the maneuvers collected after
       them the wrong way round (`prequential_spearman` < 0 over the recent rounds), the uncertainty is
       not to be trusted this round and maximin picks instead.
@@ -608,7 +609,7 @@ class AutoStrategy(Strategy):
 
     def decide(self, pool: Pool) -> str:
         """The strategy this round uses: "uniform" or "integrated_variance"."""
-        if pool.prior_features is None or len(pool.prior_features) == 0:
+        if not (pool.context or {}).get("warm_start"):
             return "uniform"
         spearman = (pool.context or {}).get("prequential_spearman")
         if spearman is not None and np.isfinite(spearman) and spearman < 0:

@@ -227,7 +227,9 @@ class Campaign:
             self.target(),
             self.cfg.seed,
             affordable=affordable,
-            prior=self.prior.runs if self.prior is not None else (),
+            # what is known of this system counts as taken; a prior that only shapes a model (another
+            # system's data: fine-tune, residual) does not
+            prior=self.prior.runs if self.prior is not None and self.prior.trains else (),
         )
         if self.cfg.strategy == "oracle_error":
             pool = dataclasses.replace(pool, **self._pool_truth())
@@ -347,7 +349,7 @@ class Campaign:
         return {"prequential_spearman": float(diag["spearman"]), "prequential_points": float(len(counts))}
 
     def _context(self, state: CampaignState) -> dict[str, float]:
-        """What strategies may read: the recent prequential checks (mean of 3), the kind of budget."""
+        """What strategies may read: recent prequential checks (mean of 3), warm start, kind of budget."""
         recent = [
             r["prequential_spearman"]
             for r in state.rounds
@@ -356,6 +358,8 @@ class Campaign:
         context = {"prequential_spearman": float(np.mean(recent[-3:]))} if recent else {}
         if self.cfg.design.max_sim_seconds is not None:  # the budget is track time: costs matter
             context["seconds_budget"] = 1.0
+        if self.cfg.design.prior is not None:  # the model starts from what was known before
+            context["warm_start"] = 1.0
         return context
 
     def _trial(
