@@ -20,7 +20,13 @@ from activelearn.loop.acquisition import (
     make_strategy,
 )
 from activelearn.loop.campaign import Campaign, CampaignState
-from activelearn.loop.pool import build_pool, operating_features, pool_maneuvers, target_points, test_maneuvers
+from activelearn.loop.pool import (
+    build_pool,
+    operating_features,
+    pool_maneuvers,
+    target_points,
+    test_maneuvers,
+)
 from activelearn.loop.prior import PRIOR_FILE
 from activelearn.numerics import synthetic
 from activelearn.numerics.models import build_model, save_model
