@@ -1,4 +1,4 @@
-"""A real car in the loop, rehearsed: propose -> drive (the `simulate` CLI) -> ingest -> propose, and logs pools.
+"""A real car in the loop, rehearsed: propose, drive (the `simulate` CLI), ingest, propose; logs pools.
 
 Everything through the real CLI, MuJoCo and a real SQLite MLflow store; sizes are shrunk (short
 maneuvers, few epochs), never the components.
@@ -152,7 +152,9 @@ def test_a_logs_pool_in_the_autodrive_layout_runs_compare(tmp_path):
     config = tmp_path / "logs.toml"
     text = CONFIG.replace('kind = "external"', f'kind = "logs"\npath = "{root}"')
     config.write_text(text)
-    cfg = load_config(config, overrides={"output_dir": str(tmp_path / "runs"), "tracking": {"enabled": False}})
+    cfg = load_config(
+        config, overrides={"output_dir": str(tmp_path / "runs"), "tracking": {"enabled": False}}
+    )
     result = compare(cfg, ["uniform", "max_epistemic"], [0, 1], directory=tmp_path / "cmp", workers=1)
     curves = result.curves
     assert set(curves["strategy"]) == {"uniform", "max_epistemic"}

@@ -78,14 +78,18 @@ def test_a_killed_warm_campaign_resumes_with_its_prior(tmp_path):
     assert resumed.state.prior_digest == reference.state.prior_digest is not None
     assert resumed.state.batches == reference.state.batches
     assert [r["test_rmse"] for r in resumed.state.rounds] == [r["test_rmse"] for r in reference.state.rounds]
-    pd.testing.assert_frame_equal(read_table(tmp_path / "ref" / PRIOR_FILE), read_table(tmp_path / "kill" / PRIOR_FILE))
+    pd.testing.assert_frame_equal(
+        read_table(tmp_path / "ref" / PRIOR_FILE), read_table(tmp_path / "kill" / PRIOR_FILE)
+    )
 
 
 def test_a_prior_campaign_directory_and_table_feed_a_new_campaign(tmp_path):
     earlier = Campaign(warm_config(tmp_path), tmp_path / "earlier").run(figures=False, log_model=False)
     table = tmp_path / "known.parquet"
     write_table(read_table(tmp_path / "earlier" / "samples.parquet"), table)
-    cfg = warm_config(tmp_path, design={"initial": 0, "max_maneuvers": 2, "prior": [str(tmp_path / "earlier"), str(table)]})
+    cfg = warm_config(
+        tmp_path, design={"initial": 0, "max_maneuvers": 2, "prior": [str(tmp_path / "earlier"), str(table)]}
+    )
     campaign = Campaign(cfg, tmp_path / "c")
     result = campaign.run(figures=False, log_model=False)
     runs = campaign.prior.runs
@@ -98,7 +102,9 @@ def test_a_prior_campaign_directory_and_table_feed_a_new_campaign(tmp_path):
     ("column", "value", "reason"),
     [("steering", 20.0, "degrees"), ("speed", 25.0, "m/s"), ("time", None, "Hz")],
 )
-def test_a_prior_in_other_units_is_one_clear_error_and_writes_nothing(tmp_path, capsys, column, value, reason):
+def test_a_prior_in_other_units_is_one_clear_error_and_writes_nothing(
+    tmp_path, capsys, column, value, reason
+):
     source = read_table(_simulated_log(tmp_path))
     if value is None:
         source["time"] = source["time"] * 3.0  # logged at 10 Hz
@@ -129,7 +135,7 @@ def test_a_prior_model_with_other_inputs_is_rejected(tmp_path):
     cfg = warm_config(
         tmp_path, design={"initial": 1, "prior": {"model": str(tmp_path / "markov.pt"), "use": "finetune"}}
     )
-    with pytest.raises(InputError, match="design.prior.model.*4 inputs"):
+    with pytest.raises(InputError, match=r"design\.prior\.model.*4 inputs"):
         Campaign(cfg, tmp_path / "c").run(figures=False, log_model=False)
     assert not (tmp_path / "c").exists()
 
@@ -157,7 +163,11 @@ def pool_cfg(tmp_path_factory):
         SMOKE,
         overrides={
             "output_dir": str(tmp_path_factory.mktemp("runs")),
-            "pool": {"throttles": [-0.8, -0.4, 0.2, 0.6, 1.0], "steerings": [0.1, 0.3, 0.5], "duration": 10.0},
+            "pool": {
+                "throttles": [-0.8, -0.4, 0.2, 0.6, 1.0],
+                "steerings": [0.1, 0.3, 0.5],
+                "duration": 10.0,
+            },
             "test": {"throttles": [0.5], "steerings": [0.2], "duration": 10.0},
         },
     )
@@ -219,8 +229,8 @@ def test_cost_aware_picks_prefer_the_cheaper_of_two_equally_informative_candidat
     owner = np.concatenate([np.zeros((pool.owner == best).sum(), dtype=int), pool.owner + 1])
     weights = np.concatenate([pool.weights[pool.owner == best], pool.weights])
     priced = dataclasses.replace(
-        pool, maneuvers=tuple(both), features=features, kinds=np.concatenate([[pool.kinds[best]], pool.kinds]),
-        points=points, owner=owner, weights=weights, taken=np.zeros(len(both), dtype=bool),
+        pool, maneuvers=tuple(both), features=features,
+        kinds=np.concatenate([[pool.kinds[best]], pool.kinds]), points=points, owner=owner, weights=weights, taken=np.zeros(len(both), dtype=bool),
         costs=np.array([m.duration for m in both]), affordable=None,
     )  # fmt: skip
     assert plain.select(forward_model, priced, 1, np.random.default_rng(0)) == [0]  # a tie: the first
