@@ -231,7 +231,8 @@ def test_cost_aware_picks_prefer_the_cheaper_of_two_equally_informative_candidat
     priced = dataclasses.replace(
         pool, maneuvers=tuple(both), features=features,
         kinds=np.concatenate([[pool.kinds[best]], pool.kinds]), points=points, owner=owner,
-        weights=weights, taken=np.zeros(len(both), dtype=bool), costs=np.array([m.duration for m in both]), affordable=None,
+        weights=weights, taken=np.zeros(len(both), dtype=bool),
+        costs=np.array([m.duration for m in both]), affordable=None,
     )  # fmt: skip
     assert plain.select(forward_model, priced, 1, np.random.default_rng(0)) == [0]  # a tie: the first
     aware = MaxEpistemicStrategy(n_samples=32, batch="topk", cost_aware=True)
