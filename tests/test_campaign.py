@@ -71,6 +71,9 @@ from activelearn import cli
 from activelearn.loop import campaign
 
 name, event_name, event_round, *argv = sys.argv[1:]
+# Ctrl-C raises KeyboardInterrupt, as in a terminal, even where the suite itself runs with SIGINT
+# ignored (a background job of a non-interactive shell), which its children would inherit.
+signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 class SignalledCampaign(campaign.Campaign):
