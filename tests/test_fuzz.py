@@ -83,8 +83,7 @@ def _walk(model: type[BaseModel], prefix: tuple[str, ...] = ()) -> Iterator[tupl
 
 
 FIELDS = dict(_walk(CampaignConfig))
-SECTIONS = [()] + [path for path, info in FIELDS.items() if any(p[: len(path)] == path and p != path
-                                                                  for p in FIELDS)]
+SECTIONS = [(), *sorted({path[:i] for path in FIELDS for i in range(1, len(path))})]  # tables
 CHOICES = sorted({repr(v): v for info in FIELDS.values() for v in _literals_in(info.annotation)}.values(),
                  key=repr)
 
@@ -93,8 +92,7 @@ def _bases() -> list[dict[str, Any]]:
     """Starting points: no config (all defaults), every shipped config, and smoke with a continuous pool."""
     shipped = [tomllib.loads(path.read_text()) for path in CONFIGS]
     ranged = tomllib.loads(SMOKE.read_text())
-    ranged["pool"] = {**ranged["pool"], "throttles": None, "steerings": None}
-    ranged["pool"] = {k: v for k, v in ranged["pool"].items() if v is not None}
+    ranged["pool"] = {k: v for k, v in ranged["pool"].items() if k not in ("throttles", "steerings")}
     ranged["pool"].update(throttle_range=[0.2, 0.9], steering_range=[0.1, 0.5], size=12)
     return [{}, *shipped, ranged]
 
