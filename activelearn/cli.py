@@ -22,9 +22,18 @@ def _red(text: str) -> str:
     return f"\033[31m{text}\033[0m" if sys.stderr.isatty() else text
 
 
+def _one_line(text: str) -> str:
+    """`text` with every non-printable character escaped (line breaks and terminal controls included)."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 def fail(message: str) -> int:
-    """Print one red error line on stderr and return the usage exit code."""
-    print(_red(f"error: {message}"), file=sys.stderr)
+    """Print one red error line on stderr and return the usage exit code.
+
+    Messages can quote what the user typed (a config key, a file's bytes): escaping it keeps the
+    line one line and the terminal's state untouched.
+    """
+    print(_red(f"error: {_one_line(message)}"), file=sys.stderr)
     return EXIT_USAGE
 
 
@@ -638,6 +647,8 @@ def _predict(args: argparse.Namespace) -> int:
     maneuver = _maneuver_from_args(args)
     if args.samples < 2:
         raise InputError("--samples", args.samples, "must be at least 2")
+    if not 0 <= args.seed < 2**32:  # torch's manual_seed overflows past 2**64
+        raise InputError("--seed", args.seed, "must lie in [0, 2**32)")
     out = Path(args.out) if args.out else None
     if out is not None and out.suffix.lower() not in _PLOT_SUFFIXES:
         raise InputError("--out", args.out, f"must end in {', '.join(_PLOT_SUFFIXES)}")

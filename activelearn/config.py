@@ -7,6 +7,7 @@ sections; campaign sections are added beside them.
 
 from __future__ import annotations
 
+import math
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -178,6 +179,9 @@ class TrainingConfig(_Section):
 Count = Annotated[int, Field(ge=1)]
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
+# Seeds reach numpy's SeedSequence (non-negative only) and torch's manual_seed (scaled per round by
+# the campaign; below 2**64): 32 bits keep every derived seed in range.
+Seed = Annotated[int, Field(ge=0, lt=2**32)]
 Throttle = Annotated[float, Field(ge=-1.0, le=1.0)]
 Steering = Annotated[float, Field(ge=0.0, le=MAX_STEERING)]
 Kind = Literal["straight", "skidpad", "fishhook", "slalom", "eight"]
@@ -208,7 +212,7 @@ class PoolConfig(_Section):
     throttle_range: tuple[Throttle, Throttle] | None = None
     steering_range: tuple[Steering, Steering] | None = None
     size: Annotated[int, Field(ge=2)] | None = None
-    seed: int = 0
+    seed: Seed = 0
     duration: Positive = 90.0
     # Seconds per maneuver kind, overriding `duration` (e.g. {straight = 20, eight = 90}): maneuvers
     # differ in what they cost on a track, and a seconds budget (design.max_sim_seconds) counts it.
@@ -280,7 +284,7 @@ class PriorGridConfig(_Section):
     steerings: list[Steering] = [0.0]
     duration: Positive = 30.0
     # The prior is data already in hand: the same rows for every campaign seed and strategy.
-    noise_seed: int = 2_000_003
+    noise_seed: Seed = 2_000_003
 
     @field_validator("kinds", "directions", "throttles", "steerings")
     @classmethod
@@ -430,7 +434,7 @@ class TestSetConfig(_Section):
     throttles: list[Throttle] = [0.3, 0.5, 0.7, 0.9]
     steerings: list[Steering] = [0.05, 0.1571, 0.2618, 0.3665, 0.4712]
     duration: Positive = 30.0
-    noise_seed: int = 1_000_003
+    noise_seed: Seed = 1_000_003
     # Recorded logs (a folder or files) to test on instead of the simulated grid: a real car's test set.
     logs: list[str] | None = None
 
@@ -492,7 +496,7 @@ class CampaignConfig(_Section):
     """A whole campaign: pool, simulation, data, design, acquisition, model, training, test set, tracking."""
 
     name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")] = "campaign"
-    seed: Annotated[int, Field(ge=0)] = 0
+    seed: Seed = 0
     strategy: str = "max_epistemic"
     output_dir: str = "runs"
     pool: PoolConfig = PoolConfig()
@@ -629,6 +633,8 @@ def _check_space_value(name: str, kind: SpaceKind, allowed: tuple[Any, ...] | No
         return value
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ValueError(f"takes a number, got {value!r}")
+    if not math.isfinite(value):  # int(inf) would overflow; an infinite range cannot be sampled
+        raise ValueError(f"must be finite, got {value!r}")
     if kind == "int":
         if value != int(value):
             raise ValueError(f"takes whole numbers, got {value!r}")

@@ -8,6 +8,7 @@ then `time` (s since the run started), `maneuver`, `direction`, `op_throttle`, `
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 import re
@@ -132,8 +133,13 @@ def read_autodrive_log(path: str | Path) -> pd.DataFrame:
     path = Path(path)
     if not path.is_file():
         raise InputError("path", str(path), "no such file")
-    with open(path, newline="") as handle:
-        rows = list(csv.reader(handle))
+    raw = path.read_bytes()
+    try:
+        text = raw.decode("utf-8-sig")  # UTF-8, whatever the locale; a leading byte-order mark is dropped
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise DataFormatError(f"{path}:{line}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    rows = list(csv.reader(io.StringIO(text, newline="")))
     if not rows or not any(field.strip() for field in rows[0]):
         raise DataFormatError(f"{path}:1: empty file, expected an AutoDRIVE log")
     has_header = rows[0][0].strip() == "timestamp"

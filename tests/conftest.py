@@ -5,8 +5,17 @@ from __future__ import annotations
 import os
 
 import pytest
+from hypothesis import settings
 
 POSTGRES_ENV = "ACTIVELEARN_TEST_POSTGRES_URL"
+
+# Property tests (tests/test_fuzz.py) try the same examples on every run: derived from each test's
+# source (derandomize), with no example database, so CI and every machine see identical inputs.
+# `HYPOTHESIS_PROFILE=explore` draws fresh random examples, twenty times as many, to hunt locally.
+_COMMON = dict(database=None, deadline=None, print_blob=True)
+settings.register_profile("ci", derandomize=True, max_examples=100, **_COMMON)
+settings.register_profile("explore", max_examples=2000, **_COMMON)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 
 @pytest.fixture(scope="session")

@@ -5,7 +5,6 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -59,22 +58,61 @@ def _run_cli(args, **kwargs):
     return subprocess.Popen([sys.executable, "-m", "activelearn.cli", *args], **kwargs)
 
 
+# The real CLI in a process of its own that sends itself a signal the moment its campaign reports an
+# event (through the public `Campaign.progress` hook, which the CLI's progress bar also uses).
+# `signal.raise_signal` delivers it before returning, so the signal lands at exactly that point
+# however loaded the machine is; waiting for a checkpoint file and signalling from outside raced
+# with the campaign's last rounds (they take about a second).
+_SIGNAL_AT_EVENT = """
+import signal
+import sys
+
+from activelearn import cli
+from activelearn.loop import campaign
+
+name, event_name, event_round, *argv = sys.argv[1:]
+# Ctrl-C raises KeyboardInterrupt, as in a terminal, even where the suite itself runs with SIGINT
+# ignored (a background job of a non-interactive shell), which its children would inherit.
+signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+class SignalledCampaign(campaign.Campaign):
+    @property
+    def progress(self):
+        return self._progress
+
+    @progress.setter
+    def progress(self, report):
+        def progress(event):
+            report(event)
+            if event["event"] == event_name and event["round"] == int(event_round):
+                signal.raise_signal(getattr(signal, name))
+
+        self._progress = progress
+
+
+campaign.Campaign = SignalledCampaign
+raise SystemExit(cli.main(argv))
+"""
+
+
+def _run_cli_signalled(signal_name: str, at: tuple[str, int], args, **kwargs):
+    """`_run_cli`, but the CLI process signals itself when its campaign reports event `at` (name, round)."""
+    command = [sys.executable, "-c", _SIGNAL_AT_EVENT, signal_name, at[0], str(at[1]), *args]
+    return subprocess.Popen(command, **kwargs)
+
+
 def test_killed_campaign_resumes_to_identical_data(tmp_path):
     common = ["campaign", "run", str(SMOKE), "--no-tracking", "--seed", "3"]
     reference = _run_cli([*common, "--out", str(tmp_path / "ref")])
     assert reference.wait(timeout=300) == 0
 
-    victim = _run_cli([*common, "--out", str(tmp_path / "kill")])
-    state_file = tmp_path / "kill" / "state.json"
-    deadline = time.time() + 240
-    while time.time() < deadline:  # kill as soon as the first round is checkpointed
-        if state_file.exists() and CampaignState.load(tmp_path / "kill").rounds:
-            break
-        time.sleep(0.05)
-    victim.send_signal(signal.SIGKILL)
-    victim.wait(timeout=30)
+    # Killed as round 1 starts: round 0 is checkpointed, round 1's work is lost and redone on resume.
+    victim = _run_cli_signalled("SIGKILL", ("fit", 1), [*common, "--out", str(tmp_path / "kill")])
+    assert victim.wait(timeout=300) == -signal.SIGKILL
     killed_state = CampaignState.load(tmp_path / "kill")
     assert not killed_state.finished, "the kill came too late to test anything"
+    assert len(killed_state.rounds) == 1
 
     resumed = _run_cli([*common, "--out", str(tmp_path / "kill"), "--resume"])
     assert resumed.wait(timeout=300) == 0
@@ -90,19 +128,16 @@ def test_killed_campaign_resumes_to_identical_data(tmp_path):
 def test_ctrl_c_marks_the_run_killed_and_leaves_a_resumable_directory(tmp_path):
     uri = f"sqlite:///{tmp_path}/mlruns/mlflow.db"
     out = tmp_path / "c"
-    proc = _run_cli(["campaign", "run", str(SMOKE), "--out", str(out), "--tracking-uri", uri],
-                    stderr=subprocess.PIPE, text=True)
-    deadline = time.time() + 240
-    while time.time() < deadline:
-        if (out / "state.json").exists() and CampaignState.load(out).rounds:
-            break
-        time.sleep(0.05)
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
+    # Ctrl-C as round 1 starts (after round 0's checkpoint), wherever the machine's load would put it.
+    proc = _run_cli_signalled("SIGINT", ("fit", 1),
+                              ["campaign", "run", str(SMOKE), "--out", str(out), "--tracking-uri", uri],
+                              stderr=subprocess.PIPE, text=True)
+    _, err = proc.communicate(timeout=300)
     assert proc.returncode == 130, err
     assert "--resume" in err
     state = CampaignState.load(out)
     assert not state.finished
+    assert len(state.rounds) == 1
     assert Tracker(uri).run_status(state.run_id) == "KILLED"
     resumed = _run_cli(["campaign", "run", str(SMOKE), "--out", str(out), "--tracking-uri", uri, "--resume"])
     assert resumed.wait(timeout=300) == 0

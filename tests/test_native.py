@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import ctypes
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -151,3 +153,17 @@ def test_a_failing_compiler_warns_and_falls_back(tmp_path, monkeypatch, untraine
         native.library.cache_clear()
     compiled = simulate(untrained_model, controls, n_samples=3, seed=1, backend="native")
     np.testing.assert_allclose(fallback.x, compiled.x, atol=1e-5)
+
+
+def test_loading_the_kernel_leaves_the_processs_floating_point_mode_alone():
+    """Linked with -ffast-math, the library switched the whole process to flush subnormals to zero."""
+    script = (
+        "import numpy as np, torch\n"
+        "from activelearn.numerics import native\n"
+        "assert native.library() is not None\n"
+        "assert np.float32(1e-40) * np.float32(1.0) != 0.0, 'numpy flushes subnormals'\n"
+        "assert np.float64(1e-310) * 1.0 != 0.0, 'numpy flushes float64 subnormals'\n"
+        "assert (torch.tensor([1e-40]) * 1.0).item() != 0.0, 'torch flushes subnormals'\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr

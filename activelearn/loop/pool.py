@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -22,7 +23,9 @@ def _operating_points(cfg: PoolConfig) -> list[tuple[float, float]]:
         assert cfg.throttles is not None and cfg.steerings is not None
         return [(float(t), float(s)) for t in cfg.throttles for s in cfg.steerings]
     assert cfg.throttle_range is not None and cfg.steering_range is not None
-    unit = qmc.Sobol(2, scramble=True, rng=cfg.seed).random(cfg.size)
+    with warnings.catch_warnings():  # any number of candidates, as acquisition's Sobol strategy does
+        warnings.filterwarnings("ignore", message=".*balance properties.*", category=UserWarning)
+        unit = qmc.Sobol(2, scramble=True, rng=cfg.seed).random(cfg.size)
     low = np.array([cfg.throttle_range[0], cfg.steering_range[0]])
     high = np.array([cfg.throttle_range[1], cfg.steering_range[1]])
     points = qmc.scale(unit, low, high)

@@ -35,9 +35,13 @@ import numpy as np
 
 SOURCES = tuple(Path(__file__).with_name(name) for name in ("static_rollout.c", "network.c"))
 HEADERS = (Path(__file__).with_name("network.h"),)  # part of the cache key, not compiled on their own
-# -ffast-math lets GCC vectorise logf/sinf/cosf through glibc's libmvec; -march=native is safe
-# because the cache key includes this machine's CPU features.
-FLAGS = ("-O3", "-ffast-math", "-march=native", "-fPIC", "-shared", "-pthread")
+# Compile flags. -ffast-math lets GCC vectorise logf/sinf/cosf through glibc's libmvec; -march=native
+# is safe because the cache key includes this machine's CPU features.
+FLAGS = ("-O3", "-ffast-math", "-march=native", "-fPIC", "-pthread")
+# Link flags: no -ffast-math here. Linked with it, GCC adds crtfastmath.o, whose constructor sets the
+# CPU's flush-to-zero and denormals-are-zero modes for the whole process when the library loads:
+# numpy's and torch's subnormal numbers would then read as 0 in every computation after it.
+LINK_FLAGS = ("-shared", "-pthread")
 LINK_OPTIONS = (("-lmvec", "-lm"), ("-lm",))  # libmvec is glibc's; elsewhere the scalar libm serves
 COMPILE_TIMEOUT_S = 120
 COMPILERS = ("cc", "gcc", "clang")  # the first found on PATH builds the kernels
@@ -137,11 +141,23 @@ def _cpu_features() -> str:
         return platform.processor()
 
 
+def _run_compiler(command: list[str]) -> str | None:
+    """Run one compiler command: None on success, else the last line of its complaint."""
+    done = subprocess.run(command, capture_output=True, text=True, timeout=COMPILE_TIMEOUT_S, check=False)
+    if done.returncode == 0:
+        return None
+    message = done.stderr.strip()
+    return message.splitlines()[-1] if message else f"exit status {done.returncode}"
+
+
 def _build(compiler: str) -> Path:
-    """Compile the kernel into the cache (or find it there) and return the library's path."""
+    """Compile the kernel into the cache (or find it there) and return the library's path.
+
+    Sources are compiled to objects with `FLAGS`, then linked with `LINK_FLAGS` (see there why apart).
+    """
     version = subprocess.run([compiler, "--version"], capture_output=True, text=True, check=False).stdout
     sources = [path.read_text() for path in (*SOURCES, *HEADERS)]
-    identity = [*sources, " ".join(FLAGS), version, platform.machine(), _cpu_features()]
+    identity = [*sources, " ".join(FLAGS), " ".join(LINK_FLAGS), version, platform.machine(), _cpu_features()]
     key = hashlib.sha256("\0".join(identity).encode()).hexdigest()[:16]
     name = f"kernels-{key}.so"
     if (CACHE_DIR / name).exists():
@@ -152,22 +168,21 @@ def _build(compiler: str) -> Path:
     except OSError:  # a read-only home: build for this process only
         target = Path(tempfile.mkdtemp(prefix="activelearn-native-")) / name
     errors = []
-    for link in LINK_OPTIONS:
-        fd, tmp = tempfile.mkstemp(suffix=".so", dir=target.parent)
-        os.close(fd)
-        done = subprocess.run(
-            [compiler, *FLAGS, "-o", tmp, *map(str, SOURCES), *link],
-            capture_output=True,
-            text=True,
-            timeout=COMPILE_TIMEOUT_S,
-            check=False,
-        )
-        if done.returncode == 0:
-            os.replace(tmp, target)  # atomic: a concurrent builder's identical file may win, harmlessly
-            return target
-        os.unlink(tmp)
-        message = done.stderr.strip()
-        errors.append(message.splitlines()[-1] if message else f"exit status {done.returncode}")
+    with tempfile.TemporaryDirectory(prefix="activelearn-native-build-") as build:
+        objects = [str(Path(build) / f"{source.stem}.o") for source in SOURCES]
+        for source, obj in zip(SOURCES, objects, strict=True):
+            error = _run_compiler([compiler, *FLAGS, "-c", str(source), "-o", obj])
+            if error is not None:
+                raise OSError(f"{compiler} failed: {error}")
+        for link in LINK_OPTIONS:
+            fd, tmp = tempfile.mkstemp(suffix=".so", dir=target.parent)
+            os.close(fd)
+            error = _run_compiler([compiler, *LINK_FLAGS, "-o", tmp, *objects, *link])
+            if error is None:
+                os.replace(tmp, target)  # atomic: a concurrent builder's identical file may win, harmlessly
+                return target
+            os.unlink(tmp)
+            errors.append(error)
     raise OSError(f"{compiler} failed: {' | '.join(errors)}")
 
 

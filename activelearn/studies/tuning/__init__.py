@@ -831,9 +831,9 @@ def tune(
 ) -> TuningResult:
     """Run (or continue) an Optuna study over the config's search space and add `n_trials` trials.
 
-    Everything is checked before anything is created: arguments, then the storage (connect
-    timeout), then the data. `workers` > 1 runs that many spawned processes sharing the trials;
-    `timeout` (s) stops starting new trials. `enqueue` lists params (Optuna names) to try first.
+    Everything is checked before anything is created: arguments, data files, then the storage
+    (connect timeout), then simulated data. `workers` > 1 runs that many spawned processes sharing
+    the trials; `timeout` (s) stops starting new trials. `enqueue` lists params (Optuna names) to try first.
     The best params go to `out` (default `<output_dir>/tuning/<study>/best.toml`) with the figures.
     """
     emit = progress or (lambda event: None)
@@ -865,8 +865,12 @@ def tune(
         emit({"event": "note", "message": notes[-1]})
     optuna.logging.set_verbosity(optuna.logging.ERROR)
 
+    # Data files are read before the storage is opened (which creates a SQLite file): a malformed file
+    # then leaves nothing behind. Simulated data come after it, so an unreachable server fails first.
+    dataset = load_dataset(data, cfg) if data else None
     rdb = open_storage(storage)
-    dataset = load_dataset(data, cfg) if data else collect_dataset(cfg, progress=progress)
+    if dataset is None:
+        dataset = collect_dataset(cfg, progress=progress)
     split = split_data(dataset, cfg.tuning.val_fraction, cfg.seed)
     space = space_signature(cfg.tuning.space)
     data_signature = _hash({"data": dataset.key, "val": split.val_points})
