@@ -473,6 +473,15 @@ class OracleConfig(_Section):
     steering_tolerance: Positive = 0.05
     duration_tolerance: Annotated[float, Field(gt=0, lt=1)] = 0.1
 
+    @field_validator("overrides", mode="before")
+    @classmethod
+    def _overrides_known(cls, value: Any) -> Any:
+        # the simulator owns the parameter table; its OverrideError names the parameter, and
+        # _as_config_error turns that into the field oracle.overrides.<name>
+        from simulator.twin import check_overrides
+
+        return check_overrides(value) if isinstance(value, dict) else value
+
     @model_validator(mode="after")
     def _fields_of_kind(self) -> OracleConfig:
         if self.overrides and self.kind != "twin":
@@ -534,6 +543,10 @@ class CampaignConfig(_Section):
 def _as_config_error(exc: ValidationError) -> ConfigError:
     error = exc.errors()[0]
     field = ".".join(str(p) for p in error["loc"]) or "config"
+    cause = (error.get("ctx") or {}).get("error")
+    if isinstance(getattr(cause, "field", None), str) and hasattr(cause, "reason"):
+        # a validator's own field-naming error (e.g. the simulator's OverrideError) names a sub-key
+        return ConfigError(f"{field}.{cause.field}", cause.value, cause.reason)  # type: ignore[union-attr]
     return ConfigError(field, error.get("input"), error["msg"].removeprefix("Value error, "))
 
 

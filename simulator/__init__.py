@@ -4,8 +4,9 @@ Knows nothing about learning; `activelearn` reaches MuJoCo only through this pac
 """
 
 from simulator.collect import AUTODRIVE_COLUMNS, COLUMNS, EXTRA_COLUMNS, NoiseConfig, add_noise, collect
-from simulator.errors import DivergenceError, DivergenceWarning, ManeuverError, SimulatorError
+from simulator.errors import DivergenceError, DivergenceWarning, ManeuverError, OverrideError, SimulatorError
 from simulator.maneuvers import DIRECTIONS, KINDS, Maneuver, nominal_controls, nominal_turn, sample_times
+from simulator.twin import TWIN_PARAMETERS, TwinParameter, check_overrides, twin_vehicle
 from simulator.vehicle import (
     ENCODER_CPR,
     MAX_SPEED,
@@ -31,20 +32,25 @@ __all__ = [
     "MAX_YAW_RATE",
     "STEERING_LIMIT",
     "THROTTLE_LIMIT",
+    "TWIN_PARAMETERS",
     "DivergenceError",
     "DivergenceWarning",
     "Maneuver",
     "ManeuverError",
     "NoiseConfig",
+    "OverrideError",
     "SimulatorError",
+    "TwinParameter",
     "Vehicle",
     "__version__",
     "ackermann_angles",
     "add_noise",
+    "check_overrides",
     "collect",
     "model_xml",
     "nominal_controls",
     "nominal_turn",
     "reference_speed",
     "sample_times",
+    "twin_vehicle",
 ]

@@ -8,7 +8,8 @@ How a collection runs:
   maneuver decides its next steering flips from the heading measured so far;
 - only the log samples are kept: a sample is taken every 1 / rate_hz s at the nearest physics step
   (exact for rates dividing the 300 Hz physics rate, such as 30 Hz); commands are held between
-  samples, so the logged throttle/steering is what the car received until the next row;
+  samples, so the logged throttle/steering is what the car received until the next row (with a
+  vehicle `latency`, what was sent: the car applies it `latency` seconds later);
 - sensor noise is drawn per maneuver from `SeedSequence(seed).spawn(len(maneuvers))[i]`, keyed by
   the maneuver's position in the list, so results never depend on the thread count. The physics,
   including the eight's heading feedback, never sees the noise: noise-free and noisy logs of a
@@ -272,6 +273,8 @@ def collect(
     steps_per_sample = physics_rate / rate_hz
     chunk_cap = max(1, round(_CHUNK_SECONDS * rate_hz))
     buffers = _Buffers()
+    delay = vehicle.latency_steps  # 0 for the nominal car: the original code path, bit for bit
+    idle = vehicle.controls(0.0, 0.0)  # the command before a run starts: the brake it settled with
 
     with mujoco.rollout.Rollout(nthread=nthread if nthread > 1 else 0) as roller:
         k = 0
@@ -296,8 +299,15 @@ def collect(
             control = buffers.get("control", (nb, nstep, nu))
             init = np.empty((nb, nstate))
             warm = np.empty((nb, vehicle.model.nv))
+            if delay:
+                # actuation latency: step s applies the command owning step s - delay (brake before t=0)
+                lagged = np.searchsorted(sample_step, np.arange(start, end) - delay, side="right") - 1
             for b, run in enumerate(active):
-                control[b] = run.ctrl[np.minimum(owner, run.n - 1)]
+                if delay:
+                    control[b] = run.ctrl[np.clip(lagged, 0, run.n - 1)]
+                    control[b, lagged < 0] = idle
+                else:
+                    control[b] = run.ctrl[np.minimum(owner, run.n - 1)]
                 init[b] = run.state
                 warm[b] = _warmstart(vehicle, scratch, run, control[b, 0])
             state_out = buffers.get("state", (nb, nstep, nstate))

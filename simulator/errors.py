@@ -34,3 +34,13 @@ class DivergenceError(SimulatorError, RuntimeError):
 
 class DivergenceWarning(RuntimeWarning):
     """Some maneuvers diverged; their rows are flagged in the `diverged` column."""
+
+
+class OverrideError(SimulatorError, ValueError):
+    """A twin parameter override is unknown or out of range; `field` names it and `value` holds it."""
+
+    def __init__(self, field: str, value: Any, reason: str) -> None:
+        self.field = field
+        self.value = value
+        self.reason = reason
+        super().__init__(f"{field}: {reason} (got {value!r})")

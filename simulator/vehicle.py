@@ -83,10 +83,18 @@ class Vehicle:
 
     `model` is a private copy; tests and studies may edit it (friction, gains, ...) before the first
     rollout. The rest state is computed lazily, so it reflects such edits.
+
+    Three properties of the control path are not in the model (simulator.twin sets them): the
+    bicycle steering angle the wheels get is `steering_gain * steering + steering_offset`, and
+    `latency` (s) delays every command inside `collect` (the control applied at time t is the
+    command of t - latency, rounded to physics steps; before a run starts the command is the brake).
     """
 
     def __init__(self, xml_path: str | Path = MODEL_PATH) -> None:
         self.model = mujoco.MjModel.from_xml_path(str(xml_path))
+        self.steering_gain = 1.0
+        self.steering_offset = 0.0  # rad
+        self.latency = 0.0  # s
         m = self.model
         self.actuator_ids = np.array([m.actuator(name).id for name in ACTUATORS])
         # Ackermann geometry from the model itself, so the split always matches the wheels.
@@ -121,11 +129,18 @@ class Vehicle:
         """Physics time step (s)."""
         return float(self.model.opt.timestep)
 
+    @property
+    def latency_steps(self) -> int:
+        """Actuation delay in whole physics steps (`latency` rounded to the nearest step)."""
+        return round(self.latency / self.model.opt.timestep)
+
     def controls(self, throttle: np.ndarray | float, steering: np.ndarray | float) -> np.ndarray:
         """Actuator controls (..., nu) for throttle in [-1, 1] and signed steering (rad, + = left)."""
         u = np.asarray(throttle, dtype=float)
         u, delta = np.broadcast_arrays(u, np.asarray(steering, dtype=float))
         ctrl = np.zeros((*u.shape, self.model.nu))
+        if self.steering_gain != 1.0 or self.steering_offset != 0.0:  # nominal stays bit-identical
+            delta = self.steering_gain * delta + self.steering_offset
         left, right = ackermann_angles(delta, self.wheelbase, self.track)
         ids = self.actuator_ids
         ctrl[..., ids[0]] = left

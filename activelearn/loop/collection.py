@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 import simulator
-from activelearn.config import DataConfig, NoiseSettings, SimulationConfig
+from activelearn.config import CampaignConfig, DataConfig, NoiseSettings, SimulationConfig
 from activelearn.data import read_table, write_table
 from simulator import Maneuver
 
@@ -78,6 +78,20 @@ class SimulationCache:
             for m, (_, part) in zip(todo, frame.groupby("run_id", sort=False), strict=True):
                 write_table(part.reset_index(drop=True), self.path(m))
         return [read_table(self.path(m)) for m in maneuvers]
+
+
+def twin_variant(overrides: dict[str, float]) -> str:
+    """Short stable name of a twin's overrides (a digest of the sorted name=value pairs)."""
+    text = ";".join(f"{k}={float(v)!r}" for k, v in sorted(overrides.items()))
+    return "twin-" + hashlib.sha256(text.encode()).hexdigest()[:10]
+
+
+def twin_cache(root: str | Path, cfg: CampaignConfig) -> SimulationCache:
+    """The simulation cache of a config's twin oracle: its own vehicle, its own folder under `root`."""
+    overrides = dict(cfg.oracle.overrides)
+    return SimulationCache(
+        root, cfg.simulation, vehicle=simulator.twin_vehicle(overrides), variant=twin_variant(overrides)
+    )
 
 
 def noise_seed(seed: int, maneuver: Maneuver) -> int:
