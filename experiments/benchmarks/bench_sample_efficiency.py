@@ -42,6 +42,7 @@ POOLS: dict[str, tuple[str, ...]] = {
     "all_maneuvers_markov": ("uniform", "max_epistemic", "integrated_variance", "auto"),
     "odd_expansion": ("uniform", "grid", "random", "max_epistemic", "integrated_variance", "auto"),
     "odd_costs": ("uniform", "integrated_variance", "auto"),
+    "sim_to_real": ("uniform", "max_epistemic", "integrated_variance", "auto"),
 }
 
 
