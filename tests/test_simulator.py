@@ -121,6 +121,16 @@ def test_mild_understeer_and_yaw_rate_below_kinematic(turns: pd.DataFrame) -> No
     assert w_full == pytest.approx(MAX_YAW_RATE, rel=0.05)
 
 
+def test_steady_turn_speeds_match_the_real_car_within_a_centimetre_per_second() -> None:
+    # issue 15: the real car's turn speeds at throttle 1 (AutoDRIVE parking log), see nigel.xml
+    from simulator.vehicle import REFERENCE_TURNS, REFERENCE_TURNS_THROTTLE
+
+    runs = [Maneuver("skidpad", REFERENCE_TURNS_THROTTLE, s, "ccw", 8.0) for s, _ in REFERENCE_TURNS]
+    speeds = steady(collect(runs, noise=None), 5.0)["speed"]
+    for run, (steering, target) in zip(runs, REFERENCE_TURNS, strict=True):
+        assert abs(speeds[run.name] - target) <= 0.01, f"steering {steering}: {speeds[run.name]} vs {target}"
+
+
 def test_ackermann_inner_wheel_turns_more() -> None:
     left, right = ackermann_angles(0.3142)
     assert left > 0.3142 > right > 0.0

@@ -1,0 +1,208 @@
+"""Fidelity report: replay a car's logged commands in the simulator and compare the steady responses.
+
+Every log is cut into stretches of constant commands (throttle and steering within a tolerance of
+the stretch's first command). A stretch long enough to settle is an operating point: after `settle`
+seconds the mean speed and yaw rate over the rest of it are its steady response. The simulator
+replays the log's commands exactly as logged (held from one logged sample to the next, resampled
+at the simulator's log rate), and the same time windows of the simulated log give the simulated
+response. Speed loss in a turn is the straight-line speed at the same throttle minus the turn's
+speed: simulated straights for the simulator; for the log, its own straight stretches at that
+throttle when it has some, else the reference throttle map (`straight_source` says which).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+import simulator
+from activelearn.data import read_autodrive_log, read_table
+from activelearn.errors import DataFormatError, InputError
+
+LOG_COLUMNS = ("time", "throttle", "steering", "speed", "angZ")
+_RESPONSES = ("v_sim", "v_log", "w_sim", "w_log")
+_STRAIGHT_SECONDS = 6.0  # simulated straights: steady after 3 s, averaged over the last 3 s
+
+
+@dataclass(frozen=True)
+class FidelitySettings:
+    """How stretches of constant commands are found and averaged."""
+
+    settle: float = 1.0  # s dropped at the start of a stretch (the transient)
+    min_window: float = 1.0  # s of steady data a stretch must still have
+    throttle_tolerance: float = 0.02
+    steering_tolerance: float = 0.01  # rad
+    rate_hz: float = 30.0  # simulator log rate of the replay
+
+    def __post_init__(self) -> None:
+        for name in ("settle", "min_window", "throttle_tolerance", "steering_tolerance", "rate_hz"):
+            value = getattr(self, name)
+            if not isinstance(value, int | float) or not np.isfinite(value) or value < 0:
+                raise InputError(name, value, "must be a finite number >= 0")
+        if self.min_window <= 0 or self.rate_hz <= 0:
+            raise InputError("min_window" if self.min_window <= 0 else "rate_hz", 0, "must be > 0")
+
+
+@dataclass(frozen=True)
+class Stretch:
+    """A stretch of constant commands in one log: its window of steady samples and its commands."""
+
+    log: str
+    start: float  # s, first sample of the steady window (log time)
+    end: float  # s, last sample of the steady window
+    throttle: float
+    steering: float  # rad, signed
+
+
+@dataclass
+class FidelityReport:
+    """Per-stretch and per-operating-point comparison of simulator and logs."""
+
+    stretches: pd.DataFrame  # one row per stretch: log, window, commands, sim and log responses
+    points: pd.DataFrame  # one row per operating point (throttle, steering): means over its stretches
+    vehicle: str  # "nominal" or the twin's overrides
+
+
+def read_log_file(path: str | Path) -> pd.DataFrame:
+    """One log (AutoDRIVE CSV, our CSV or Parquet) with finite time, commands, speed and yaw rate."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("LOG", str(path), "no such file")
+    if path.suffix.lower() == ".parquet":
+        try:
+            table = read_table(path)
+        except Exception as exc:  # pyarrow raises several types for a damaged file
+            raise DataFormatError(f"{path}: unreadable Parquet log ({exc})") from None
+    else:
+        table = read_autodrive_log(path)
+    missing = [c for c in LOG_COLUMNS if c not in table]
+    if missing:
+        raise DataFormatError(f"{path}: lacks the column(s) {', '.join(missing)}")
+    values = table[list(LOG_COLUMNS)].to_numpy(dtype=np.float64)
+    if not np.isfinite(values).all():
+        raise DataFormatError(f"{path}: has missing or non-finite values")
+    if len(table) < 2 or not (np.diff(values[:, 0]) > 0).all():
+        raise DataFormatError(f"{path}: time must increase from row to row")
+    return table.reset_index(drop=True)
+
+
+def stretches(table: pd.DataFrame, log: str, settings: FidelitySettings) -> list[Stretch]:
+    """The stretches of constant, non-zero throttle in a log long enough to give a steady response."""
+    t = table["time"].to_numpy(dtype=np.float64)
+    u = table["throttle"].to_numpy(dtype=np.float64)
+    d = table["steering"].to_numpy(dtype=np.float64)
+    found: list[Stretch] = []
+    i = 0
+    while i < len(t):
+        j = i + 1
+        while (
+            j < len(t)
+            and abs(u[j] - u[i]) <= settings.throttle_tolerance
+            and abs(d[j] - d[i]) <= settings.steering_tolerance
+        ):
+            j += 1
+        start = t[i] + settings.settle
+        end = t[j - 1]
+        if end - start >= settings.min_window and np.median(u[i:j]) != 0.0:  # zero throttle brakes
+            found.append(Stretch(log, float(start), float(end), float(np.median(u[i:j])),
+                                 float(np.median(d[i:j]))))  # fmt: skip
+        i = j
+    return found
+
+
+def _window_means(table: pd.DataFrame, start: float, end: float) -> tuple[float, float]:
+    t = table["time"].to_numpy()
+    rows = (t >= start - 1e-9) & (t <= end + 1e-9)
+    return float(table["speed"].to_numpy()[rows].mean()), float(table["angZ"].to_numpy()[rows].mean())
+
+
+def replay_of(table: pd.DataFrame, label: str, rate_hz: float) -> simulator.Replay:
+    """The log's commands as a simulator Replay: each logged command held until the next one."""
+    t = table["time"].to_numpy(dtype=np.float64)
+    grid = np.arange(int(np.floor((t[-1] - t[0]) * rate_hz + 1e-9)) + 1) / rate_hz + t[0]
+    held = np.searchsorted(t, grid + 1e-9, side="right") - 1
+    throttle = table["throttle"].to_numpy(dtype=np.float64)[held]
+    steering = table["steering"].to_numpy(dtype=np.float64)[held]
+    try:
+        return simulator.Replay(label, throttle, steering, rate_hz)
+    except simulator.ManeuverError as exc:
+        raise InputError(f"{label}: {exc.field}", exc.value, exc.reason) from None
+
+
+def compare(
+    logs: Sequence[tuple[str, pd.DataFrame]],
+    *,
+    vehicle: simulator.Vehicle | None = None,
+    vehicle_name: str = "nominal",
+    settings: FidelitySettings = FidelitySettings(),  # frozen dataclass: a safe shared default
+    threads: int | None = None,
+) -> FidelityReport:
+    """Replay every (name, table) log in the simulator and compare steady speed, yaw rate and speed loss."""
+    found: list[Stretch] = []
+    for name, table in logs:
+        mine = stretches(table, name, settings)
+        if not mine:
+            raise InputError(
+                "LOG", name,
+                f"no stretch of constant non-zero throttle lasts {settings.settle + settings.min_window:g} s",
+            )  # fmt: skip
+        found.extend(mine)
+    replays = [replay_of(table, name, settings.rate_hz) for name, table in logs]
+    turn_throttles = sorted({round(s.throttle, 4) for s in found})
+    straights = [simulator.Maneuver("straight", u, duration=_STRAIGHT_SECONDS) for u in turn_throttles]
+    simulated = simulator.collect(
+        [*replays, *straights], rate_hz=settings.rate_hz, noise=None, threads=threads, vehicle=vehicle
+    )
+    by_run = {run_id: part.reset_index(drop=True) for run_id, part in simulated.groupby("run_id", sort=False)}
+    sim_straight = {
+        u: _window_means(by_run[m.name], _STRAIGHT_SECONDS / 2, _STRAIGHT_SECONDS)[0]
+        for u, m in zip(turn_throttles, straights, strict=True)
+    }
+    tables = dict(logs)
+    rows = []
+    for s in found:
+        v_log, w_log = _window_means(tables[s.log], s.start, s.end)
+        v_sim, w_sim = _window_means(by_run[s.log], s.start, s.end)
+        rows.append(dict(log=s.log, start=s.start, end=s.end, throttle=s.throttle, steering=s.steering,
+                         v_sim=v_sim, v_log=v_log, w_sim=w_sim, w_log=w_log))  # fmt: skip
+    frame = pd.DataFrame(rows)
+    frame["turn"] = frame["steering"].abs() > settings.steering_tolerance
+    frame["seconds"] = frame["end"] - frame["start"]
+    points = _points(frame, sim_straight, settings)
+    return FidelityReport(frame, points, vehicle_name)
+
+
+def _points(
+    frame: pd.DataFrame, sim_straight: dict[float, float], settings: FidelitySettings
+) -> pd.DataFrame:
+    """Operating points: stretches with the same commands (to 2 and 3 decimals) averaged, time-weighted."""
+    frame = frame.assign(key_u=frame["throttle"].round(2), key_d=frame["steering"].round(3))
+    rows = []
+    for (u, d), part in frame.groupby(["key_u", "key_d"], sort=True):
+        weight = part["seconds"].to_numpy()
+        mean = {c: float(np.average(part[c], weights=weight)) for c in ("throttle", *_RESPONSES)}
+        row = dict(throttle=float(u), steering=float(d), stretches=len(part), seconds=float(weight.sum()), **{
+            k: v for k, v in mean.items() if k != "throttle"})  # fmt: skip
+        if abs(d) > settings.steering_tolerance:
+            near = (frame["throttle"] - mean["throttle"]).abs() <= settings.throttle_tolerance
+            straight_log = frame[~frame["turn"] & near]
+            if len(straight_log):
+                v0_log = float(np.average(straight_log["v_log"], weights=straight_log["seconds"]))
+                source = "log"
+            else:
+                v0_log = float(simulator.reference_speed(mean["throttle"]))
+                source = "reference"
+            v0_sim = sim_straight[min(sim_straight, key=lambda k: abs(k - mean["throttle"]))]
+            row.update(loss_sim=v0_sim - row["v_sim"], loss_log=v0_log - row["v_log"], straight_source=source)
+        else:
+            row.update(loss_sim=np.nan, loss_log=np.nan, straight_source="")
+        rows.append(row)
+    points = pd.DataFrame(rows)
+    points["dv"] = points["v_sim"] - points["v_log"]
+    points["dw"] = points["w_sim"] - points["w_log"]
+    points["dloss"] = points["loss_sim"] - points["loss_log"]
+    return points
