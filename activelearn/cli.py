@@ -27,6 +27,10 @@ def _one_line(text: str) -> str:
     return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
+def _yellow(text: str) -> str:
+    return f"\033[33m{text}\033[0m" if sys.stderr.isatty() else text
+
+
 def fail(message: str) -> int:
     """Print one red error line on stderr and return the usage exit code.
 
@@ -539,6 +543,8 @@ def _tune(args: argparse.Namespace) -> int:
         kind = event["event"]
         if kind == "note":
             tqdm.write(f"note: {event['message']}", file=sys.stderr)
+        elif kind == "warning":  # a worker was lost; the study goes on without losing a trial
+            tqdm.write(_yellow(f"warning: {event['message']}"), file=sys.stderr)
         elif kind == "sim_progress":
             bar = bars.setdefault("sim", tqdm(total=event["total"], unit="sample", desc="simulating pool",
                                               leave=False, disable=None))

@@ -744,6 +744,18 @@ class TuningConfig(_Section):
     hyperband_min_epochs: Count = 5
     # Every trial is a new architecture: compiling would cost more than it saves (see training.py).
     compile: bool = False
+    # Optuna heartbeats: a running trial records one every `heartbeat_interval` s; one silent for
+    # `grace_period` s (its worker or machine is gone) is marked FAIL and queued again, at most
+    # `retry_lost` times. Every machine joining a study should use the same values (same config).
+    heartbeat_interval: Annotated[int, Field(ge=1)] = 10
+    grace_period: Annotated[int, Field(ge=2)] = 60
+    retry_lost: Annotated[int, Field(ge=0)] = 2
+
+    @model_validator(mode="after")
+    def _grace_exceeds_heartbeat(self) -> TuningConfig:
+        if self.grace_period <= self.heartbeat_interval:
+            raise ValueError("grace_period must exceed heartbeat_interval")
+        return self
 
 
 CampaignConfig.model_rebuild()

@@ -6,6 +6,10 @@ so every study here runs in seconds.
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
 import time
 import uuid
 from pathlib import Path
@@ -355,6 +359,85 @@ def test_bad_search_space_is_rejected_before_anything_runs(tmp_path, data_file, 
     err = capsys.readouterr().err
     assert field in err and len(err.strip().splitlines()) == 1
     assert not storage.exists() and not mlflow_db.exists()
+
+
+# Trials of a few seconds (many epochs, no pruning), so a worker can be caught in the middle of one.
+# Heartbeats every second; a trial silent for 3 s is stale.
+SLOW_SPACE = (
+    TINY_SPACE.replace("epochs = { low = 4, high = 8 }", "epochs = { low = 120, high = 150 }")
+    .replace("[tuning]\n", "[tuning]\nheartbeat_interval = 1\ngrace_period = 3\n", 1)
+)
+
+
+def _running_trial(storage: str, name: str, deadline: float) -> dict:
+    """The first trial seen RUNNING with its worker's pid and its parameters recorded."""
+    while time.time() < deadline:
+        try:
+            for trial in study_trials(storage, name):
+                if trial["state"] == "RUNNING" and "pid" in trial["user_attrs"] and "model" in trial["user_attrs"]:
+                    return trial
+        except KeyError:  # the study does not exist yet
+            pass
+        time.sleep(0.05)
+    raise AssertionError("no trial started in time")
+
+
+def test_a_worker_killed_mid_trial_costs_no_trial(tmp_path, data_file, mlflow_uri):
+    config = write_config(tmp_path, mlflow_uri, SLOW_SPACE)
+    storage = sqlite_url(tmp_path)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "activelearn.cli", "tune", str(config), "--n-trials", "6", "--workers", "2",
+         "--storage", storage, "--data", str(data_file), "--pruner", "none"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    victim = _running_trial(storage, "study", time.time() + 180)
+    os.kill(victim["user_attrs"]["pid"], signal.SIGKILL)
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    warnings = [line for line in err.splitlines() if "warning:" in line]
+    assert len(warnings) == 1 and f"during trial {victim['number']}" in warnings[0], err
+
+    trials = {t["number"]: t for t in study_trials(storage, "study")}
+    assert not [t for t in trials.values() if t["state"] in ("RUNNING", "WAITING")]
+    lost = trials.pop(victim["number"])
+    assert lost["state"] == "FAIL" and "killed by SIGKILL" in lost["user_attrs"]["lost"]
+    # Exactly the requested trials finished besides the lost one, and one of them is its retry.
+    assert len(trials) == 6 and all(t["state"] in ("COMPLETE", "PRUNED", "FAIL") for t in trials.values())
+    assert [t for t in trials.values() if t["params"] == lost["params"]]
+    assert "6 trials this run" in out
+    # The lost trial's MLflow run is closed, not left RUNNING.
+    assert Tracker(mlflow_uri).run_status(lost["user_attrs"]["mlflow_run_id"]) == "KILLED"
+
+
+def test_a_trial_whose_machine_died_is_retried_by_the_next_worker(tmp_path, data_file, mlflow_uri):
+    # A whole `tune` command killed (its machine lost): no supervisor sees it, Optuna's heartbeat does.
+    config = write_config(tmp_path, mlflow_uri, SLOW_SPACE)
+    storage = sqlite_url(tmp_path)
+    args = [sys.executable, "-m", "activelearn.cli", "tune", str(config), "--storage", storage,
+            "--data", str(data_file), "--pruner", "none", "--no-tracking"]  # fmt: skip
+    proc = subprocess.Popen([*args, "--n-trials", "3"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    victim = _running_trial(storage, "study", time.time() + 180)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    time.sleep(3.5)  # the grace period passes without a heartbeat
+    again = subprocess.run([*args, "--n-trials", "1"], capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    trials = study_trials(storage, "study")
+    assert not [t for t in trials if t["state"] in ("RUNNING", "WAITING")]
+    assert trials[victim["number"]]["state"] == "FAIL"
+    retry = trials[-1]  # the second command's one trial is the dead one, queued again
+    assert retry["params"] == victim["params"] and retry["state"] in ("COMPLETE", "PRUNED")
+
+
+def test_unreachable_tracking_server_fails_fast_and_creates_nothing(tmp_path, data_file, capsys):
+    config = write_config(tmp_path, "http://127.0.0.1:1")
+    started = time.perf_counter()
+    code = cli.main(["tune", str(config), "--n-trials", "2", "--data", str(data_file),
+                     "--storage", sqlite_url(tmp_path)])  # fmt: skip
+    assert code == 2 and time.perf_counter() - started < 15
+    err = capsys.readouterr().err
+    assert "tracking.uri" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "optuna.db").exists()
 
 
 def test_unreachable_storage_fails_fast_and_creates_nothing(tmp_path, data_file, capsys):

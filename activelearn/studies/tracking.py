@@ -10,6 +10,8 @@ import logging
 import os
 import tempfile
 import time
+import urllib.error
+import urllib.request
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -31,6 +33,7 @@ DEFAULT_EXPERIMENT = "activelearn"
 _MAX_PARAM_LENGTH = 6000  # MLflow's limit on a param value
 _BATCH = 100  # MLflow accepts at most 100 params per log_batch call
 _METRIC_BATCH = 1000  # and at most 1000 metrics
+SERVER_TIMEOUT = 5.0  # s: an unreachable tracking server is one clear error, not minutes of retries
 
 T = TypeVar("T")
 
@@ -61,6 +64,24 @@ def artifact_root_for(tracking_uri: str) -> str | None:
     return (db_path.parent.resolve() / "artifacts").as_uri()
 
 
+def check_server(tracking_uri: str, timeout: float = SERVER_TIMEOUT) -> None:
+    """Fail within `timeout` s with one clear error when an http(s) tracking server does not answer.
+
+    MLflow's own client retries a dead server with back-off for minutes before it gives up.
+    """
+    if not tracking_uri.startswith(("http://", "https://")):
+        return
+    try:
+        with urllib.request.urlopen(tracking_uri.rstrip("/") + "/health", timeout=timeout):
+            return
+    except urllib.error.HTTPError:  # it answered (an older server without /health, or auth)
+        return
+    except (urllib.error.URLError, OSError) as exc:
+        reason = getattr(exc, "reason", exc)
+        message = f"no MLflow server answers there ({reason})"
+        raise ConfigError("tracking.uri", tracking_uri, message) from None
+
+
 def _retry(call: Callable[[], T], attempts: int = 8) -> T:
     """Retry a store call that SQLite refused because another process held its lock."""
     delay = 0.05
@@ -84,6 +105,7 @@ class Tracker:
         if tracking_uri.startswith("sqlite:///"):
             Path(tracking_uri.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
         self.tracking_uri = tracking_uri
+        check_server(tracking_uri)
         try:
             self.client = MlflowClient(tracking_uri)
             self.experiment_id = self._experiment_id(experiment)

@@ -1,0 +1,135 @@
+"""Optuna storages: URLs (SQLite or PostgreSQL), a fast-failing connection with heartbeats, and the
+bookkeeping of trials whose worker died (marked FAIL and queued again, never left RUNNING)."""
+
+from __future__ import annotations
+
+import datetime
+import warnings
+from pathlib import Path
+from typing import Any
+
+import optuna
+import sqlalchemy
+from optuna.storages import RetryHeartbeatStaleTrialCallback
+from optuna.trial import FrozenTrial, TrialState
+
+from activelearn.config import TuningConfig
+from activelearn.errors import InputError
+
+DEFAULT_STORAGE = "sqlite:///mlruns/optuna.db"
+CONNECT_TIMEOUT = 5  # s: an unreachable database server fails fast instead of hanging
+
+
+def redact(url: str) -> str:
+    """The storage URL with its password hidden (safe to print, tag and log)."""
+    try:
+        return sqlalchemy.engine.make_url(url).render_as_string(hide_password=True)
+    except sqlalchemy.exc.ArgumentError:
+        return url
+
+
+def storage_url(url: str) -> str:
+    """Check a storage URL and name its driver: a bare postgresql:// means psycopg2.
+
+    SQLAlchemy 2.1 maps a bare postgresql:// to psycopg 3; this project ships psycopg2-binary.
+    """
+    try:
+        parsed = sqlalchemy.engine.make_url(url)
+    except sqlalchemy.exc.ArgumentError:
+        raise InputError(
+            "--storage", url, "not a database URL (e.g. sqlite:///mlruns/optuna.db, postgresql://u:p@host/db)"
+        ) from None
+    if parsed.drivername == "postgresql":
+        return parsed.set(drivername="postgresql+psycopg2").render_as_string(hide_password=False)
+    return url
+
+
+def open_storage(
+    url: str, tuning: TuningConfig | None = None, connect_timeout: float = CONNECT_TIMEOUT
+) -> optuna.storages.RDBStorage:
+    """Open (creating its tables if needed) an Optuna RDB storage; fail fast with a clear error.
+
+    SQLite: the parent directory is created and writers wait up to 30 s for the file lock (several
+    local workers). PostgreSQL: a connect timeout, so an unreachable server fails within seconds.
+    With `tuning`, running trials record heartbeats, and a trial whose heartbeat stops (its worker or
+    machine died) is marked FAIL by the next worker that starts a trial and queued again.
+    """
+    url = storage_url(url)
+    parsed = sqlalchemy.engine.make_url(url)
+    shown = redact(url)
+    backend = parsed.get_backend_name()
+    engine_kwargs: dict[str, Any] = {}
+    if backend == "sqlite":
+        database = parsed.database or ""
+        if database and database != ":memory:" and not database.startswith("file:"):
+            try:
+                Path(database).parent.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise InputError("--storage", shown, f"cannot create the database directory: {exc}") from None
+        engine_kwargs = {"connect_args": {"timeout": 30}}
+    elif backend == "postgresql":
+        engine_kwargs = {
+            "connect_args": {"connect_timeout": max(1, round(connect_timeout))},
+            "pool_pre_ping": True,
+        }
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            heartbeat: dict[str, Any] = {}
+            if tuning is not None:
+                heartbeat = {
+                    "heartbeat_interval": tuning.heartbeat_interval,
+                    "grace_period": tuning.grace_period,
+                    "heartbeat_stale_trial_callback": RetryHeartbeatStaleTrialCallback(tuning.retry_lost),
+                }
+            return optuna.storages.RDBStorage(url, engine_kwargs=engine_kwargs, **heartbeat)
+    except Exception as exc:  # driver errors come in many types (OperationalError, ImportError, ...)
+        reason = str(getattr(exc, "orig", None) or exc).strip().splitlines()
+        raise InputError(
+            "--storage", shown, f"cannot open the Optuna storage: {reason[0] if reason else exc}"
+        ) from None
+
+
+def fail_lost_trial(study: optuna.Study, trial_id: int, reason: str) -> FrozenTrial | None:
+    """Mark the trial of a worker known to be dead FAIL and queue it again; None if it had finished.
+
+    The local supervisor sees a worker die at once (its exit code), so it need not wait for the
+    heartbeat's grace period; it then does what Optuna's own stale-trial check does (the storage's
+    retry callback), and the two cannot both fail one trial (the storage refuses the second).
+    """
+    storage = study._storage
+    try:
+        storage.set_trial_user_attr(trial_id, "lost", reason)
+        if not storage.set_trial_state_values(trial_id, state=TrialState.FAIL):
+            return None
+    except optuna.exceptions.UpdateFinishedTrialError:
+        return None
+    failed = storage.get_trial(trial_id)
+    retry = getattr(storage, "get_heartbeat_stale_trial_callback", lambda: None)()
+    if retry is not None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+            retry(study, failed)
+    return failed
+
+
+def fail_orphans(study: optuna.Study, started_before: datetime.datetime, reason: str) -> list[int]:
+    """Fail RUNNING trials that no objective ever picked up (no `run` attribute) started before a time.
+
+    A worker killed between Optuna creating its trial and the objective's first line leaves such a
+    trial: it has no parameters and no heartbeat yet, so Optuna's stale check never sees it.
+    """
+    failed = []
+    for trial in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,)):
+        if "run" in trial.user_attrs or trial.datetime_start is None or trial.datetime_start > started_before:
+            continue
+        if fail_lost_trial(study, trial._trial_id, reason) is not None:
+            failed.append(trial.number)
+    return failed
+
+
+def replaced(trials: list[FrozenTrial]) -> set[int]:
+    """Numbers of trials that were lost with their worker (failed and queued again, or marked lost)."""
+    # The retry callback records in each retry the numbers of the trials it replaces.
+    numbers = {n for t in trials for n in t.system_attrs.get("retry_history", ())}
+    return numbers | {t.number for t in trials if t.state == TrialState.FAIL and t.user_attrs.get("lost")}
