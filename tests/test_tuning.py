@@ -374,7 +374,8 @@ def _running_trial(storage: str, name: str, deadline: float) -> dict:
     while time.time() < deadline:
         try:
             for trial in study_trials(storage, name):
-                if trial["state"] == "RUNNING" and "pid" in trial["user_attrs"] and "model" in trial["user_attrs"]:
+                attrs = trial["user_attrs"]
+                if trial["state"] == "RUNNING" and "pid" in attrs and "model" in attrs:
                     return trial
         except KeyError:  # the study does not exist yet
             pass
