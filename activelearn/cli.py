@@ -399,7 +399,12 @@ def _register_compare(sub: argparse._SubParsersAction) -> None:
                    help="comma-separated strategies (default: uniform,max_epistemic)")
     p.add_argument("--seeds", type=int, default=3, metavar="N", help="seeds 0..N-1 (default 3)")
     p.add_argument("--workers", type=int, default=None, metavar="K",
-                   help="parallel processes (default: number of cores)")
+                   help="parallel processes, or CPUs of a local Ray cluster (default: number of cores)")
+    p.add_argument("--executor", default="process", metavar="NAME",
+                   help="process (default: local processes) or ray (one task per campaign on a Ray cluster)")
+    p.add_argument("--ray-address", default=None, metavar="ADDR",
+                   help="with --executor ray: auto (the cluster this machine belongs to), HOST:PORT, "
+                        "or local (an in-process cluster; the default)")
     p.set_defaults(handler=_compare)
 
 
@@ -423,6 +428,8 @@ def _compare(args: argparse.Namespace) -> int:
             bar = bars.setdefault("sim", tqdm(total=event["total"], unit="sample", desc="simulating pool",
                                               leave=False, disable=None))
             bar.update(event["done"] - bar.n)
+        elif event["event"] == "dashboard":
+            tqdm.write(f"Ray dashboard: {event['url']}", file=sys.stderr)
         elif event["event"] == "job":
             bar = bars.setdefault("jobs", tqdm(total=n_jobs, unit="campaign", desc="campaigns", disable=None))
             bar.update(1)
@@ -431,7 +438,7 @@ def _compare(args: argparse.Namespace) -> int:
     try:
         result = compare(cfg, strategies, list(range(args.seeds)), directory=args.out, workers=args.workers,
                          tracking=cfg.tracking.enabled and not args.no_tracking, resume=args.resume,
-                         progress=progress)
+                         progress=progress, executor=args.executor, ray_address=args.ray_address)
     except KeyboardInterrupt:
         print(_red("interrupted: finished rounds are checkpointed; rerun the same command with --resume"),
               file=sys.stderr)

@@ -8,6 +8,7 @@ import pytest
 from hypothesis import settings
 
 POSTGRES_ENV = "ACTIVELEARN_TEST_POSTGRES_URL"
+MLFLOW_POSTGRES_ENV = "ACTIVELEARN_TEST_MLFLOW_POSTGRES_URL"
 
 # Property tests (tests/test_fuzz.py) try the same examples on every run: derived from each test's
 # source (derandomize), with no example database, so CI and every machine see identical inputs.
@@ -25,9 +26,19 @@ def postgres_url() -> str:
     Without it the test is skipped on a developer machine, but fails in CI (`CI` set): there the
     server is part of the job, and a silently skipped test would hide that it did not start.
     """
-    url = os.environ.get(POSTGRES_ENV)
+    return _database_url(POSTGRES_ENV)
+
+
+@pytest.fixture(scope="session")
+def mlflow_postgres_url() -> str:
+    """URL of a second PostgreSQL database, for an MLflow tracking server (set up by .ci/run)."""
+    return _database_url(MLFLOW_POSTGRES_ENV)
+
+
+def _database_url(variable: str) -> str:
+    url = os.environ.get(variable)
     if not url:
-        message = f"{POSTGRES_ENV} is not set: run the suite through .ci/run, which starts PostgreSQL"
+        message = f"{variable} is not set: run the suite through .ci/run, which starts PostgreSQL"
         if os.environ.get("CI"):
             pytest.fail(message)
         pytest.skip(message)

@@ -6,9 +6,7 @@ import json
 import math
 import os
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +18,8 @@ from activelearn.data import atomic_write_bytes
 from activelearn.errors import InputError
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.pool import pool_maneuvers, test_maneuvers
+from activelearn.loop.state import STATE_FILE
+from activelearn.studies.executors import check_executor, run_jobs
 
 Progress = Callable[[dict[str, Any]], None]
 # Curves of the comparison figure: the standardised aggregate beside v in m/s and ω in rad/s.
@@ -130,8 +130,15 @@ def compare(
     tracking: bool = True,
     resume: bool = False,
     progress: Progress | None = None,
+    executor: str = "process",
+    ray_address: str | None = None,
 ) -> Comparison:
-    """Run every strategy with every seed on one config and compare them against `uniform`."""
+    """Run every strategy with every seed on one config and compare them against `uniform`.
+
+    `executor` "process" runs `workers` local processes; "ray" one task per campaign on the Ray
+    cluster at `ray_address` (see `activelearn.studies.executors`). The output directory, the
+    simulation cache (under `cfg.output_dir`) and the tracking store must be reachable by every node.
+    """
     from activelearn.loop.acquisition import STRATEGIES
 
     for name in strategies:
@@ -141,12 +148,20 @@ def compare(
         raise InputError("--strategies", "", "name at least one strategy")
     if not seeds:
         raise InputError("--seeds", 0, "must be at least 1")
+    check_executor(executor, ray_address)
     progress = progress or (lambda event: None)
     directory = Path(directory or Path(cfg.output_dir) / cfg.name / "compare")
     if (directory / "curves.csv").exists() and not resume:
         raise InputError(
             "--out", str(directory), "holds a comparison already; pass --resume or another --out"
         )
+    if not resume:
+        for strategy in strategies:
+            for seed in seeds:
+                if (directory / strategy / f"seed{seed}" / STATE_FILE).exists():
+                    raise InputError(
+                        "--out", str(directory), "holds campaigns already; pass --resume or another --out"
+                    )
     cache_dir = Path(cfg.output_dir) / "cache"
     workers = max(1, min(workers or os.cpu_count() or 1, len(strategies) * len(seeds)))
 
@@ -197,8 +212,10 @@ def compare(
             str(cache_dir),
             tracking_args,
             parent_run_id,
-            resume,
-            workers > 1,
+            # A Ray task may be a retry after its worker died: it continues the campaign's checkpoint
+            # (the directories were checked above, so nothing else can be there).
+            resume or executor == "ray",
+            workers > 1 or executor == "ray",
         )
 
     results: dict[tuple[str, int], list[dict[str, Any]]] = {}
@@ -217,14 +234,11 @@ def compare(
         )
 
     try:
-        if workers == 1:  # no process pool: simpler to debug, no start-up cost
-            for key in jobs:
-                finished(key, _run_job(*job_args(*key)))
-        else:
-            with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-                futures = {pool.submit(_run_job, *job_args(*key)): key for key in jobs}
-                for future in as_completed(futures):
-                    finished(futures[future], future.result())
+        keyed = [(key, job_args(*key)) for key in jobs]
+        for key, rounds in run_jobs(
+            _run_job, keyed, executor=executor, workers=workers, ray_address=ray_address, on_start=progress
+        ):
+            finished(key, rounds)
     except BaseException:
         if tracker is not None and parent_run_id is not None:
             tracker.end_run(parent_run_id, "KILLED")

@@ -1,0 +1,173 @@
+"""`compare --executor ray` on a real local Ray cluster: the process executor's numbers, lost workers retried.
+
+One head node (`ray start --head --block`, this machine's CPUs) serves the module; it is stopped by
+killing its process group afterwards, so no other Ray cluster on the machine is touched.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+
+from activelearn.cli import main
+from activelearn.config import load_config
+from activelearn.loop.state import CampaignState
+from activelearn.studies.compare import compare
+
+ray = pytest.importorskip("ray", reason="Ray is in the dev extra; install it with pip install -e '.[dev]'")
+
+SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
+ACTIVELEARN = Path(sys.executable).with_name("activelearn")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def ray_head():
+    """The address of a Ray head node started for these tests (2 CPUs, no dashboard)."""
+    # Ray >= 2.59 authenticates clients with a token: the head, this process and every `compare` it
+    # starts share one through the environment, as the nodes of a real cluster would.
+    saved = {k: os.environ.get(k) for k in ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN")}
+    os.environ.update(RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=secrets.token_hex(16))
+    port = _free_port()
+    temp_dir = tempfile.mkdtemp(prefix="ray", dir="/tmp")  # short: Ray's socket paths have a length limit
+    head = subprocess.Popen(
+        [str(Path(sys.executable).with_name("ray")), "start", "--head", "--block", f"--port={port}",
+         "--num-cpus=2", "--include-dashboard=false", "--disable-usage-stats", f"--temp-dir={temp_dir}"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+    )  # fmt: skip
+    address = f"127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 120
+        while True:  # the head is up once a driver can join it
+            if head.poll() is not None:
+                pytest.fail(f"ray start exited with {head.returncode}")
+            probe = subprocess.run(
+                [sys.executable, "-c", f"import ray; ray.init(address={address!r}); ray.shutdown()"],
+                capture_output=True, timeout=60,
+            )  # fmt: skip
+            if probe.returncode == 0:
+                break
+            if time.monotonic() > deadline:
+                pytest.fail(f"the Ray head did not come up: {probe.stderr.decode()[-500:]}")
+            time.sleep(2)
+        yield address
+    finally:
+        os.killpg(head.pid, signal.SIGTERM)
+        try:
+            head.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            os.killpg(head.pid, signal.SIGKILL)
+            head.wait()
+        subprocess.run(["rm", "-rf", temp_dir], check=False)
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
+def _config(tmp_path: Path, max_maneuvers: int = 7) -> Path:
+    """The smoke config writing under tmp_path, with `max_maneuvers` new maneuvers."""
+    text = SMOKE.read_text().replace("max_maneuvers = 7", f"max_maneuvers = {max_maneuvers}")
+    path = tmp_path / "smoke.toml"
+    path.write_text(f'output_dir = "{tmp_path / "runs"}"\n' + text)
+    return path
+
+
+def _rounds(directory: Path, strategy: str, seeds: range) -> dict[int, list[float]]:
+    return {
+        seed: [r["test_rmse"] for r in CampaignState.load(directory / strategy / f"seed{seed}").rounds]
+        for seed in seeds
+    }
+
+
+@pytest.fixture(scope="module")
+def process_reference(tmp_path_factory):
+    """Per-round test RMSE of uniform, seeds 0-1, 4 rounds, run by two local processes."""
+    tmp_path = tmp_path_factory.mktemp("process")
+    cfg = load_config(_config(tmp_path, max_maneuvers=9))
+    compare(cfg, ["uniform"], [0, 1], directory=tmp_path / "out", workers=2, tracking=False)
+    return cfg, _rounds(tmp_path / "out", "uniform", range(2))
+
+
+def test_ray_executor_gives_the_process_executors_numbers(tmp_path, ray_head, process_reference):
+    _, reference = process_reference
+    out = tmp_path / "ray"
+    done = subprocess.run(
+        [str(ACTIVELEARN), "compare", str(_config(tmp_path, max_maneuvers=9)), "--strategies", "uniform",
+         "--seeds", "2", "--no-tracking", "--executor", "ray", "--ray-address", ray_head, "--out", str(out)],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert _rounds(out, "uniform", range(2)) == reference
+    assert len(reference[0]) == 4
+
+
+def _ray_job_pids() -> list[int]:
+    """Processes of Ray workers running a campaign (Ray titles them after the task's function)."""
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                cmdline = (entry / "cmdline").read_bytes()
+            except OSError:
+                continue
+            if cmdline.startswith(b"ray::_run_job"):
+                pids.append(int(entry.name))
+    return pids
+
+
+def test_a_killed_ray_worker_is_retried_and_its_campaign_resumes(tmp_path, ray_head, process_reference):
+    _, reference = process_reference
+    out = tmp_path / "ray"
+    driver = subprocess.Popen(
+        [str(ACTIVELEARN), "compare", str(_config(tmp_path, max_maneuvers=9)), "--strategies", "uniform",
+         "--seeds", "2", "--no-tracking", "--executor", "ray", "--ray-address", ray_head, "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    # Kill every worker running a campaign once seed 0 has checkpointed a round but not finished.
+    state_file = out / "uniform" / "seed0" / "state.json"
+    killed: list[int] = []
+    deadline = time.monotonic() + 600
+    while not killed and time.monotonic() < deadline and driver.poll() is None:
+        if state_file.exists():
+            state = CampaignState.load(state_file.parent)
+            if state.finished:
+                break
+            if state.rounds:
+                for pid in _ray_job_pids():
+                    os.kill(pid, signal.SIGKILL)
+                    killed.append(pid)
+        time.sleep(0.05)
+    _, stderr = driver.communicate(timeout=600)
+    assert killed, "the campaign finished before a worker could be killed: nothing was tested"
+    assert driver.returncode == 0, stderr[-2000:]
+    assert _rounds(out, "uniform", range(2)) == reference
+
+
+def test_ray_missing_or_unknown_executor_is_one_clear_error(tmp_path, monkeypatch, capsys):
+    path = _config(tmp_path)
+    common = ["compare", str(path), "--no-tracking", "--out"]
+    assert main([*common, str(tmp_path / "a"), "--executor", "dask"]) == 2
+    assert "--executor" in capsys.readouterr().err
+    monkeypatch.setitem(sys.modules, "ray", None)  # what a machine without Ray sees on import
+    assert main([*common, str(tmp_path / "b"), "--executor", "ray"]) == 2
+    err = capsys.readouterr().err
+    assert "Ray is not installed" in err and "activelearn[cluster]" in err
+    assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+    assert not (tmp_path / "runs").exists()  # nothing simulated either
