@@ -217,6 +217,8 @@ def main() -> None:
         "--lookahead-seeds", type=int, default=5, help="seeds of the lookahead oracle (0: none)"
     )
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--executor", default="process", help="process or ray (see README, Scale-out)")
+    parser.add_argument("--ray-address", default=None, help="with --executor ray: auto, HOST:PORT or local")
     parser.add_argument("--pools", default=",".join(POOLS))
     parser.add_argument("--strategies", default=None, help="override every pool's strategy list")
     parser.add_argument("--out", default="runs/bench_sample_efficiency")
@@ -235,7 +237,8 @@ def main() -> None:
         parts = []
         for directory, names, seeds in runs:
             result = compare(cfg, names, list(range(seeds)), directory=directory, workers=args.workers,
-                             tracking=not args.no_tracking, resume=args.resume)  # fmt: skip
+                             tracking=not args.no_tracking, resume=args.resume,
+                             executor=args.executor, ray_address=args.ray_address)  # fmt: skip
             parts.append(result.curves)
         curves = pd.concat(parts, ignore_index=True)
         print(
