@@ -228,3 +228,30 @@ def write_autodrive_log(table: pd.DataFrame, path: str | Path, start: datetime |
     for column in AUTODRIVE_UNUSED_COLUMNS:
         out[column] = ""
     return atomic_write_bytes(path, out.to_csv(index=False, header=False, float_format="%.9g").encode())
+
+
+# What a recorded drive must hold to say what the car did: time, the commands and the two rates.
+RECORDED_COLUMNS = ("time", "throttle", "steering", "speed", "angZ")
+
+
+def read_recorded_log(path: str | Path) -> pd.DataFrame:
+    """One recorded log (AutoDRIVE CSV, our CSV or Parquet) with finite time, commands and rates.
+
+    A missing file is an InputError, a damaged one a DataFormatError naming it.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("LOG", str(path), "no such file")
+    if path.suffix.lower() == ".parquet":
+        try:
+            table = read_table(path)
+        except Exception as exc:  # pyarrow raises several types for a damaged file
+            raise DataFormatError(f"{path}: unreadable Parquet log ({exc})") from None
+    else:
+        table = read_autodrive_log(path)
+    missing = [c for c in RECORDED_COLUMNS if c not in table]
+    if missing:
+        raise DataFormatError(f"{path}: lacks the column(s) {', '.join(missing)}")
+    if not np.isfinite(table[list(RECORDED_COLUMNS)].to_numpy(dtype=np.float64)).all():
+        raise DataFormatError(f"{path}: has missing or non-finite values")
+    return table

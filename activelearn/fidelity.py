@@ -20,10 +20,9 @@ import numpy as np
 import pandas as pd
 
 import simulator
-from activelearn.data import read_autodrive_log, read_table
+from activelearn.data import read_recorded_log
 from activelearn.errors import DataFormatError, InputError
 
-LOG_COLUMNS = ("time", "throttle", "steering", "speed", "angZ")
 _RESPONSES = ("v_sim", "v_log", "w_sim", "w_log")
 _STRAIGHT_SECONDS = 6.0  # simulated straights: steady after 3 s, averaged over the last 3 s
 
@@ -69,23 +68,9 @@ class FidelityReport:
 
 def read_log_file(path: str | Path) -> pd.DataFrame:
     """One log (AutoDRIVE CSV, our CSV or Parquet) with finite time, commands, speed and yaw rate."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("LOG", str(path), "no such file")
-    if path.suffix.lower() == ".parquet":
-        try:
-            table = read_table(path)
-        except Exception as exc:  # pyarrow raises several types for a damaged file
-            raise DataFormatError(f"{path}: unreadable Parquet log ({exc})") from None
-    else:
-        table = read_autodrive_log(path)
-    missing = [c for c in LOG_COLUMNS if c not in table]
-    if missing:
-        raise DataFormatError(f"{path}: lacks the column(s) {', '.join(missing)}")
-    values = table[list(LOG_COLUMNS)].to_numpy(dtype=np.float64)
-    if not np.isfinite(values).all():
-        raise DataFormatError(f"{path}: has missing or non-finite values")
-    if len(table) < 2 or not (np.diff(values[:, 0]) > 0).all():
+    table = read_recorded_log(path)
+    time = table["time"].to_numpy(dtype=np.float64)
+    if len(table) < 2 or not (np.diff(time) > 0).all():
         raise DataFormatError(f"{path}: time must increase from row to row")
     return table.reset_index(drop=True)
 

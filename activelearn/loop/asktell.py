@@ -22,8 +22,8 @@ import numpy as np
 import pandas as pd
 
 from activelearn.config import CampaignConfig, validate_config
-from activelearn.data import read_autodrive_log, read_table, write_table
-from activelearn.errors import DataFormatError, InputError
+from activelearn.data import read_recorded_log, read_table, write_table
+from activelearn.errors import InputError
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.pool import maneuver_controls
 from activelearn.loop.state import CONFIG_FILE, STAGED_DIR, STATE_FILE, CampaignState
@@ -74,22 +74,8 @@ class LogFile:
 def read_log(path: str | Path) -> LogFile:
     """Read one log (AutoDRIVE CSV, our CSV or Parquet); a malformed file is a DataFormatError naming it."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError("LOG", str(path), "no such file")
+    table = read_recorded_log(path)
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
-    if path.suffix.lower() == ".parquet":
-        try:
-            table = read_table(path)
-        except Exception as exc:  # pyarrow raises several types for a damaged file
-            raise DataFormatError(f"{path}: unreadable Parquet log ({exc})") from None
-    else:
-        table = read_autodrive_log(path)
-    missing = [c for c in ("time", "throttle", "steering", "speed", "angZ") if c not in table]
-    if missing:
-        raise DataFormatError(f"{path}: lacks the column(s) {', '.join(missing)}")
-    values = table[["time", "throttle", "steering", "speed", "angZ"]].to_numpy(dtype=np.float64)
-    if not np.isfinite(values).all():
-        raise DataFormatError(f"{path}: has missing or non-finite values")
     return LogFile(path, table, digest)
 
 
