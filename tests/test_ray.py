@@ -104,12 +104,17 @@ def process_reference(tmp_path_factory):
     return cfg, _rounds(tmp_path / "out", "uniform", range(2))
 
 
+def _ray_compare(tmp_path: Path, address: str, out: Path) -> list[str]:
+    """The CLI command comparing uniform over seeds 0-1 (4 rounds) on the Ray cluster at `address`."""
+    return [str(ACTIVELEARN), "compare", str(_config(tmp_path, max_maneuvers=9)), "--strategies", "uniform",
+            "--seeds", "2", "--no-tracking", "--executor", "ray", "--ray-address", address, "--out", str(out)]
+
+
 def test_ray_executor_gives_the_process_executors_numbers(tmp_path, ray_head, process_reference):
     _, reference = process_reference
     out = tmp_path / "ray"
     done = subprocess.run(
-        [str(ACTIVELEARN), "compare", str(_config(tmp_path, max_maneuvers=9)), "--strategies", "uniform",
-         "--seeds", "2", "--no-tracking", "--executor", "ray", "--ray-address", ray_head, "--out", str(out)],
+        _ray_compare(tmp_path, ray_head, out),
         capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr[-2000:]
@@ -135,8 +140,7 @@ def test_a_killed_ray_worker_is_retried_and_its_campaign_resumes(tmp_path, ray_h
     _, reference = process_reference
     out = tmp_path / "ray"
     driver = subprocess.Popen(
-        [str(ACTIVELEARN), "compare", str(_config(tmp_path, max_maneuvers=9)), "--strategies", "uniform",
-         "--seeds", "2", "--no-tracking", "--executor", "ray", "--ray-address", ray_head, "--out", str(out)],
+        _ray_compare(tmp_path, ray_head, out),
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     # Kill every worker running a campaign once seed 0 has checkpointed a round but not finished.
