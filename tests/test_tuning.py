@@ -15,6 +15,7 @@ import uuid
 from pathlib import Path
 
 import numpy as np
+import optuna
 import pandas as pd
 import pytest
 
@@ -34,6 +35,7 @@ from activelearn.studies.tuning import (
     study_trials,
     tune,
 )
+from activelearn.studies.tuning.workers import close_lost_run
 
 ROWS_PER_POINT = 30  # logged rows per operating point
 KEPT = ROWS_PER_POINT - 1  # training_rows drops each run's first row (it has no previous rates)
@@ -406,8 +408,28 @@ def test_a_worker_killed_mid_trial_costs_no_trial(tmp_path, data_file, mlflow_ur
     assert len(trials) == 6 and all(t["state"] in ("COMPLETE", "PRUNED", "FAIL") for t in trials.values())
     assert [t for t in trials.values() if t["params"] == lost["params"]]
     assert "6 trials this run" in out
-    # The lost trial's MLflow run is closed, not left RUNNING.
-    assert Tracker(mlflow_uri).run_status(lost["user_attrs"]["mlflow_run_id"]) == "KILLED"
+    # The lost trial's MLflow run is closed, not left RUNNING, even when the worker died between
+    # creating the run and recording its id on the trial; no other trial's run is left open either.
+    tracker = Tracker(mlflow_uri)
+    lost_runs = tracker.runs_tagged({"optuna.study": "study", "optuna.trial": str(victim["number"])})
+    assert all(tracker.run_status(run_id) == "KILLED" for run_id in lost_runs)
+    if "mlflow_run_id" in lost["user_attrs"]:
+        assert lost_runs == [lost["user_attrs"]["mlflow_run_id"]]
+    assert tracker.runs_tagged({"optuna.study": "study"}, status="RUNNING") == []
+
+
+def test_a_lost_trial_whose_run_id_was_never_recorded_has_its_run_closed(tmp_path, mlflow_uri):
+    # The worker died after MLflow created the trial's run but before the id reached Optuna.
+    tracker = Tracker(mlflow_uri)
+    tags = {"optuna.study": "study", "optuna.trial": "3", "kind": "tuning-trial"}
+    orphan = tracker.start_run("trial-3", tags=tags)
+    other = tracker.start_run("trial-4", tags={**tags, "optuna.trial": "4"})
+    lost = {"lost": "killed by SIGKILL"}
+    trial = optuna.trial.create_trial(state=optuna.trial.TrialState.FAIL, user_attrs=lost)
+    trial.number = 3
+    close_lost_run(tracker, "study", trial)
+    assert tracker.run_status(orphan) == "KILLED" and tracker.run_status(other) == "RUNNING"
+    assert tracker.client.get_run(orphan).data.tags["lost"] == "killed by SIGKILL"
 
 
 def test_a_trial_whose_machine_died_is_retried_by_the_next_worker(tmp_path, data_file, mlflow_uri):

@@ -214,6 +214,16 @@ class Tracker:
         )
         return [r.info.run_id for r in runs]
 
+    def runs_tagged(self, tags: Mapping[str, str], status: str | None = None) -> list[str]:
+        """Ids of the runs of this experiment carrying all `tags` (and in `status`, if given)."""
+        clauses = [f"tags.`{key}` = '{value}'" for key, value in tags.items()]
+        if status is not None:
+            clauses.append(f"attributes.status = '{RunStatus.to_string(RunStatus.from_string(status))}'")
+        runs = _retry(
+            lambda: self.client.search_runs([self.experiment_id], filter_string=" and ".join(clauses))
+        )
+        return [r.info.run_id for r in runs]
+
     @contextmanager
     def _active(self, run_id: str) -> Iterator[None]:
         """Make `run_id` MLflow's active run for fluent-only APIs (model logging)."""

@@ -21,7 +21,7 @@ from activelearn.studies.tuning.data import Progress, collect_dataset, content_h
 from activelearn.studies.tuning.report import TuningResult, summarise
 from activelearn.studies.tuning.space import PRUNERS, describe_space, space_signature
 from activelearn.studies.tuning.storage import DEFAULT_STORAGE, open_storage, redact
-from activelearn.studies.tuning.workers import Job, Supervision, run_processes, run_worker
+from activelearn.studies.tuning.workers import Job, Supervision, close_lost_run, run_processes, run_worker
 
 OBJECTIVES: tuple[str, ...] = ("nll", "rmse")
 
@@ -182,10 +182,8 @@ def tune(
         emit({"event": "start", "study": study_name, "existing_trials": n_existing, **split.describe()})
 
         def on_lost(trial: FrozenTrial) -> None:
-            run_id = trial.user_attrs.get("mlflow_run_id")
-            if tracker is not None and run_id:
-                tracker.set_tags(run_id, {"optuna.state": "FAIL", "lost": trial.user_attrs.get("lost")})
-                tracker.end_run(run_id, "KILLED")
+            if tracker is not None:
+                close_lost_run(tracker, study_name, trial)
 
         started = time.perf_counter()
         if workers == 1:

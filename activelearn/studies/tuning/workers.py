@@ -43,6 +43,23 @@ from activelearn.studies.tuning.storage import fail_lost_trial, fail_orphans, op
 TRIAL_ERRORS: tuple[type[Exception], ...] = (ArithmeticError, RuntimeError, ValueError)
 
 
+def close_lost_run(tracker: Any, study_name: str, trial: FrozenTrial) -> None:
+    """Mark the MLflow run of a trial whose worker died KILLED, with the reason as a tag.
+
+    The worker records the run's id on the trial right after creating the run; a worker killed
+    between the two left a run nobody knows the id of, so it is found by its trial tags instead.
+    """
+    run_id = trial.user_attrs.get("mlflow_run_id")
+    if run_id:
+        run_ids = [run_id]
+    else:
+        tags = {"optuna.study": study_name, "optuna.trial": str(trial.number)}
+        run_ids = tracker.runs_tagged(tags, status="RUNNING")
+    for run_id in run_ids:
+        tracker.set_tags(run_id, {"optuna.state": "FAIL", "lost": trial.user_attrs.get("lost")})
+        tracker.end_run(run_id, "KILLED")
+
+
 @dataclass(frozen=True)
 class Job:
     """Everything a worker process needs (pickled to spawned processes)."""
