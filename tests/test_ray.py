@@ -154,7 +154,10 @@ def test_a_killed_ray_worker_is_retried_and_its_campaign_resumes(tmp_path, ray_h
                 break
             if state.rounds:
                 for pid in _ray_job_pids():
-                    os.kill(pid, signal.SIGKILL)
+                    try:
+                        os.kill(pid, signal.SIGKILL)
+                    except ProcessLookupError:  # it ended between the listing and the kill
+                        continue
                     killed.append(pid)
         time.sleep(0.05)
     _, stderr = driver.communicate(timeout=600)
