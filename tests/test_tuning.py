@@ -35,7 +35,7 @@ from activelearn.studies.tuning import (
     study_trials,
     tune,
 )
-from activelearn.studies.tuning.workers import close_lost_run
+from activelearn.studies.tuning.workers import RUN_TOKEN_TAG, close_lost_run
 
 ROWS_PER_POINT = 30  # logged rows per operating point
 KEPT = ROWS_PER_POINT - 1  # training_rows drops each run's first row (it has no previous rates)
@@ -410,25 +410,30 @@ def test_a_worker_killed_mid_trial_costs_no_trial(tmp_path, data_file, mlflow_ur
     assert "6 trials this run" in out
     # The lost trial's MLflow run is closed, not left RUNNING, even when the worker died between
     # creating the run and recording its id on the trial; no other trial's run is left open either.
-    tracker = Tracker(mlflow_uri)
-    lost_runs = tracker.runs_tagged({"optuna.study": "study", "optuna.trial": str(victim["number"])})
-    assert all(tracker.run_status(run_id) == "KILLED" for run_id in lost_runs)
+    tracker, token = Tracker(mlflow_uri), lost["user_attrs"]["run"]
+    lost_runs = tracker.runs_tagged({RUN_TOKEN_TAG: token, "optuna.trial": str(lost["number"])})
+    statuses = {run_id: tracker.run_status(run_id) for run_id in lost_runs}
+    assert set(statuses.values()) <= {"KILLED"}, (statuses, lost["user_attrs"])
     if "mlflow_run_id" in lost["user_attrs"]:
         assert lost_runs == [lost["user_attrs"]["mlflow_run_id"]]
-    assert tracker.runs_tagged({"optuna.study": "study"}, status="RUNNING") == []
+    assert tracker.runs_tagged({RUN_TOKEN_TAG: token}, status="RUNNING") == []
 
 
 def test_a_lost_trial_whose_run_id_was_never_recorded_has_its_run_closed(tmp_path, mlflow_uri):
     # The worker died after MLflow created the trial's run but before the id reached Optuna.
     tracker = Tracker(mlflow_uri)
-    tags = {"optuna.study": "study", "optuna.trial": "3", "kind": "tuning-trial"}
+    token = uuid.uuid4().hex
+    tags = {"optuna.study": "study", "optuna.trial": "3", RUN_TOKEN_TAG: token}
     orphan = tracker.start_run("trial-3", tags=tags)
     other = tracker.start_run("trial-4", tags={**tags, "optuna.trial": "4"})
+    # The same study name and trial number from another `tune` command (another storage) is not ours.
+    stranger = tracker.start_run("trial-3", tags={**tags, RUN_TOKEN_TAG: uuid.uuid4().hex})
     lost = {"lost": "killed by SIGKILL"}
     trial = optuna.trial.create_trial(state=optuna.trial.TrialState.FAIL, user_attrs=lost)
     trial.number = 3
-    close_lost_run(tracker, "study", trial)
-    assert tracker.run_status(orphan) == "KILLED" and tracker.run_status(other) == "RUNNING"
+    close_lost_run(tracker, token, trial)
+    assert tracker.run_status(orphan) == "KILLED"
+    assert tracker.run_status(other) == tracker.run_status(stranger) == "RUNNING"
     assert tracker.client.get_run(orphan).data.tags["lost"] == "killed by SIGKILL"
 
 

@@ -183,7 +183,7 @@ def tune(
 
         def on_lost(trial: FrozenTrial) -> None:
             if tracker is not None:
-                close_lost_run(tracker, study_name, trial)
+                close_lost_run(tracker, job.run_token, trial)
 
         started = time.perf_counter()
         if workers == 1:

@@ -42,18 +42,22 @@ from activelearn.studies.tuning.storage import fail_lost_trial, fail_orphans, op
 # of an absurd configuration. Anything else (a lost storage, a bug) stops the worker.
 TRIAL_ERRORS: tuple[type[Exception], ...] = (ArithmeticError, RuntimeError, ValueError)
 
+# MLflow tag naming the `tune` command (its Job.run_token) that created a trial's run.
+RUN_TOKEN_TAG = "activelearn.tune_run"
 
-def close_lost_run(tracker: Any, study_name: str, trial: FrozenTrial) -> None:
+
+def close_lost_run(tracker: Any, run_token: str, trial: FrozenTrial) -> None:
     """Mark the MLflow run of a trial whose worker died KILLED, with the reason as a tag.
 
     The worker records the run's id on the trial right after creating the run; a worker killed
-    between the two left a run nobody knows the id of, so it is found by its trial tags instead.
+    between the two left a run nobody knows the id of, so it is found by its tags instead: this
+    `tune` command's token and the trial's number (a study name alone is not unique in a store).
     """
     run_id = trial.user_attrs.get("mlflow_run_id")
     if run_id:
         run_ids = [run_id]
     else:
-        tags = {"optuna.study": study_name, "optuna.trial": str(trial.number)}
+        tags = {RUN_TOKEN_TAG: run_token, "optuna.trial": str(trial.number)}
         run_ids = tracker.runs_tagged(tags, status="RUNNING")
     for run_id in run_ids:
         tracker.set_tags(run_id, {"optuna.state": "FAIL", "lost": trial.user_attrs.get("lost")})
@@ -123,6 +127,7 @@ class Objective:
                 tags={
                     "optuna.study": job.study_name,
                     "optuna.trial": str(trial.number),
+                    RUN_TOKEN_TAG: job.run_token,
                     "kind": "tuning-trial",
                 },
             )
