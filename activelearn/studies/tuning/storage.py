@@ -4,6 +4,7 @@ bookkeeping of trials whose worker died (marked FAIL and queued again, never lef
 from __future__ import annotations
 
 import datetime
+import time
 import warnings
 from pathlib import Path
 from typing import Any
@@ -88,6 +89,35 @@ def open_storage(
         raise InputError(
             "--storage", shown, f"cannot open the Optuna storage: {reason[0] if reason else exc}"
         ) from None
+
+
+# How long a trial waits for Optuna's heartbeat thread to record its first beat (see below).
+FIRST_HEARTBEAT_TIMEOUT = 30.0  # s: SQLite writers wait up to 30 s for the file lock
+
+
+def await_first_heartbeat(storage: Any, trial_id: int, timeout: float = FIRST_HEARTBEAT_TIMEOUT) -> bool:
+    """Wait until the trial's first heartbeat is in the storage; False if heartbeats are off or it never came.
+
+    Optuna starts a trial's heartbeat thread just before the objective and never waits for its first
+    write, and its stale check skips a RUNNING trial that has no heartbeat at all. A machine lost
+    before that write (measured: under load the thread can lose the SQLite lock to the objective's
+    first writes for longer than those take) would leave the trial RUNNING forever. Waiting here, before
+    the trial is marked as picked up, keeps the rule simple: a trial with a `run` attribute has a beat,
+    one without is an orphan (`fail_orphans`).
+    """
+    if not getattr(storage, "get_heartbeat_interval", lambda: None)():
+        return False
+    # Read-only: a write of our own could collide with the thread's first insert (unique trial_id)
+    # and kill the thread, which would stop the trial's heartbeats while it still runs.
+    query = sqlalchemy.text("SELECT 1 FROM trial_heartbeats WHERE trial_id = :trial_id")
+    deadline = time.monotonic() + timeout
+    while True:
+        with storage.engine.connect() as connection:
+            if connection.execute(query, {"trial_id": trial_id}).first() is not None:
+                return True
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.01)
 
 
 def fail_lost_trial(study: optuna.Study, trial_id: int, reason: str) -> FrozenTrial | None:

@@ -36,7 +36,12 @@ from activelearn.numerics.models import build_model
 from activelearn.numerics.training import fit
 from activelearn.studies.tuning.data import Progress, Split
 from activelearn.studies.tuning.space import make_pruner, make_sampler, sample_params, trial_configs
-from activelearn.studies.tuning.storage import fail_lost_trial, fail_orphans, open_storage
+from activelearn.studies.tuning.storage import (
+    await_first_heartbeat,
+    fail_lost_trial,
+    fail_orphans,
+    open_storage,
+)
 
 # Exceptions that fail one trial (recorded as FAIL) without stopping the study: numerical trouble
 # of an absurd configuration. Anything else (a lost storage, a bug) stops the worker.
@@ -100,14 +105,22 @@ class Objective:
     """Train one sampled configuration; report val NLL per epoch; log the trial as a nested MLflow run."""
 
     def __init__(
-        self, job: Job, tracker: Any, worker: int, started: Callable[[int], None] = lambda trial_id: None
+        self,
+        job: Job,
+        tracker: Any,
+        worker: int,
+        started: Callable[[int], None] = lambda trial_id: None,
+        storage: optuna.storages.RDBStorage | None = None,
     ) -> None:
         self.job, self.tracker, self.worker, self.started = job, tracker, worker, started
+        self.storage = storage  # the study's RDB storage (under Optuna's cache), for the first heartbeat
         self.split = job.data()
 
     def __call__(self, trial: optuna.Trial) -> float | tuple[float, ...]:
         job, split = self.job, self.split
         self.started(trial._trial_id)  # first: the supervisor must know which trial a dead worker held
+        if self.storage is not None:
+            await_first_heartbeat(self.storage, trial._trial_id)  # before `run`: see its docstring
         multi = len(job.objectives) > 1
         trial.set_user_attr("run", job.run_token)
         for key in ("lost", "fail_reason", "mlflow_run_id"):  # a retried trial inherits its original's
@@ -208,9 +221,10 @@ def run_worker(
     supervisor can tell which trial a dead worker held.
     """
     optuna.logging.set_verbosity(optuna.logging.ERROR)  # trial results reach the CLI as events
+    storage = open_storage(job.storage_url, job.tuning)
     study = optuna.load_study(
         study_name=job.study_name,
-        storage=open_storage(job.storage_url, job.tuning),
+        storage=storage,
         sampler=make_sampler(job.tuning, job.seed, job.n_existing, worker),
         pruner=make_pruner(job.pruner, job.tuning, len(job.objectives) > 1),
     )
@@ -219,7 +233,7 @@ def run_worker(
         from activelearn.studies.tracking import Tracker
 
         tracker = Tracker(*job.tracking)
-    objective = Objective(job, tracker, worker, started)
+    objective = Objective(job, tracker, worker, started, storage)
 
     def done(_: optuna.Study, trial: FrozenTrial) -> None:
         emit(_trial_event(trial, worker))
