@@ -6,6 +6,7 @@ so every study here runs in seconds.
 
 from __future__ import annotations
 
+import datetime
 import os
 import signal
 import subprocess
@@ -35,7 +36,12 @@ from activelearn.studies.tuning import (
     study_trials,
     tune,
 )
-from activelearn.studies.tuning.storage import await_first_heartbeat, open_storage
+from activelearn.studies.tuning.storage import (
+    SILENT_TRIAL_AGE,
+    await_first_heartbeat,
+    fail_silent_trials,
+    open_storage,
+)
 from activelearn.studies.tuning.workers import RUN_TOKEN_TAG, close_lost_run
 
 ROWS_PER_POINT = 30  # logged rows per operating point
@@ -438,11 +444,14 @@ def test_a_lost_trial_whose_run_id_was_never_recorded_has_its_run_closed(tmp_pat
     assert tracker.client.get_run(orphan).data.tags["lost"] == "killed by SIGKILL"
 
 
+HEARTBEATS = TuningConfig(heartbeat_interval=1, grace_period=3)
+
+
 def test_a_trial_waits_for_its_first_heartbeat(tmp_path):
     # Optuna's stale check skips a RUNNING trial with no heartbeat at all, and its heartbeat thread
     # writes the first one asynchronously (measured: 3 of 150 trials still had none after six writes
     # of the objective). The objective waits for it before marking the trial as picked up.
-    storage = open_storage(sqlite_url(tmp_path), TuningConfig(heartbeat_interval=1, grace_period=3))
+    storage = open_storage(sqlite_url(tmp_path), HEARTBEATS)
     with pytest.warns(UserWarning, match="Heartbeat"):  # ask() outside optimize(): Optuna says so
         trial = optuna.create_study(storage=storage, study_name="s").ask()
     started = time.monotonic()
@@ -455,6 +464,51 @@ def test_a_trial_waits_for_its_first_heartbeat(tmp_path):
     other = optuna.create_study(storage=plain, study_name="s").ask()
     started = time.monotonic()
     assert not await_first_heartbeat(plain, other._trial_id, timeout=5) and time.monotonic() - started < 1
+
+
+def _add_running_trial(storage: optuna.storages.RDBStorage, study: optuna.Study, age: float) -> int:
+    """A RUNNING trial started `age` seconds ago by a worker that never got further (its id)."""
+    template = optuna.trial.FrozenTrial(
+        number=0, state=optuna.trial.TrialState.RUNNING, value=None, params={}, distributions={},
+        datetime_start=datetime.datetime.now() - datetime.timedelta(seconds=age), datetime_complete=None,
+        user_attrs={}, system_attrs={}, intermediate_values={}, trial_id=0,
+    )  # fmt: skip
+    return storage.create_new_trial(study._study_id, template_trial=template)
+
+
+def test_trials_silent_since_they_started_are_failed_once_old_enough(tmp_path):
+    storage = open_storage(sqlite_url(tmp_path), HEARTBEATS)
+    study = optuna.create_study(storage=storage, study_name="s")
+    silent = _add_running_trial(storage, study, SILENT_TRIAL_AGE + 5)
+    beating = _add_running_trial(storage, study, SILENT_TRIAL_AGE + 5)
+    storage.record_heartbeat(beating)  # Optuna's own stale check is for this one
+    young = _add_running_trial(storage, study, 1.0)  # may still be waiting for its first beat
+    numbers = {storage.get_trial(i).number: i for i in (silent, beating, young)}
+    failed = fail_silent_trials(study, storage, "lost before its first heartbeat")
+    assert [numbers[n] for n in failed] == [silent]
+    assert storage.get_trial(silent).state == optuna.trial.TrialState.FAIL
+    assert storage.get_trial(silent).user_attrs["lost"] == "lost before its first heartbeat"
+    assert {storage.get_trial(i).state for i in (beating, young)} == {optuna.trial.TrialState.RUNNING}
+    retries = study.get_trials(states=(optuna.trial.TrialState.WAITING,))  # queued again
+    assert [t.system_attrs["failed_trial"] for t in retries] == [storage.get_trial(silent).number]
+
+
+def test_the_next_command_fails_a_trial_lost_before_its_first_heartbeat(tmp_path, data_file, mlflow_uri):
+    heartbeats = TINY_SPACE.replace("[tuning]\n", "[tuning]\nheartbeat_interval = 1\ngrace_period = 3\n", 1)
+    cfg = load_config(write_config(tmp_path, mlflow_uri, heartbeats))
+    storage = sqlite_url(tmp_path)
+    tune(cfg, n_trials=1, storage=storage, data=[data_file], tracking=False, pruner="none")
+    rdb = open_storage(storage, cfg.tuning)
+    silent = _add_running_trial(rdb, optuna.load_study(study_name="study", storage=rdb), SILENT_TRIAL_AGE + 5)
+    events: list[dict] = []
+    tune(cfg, n_trials=1, storage=storage, data=[data_file], tracking=False, pruner="none",
+         progress=events.append)  # fmt: skip
+    trials = study_trials(storage, "study")
+    lost = trials[rdb.get_trial(silent).number]
+    assert lost["state"] == "FAIL" and "first heartbeat" in lost["user_attrs"]["lost"]
+    assert not [t for t in trials if t["state"] in ("RUNNING", "WAITING")] and len(trials) == 3
+    warnings = [e["message"] for e in events if e["event"] == "warning"]
+    assert len(warnings) == 1 and f"trial {lost['number']} " in warnings[0]
 
 
 def test_a_trial_whose_machine_died_is_retried_by_the_next_worker(tmp_path, data_file, mlflow_uri):

@@ -20,7 +20,7 @@ from activelearn.errors import ActiveLearnError, InputError
 from activelearn.studies.tuning.data import Progress, collect_dataset, content_hash, load_dataset, split_data
 from activelearn.studies.tuning.report import TuningResult, summarise
 from activelearn.studies.tuning.space import PRUNERS, describe_space, space_signature
-from activelearn.studies.tuning.storage import DEFAULT_STORAGE, open_storage, redact
+from activelearn.studies.tuning.storage import DEFAULT_STORAGE, fail_silent_trials, open_storage, redact
 from activelearn.studies.tuning.workers import Job, Supervision, close_lost_run, run_processes, run_worker
 
 OBJECTIVES: tuple[str, ...] = ("nll", "rmse")
@@ -171,6 +171,10 @@ def tune(
             study.set_user_attr("objectives", list(objectives))
         for params in enqueue:
             study.enqueue_trial(dict(params), skip_if_exists=False)
+        silent = fail_silent_trials(study, rdb, "its machine was lost before the trial's first heartbeat")
+        for number in silent:
+            notes.append(f"trial {number} was lost before its first heartbeat: marked FAIL and queued again")
+            emit({"event": "warning", "message": notes[-1]})
 
         job = Job(
             study_name=study_name, storage_url=storage, cfg=cfg, tuning=cfg.tuning, split=split,

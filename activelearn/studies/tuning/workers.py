@@ -6,7 +6,8 @@ Tickets are what makes it exact: a worker takes one before it starts a trial. Op
 K - 1, and it counts the whole study, not this command's share of it. A worker that dies mid-trial
 (SIGKILL, the OOM killer) gives its ticket back, its trial is marked FAIL and queued again with the
 same parameters (`storage.fail_lost_trial`), and a fresh worker takes its place. Across machines, where
-no supervisor sees the death, Optuna's heartbeats do the same after the grace period.
+no supervisor sees the death, Optuna's heartbeats do the same after the grace period (and the next
+`tune` fails a trial lost before its first heartbeat: `storage.fail_silent_trials`).
 """
 
 from __future__ import annotations
