@@ -13,6 +13,7 @@ import subprocess
 import sys
 import time
 import urllib.request
+import uuid
 from pathlib import Path
 
 import pytest
@@ -62,16 +63,18 @@ def tracking_server(tmp_path, mlflow_postgres_url):
 
 def test_a_comparison_logs_nested_runs_figures_and_models_to_the_server(tmp_path, tracking_server):
     text = SMOKE.read_text().replace("max_maneuvers = 7", "max_maneuvers = 5")
+    # An experiment of its own: the server's database may hold the runs of earlier test sessions.
+    name = f"server-test-{uuid.uuid4().hex[:12]}"
     path = tmp_path / "smoke.toml"
     path.write_text(
         f'output_dir = "{tmp_path / "runs"}"\n' + text
-        + f'\n[tracking]\nuri = "{tracking_server}"\nexperiment = "server-test"\n'
+        + f'\n[tracking]\nuri = "{tracking_server}"\nexperiment = "{name}"\n'
     )  # fmt: skip
     cfg = load_config(path)
     result = compare(cfg, ["uniform"], [0], directory=tmp_path / "out", workers=1, tracking=True)
 
     client = MlflowClient(tracking_server)
-    experiment = client.get_experiment_by_name("server-test")
+    experiment = client.get_experiment_by_name(name)
     runs = client.search_runs([experiment.experiment_id])
     parent = next(r for r in runs if r.info.run_id == result.parent_run_id)
     children = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == result.parent_run_id]
@@ -91,7 +94,7 @@ def test_a_comparison_logs_nested_runs_figures_and_models_to_the_server(tmp_path
     from activelearn.studies.tracking import Tracker
 
     campaign_cfg = cfg.model_copy(update={"strategy": "uniform", "seed": 1})
-    tracker = Tracker(tracking_server, "server-test")
+    tracker = Tracker(tracking_server, name)
     Campaign(campaign_cfg, tmp_path / "single", tracker=tracker).run(figures=False, log_model=True)
     runs = client.search_runs([experiment.experiment_id])
     single = [r for r in runs if r.info.run_id != parent.info.run_id]
