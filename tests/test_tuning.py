@@ -370,12 +370,14 @@ def test_bad_search_space_is_rejected_before_anything_runs(tmp_path, data_file, 
     assert not storage.exists() and not mlflow_db.exists()
 
 
-# Trials of a few seconds (many epochs, no pruning), so a worker can be caught in the middle of one.
 # Heartbeats every second; a trial silent for 3 s is stale.
-SLOW_SPACE = (
-    TINY_SPACE.replace("epochs = { low = 4, high = 8 }", "epochs = { low = 120, high = 150 }")
-    .replace("[tuning]\n", "[tuning]\nheartbeat_interval = 1\ngrace_period = 3\n", 1)
-)
+HEARTBEATS = TuningConfig(heartbeat_interval=1, grace_period=3)
+HEARTBEAT_SPACE = TINY_SPACE.replace(
+    "[tuning]\n", f"[tuning]\nheartbeat_interval = {HEARTBEATS.heartbeat_interval}\n"
+    f"grace_period = {HEARTBEATS.grace_period}\n", 1,
+)  # fmt: skip
+# Trials of a few seconds (many epochs, no pruning), so a worker can be caught in the middle of one.
+SLOW_SPACE = HEARTBEAT_SPACE.replace("epochs = { low = 4, high = 8 }", "epochs = { low = 120, high = 150 }")
 
 
 def _running_trial(storage: str, name: str, deadline: float) -> dict:
@@ -444,9 +446,6 @@ def test_a_lost_trial_whose_run_id_was_never_recorded_has_its_run_closed(tmp_pat
     assert tracker.client.get_run(orphan).data.tags["lost"] == "killed by SIGKILL"
 
 
-HEARTBEATS = TuningConfig(heartbeat_interval=1, grace_period=3)
-
-
 def test_a_trial_waits_for_its_first_heartbeat(tmp_path):
     # Optuna's stale check skips a RUNNING trial with no heartbeat at all, and its heartbeat thread
     # writes the first one asynchronously (measured: 3 of 150 trials still had none after six writes
@@ -494,8 +493,7 @@ def test_trials_silent_since_they_started_are_failed_once_old_enough(tmp_path):
 
 
 def test_the_next_command_fails_a_trial_lost_before_its_first_heartbeat(tmp_path, data_file, mlflow_uri):
-    heartbeats = TINY_SPACE.replace("[tuning]\n", "[tuning]\nheartbeat_interval = 1\ngrace_period = 3\n", 1)
-    cfg = load_config(write_config(tmp_path, mlflow_uri, heartbeats))
+    cfg = load_config(write_config(tmp_path, mlflow_uri, HEARTBEAT_SPACE))
     storage = sqlite_url(tmp_path)
     tune(cfg, n_trials=1, storage=storage, data=[data_file], tracking=False, pruner="none")
     rdb = open_storage(storage, cfg.tuning)

@@ -108,10 +108,10 @@ class Objective:
     def __init__(
         self,
         job: Job,
+        storage: optuna.storages.RDBStorage,
         tracker: Any,
         worker: int,
         started: Callable[[int], None] = lambda trial_id: None,
-        storage: optuna.storages.RDBStorage | None = None,
     ) -> None:
         self.job, self.tracker, self.worker, self.started = job, tracker, worker, started
         self.storage = storage  # the study's RDB storage (under Optuna's cache), for the first heartbeat
@@ -120,8 +120,7 @@ class Objective:
     def __call__(self, trial: optuna.Trial) -> float | tuple[float, ...]:
         job, split = self.job, self.split
         self.started(trial._trial_id)  # first: the supervisor must know which trial a dead worker held
-        if self.storage is not None:
-            await_first_heartbeat(self.storage, trial._trial_id)  # before `run`: see its docstring
+        await_first_heartbeat(self.storage, trial._trial_id)  # before `run`: see its docstring
         multi = len(job.objectives) > 1
         trial.set_user_attr("run", job.run_token)
         for key in ("lost", "fail_reason", "mlflow_run_id"):  # a retried trial inherits its original's
@@ -234,7 +233,7 @@ def run_worker(
         from activelearn.studies.tracking import Tracker
 
         tracker = Tracker(*job.tracking)
-    objective = Objective(job, tracker, worker, started, storage)
+    objective = Objective(job, storage, tracker, worker, started)
 
     def done(_: optuna.Study, trial: FrozenTrial) -> None:
         emit(_trial_event(trial, worker))
