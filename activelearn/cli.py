@@ -383,6 +383,9 @@ _SUMMARY_COLUMNS = {
     "final_rmse_w": "ω (rad/s)",
     "final_nll": "final NLL",
     "rmse_auc": "RMSE AUC",
+    "final_metric": "final metric",
+    "final_metric_sem": "± s.e. ",
+    "metric_auc": "metric AUC",
     "reached": "reached",
     "maneuvers_to_target": "maneuvers to target",
     "ratio_to_reference": "ratio",
@@ -405,6 +408,9 @@ def _register_compare(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--ray-address", default=None, metavar="ADDR",
                    help="with --executor ray: auto (the cluster this machine belongs to), HOST:PORT, "
                         "or local (an in-process cluster; the default)")
+    p.add_argument("--metric", default=None, metavar="NAME",
+                   help="what the table, the 'to reach uniform' columns and the figure rank by: test_rmse, "
+                        "rollout_pos_err_30s, ... (default: the config's [test] metric)")
     p.set_defaults(handler=_compare)
 
 
@@ -438,7 +444,8 @@ def _compare(args: argparse.Namespace) -> int:
     try:
         result = compare(cfg, strategies, list(range(args.seeds)), directory=args.out, workers=args.workers,
                          tracking=cfg.tracking.enabled and not args.no_tracking, resume=args.resume,
-                         progress=progress, executor=args.executor, ray_address=args.ray_address)
+                         progress=progress, executor=args.executor, ray_address=args.ray_address,
+                         metric=args.metric)
     except KeyboardInterrupt:
         print(_red("interrupted: finished rounds are checkpointed; rerun the same command with --resume"),
               file=sys.stderr)
@@ -447,8 +454,13 @@ def _compare(args: argparse.Namespace) -> int:
         for bar in bars.values():
             bar.close()
     table = result.table
-    print(f"target: {table.attrs['reference']}'s final RMSE {table.attrs['target_rmse']:.4g} (standardised; "
-          "RMSE of v in m/s and ω in rad/s beside it)")
+    metric = table.attrs["metric"]
+    if metric == "test_rmse":
+        print(f"target: {table.attrs['reference']}'s final RMSE {table.attrs['target_rmse']:.4g} "
+              "(standardised; RMSE of v in m/s and ω in rad/s beside it)")
+    else:
+        print(f"target: {table.attrs['reference']}'s final {metric} {table.attrs['target_rmse']:.4g} "
+              "(final metric; one-step RMSE beside it)")
     summary = table[[c for c in _SUMMARY_COLUMNS if c in table]].rename(columns=_SUMMARY_COLUMNS)
     print(summary.to_string(index=False, float_format="%.4g"))
     print(f"figure: {result.figure_path}")

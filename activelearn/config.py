@@ -25,7 +25,7 @@ from pydantic import (
 from activelearn.errors import ConfigError
 from activelearn.numerics.arch import ACTIVATIONS, parse_arch
 
-ModelKind = Literal["hybrid", "pbnn", "pnn", "bnn", "dnn", "ensemble"]
+ModelKind = Literal["hybrid", "pbnn", "pnn", "bnn", "dnn", "ensemble", "recurrent"]
 Activation = Literal[ACTIVATIONS]  # type: ignore[valid-type]
 MAX_STEERING = 0.5236  # rad, Nigel's steering limit
 
@@ -56,6 +56,12 @@ class ModelConfig(_Section):
     min_std: float = 1e-3
     n_inputs: int = 2
     n_outputs: int = 2
+    # Log steps between the lagged inputs of a dynamic model (`activelearn.numerics.lags`); a campaign
+    # sets it from [data] history_step. The forward simulation reads it from the saved model.
+    history_step: int = 1
+    # Width of the recurrent model's GRU trunk (kind = "recurrent"): it reads the history window as a
+    # sequence of (controls, rates) tokens, oldest first; the layers of `arch` form its head.
+    hidden_size: int = 32
 
     @field_validator("arch")
     @classmethod
@@ -73,7 +79,7 @@ class ModelConfig(_Section):
             raise ValueError(f"{info.field_name} must be > 0, got {value!r}")
         return value
 
-    @field_validator("kl_samples", "n_inputs", "n_outputs")
+    @field_validator("kl_samples", "n_inputs", "n_outputs", "history_step", "hidden_size")
     @classmethod
     def _check_count(cls, value: int, info) -> int:
         if value < 1:
@@ -128,6 +134,16 @@ class TrainingConfig(_Section):
     # torch intra-op threads during fit (restored afterwards); these layers are too small to gain
     # from more threads, and one thread avoids contention. None leaves torch's setting alone.
     num_threads: int | None = 1
+    # Campaigns: start each round from the previous round's weights (and scalers) and train
+    # `warm_epochs` epochs (default a quarter of `epochs`) instead of a fresh model for `epochs`.
+    warm_start: bool = False
+    warm_epochs: int | None = None
+    # Multi-step training of dynamic models: beside the one-step loss, the Gaussian NLL of free runs
+    # of `rollout_horizon` log steps (the model fed its own mean predictions, back-propagated through
+    # the whole window), `rollout_batch` windows per step, weighted by `rollout_weight`. 0: off.
+    rollout_horizon: Annotated[int, Field(ge=0, le=900)] = 0
+    rollout_weight: Annotated[float, Field(gt=0)] = 1.0
+    rollout_batch: Annotated[int, Field(ge=1)] = 32
 
     @field_validator("lr")
     @classmethod
@@ -148,6 +164,13 @@ class TrainingConfig(_Section):
     def _check_count(cls, value: int, info) -> int:
         if value < 1:
             raise ValueError(f"{info.field_name} must be >= 1, got {value!r}")
+        return value
+
+    @field_validator("warm_epochs")
+    @classmethod
+    def _check_warm_epochs(cls, value: int | None) -> int | None:
+        if value is not None and value < 1:
+            raise ValueError(f"warm_epochs must be >= 1 or None, got {value!r}")
         return value
 
     @field_validator("num_threads")
@@ -271,8 +294,21 @@ class DataConfig(_Section):
     stride: Count = 10
     # Drop each maneuver's first seconds: the start-up transient is not a function of the controls.
     skip_seconds: NonNegative = 2.0
-    # Model inputs: the controls, or the controls and the previous rates (the Markov-state variant).
-    inputs: Literal["controls", "controls+rates"] = "controls"
+    # Model inputs: the controls (a static map), the controls and the previous rates (the Markov-state
+    # variant), or "history": the last `history` steps of controls and rates, `history_step` log steps
+    # apart (a delay embedding, `activelearn.numerics.lags`; "controls+rates" is history 1, step 1).
+    inputs: Literal["controls", "controls+rates", "history"] = "controls"
+    history: Annotated[int, Field(ge=1, le=64)] = 4
+    history_step: Annotated[int, Field(ge=1, le=300)] = 3
+
+    @model_validator(mode="after")
+    def _history_knobs_need_history(self) -> DataConfig:
+        # Values other than the defaults (a dumped config repeats the defaults; those are harmless).
+        fields = type(self).model_fields
+        given = [k for k in ("history", "history_step") if getattr(self, k) != fields[k].default]
+        if given and self.inputs != "history":
+            raise ValueError(f"{', '.join(sorted(given))} apply to inputs = 'history' only")
+        return self
 
 
 class PriorGridConfig(_Section):
@@ -424,6 +460,22 @@ class TargetConfig(_Section):
         return self
 
 
+# Metrics a comparison can rank strategies by (lower is better): one-step test errors, and the
+# free-running rollouts of the test maneuvers (`activelearn.numerics.surrogate.free_run_metrics`).
+RANKING_METRICS: tuple[str, ...] = (
+    "test_rmse",
+    "test_rmse_v",
+    "test_rmse_w",
+    "test_nll",
+    "test_crps",
+    "rollout_pos_err_10s",
+    "rollout_pos_err_30s",
+    "rollout_heading_err_30s",
+    "rollout_rmse_v",
+    "rollout_rmse_w",
+)
+
+
 class TestSetConfig(_Section):
     """The fixed test set: one grid of maneuvers shared by every strategy and seed of a config."""
 
@@ -437,6 +489,31 @@ class TestSetConfig(_Section):
     noise_seed: Seed = 1_000_003
     # Recorded logs (a folder or files) to test on instead of the simulated grid: a real car's test set.
     logs: list[str] | None = None
+    # What `compare` ranks by (its table, "to reach uniform" columns and figure): a one-step error
+    # (static maps) or a free-running rollout error (dynamics models); `compare --metric` overrides.
+    metric: str = "test_rmse"
+    # Free-running rollouts of the test maneuvers every round (posterior draws per rollout; 0: off).
+    rollout_samples: Annotated[int, Field(ge=0)] = 32
+
+    @field_validator("metric")
+    @classmethod
+    def _known_metric(cls, value: str) -> str:
+        if value not in RANKING_METRICS:
+            raise ValueError(f"unknown metric {value!r}; choose from {', '.join(RANKING_METRICS)}")
+        return value
+
+    @field_validator("rollout_samples")
+    @classmethod
+    def _bands_need_two(cls, value: int) -> int:
+        if value == 1:
+            raise ValueError("rollout_samples must be 0 (off) or >= 2 (a fan needs two draws)")
+        return value
+
+    @model_validator(mode="after")
+    def _rollout_metric_needs_rollouts(self) -> TestSetConfig:
+        if self.metric.startswith("rollout_") and self.rollout_samples == 0:
+            raise ValueError(f"metric = {self.metric!r} needs rollouts: rollout_samples must be >= 2")
+        return self
 
     @field_validator("kinds", "directions", "throttles", "steerings")
     @classmethod
@@ -534,9 +611,18 @@ class CampaignConfig(_Section):
 
     @model_validator(mode="after")
     def _inputs_match_model(self) -> CampaignConfig:
+        if self.data.inputs == "history":
+            # The data section owns the layout; the model follows it (its saved config then carries
+            # what the forward simulation needs).
+            layout = {"n_inputs": 4 * self.data.history, "history_step": self.data.history_step}
+            if any(getattr(self.model, k) != v for k, v in layout.items()):
+                object.__setattr__(self, "model", self.model.model_copy(update=layout))
+            return self
         expected = 4 if self.data.inputs == "controls+rates" else 2
         if self.model.n_inputs != expected:
             raise ValueError(f"model.n_inputs must be {expected} for data.inputs = {self.data.inputs!r}")
+        if self.model.kind == "recurrent" and self.data.inputs == "controls":
+            raise ValueError("model.kind = 'recurrent' needs data.inputs = 'history' or 'controls+rates'")
         return self
 
 

@@ -126,6 +126,11 @@ _METRIC_LABELS = {
     "test_rmse_v": "test RMSE of v (m/s)",
     "test_rmse_w": "test RMSE of ω (rad/s)",
     "test_nll": "test NLL (standardised)",
+    "rollout_pos_err_10s": "free-run position error at 10 s (m)",
+    "rollout_pos_err_30s": "free-run position error at 30 s (m)",
+    "rollout_heading_err_30s": "free-run heading error at 30 s (rad)",
+    "rollout_rmse_v": "free-run RMSE of v (m/s)",
+    "rollout_rmse_w": "free-run RMSE of ω (rad/s)",
 }
 _BUDGETS = {"n_maneuvers": "maneuvers collected", "track_seconds": "track seconds (durations + set-up)"}
 

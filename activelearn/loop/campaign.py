@@ -52,6 +52,7 @@ from activelearn.loop.collection import (
     arrays,
     feature_columns,
     training_rows,
+    training_windows,
 )
 from activelearn.loop.oracles import Oracle, make_oracle
 from activelearn.loop.pool import build_pool, evaluation_grid, maneuver_costs, target_points
@@ -67,7 +68,7 @@ from activelearn.loop.state import (
 )
 from activelearn.numerics import uncertainty
 from activelearn.numerics.models import Prediction, ResidualModel, build_model, load_model, save_model
-from activelearn.numerics.surrogate import model_inputs
+from activelearn.numerics.surrogate import free_run_metrics, model_inputs
 from activelearn.numerics.training import fit
 from activelearn.numerics.uncertainty import recalibrate_epistemic
 
@@ -86,6 +87,7 @@ __all__ = [
 ]
 
 EVAL_SAMPLES = 64  # posterior draws for test metrics and uncertainty maps
+WARM_DIR = "warm"  # each round's model, kept for the next warm-started round
 PROPOSAL_COLUMNS = ("maneuver", "direction", "throttle", "steering", "duration")
 
 Progress = Callable[[dict[str, Any]], None]
@@ -209,6 +211,18 @@ class Campaign:
             samples = pd.concat([self.prior.rows, samples], ignore_index=True)
         return self._rows(samples)
 
+    def _training_windows(self, samples: pd.DataFrame) -> Any:
+        """Free-running windows for multi-step training (`[training] rollout_horizon`), else None."""
+        horizon = self.cfg.training.rollout_horizon
+        if not horizon:
+            return None
+        if self.prior is not None and self.prior.trains:
+            samples = pd.concat([self.prior.rows, samples], ignore_index=True)
+        if samples.empty:
+            return None
+        frames = [part for _, part in samples.groupby("pool_index", sort=False)]
+        return training_windows(frames, self.cfg.data, horizon)
+
     def target(self) -> tuple[np.ndarray, np.ndarray]:
         """Controls (and weights) of the target region (`[target]`, default: the test maneuvers')."""
         if self._target is None:
@@ -285,13 +299,22 @@ class Campaign:
                 self._prior_model = model
         return self._prior_model
 
-    def fit_model(self, samples: pd.DataFrame, round_index: int, epistemic_scale: float = 1.0) -> Any:
+    def fit_model(
+        self,
+        samples: pd.DataFrame,
+        round_index: int,
+        epistemic_scale: float = 1.0,
+        previous: Any | None = None,
+    ) -> Any:
         """Train the model of a round on its data, seeded by (seed, round), with a given epistemic scale.
 
         A fresh model by default; with a warm-start model, a copy fine-tuned from its weights (and its
         input/output scalers), or, for use = "residual", a fresh model of the difference from it.
+        With `[training] warm_start`, a fresh model's round starts from `previous` (the last round's
+        model) and trains `warm_epochs` epochs.
         """
         x, y, groups = self._training_data(samples)
+        windows = self._training_windows(samples)
         seed = self.cfg.seed * 10_007 + round_index
         base = self.prior_model()
         use = self.cfg.design.prior.use if self.cfg.design.prior is not None else "data"
@@ -304,13 +327,42 @@ class Campaign:
             model = load_model_copy(base)
             if len(x):
                 training = self.cfg.training.model_copy(update={"reinit": False})
-                fit(model, x, y, training, groups=groups, seed=seed, keep_scalers=True)
+                fit(model, x, y, training, groups=groups, seed=seed, keep_scalers=True, windows=windows)
+        elif previous is not None and self.cfg.training.warm_start:
+            model = load_model_copy(previous)
+            training = self.cfg.training
+            epochs = training.warm_epochs or max(1, training.epochs // 4)
+            fit(model, x, y, training.model_copy(update={"reinit": False, "epochs": epochs}),
+                groups=groups, seed=seed, keep_scalers=True, windows=windows)  # fmt: skip
         else:
             model = build_model(self.cfg.model)
-            fit(model, x, y, self.cfg.training, groups=groups, seed=seed)
+            fit(model, x, y, self.cfg.training, groups=groups, seed=seed, windows=windows)
         with torch.no_grad():
             model.epistemic_scale.fill_(epistemic_scale)
         return model
+
+    def _warm_path(self, round_index: int) -> Path:
+        return self.directory / WARM_DIR / f"round{round_index:03d}.pt"
+
+    def _previous_model(self, round_index: int) -> Any | None:
+        """The model a warm-started round begins from: round r - 1's, as committed (None: start fresh).
+
+        Kept per round (not model.pt, which a crash between its write and state.json's could leave one
+        round ahead), so a resumed round starts from exactly the weights the uninterrupted run used.
+        """
+        if not self.cfg.training.warm_start or round_index == 0:
+            return None
+        path = self._warm_path(round_index - 1)
+        return load_model(path) if path.exists() else None
+
+    def _keep_warm_model(self, model: Any, round_index: int) -> None:
+        """Store round r's model for round r + 1 (before the commit point); drop older ones."""
+        if not self.cfg.training.warm_start:
+            return
+        save_model(model, self._warm_path(round_index))
+        for old in self._warm_path(0).parent.glob("round*.pt"):
+            if old.name < self._warm_path(max(round_index - 1, 0)).name:
+                old.unlink(missing_ok=True)
 
     def prequential_scale(self, model: Any, new_samples: pd.DataFrame) -> float:
         """Epistemic scale that would have calibrated `model` on the maneuvers collected after it.
@@ -363,12 +415,12 @@ class Campaign:
         return context
 
     def _trial(
-        self, state: CampaignState, samples: pd.DataFrame, batch: list[int], round_index: int
+        self, state: CampaignState, samples: pd.DataFrame, batch: list[int], round_index: int, model: Any
     ) -> float:
         """Test RMSE of the next round's model if `batch` were collected (the lookahead oracle only)."""
         new = self._collect(batch, len(state.batches))
-        model = self.fit_model(pd.concat([samples, new], ignore_index=True), round_index + 1)
-        return self.evaluate(model)["test_rmse"]
+        trial = self.fit_model(pd.concat([samples, new], ignore_index=True), round_index + 1, previous=model)
+        return self.evaluate(trial)["test_rmse"]
 
     def _applied_scale(self, state: CampaignState) -> float:
         """Geometric mean of the last two prequential scales (1 before any was measured).
@@ -406,6 +458,21 @@ class Campaign:
         metrics["epistemic_std_mean"] = float(epi.mean())
         metrics["epistemic_std_max"] = float(epi.max())
         metrics["aleatoric_std_mean"] = float(np.sqrt(grid_pred.aleatoric_var).mean())
+        if test.logs and self.cfg.test.rollout_samples:
+            # Free runs of the whole test maneuvers: what a surrogate that simulates is for. Timed,
+            # so a round's log says what the rollouts cost beside the fit.
+            started = time.perf_counter()
+            metrics.update(
+                free_run_metrics(
+                    model,
+                    test.logs,
+                    test.truth_logs,
+                    rate_hz=self.cfg.simulation.rate_hz,
+                    n_samples=self.cfg.test.rollout_samples,
+                    seed=0,
+                )
+            )
+            metrics["rollout_seconds"] = time.perf_counter() - started
         return metrics
 
     def pool_epistemic_max(self, model: Any, pool: Pool) -> float:
@@ -589,7 +656,7 @@ class Campaign:
         round_index = len(state.rounds)
         self.progress({"event": "fit", "round": round_index, "n_maneuvers": len(state.taken)})
         scale = self._applied_scale(state)
-        model = self.fit_model(samples, round_index, scale)
+        model = self.fit_model(samples, round_index, scale, previous=self._previous_model(round_index))
         x, _, _ = self._training_data(samples)
         metrics: dict[str, Any] = {"round": round_index, "epistemic_scale": scale, **self.evaluate(model)}
         metrics.update(
@@ -611,7 +678,7 @@ class Campaign:
         if reason is None:
             rng = _rng(self.cfg.seed, round_index, 0x5E1)
             if isinstance(self.strategy, LookaheadOracleStrategy):
-                trial = lambda batch: self._trial(state, samples, batch, round_index)  # noqa: E731
+                trial = lambda batch: self._trial(state, samples, batch, round_index, model)  # noqa: E731
                 picks = self.strategy.select_with_trials(model, pool, k, rng, trial)
             else:
                 picks = self.strategy.select(model, pool, k, rng)
@@ -626,6 +693,7 @@ class Campaign:
         else:
             state.finished, state.stop_reason = True, reason or "max_sim_seconds"
         self._model = model
+        self._keep_warm_model(model, round_index)
         self._checkpoint(state, None, model)
         self._flush_metrics(state)
         self.progress({"event": "round", **metrics, "picks": [self.maneuvers[i].name for i in picks]})

@@ -22,6 +22,8 @@ import pandas as pd
 import simulator
 from activelearn.config import CampaignConfig, DataConfig, NoiseSettings, SimulationConfig
 from activelearn.data import read_table, write_table
+from activelearn.numerics.lags import Lags
+from activelearn.numerics.multistep import Windows, windows_from_logs
 from simulator import Maneuver
 
 FEATURES: tuple[str, ...] = ("throttle", "steering")
@@ -117,21 +119,55 @@ def noisy_logs(
     return [simulator.add_noise(f, noise, noise_seed(seed, m)) for f, m in zip(clean, maneuvers, strict=True)]
 
 
+def data_lags(cfg: DataConfig) -> Lags | None:
+    """The input layout of a history config (`activelearn.numerics.lags`), None otherwise."""
+    return Lags(cfg.history, cfg.history_step) if cfg.inputs == "history" else None
+
+
+def training_windows(frames: Sequence[pd.DataFrame], cfg: DataConfig, horizon: int) -> Windows | None:
+    """Free-running windows of `horizon` log steps for multi-step training, one every `stride` steps.
+
+    None for a static map (nothing is fed back) or horizon 0. Windows start anywhere in a log,
+    transients included: that is where a dynamic model's feedback matters most.
+    """
+    lags = data_lags(cfg) or (Lags(1, 1) if cfg.inputs == "controls+rates" else None)
+    if lags is None or horizon == 0:
+        return None
+    logs = [
+        (f[list(FEATURES)].to_numpy(np.float64), f[list(TARGETS)].to_numpy(np.float64)) for f in frames
+    ]
+    return windows_from_logs(logs, lags, horizon, every=cfg.stride)
+
+
 def training_rows(frame: pd.DataFrame, cfg: DataConfig) -> pd.DataFrame:
     """The rows of one maneuver's log that become samples: after the transient, every stride-th row.
 
-    Adds `prev_speed` and `prev_angZ`, the rates one log step earlier, for the Markov-state model.
+    Adds `prev_speed` and `prev_angZ`, the rates one log step earlier, for the Markov-state model, and
+    for a history config the lagged controls and rates it reads (rows without a full history dropped).
     """
     frame = frame.reset_index(drop=True).copy()
     frame["prev_speed"] = frame["speed"].shift(1)
     frame["prev_angZ"] = frame["angZ"].shift(1)
-    keep = frame.iloc[1:]
+    lags = data_lags(cfg)
+    first = 1
+    if lags is not None:
+        lagged = {
+            name: frame[name.rsplit("_lag", 1)[0]].shift(int(name.rsplit("_lag", 1)[1]))
+            for name in lags.columns()
+            if "_lag" in name
+        }
+        frame = pd.concat([frame, pd.DataFrame(lagged, index=frame.index)], axis=1)
+        first = lags.span
+    keep = frame.iloc[first:]
     keep = keep[keep["time"] >= cfg.skip_seconds - 1e-9]
     return keep.iloc[:: cfg.stride]
 
 
 def feature_columns(cfg: DataConfig) -> list[str]:
     """Model input columns for the config's input choice."""
+    lags = data_lags(cfg)
+    if lags is not None:
+        return lags.columns()
     return list(FEATURES) + (list(RATE_FEATURES) if cfg.inputs == "controls+rates" else [])
 
 
@@ -158,6 +194,11 @@ class TestSet:
     y_noisy: np.ndarray
     scale: np.ndarray
     groups: np.ndarray
+    # Whole logs of the test maneuvers for free-running rollouts: as recorded (controls and the
+    # initial state come from these) and the truth the paths are judged against (noise-free where
+    # the oracle simulates, else the recording itself).
+    logs: tuple[pd.DataFrame, ...] = ()
+    truth_logs: tuple[pd.DataFrame, ...] = ()
 
 
 def test_set_from_logs(tables: Sequence[pd.DataFrame], data: DataConfig) -> TestSet:
@@ -172,7 +213,8 @@ def test_set_from_logs(tables: Sequence[pd.DataFrame], data: DataConfig) -> Test
     y_all = np.concatenate(ys)
     scale = y_all.std(axis=0)
     scale = np.where(scale > 1e-9, scale, 1.0)
-    return TestSet(np.concatenate(xs), y_all, y_all, scale, np.concatenate(groups))
+    logs = tuple(t.reset_index(drop=True) for t in tables)
+    return TestSet(np.concatenate(xs), y_all, y_all, scale, np.concatenate(groups), logs, logs)
 
 
 test_set_from_logs.__test__ = False  # type: ignore[attr-defined]  # not a pytest test
@@ -200,4 +242,12 @@ def build_test_set(
     y_clean = np.concatenate(clean_y)
     scale = y_clean.std(axis=0)
     scale = np.where(scale > 1e-9, scale, 1.0)
-    return TestSet(np.concatenate(xs), y_clean, np.concatenate(noisy_y), scale, np.concatenate(groups))
+    return TestSet(
+        np.concatenate(xs),
+        y_clean,
+        np.concatenate(noisy_y),
+        scale,
+        np.concatenate(groups),
+        tuple(n.reset_index(drop=True) for n in noisy),
+        tuple(c.reset_index(drop=True) for c in clean),
+    )

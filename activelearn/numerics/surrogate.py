@@ -17,9 +17,10 @@ Two model variants:
     network draws on a tile of steps' distinct rows, then noises (each step's noise a function of
     its counter) and integrates the S trajectories of that tile while it is in cache; a torch and
     NumPy reference computes the same numbers where no C compiler is.
-  * Markov ("controls+rates", model.n_inputs == 4): rates also depend on the previous rates. The
-    rollout is sequential in time but batched over maneuvers and samples; each trajectory feeds its
-    own sampled rates back in, so the fans propagate the uncertainty.
+  * dynamic (Markov "controls+rates", a "history" delay embedding, the recurrent model): rates also
+    depend on past controls and rates (`activelearn.numerics.lags` says which). The rollout is
+    sequential in time but batched over maneuvers and samples; each trajectory feeds its own sampled
+    rates back in, so the fans propagate the uncertainty.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ import torch
 
 from activelearn.errors import InputError
 from activelearn.numerics import buffers, counter_noise, native
+from activelearn.numerics.lags import Lags, model_lags
 from activelearn.numerics.models.base import BACKENDS, CHUNK_ROWS
 from activelearn.numerics.threads import even_blocks, parallel_map
 from simulator import Maneuver, nominal_controls
@@ -244,7 +246,8 @@ def simulate(
 ) -> Rollout:
     """Forward-simulate `model` along control sequences (each (T, 2) at `rate_hz`) with S samples.
 
-    `initial_rates` (M, 2) seeds the Markov variant's previous rates (default: standing still);
+    `initial_rates` (M, 2) seeds a dynamic model's past rates (default: standing still; its past
+    controls are the first control);
     `initial_yaw` is one heading or one per maneuver. Deterministic for a given seed.
 
     `backend` picks the compiled kernels ("native": network, noise and pose fused per tile for a
@@ -267,22 +270,21 @@ def simulate(
         ) from None
     dt = 1.0 / rate_hz
     gen = torch.Generator().manual_seed(int(seed))
-    n_inputs = int(model.n_inputs)
+    try:
+        lags = model_lags(model)
+    except ValueError as exc:
+        raise InputError("model.n_inputs", int(model.n_inputs), str(exc)) from None
     with torch.no_grad():
-        if n_inputs == N_CONTROLS:
+        if lags is None:
             (v, w, x, y, yaw), (mean_rates, aleatoric, epistemic) = _static_rollout(
                 model, stacked, n_samples, gen, dt, start_yaw, backend
             )
-        elif n_inputs == N_CONTROLS + 2:
-            (v, w), (mean_rates, aleatoric, epistemic) = _markov_rollout(
-                model, stacked, n_samples, gen, initial_rates, backend
+        else:
+            (v, w), (mean_rates, aleatoric, epistemic) = _sequential_rollout(
+                model, stacked, n_samples, gen, initial_rates, lags, backend
             )
             v, w, x, y, yaw = (
                 p.numpy() for p in (v, w, *_integrate(v, w, dt, torch.from_numpy(start_yaw)[:, None]))
-            )
-        else:
-            raise InputError(
-                "model.n_inputs", n_inputs, "the surrogate needs 2 (controls) or 4 (controls + rates)"
             )
     return Rollout(
         dt=dt,
@@ -298,21 +300,28 @@ def simulate(
     )
 
 
-def _markov_rollout(
-    model, controls: np.ndarray, n_samples: int, gen: torch.Generator, initial_rates, backend: str = "auto"
+def _sequential_rollout(
+    model,
+    controls: np.ndarray,
+    n_samples: int,
+    gen: torch.Generator,
+    initial_rates,
+    lags: Lags,
+    backend: str = "auto",
 ):
-    """Sequential rollout of a model whose inputs are (throttle, steering, previous v, previous ω).
+    """Sequential rollout of a dynamic model: inputs are the lagged controls and rates of `lags`.
 
     Each trajectory feeds its own sampled rates (aleatoric noise included) back in, so the spread of
-    the fan grows with the uncertainty it propagates. Moments are over the S trajectories per step.
-    Maneuvers are independent, so with the compiled kernel each thread-pool task runs every step
-    of its own block of maneuvers (no per-step synchronisation: 2 700 steps of hand-offs cost more
-    than the kernel); torch runs the whole batch per step on its intra-op threads.
+    the fan grows with the uncertainty it propagates. Before the first step the past rates are
+    `initial_rates` and the past controls the first control. Moments are over the S trajectories per
+    step. Maneuvers are independent, so with the compiled kernel each thread-pool task runs every
+    step of its own block of maneuvers (no per-step synchronisation: 2 700 steps of hand-offs cost
+    more than the kernel); torch runs the whole batch per step on its intra-op threads.
     """
     n_maneuvers, n_steps, _ = controls.shape
     seed = int(torch.randint(2**31 - 1, (1,), generator=gen))
     sampled_model = model.draw(n_samples, seed=seed, backend=backend)
-    # Column layout throughout: inputs (S, 4, M), rates (S, 2, M) per step.
+    # Column layout throughout: inputs (S, 4k, M), rates (S, 2, M) per step.
     start = torch.zeros((n_samples, 2, n_maneuvers))
     if initial_rates is not None:
         start[:] = torch.as_tensor(np.asarray(initial_rates, dtype=np.float32)).t()
@@ -322,19 +331,22 @@ def _markov_rollout(
     # (T, 2, M): no (T, S, 2, M) arrays of every draw's mean and variance, and no transposes of them.
     rates = torch.empty((n_samples, 2, n_maneuvers, n_steps))
     moments = tuple(torch.empty((n_steps, 2, n_maneuvers)) for _ in range(3))
+    n_ctrl = N_CONTROLS * lags.history  # rate inputs start here
 
     def run(block: slice) -> None:
         width = block.stop - block.start
-        inputs = torch.empty((n_samples, N_CONTROLS + 2, width))
-        inputs[:, N_CONTROLS:] = start[..., block]
+        inputs = torch.empty((n_samples, lags.n_inputs, width))
         means, variances = (torch.empty((n_samples, 2, width)) for _ in range(2))
         for k in range(n_steps):
-            inputs[:, :N_CONTROLS] = step_controls[k, :, block]
+            for j, back in enumerate(lags.control_lags):
+                inputs[:, 2 * j : 2 * j + 2] = step_controls[max(k - back, 0), :, block]
+            for j, back in enumerate(lags.rate_lags):
+                past = rates[:, :, block, k - back] if k >= back else start[..., block]
+                inputs[:, n_ctrl + 2 * j : n_ctrl + 2 * j + 2] = past
             sampled_model.block(
                 inputs, out=(means, variances), moments=tuple(m[k, :, block] for m in moments)
             )
-            now = torch.addcmul(means, noise[k, ..., block], variances.sqrt_(), out=rates[:, :, block, k])
-            inputs[:, N_CONTROLS:] = now
+            torch.addcmul(means, noise[k, ..., block], variances.sqrt_(), out=rates[:, :, block, k])
 
     if sampled_model.kernel is None:
         run(slice(0, n_maneuvers))
@@ -365,9 +377,7 @@ def track_metrics(
     """
     n = int(rollout.lengths[index])
     true_v, true_w = truth["speed"][:n], truth["angZ"][:n]
-    dx, dy = truth["posX"][:n] - truth["posX"][0], truth["posY"][:n] - truth["posY"][0]
-    c, s = np.cos(-truth["yaw"][0]), np.sin(-truth["yaw"][0])
-    true_x, true_y = c * dx - s * dy, s * dx + c * dy
+    true_x, true_y, _ = relative_pose(truth, n)
     mean_v, mean_w = rollout.mean_rates[index, :n, 0], rollout.mean_rates[index, :n, 1]
     mx, my = (a[:n] for a in rollout.mean_path(index))
     q = {name: rollout.quantiles(name, index)[:, :n] for name in ("v", "w", "x", "y")}
@@ -386,6 +396,80 @@ def track_metrics(
         coverage_w=float(inside(true_w, "w").mean()),
         coverage_position=float((inside(true_x, "x") & inside(true_y, "y")).mean()),
     )
+
+
+def relative_pose(truth: dict[str, np.ndarray], n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """x, y and unwrapped heading of the first n steps of a log, relative to its start pose."""
+    dx, dy = truth["posX"][:n] - truth["posX"][0], truth["posY"][:n] - truth["posY"][0]
+    c, s = np.cos(-truth["yaw"][0]), np.sin(-truth["yaw"][0])
+    heading = np.unwrap(truth["yaw"][:n]) - truth["yaw"][0]
+    return c * dx - s * dy, s * dx + c * dy, heading
+
+
+# Free-running rollout metrics a campaign logs every round (MLflow and curves.csv).
+ROLLOUT_METRICS: tuple[str, ...] = (
+    "rollout_pos_err_10s",
+    "rollout_pos_err_30s",
+    "rollout_heading_err_30s",
+    "rollout_rmse_v",
+    "rollout_rmse_w",
+    "rollout_coverage_95",
+)
+_TRUTH_COLUMNS = ("speed", "angZ", "posX", "posY", "yaw")
+
+
+def free_run_metrics(
+    model,
+    logs: Sequence,
+    truth_logs: Sequence | None = None,
+    *,
+    rate_hz: float = 30.0,
+    n_samples: int = 32,
+    seed: int = 0,
+) -> dict[str, float]:
+    """Run each logged maneuver free through `model` and measure how far it drifts (`ROLLOUT_METRICS`).
+
+    Each rollout starts from its log's first recorded rates and is given only the recorded controls
+    (the eight's too, which MuJoCo chose by heading feedback); nothing after the start is fed back
+    from the log. Against `truth_logs` (noise-free where known; default the logs themselves):
+    position error of the mean path at 10 s and 30 s (a maneuver shorter than that at its end) and
+    heading error at 30 s, averaged over maneuvers; RMSE of the mean v and ω along the run; the share
+    of true positions inside the 95 % fan (both the x and the y band), over every step of every run.
+    """
+    truth_logs = logs if truth_logs is None else truth_logs
+    controls = [np.asarray(t[["throttle", "steering"]].to_numpy(), dtype=np.float64) for t in logs]
+    initial = np.array([[t["speed"].iloc[0], t["angZ"].iloc[0]] for t in logs])
+    rollout = simulate(
+        model, controls, rate_hz=rate_hz, n_samples=n_samples, seed=seed, initial_rates=initial
+    )
+    band_x, band_y = (np.quantile(getattr(rollout, a), (0.025, 0.975), axis=0) for a in ("x", "y"))
+    mean_x, mean_y = rollout.mean_path()
+    mean_yaw = rollout.yaw.mean(axis=0)
+    at = {10.0: [], 30.0: []}
+    heading, sq_v, sq_w, inside, steps = [], 0.0, 0.0, 0, 0
+    for i, table in enumerate(truth_logs):
+        n = int(rollout.lengths[i])
+        truth = {c: table[c].to_numpy(dtype=np.float64) for c in _TRUTH_COLUMNS}
+        tx, ty, tyaw = relative_pose(truth, n)
+        errors = np.hypot(mean_x[i, :n] - tx, mean_y[i, :n] - ty)
+        for t in at:
+            at[t].append(errors[min(round(t / rollout.dt), n - 1)])
+        k30 = min(round(30.0 / rollout.dt), n - 1)
+        heading.append(abs(np.angle(np.exp(1j * (mean_yaw[i, k30] - tyaw[k30])))))  # wrapped to [0, π]
+        sq_v += float(np.sum((rollout.mean_rates[i, :n, 0] - truth["speed"][:n]) ** 2))
+        sq_w += float(np.sum((rollout.mean_rates[i, :n, 1] - truth["angZ"][:n]) ** 2))
+        within = (band_x[0, i, :n] <= tx) & (tx <= band_x[1, i, :n])
+        within &= (band_y[0, i, :n] <= ty) & (ty <= band_y[1, i, :n])
+        inside += int(within.sum())
+        steps += n
+    return {
+        "rollout_pos_err_10s": float(np.mean(at[10.0])),
+        "rollout_pos_err_30s": float(np.mean(at[30.0])),
+        "rollout_heading_err_30s": float(np.mean(heading)),
+        "rollout_rmse_v": float(np.sqrt(sq_v / steps)),
+        "rollout_rmse_w": float(np.sqrt(sq_w / steps)),
+        "rollout_coverage_95": float(inside / steps),
+    }
 
 
 @dataclass(frozen=True)
@@ -429,25 +513,32 @@ def against_simulator(
 
 
 def steady_state_inputs(model, controls: np.ndarray, *, steps: int = 60, n_samples: int = 8) -> np.ndarray:
-    """Inputs (throttle, steering, v, ω) of a Markov model at the rates it settles to under `controls`.
+    """Inputs of a dynamic model at the rates it settles to under constant `controls`.
 
-    Acquisition and uncertainty maps score controls; a Markov model also needs the rates it would be
-    in. Holding each control for `steps` log steps (2 s at 30 Hz) from standstill and feeding back
-    the posterior-mean rates gives the quasi-steady state, a fair stand-in for slowly varying
-    maneuvers (fishhook, skidpad, straight) and an approximation for slalom and eight.
+    Acquisition and uncertainty maps score controls; a dynamic model also needs the rates it would be
+    in. Holding each control for `steps` iterations from standstill and feeding back the
+    posterior-mean rates (every lag of the history holds the same control and rates once settled)
+    gives the quasi-steady state, a fair stand-in for slowly varying maneuvers (fishhook, skidpad,
+    straight) and an approximation for slalom and eight.
     """
+    lags = model_lags(model)
+    history = 1 if lags is None else lags.history
     controls = np.asarray(controls, dtype=np.float32)
     sampled = model.draw(n_samples, seed=0)
-    ctrl = torch.as_tensor(controls)
+    ctrl = torch.as_tensor(controls).repeat(1, history)
     rates = torch.zeros((len(controls), 2))
+
+    def window() -> torch.Tensor:
+        return torch.cat([ctrl, rates.repeat(1, history)], dim=-1)
+
     for _ in range(steps):
-        means, _ = sampled(torch.cat([ctrl, rates], dim=-1))
+        means, _ = sampled(window())
         rates = means.mean(dim=0)
-    return np.concatenate([controls, rates.numpy()], axis=1).astype(np.float64)
+    return window().numpy().astype(np.float64)
 
 
 def model_inputs(model, controls: np.ndarray) -> np.ndarray:
-    """Controls as model inputs: unchanged for a static model, with quasi-steady rates for a Markov one."""
+    """Controls as model inputs: unchanged for a static model, with quasi-steady rates for a dynamic one."""
     return (
         np.asarray(controls, dtype=np.float64)
         if model.n_inputs == N_CONTROLS

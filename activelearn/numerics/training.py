@@ -29,6 +29,7 @@ from torch.func import functional_call, grad_and_value
 from activelearn.config import TrainingConfig
 from activelearn.errors import InputError
 from activelearn.numerics.models.base import Model
+from activelearn.numerics.multistep import Windows, window_loss
 from activelearn.numerics.threads import intra_op_threads
 from activelearn.numerics.uncertainty import gaussian_nll, recalibrate_epistemic, rmse
 
@@ -275,6 +276,7 @@ def fit(
     seed: int = 0,
     callback: Callback | None = None,
     keep_scalers: bool = False,
+    windows: Windows | None = None,
 ) -> History:
     """Train `model` on (x, y) in physical units; return the per-epoch History.
 
@@ -289,8 +291,19 @@ def fit(
     global torch RNG is restored on return. `groups_val` lets `recalibrate="validation"` average
     validation rows per operating point. `keep_scalers` keeps the model's input/output standardisation
     (fine-tuning weights learnt under it, with `config.reinit = False`) instead of refitting it to (x, y).
+    With `config.rollout_horizon` > 0, `windows` (free runs of a dynamic model,
+    `activelearn.numerics.multistep`) add their loss to every step, `rollout_batch` windows a step
+    (eager steps: the compiled path trains one-step losses only).
     """
     x, y = _check_xy(model, x, y, "")
+    if config.rollout_horizon and windows is not None:
+        if model.n_members is not None:
+            raise InputError("training.rollout_horizon", config.rollout_horizon,
+                             "multi-step training does not apply to ensembles")  # fmt: skip
+        if windows.lags.n_inputs != model.n_inputs:
+            raise InputError("windows", windows.lags.n_inputs, f"the model reads {model.n_inputs} inputs")
+    else:
+        windows = None
     has_val = x_val is not None and y_val is not None
     if has_val:
         x_val, y_val = _check_xy(model, x_val, y_val, "_val")  # type: ignore[arg-type]
@@ -304,13 +317,14 @@ def fit(
         raise InputError("recalibrate", config.recalibrate, "needs x_val and y_val")
 
     steps_per_epoch = math.ceil(n / batch)
-    use_compile = config.compile is True or (
-        config.compile == "auto" and steps_per_epoch * config.epochs >= AUTO_COMPILE_STEPS
+    use_compile = windows is None and (
+        config.compile is True
+        or (config.compile == "auto" and steps_per_epoch * config.epochs >= AUTO_COMPILE_STEPS)
     )
     with intra_op_threads(config.num_threads), torch.random.fork_rng(devices=[]):
         return _fit(
             model, x, y, config, x_val, y_val, groups_val, seed, callback,
-            history, kl_weight, batch, use_compile, keep_scalers,
+            history, kl_weight, batch, use_compile, keep_scalers, windows,
         )  # fmt: skip
 
 
@@ -329,6 +343,7 @@ def _fit(
     batch: int,
     use_compile: bool,
     keep_scalers: bool,
+    windows: Windows | None = None,
 ) -> History:
     """The training loop of `fit` (arguments validated, RNG forked, threads set)."""
     has_val = x_val is not None and y_val is not None
@@ -343,7 +358,7 @@ def _fit(
         model.set_scalers(x, y)
     xs = ((torch.from_numpy(x) - model.x_mean) / model.x_std).contiguous()
     ys = ((torch.from_numpy(y) - model.y_mean) / model.y_std).contiguous()
-    stepper = _Stepper(model, config, kl_weight, batch, use_compile)
+    stepper = _Stepper(model, config, kl_weight, batch, use_compile, windows, gen)
     best_score, best_state, bad_epochs = math.inf, None, 0
 
     for epoch in range(config.epochs):
@@ -402,9 +417,17 @@ class _Stepper:
     """Runs epochs of minibatch steps, eagerly (module + torch.optim) or compiled (`_FlatTrainer`)."""
 
     def __init__(
-        self, model: Model, config: TrainingConfig, kl_weight: float, batch: int, use_compile: bool
+        self,
+        model: Model,
+        config: TrainingConfig,
+        kl_weight: float,
+        batch: int,
+        use_compile: bool,
+        windows: Windows | None = None,
+        gen: torch.Generator | None = None,
     ) -> None:
         self.model, self.config, self.kl_weight, self.batch = model, config, kl_weight, batch
+        self.windows, self.gen = windows, gen
         self.variational = kl_weight > 0 and _is_variational(model)
         self.flat = _FlatTrainer(model, config, kl_weight, compiled=True) if use_compile else None
         self.opt = _optimizer([p for p in model.parameters() if p.requires_grad], config)
@@ -418,6 +441,9 @@ class _Stepper:
 
     def _eager_step(self, xb: Tensor, yb: Tensor) -> tuple[Tensor, Tensor]:
         loss, data = _elbo(self.model, xb, yb, self.config.loss, self.kl_weight, self.variational)
+        if self.windows is not None:
+            rows = torch.randint(len(self.windows), (self.config.rollout_batch,), generator=self.gen)
+            loss = loss + self.config.rollout_weight * window_loss(self.model, self.windows, rows)
         self.opt.zero_grad(set_to_none=True)
         loss.backward()
         self.opt.step()

@@ -72,27 +72,30 @@ def _sem(values: np.ndarray) -> float:
     return float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) > 1 else 0.0
 
 
-def _summary(curves: pd.DataFrame, reference: str) -> pd.DataFrame:
+def _summary(curves: pd.DataFrame, reference: str, metric: str = "test_rmse") -> pd.DataFrame:
     """Per strategy: final RMSE (standardised, and v in m/s, ω in rad/s), NLL, area under the RMSE
-    curve, and the maneuvers and track seconds each seed needed to reach the reference's final RMSE."""
+    curve, and the maneuvers and track seconds each seed needed to reach the reference's final value
+    of `metric` (lower is better). Another metric than test_rmse adds its final mean, s.e.m. and
+    area as `final_metric`, `final_metric_sem` and `metric_auc`."""
     rows = []
     ref = curves[curves["strategy"] == reference]
     ref_final = ref.sort_values("n_maneuvers").groupby("seed").last()
-    target = float(ref_final["test_rmse"].mean()) if len(ref_final) else math.nan
+    target = float(ref_final[metric].mean()) if len(ref_final) else math.nan
     ref_budget = float(ref_final["n_maneuvers"].mean()) if len(ref_final) else math.nan
     has_seconds = "track_seconds" in curves
     ref_seconds = float(ref_final["track_seconds"].mean()) if has_seconds and len(ref_final) else math.nan
     for strategy, part in curves.groupby("strategy", sort=False):
         finals = part.sort_values("n_maneuvers").groupby("seed").last()
-        aucs, reach, reach_s = [], [], []
+        aucs, metric_aucs, reach, reach_s = [], [], [], []
         for _, run in part.groupby("seed"):
             run = run.sort_values("n_maneuvers")
             n, rmse = run["n_maneuvers"].to_numpy(float), run["test_rmse"].to_numpy(float)
-            span = n[-1] - n[0]
-            aucs.append(float(np.trapezoid(rmse, n) / span) if span > 0 else float(rmse[-1]))
-            reach.append(_first_reach(n, rmse, target))
+            ranked = run[metric].to_numpy(float)
+            aucs.append(_area(n, rmse))
+            metric_aucs.append(_area(n, ranked))
+            reach.append(_first_reach(n, ranked, target))
             if has_seconds:
-                reach_s.append(_first_reach(run["track_seconds"].to_numpy(float), rmse, target))
+                reach_s.append(_first_reach(run["track_seconds"].to_numpy(float), ranked, target))
         reach_arr = np.array(reach)
         reached = reach_arr[~np.isnan(reach_arr)]
         seconds = np.array(reach_s)
@@ -106,6 +109,15 @@ def _summary(curves: pd.DataFrame, reference: str) -> pd.DataFrame:
             "final_rmse_w": float(finals["test_rmse_w"].mean()),
             "final_nll": float(finals["test_nll"].mean()),
             "rmse_auc": float(np.mean(aucs)),
+            **(
+                {}
+                if metric == "test_rmse"
+                else {
+                    "final_metric": float(finals[metric].mean()),
+                    "final_metric_sem": _sem(finals[metric].to_numpy()),
+                    "metric_auc": float(np.mean(metric_aucs)),
+                }
+            ),
             "reached": f"{len(reached)}/{len(reach_arr)}",
             "maneuvers_to_target": float(np.median(reached)) if len(reached) else math.nan,
             "ratio_to_reference": float(np.median(reached) / ref_budget) if len(reached) else math.nan,
@@ -115,9 +127,16 @@ def _summary(curves: pd.DataFrame, reference: str) -> pd.DataFrame:
             row["seconds_ratio"] = float(np.median(seconds) / ref_seconds) if len(seconds) else math.nan
         rows.append(row)
     table = pd.DataFrame(rows)
-    table.attrs["target_rmse"] = target
+    table.attrs["target_rmse"] = target  # the reference's final value of `metric`
+    table.attrs["metric"] = metric
     table.attrs["reference"] = reference
     return table
+
+
+def _area(budget: np.ndarray, values: np.ndarray) -> float:
+    """Mean height of a learning curve over its budget span (its last value when the span is 0)."""
+    span = budget[-1] - budget[0]
+    return float(np.trapezoid(values, budget) / span) if span > 0 else float(values[-1])
 
 
 def compare(
@@ -132,15 +151,25 @@ def compare(
     progress: Progress | None = None,
     executor: str = "process",
     ray_address: str | None = None,
+    metric: str | None = None,
 ) -> Comparison:
     """Run every strategy with every seed on one config and compare them against `uniform`.
+
+    `metric` (default: the config's `[test] metric`) is what the table ranks by and the figure shows
+    first: a one-step test error, or a free-running rollout error for dynamics models.
 
     `executor` "process" runs `workers` local processes; "ray" one task per campaign on the Ray
     cluster at `ray_address` (see `activelearn.studies.executors`). The output directory, the
     simulation cache (under `cfg.output_dir`) and the tracking store must be reachable by every node.
     """
+    from activelearn.config import RANKING_METRICS
     from activelearn.loop.acquisition import STRATEGIES
 
+    metric = metric or cfg.test.metric
+    if metric not in RANKING_METRICS:
+        raise InputError("--metric", metric, f"unknown metric; choose from {', '.join(RANKING_METRICS)}")
+    if metric.startswith("rollout_") and not cfg.test.rollout_samples:
+        raise InputError("--metric", metric, "needs rollouts: the config sets [test] rollout_samples = 0")
     for name in strategies:
         if name not in STRATEGIES:
             raise InputError("--strategies", name, f"unknown strategy; choose from {', '.join(STRATEGIES)}")
@@ -247,14 +276,17 @@ def compare(
     records = [{"strategy": s, "seed": seed, **r} for (s, seed), rounds in results.items() for r in rounds]
     curves = pd.DataFrame(records).sort_values(["strategy", "seed", "round"]).reset_index(drop=True)
     reference = "uniform" if "uniform" in strategies else strategies[0]
-    table = _summary(curves, reference)
+    if metric not in curves:
+        raise InputError("--metric", metric, "these campaigns did not log it (a test set without logs?)")
+    table = _summary(curves, reference, metric)
     curves.to_csv(directory / "curves.csv", index=False)
     table.to_csv(directory / "summary.csv", index=False)
 
     from activelearn.plots import comparison_figure
 
+    shown = (metric, *(m for m in CURVE_METRICS if m != metric and m in curves))
     fig = comparison_figure(
-        curves, CURVE_METRICS, reference=reference, title=f"{cfg.name}: {len(seeds)} seeds",
+        curves, shown, reference=reference, title=f"{cfg.name}: {len(seeds)} seeds",
         seconds="track_seconds" in curves,
     )  # fmt: skip
     figure_path = directory / "comparison.png"

@@ -1,16 +1,19 @@
-"""Surrogate versus MuJoCo: speed on 256 maneuvers of 90 s, and accuracy of both model variants.
+"""Surrogate versus MuJoCo: speed on 256 maneuvers of 90 s, and free-run accuracy of every model kind.
 
-1. Trains the static map (controls -> rates) and the Markov-state variant (controls + previous rates
-   -> rates) on one set of simulated maneuvers of all five kinds.
+1. Trains the static map (controls -> rates), the Markov-state variant (controls + previous rates
+   -> rates), the delay-embedded history model and the recurrent (GRU trunk) model on one set of
+   simulated maneuvers of all five kinds (`--models` picks).
 2. Simulates 256 other maneuvers of 90 s at 30 Hz with MuJoCo on all cores, and runs the surrogate
    (S = 32 sampled trajectories, uncertainty included) on the same control sequences, in rounds of
    MuJoCo then surrogate; prints both wall times and their ratio per round (target: surrogate >= 100x
    faster).
-3. Prints the accuracy table of both variants per maneuver kind: RMSE of v and omega, position
-   error at 10 s, 30 s and the end, and the fraction of ground-truth steps inside the 95% band.
+3. Prints the accuracy table of every model per maneuver kind: RMSE of v and omega, position
+   error at 10 s, 30 s and the end, and the fraction of ground-truth steps inside the 95% band
+   (v, ω and the position), then each dynamic model's 30-s position error as a ratio of the
+   static map's per kind.
 
 Usage: python experiments/benchmarks/bench_surrogate.py [--maneuvers 256] [--samples 32] [--epochs 120]
-       [--rounds 3] [--repeats 3]
+       [--rounds 3] [--repeats 3] [--models static,markov,history,recurrent]
 """
 
 from __future__ import annotations
@@ -31,6 +34,16 @@ from activelearn.numerics.training import fit
 from simulator import Maneuver
 
 KINDS = ("straight", "skidpad", "fishhook", "slalom", "eight")
+# Every model kind the surrogate runs: its data inputs and model settings.
+MODELS: dict[str, tuple[dict, dict]] = {
+    "static": ({"inputs": "controls"}, {}),
+    "markov": ({"inputs": "controls+rates"}, {}),
+    "history": ({"inputs": "history", "history": 4, "history_step": 3}, {}),
+    "recurrent": (
+        {"inputs": "history", "history": 4, "history_step": 3},
+        {"kind": "recurrent", "arch": "D32-V16-V", "hidden_size": 32},
+    ),
+}
 
 
 def maneuver_set(n: int, seed: int, duration: float = 90.0) -> list[Maneuver]:
@@ -47,12 +60,17 @@ def maneuver_set(n: int, seed: int, duration: float = 90.0) -> list[Maneuver]:
     return out
 
 
-def train(log: pd.DataFrame, inputs: str, epochs: int, seed: int):
-    """Fit the default hybrid on a log, as a static map or a Markov-state model."""
-    data = DataConfig(stride=3, skip_seconds=0.0, inputs=inputs)  # keep the transients: Markov needs them
+def train(log: pd.DataFrame, name: str, epochs: int, seed: int):
+    """Fit one model kind of `MODELS` on a log."""
+    data_knobs, model_knobs = MODELS[name]
+    # keep the transients: dynamic models need them
+    data = DataConfig(stride=3, skip_seconds=0.0, **data_knobs)
     rows = pd.concat([training_rows(part, data) for _, part in log.groupby("run_id", sort=False)])
     x, y = arrays(rows, data)
-    model = build_model(ModelConfig(n_inputs=x.shape[1]))
+    model = build_model(
+        ModelConfig(n_inputs=x.shape[1], history_step=data.history_step if data.inputs == "history" else 1,
+                    **model_knobs)
+    )  # fmt: skip
     started = time.perf_counter()
     fit(
         model,
@@ -72,20 +90,25 @@ def main() -> None:
     parser.add_argument("--epochs", type=int, default=120)
     parser.add_argument("--rounds", type=int, default=3, help="rounds of MuJoCo then surrogate timings")
     parser.add_argument("--repeats", type=int, default=3, help="timed surrogate calls per variant and round")
+    parser.add_argument("--models", default=",".join(MODELS), help="comma-separated model kinds to compare")
     args = parser.parse_args()
+    names = [m for m in args.models.split(",") if m]
+    unknown = set(names) - set(MODELS)
+    if unknown or "static" not in names:
+        parser.error(f"--models: choose from {', '.join(MODELS)} (static, the baseline, included)")
     threads = os.cpu_count() or 1
 
     train_log = simulator.collect(maneuver_set(args.train_maneuvers, seed=1), seed=1)
     models = {}
-    for name, inputs in (("static", "controls"), ("markov", "controls+rates")):
-        model, seconds, rows = train(train_log, inputs, args.epochs, seed=0)
+    for name in names:
+        model, seconds, rows = train(train_log, name, args.epochs, seed=0)
         models[name] = model
         print(f"trained {name} model on {rows} rows of {args.train_maneuvers} maneuvers in {seconds:.1f} s")
 
     test = maneuver_set(args.maneuvers, seed=2)
     # Rounds of (MuJoCo, then every surrogate variant): this machine's speed drifts by a quarter
     # within minutes, so each round's ratio pairs times taken back to back.
-    runs = (("static", "auto"), ("static", "reference"), ("markov", "auto"))
+    runs = (("static", "auto"), ("static", "reference"), *((n, "auto") for n in names if n != "static"))
     labels = [name if backend == "auto" else f"{name}/{backend}" for name, backend in runs]
     sim_seconds: list[float] = []
     timings: dict[str, list[list[float]]] = {label: [] for label in labels}
@@ -99,7 +122,7 @@ def main() -> None:
         initial = np.array([[t["speed"].iloc[0], t["angZ"].iloc[0]] for t in truth])
         del log
         # The static map twice: its compiled kernel ("auto" where a C compiler built it) and the
-        # NumPy/torch reference that draws the same numbers. The Markov variant has one path.
+        # NumPy/torch reference that draws the same numbers. The dynamic models have one path each.
         for (name, backend), label in zip(runs, labels, strict=True):
             call = dict(n_samples=args.samples, backend=backend)
             if round_ == 0:
@@ -151,12 +174,22 @@ def main() -> None:
                     "pos_end": marks[-1],
                     "cover_v": tm.coverage_v,
                     "cover_w": tm.coverage_w,
+                    "cover_pos": tm.coverage_position,
                 }
             )
     table = pd.DataFrame(rows).groupby(["kind", "variant"]).mean().reindex(KINDS, level=0)
     pd.set_option("display.width", 160)
     print("\naccuracy against MuJoCo (means over maneuvers of each kind; positions in m, rates in SI):")
     print(table.to_string(float_format="%.4f"))
+    ratio = table["pos_30s"].unstack("variant")
+    ratio = ratio.div(ratio["static"], axis=0).drop(columns="static")
+    print("\n30-s position error as a ratio of the static map's (target for the best dynamic model:")
+    print("<= 0.5 on slalom and eight, <= 1 elsewhere):")
+    print(ratio.reindex(KINDS).to_string(float_format="%.3f"))
+    speed = {k: float(np.median(v)) for k, v in ratios.items()}
+    print("\nspeed against MuJoCo (median over rounds):")
+    for label, value in speed.items():
+        print(f"  {label} x{value:.1f}")
 
 
 if __name__ == "__main__":

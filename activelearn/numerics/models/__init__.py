@@ -10,6 +10,7 @@ from activelearn.numerics.models.networks import (
     PNN,
     DeepEnsemble,
     HybridPBNN,
+    RecurrentPBNN,
     StackModel,
     build_model,
 )
@@ -28,6 +29,7 @@ __all__ = [
     "LayerSpec",
     "Model",
     "Prediction",
+    "RecurrentPBNN",
     "ResidualModel",
     "SampledModel",
     "StackModel",

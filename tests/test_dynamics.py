@@ -1,0 +1,255 @@
+"""Dynamic surrogates: history inputs, the recurrent model, free-run metrics, multi-step training and
+warm-started rounds. Real MuJoCo logs, real models, the real CLI."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+import simulator
+from activelearn.config import RANKING_METRICS, DataConfig, ModelConfig, TrainingConfig, load_config
+from activelearn.loop.campaign import Campaign, CampaignState
+from activelearn.loop.collection import arrays, training_rows, training_windows
+from activelearn.numerics.lags import Lags, model_lags
+from activelearn.numerics.models import build_model, load_model, save_model
+from activelearn.numerics.multistep import window_loss
+from activelearn.numerics.surrogate import ROLLOUT_METRICS, free_run_metrics, simulate
+from activelearn.numerics.training import fit
+from simulator import Maneuver
+from tests.test_campaign import SMOKE, _run_cli, _run_cli_signalled
+
+HISTORY = {"inputs": "history", "history": 3, "history_step": 2}
+
+
+@pytest.fixture(scope="module")
+def slalom_log() -> pd.DataFrame:
+    """Two short slaloms and a skidpad, noisy, as a campaign would collect them."""
+    maneuvers = [
+        Maneuver("slalom", 0.6, 0.4, "ccw", 8.0),
+        Maneuver("slalom", 0.9, 0.25, "cw", 8.0),
+        Maneuver("skidpad", 0.5, 0.3, "ccw", 8.0),
+    ]
+    return simulator.collect(maneuvers, seed=1)
+
+
+def _rows(log: pd.DataFrame, data: DataConfig) -> tuple[np.ndarray, np.ndarray]:
+    rows = pd.concat([training_rows(part, data) for _, part in log.groupby("run_id", sort=False)])
+    return arrays(rows, data)
+
+
+@pytest.fixture(scope="module")
+def history_models(slalom_log):
+    """A history hybrid and a recurrent model, briefly trained on the same rows."""
+    data = DataConfig(stride=2, skip_seconds=0.0, **HISTORY)
+    x, y = _rows(slalom_log, data)
+    models = {}
+    for kind, extra in (("hybrid", {}), ("recurrent", {"arch": "D16-V8-V", "hidden_size": 12})):
+        model = build_model(ModelConfig(kind=kind, n_inputs=x.shape[1], history_step=2, **extra))
+        fit(model, x, y, TrainingConfig(lr=3e-3, epochs=40, patience=None), seed=0)
+        models[kind] = model
+    return models
+
+
+def test_history_columns_hold_the_lagged_log_values(slalom_log):
+    lags = Lags(3, 2)
+    assert lags.columns() == [
+        "throttle", "steering", "throttle_lag2", "steering_lag2", "throttle_lag4", "steering_lag4",
+        "speed_lag2", "angZ_lag2", "speed_lag4", "angZ_lag4", "speed_lag6", "angZ_lag6",
+    ]  # fmt: skip
+    # The Markov-state model is history 1 at step 1: the same inputs in the same order.
+    assert DataConfig(inputs="history", history=1, history_step=1) is not None
+    assert Lags(1, 1).n_inputs == 4 and Lags(1, 1).rate_lags == (1,)
+    part = next(iter(slalom_log.groupby("run_id", sort=False)))[1].reset_index(drop=True)
+    rows = training_rows(part, DataConfig(stride=5, skip_seconds=0.0, **HISTORY))
+    assert rows.index[0] == lags.span  # no row without a full history
+    for t in rows.index[:5]:
+        assert rows.loc[t, "steering_lag4"] == part.loc[t - 4, "steering"]
+        assert rows.loc[t, "angZ_lag6"] == part.loc[t - 6, "angZ"]
+        assert rows.loc[t, "speed_lag2"] == part.loc[t - 2, "speed"]
+
+
+@pytest.mark.parametrize("kind", ["hybrid", "recurrent"])
+def test_rollout_feeds_each_trajectory_its_own_lagged_rates(history_models, kind):
+    """The per-step mean of a rollout is the mean over draws at inputs built from each draw's own path."""
+    model = history_models[kind]
+    lags = model_lags(model)
+    assert lags == Lags(3, 2)
+    controls = [np.column_stack([np.full(40, 0.7), 0.4 * np.sin(np.arange(40) / 5.0)])]
+    initial = np.array([[0.1, 0.05]])
+    rollout = simulate(model, controls, n_samples=4, seed=7, initial_rates=initial, backend="reference")
+    draw_seed = int(torch.randint(2**31 - 1, (1,), generator=torch.Generator().manual_seed(7)))
+    draws = model.draw(4, seed=draw_seed, backend="reference")
+    u, rates = controls[0], np.stack([rollout.v[:, 0], rollout.w[:, 0]], axis=-1)  # (S, T, 2)
+    for t in (0, 1, 5, 6, 7, 30):
+        ctrl = [u[max(t - d, 0)] for d in lags.control_lags]
+        inputs = np.stack([
+            np.concatenate(ctrl + [rates[s, t - d] if t >= d else initial[0] for d in lags.rate_lags])
+            for s in range(4)
+        ])[:, None, :]  # fmt: skip
+        means, _ = draws(inputs)
+        np.testing.assert_allclose(rollout.mean_rates[0, t], means[:, 0].mean(axis=0), rtol=1e-4, atol=1e-6)
+
+
+def test_recurrent_model_splits_uncertainty_and_survives_a_round_trip(history_models, tmp_path):
+    model = history_models["recurrent"]
+    x = np.random.default_rng(0).normal(size=(50, 12))
+    near, far = model.predict(x * 0.1, n_samples=32), model.predict(x * 20.0, n_samples=32)
+    assert (near.epistemic_var > 0).all() and (near.aleatoric_var > 0).all()
+    assert far.epistemic_std.mean() > 3 * near.epistemic_std.mean()  # wider away from the data
+    save_model(model, tmp_path / "m.pt")
+    again = load_model(tmp_path / "m.pt")
+    assert type(again).__name__ == "RecurrentPBNN"
+    np.testing.assert_array_equal(again.predict(x, n_samples=8).mean, model.predict(x, n_samples=8).mean)
+
+
+def test_free_run_metrics_are_zero_error_for_the_truth_and_grow_with_a_bias(history_models, slalom_log):
+    logs = [part.reset_index(drop=True) for _, part in slalom_log.groupby("run_id", sort=False)]
+    metrics = free_run_metrics(history_models["hybrid"], logs, n_samples=8)
+    assert set(metrics) == set(ROLLOUT_METRICS)
+    assert set(ROLLOUT_METRICS) - {"rollout_coverage_95"} <= set(RANKING_METRICS)
+    assert 0 <= metrics["rollout_coverage_95"] <= 1
+    assert metrics["rollout_pos_err_10s"] == metrics["rollout_pos_err_30s"]  # 8-s maneuvers: their end
+    # Judged against a truth that drives 10 % faster than recorded, the same run errs more.
+    faster = [t.assign(posX=t["posX"][0] + 1.1 * (t["posX"] - t["posX"][0]),
+                       posY=t["posY"][0] + 1.1 * (t["posY"] - t["posY"][0])) for t in logs]  # fmt: skip
+    worse = free_run_metrics(history_models["hybrid"], logs, faster, n_samples=8)
+    assert worse["rollout_pos_err_30s"] > metrics["rollout_pos_err_30s"]
+    assert worse["rollout_rmse_v"] == metrics["rollout_rmse_v"]
+
+
+def test_window_loss_of_one_step_is_the_one_step_nll(history_models, slalom_log):
+    model = history_models["hybrid"]
+    data = DataConfig(stride=1, skip_seconds=0.0, **HISTORY)
+    frames = [part for _, part in slalom_log.groupby("run_id", sort=False)]
+    windows = training_windows(frames, data, horizon=1)
+    x, y = _rows(slalom_log, data)
+    assert len(windows) == len(x)  # one window per row with a full history
+    model.eval()
+    with torch.no_grad():
+        torch.manual_seed(0)
+        loss = window_loss(model, windows, torch.arange(len(windows)))
+        torch.manual_seed(0)
+        xs = (torch.tensor(x, dtype=torch.float32) - model.x_mean) / model.x_std
+        mean, var = model.train_forward(xs)
+        ys = (torch.tensor(y, dtype=torch.float32) - model.y_mean) / model.y_std
+        one_step = (0.5 * (var.log() + (ys - mean).square() / var)).sum(dim=-1).mean()
+    assert float(loss) == pytest.approx(float(one_step), rel=1e-5)
+    longer = training_windows(frames, data, horizon=30)
+    assert longer.horizon == 30 and longer.controls.shape[1] == 30 + 2 * 2
+
+
+def test_multi_step_training_changes_the_fit_and_is_seeded(slalom_log):
+    data = DataConfig(stride=2, skip_seconds=0.0, **HISTORY)
+    x, y = _rows(slalom_log, data)
+    windows = training_windows([p for _, p in slalom_log.groupby("run_id", sort=False)], data, 10)
+    fits = []
+    for horizon in (0, 10, 10):
+        model = build_model(ModelConfig(n_inputs=12, history_step=2))
+        cfg = TrainingConfig(epochs=5, patience=None, rollout_horizon=horizon, rollout_batch=8)
+        fit(model, x, y, cfg, seed=3, windows=windows)
+        fits.append(model.predict(x[:20], n_samples=4).mean)
+    assert not np.allclose(fits[0], fits[1])  # the window loss took part
+    np.testing.assert_array_equal(fits[1], fits[2])  # and the same seed gives the same weights
+
+
+def _dynamic_config(tmp_path: Path, **overrides):
+    data = {
+        "output_dir": str(tmp_path / "runs"),
+        "tracking": {"enabled": False},
+        "pool": {"kinds": ["skidpad", "slalom"], "duration": 8.0},
+        "data": {"stride": 5, "skip_seconds": 0.0, **HISTORY},
+        "training": {"epochs": 15},
+        "design": {"initial": 2, "per_round": 1, "max_maneuvers": 4},
+        "test": {"kinds": ["slalom"], "throttles": [0.6], "steerings": [0.3], "duration": 8.0,
+                 "metric": "rollout_pos_err_30s", "rollout_samples": 8},
+        **overrides,
+    }  # fmt: skip
+    return load_config(SMOKE, overrides=data)
+
+
+def test_a_history_campaign_logs_free_run_metrics_every_round(tmp_path):
+    cfg = _dynamic_config(tmp_path, model={"kind": "recurrent", "arch": "D16-V8-V", "hidden_size": 8})
+    assert cfg.model.n_inputs == 12 and cfg.model.history_step == 2  # the data section sets the layout
+    result = Campaign(cfg, tmp_path / "c").run(figures=False)
+    assert len(result.state.rounds) == 3
+    for record in result.state.rounds:
+        for name in (*ROLLOUT_METRICS, "rollout_seconds"):
+            assert np.isfinite(record[name]), name
+
+
+def test_compare_ranks_by_the_chosen_metric(tmp_path):
+    out = tmp_path / "cmp"
+    args = ["compare", str(SMOKE), "--strategies", "uniform,random", "--seeds", "1", "--workers", "1",
+            "--no-tracking", "--out", str(out), "--metric", "rollout_pos_err_30s"]  # fmt: skip
+    done = subprocess.run([sys.executable, "-m", "activelearn.cli", *args], capture_output=True, text=True,
+                          timeout=600, cwd=tmp_path)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert "final rollout_pos_err_30s" in done.stdout
+    table = pd.read_csv(out / "summary.csv")
+    curves = pd.read_csv(out / "curves.csv")
+    uniform = curves[curves["strategy"] == "uniform"].sort_values("round")
+    assert table.set_index("strategy").loc["uniform", "final_metric"] == pytest.approx(
+        uniform["rollout_pos_err_30s"].iloc[-1]
+    )
+    bad = subprocess.run([sys.executable, "-m", "activelearn.cli", *args[:-1], "rollout_nonsense"],
+                         capture_output=True, text=True, timeout=120, cwd=tmp_path)  # fmt: skip
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "--metric" in bad.stderr
+
+
+@pytest.mark.parametrize(
+    ("section", "patch", "field"),
+    [
+        ("test", 'metric = "rmse_of_everything"', "test.metric"),
+        ("data", 'inputs = "history"\nhistory = 0', "data.history"),
+        ("data", "history_step = 2", "data"),
+        ("model", 'kind = "recurrent"', "config"),
+        ("training", "rollout_horizon = -1", "training.rollout_horizon"),
+    ],
+)
+def test_bad_dynamics_settings_are_one_line_and_exit_2(tmp_path, section, patch, field):
+    text = SMOKE.read_text()
+    header = f"[{section}]\n"
+    text = text.replace(header, header + patch + "\n") if header in text else text + f"\n{header}{patch}\n"
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    done = subprocess.run(
+        [sys.executable, "-m", "activelearn.cli", "campaign", "run", str(path), "--no-tracking",
+         "--out", str(tmp_path / "never")],
+        capture_output=True, text=True, timeout=120, cwd=tmp_path,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and field in done.stderr
+    assert not (tmp_path / "never").exists()
+
+
+def test_warm_started_rounds_start_from_the_last_model_and_resume_exactly(tmp_path):
+    cfg = tmp_path / "warm.toml"
+    warm = "[training]\nwarm_start = true\nwarm_epochs = 10\n"
+    cfg.write_text(SMOKE.read_text().replace("[training]\n", warm))
+    common = ["campaign", "run", str(cfg), "--no-tracking", "--seed", "1"]
+    assert _run_cli([*common, "--out", str(tmp_path / "ref")]).wait(timeout=300) == 0
+    victim = _run_cli_signalled("SIGKILL", ("fit", 2), [*common, "--out", str(tmp_path / "kill")])
+    assert victim.wait(timeout=300) == -signal.SIGKILL
+    assert len(CampaignState.load(tmp_path / "kill").rounds) == 2
+    assert _run_cli([*common, "--out", str(tmp_path / "kill"), "--resume"]).wait(timeout=300) == 0
+    ref, res = CampaignState.load(tmp_path / "ref"), CampaignState.load(tmp_path / "kill")
+    assert ref.batches == res.batches and len(ref.rounds) == 3
+    for a, b in zip(ref.rounds, res.rounds, strict=True):
+        assert a["test_rmse"] == b["test_rmse"] and a["test_nll"] == b["test_nll"]
+    # The last round's model is a warm fit from round 1's weights, not a fresh one.
+    assert sorted(p.name for p in (tmp_path / "ref" / "warm").iterdir()) == ["round001.pt", "round002.pt"]
+    campaign = Campaign(load_config(cfg).model_copy(update={"seed": 1}), tmp_path / "ref")
+    samples = pd.read_parquet(tmp_path / "ref" / "samples.parquet")
+    final = load_model(tmp_path / "ref" / "model.pt")
+    x = campaign.test_set.x
+    warm = campaign.fit_model(samples, 2, previous=load_model(tmp_path / "ref" / "warm" / "round001.pt"))
+    np.testing.assert_array_equal(warm.predict(x, n_samples=8).mean, final.predict(x, n_samples=8).mean)
+    fresh = campaign.fit_model(samples, 2)
+    assert not np.allclose(fresh.predict(x, n_samples=8).mean, final.predict(x, n_samples=8).mean)
