@@ -706,9 +706,10 @@ SPACE_PARAMS: dict[str, tuple[SpaceKind, tuple[Any, ...] | None]] = {
     "variational_width": ("int", None),
     "variational": ("bool", None),
     "variational_head": ("bool", None),
+    "hidden_size": ("int", None),
 }
 # Upper bounds that keep a sampled network buildable and trainable in reasonable time.
-_SPACE_MAX = {"n_layers": 8, "width": 1024, "variational_width": 1024}
+_SPACE_MAX = {"n_layers": 8, "width": 1024, "variational_width": 1024, "hidden_size": 512}
 
 
 class Range(_Section):
@@ -808,6 +809,9 @@ class SearchSpace(_Section):
     variational: Any = [False, True]
     # The read-out is variational by default: the model then always has epistemic uncertainty.
     variational_head: Any = True
+    # Width of the recurrent model's GRU trunk (read by kind = "recurrent" only). A history model's
+    # layout ([data] history, history_step) shapes the study's data: one study per layout.
+    hidden_size: Any = 32
 
     @field_validator("*")
     @classmethod

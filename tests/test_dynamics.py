@@ -182,6 +182,15 @@ def test_a_history_campaign_logs_free_run_metrics_every_round(tmp_path):
     for record in result.state.rounds:
         for name in (*ROLLOUT_METRICS, "rollout_seconds"):
             assert np.isfinite(record[name]), name
+    # The campaign's model drives `predict` (fan figure, metrics) like any other.
+    done = subprocess.run(
+        [sys.executable, "-m", "activelearn.cli", "predict", "--model", str(tmp_path / "c"), "--maneuver",
+         "slalom", "--throttle", "0.6", "--steering", "0.3", "--duration", "6", "--samples", "8",
+         "--out", str(tmp_path / "fan.png")],
+        capture_output=True, text=True, timeout=300, cwd=tmp_path,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert "position error" in done.stdout and (tmp_path / "fan.png").stat().st_size > 0
 
 
 def test_compare_ranks_by_the_chosen_metric(tmp_path):
@@ -253,3 +262,29 @@ def test_warm_started_rounds_start_from_the_last_model_and_resume_exactly(tmp_pa
     np.testing.assert_array_equal(warm.predict(x, n_samples=8).mean, final.predict(x, n_samples=8).mean)
     fresh = campaign.fit_model(samples, 2)
     assert not np.allclose(fresh.predict(x, n_samples=8).mean, final.predict(x, n_samples=8).mean)
+
+
+def test_tune_searches_the_recurrent_trunk_width(tmp_path, slalom_log):
+    import optuna
+
+    from activelearn import cli
+    from activelearn.data import write_table
+
+    data = write_table(slalom_log, tmp_path / "samples.parquet")
+    config = tmp_path / "rec.toml"
+    config.write_text(
+        f'name = "rec"\noutput_dir = "{tmp_path / "runs"}"\n'
+        '[data]\nstride = 2\nskip_seconds = 0.0\ninputs = "history"\nhistory = 3\nhistory_step = 2\n'
+        '[model]\nkind = "recurrent"\n'
+        f'[tracking]\nuri = "sqlite:///{tmp_path}/mlflow.db"\n'
+        "[tuning]\nsampler_startup_trials = 2\n"
+        "[tuning.space]\nepochs = 3\nbatch_size = [64]\nn_layers = 1\nwidth = [8]\n"
+        "variational = false\nhidden_size = [6, 10]\n"
+    )
+    storage = f"sqlite:///{tmp_path}/optuna.db"
+    args = ["tune", str(config), "--n-trials", "3", "--storage", storage, "--data", str(data), "--seed", "0"]
+    assert cli.main(args) == 0
+    trials = optuna.load_study(study_name="rec", storage=storage).trials
+    assert len(trials) == 3 and all(t.state.name == "COMPLETE" for t in trials)
+    assert {t.params["hidden_size"] for t in trials} <= {6, 10}
+    assert "hidden_size" in (tmp_path / "runs" / "tuning" / "rec" / "best.toml").read_text()

@@ -21,7 +21,7 @@ from activelearn.config import (
 )
 
 # Params of the [model] and [training] tables a trial sets (the rest come from the config).
-MODEL_KEYS: tuple[str, ...] = ("arch", "activation", "posterior", "kl", "prior_scale")
+MODEL_KEYS: tuple[str, ...] = ("arch", "activation", "posterior", "kl", "prior_scale", "hidden_size")
 TRAINING_KEYS: tuple[str, ...] = ("lr", "epochs", "batch_size", "optimizer", "loss")
 PRUNERS: tuple[str, ...] = ("median", "hyperband", "none")
 
