@@ -254,7 +254,7 @@ def compare(
     from activelearn.plots import comparison_figure
 
     fig = comparison_figure(
-        curves, CURVE_METRICS, reference=reference, title=f"{cfg.name}: {len(seeds)} seeds",
+        curves, CURVE_METRICS, reference=reference, title=cfg.name,
         seconds="track_seconds" in curves,
     )  # fmt: skip
     figure_path = directory / "comparison.png"
