@@ -746,12 +746,13 @@ def _predict(args: argparse.Namespace) -> int:
     if not 0 <= args.seed < 2**32:  # torch's manual_seed overflows past 2**64
         raise InputError("--seed", args.seed, "must lie in [0, 2**32)")
     out = _output_path("--out", args.out, suffixes=_PLOT_SUFFIXES) if args.out else None
+    if args.run_id is not None:
+        _existing_store(args.tracking_uri)
     model = _load_any_model(args.model, args.tracking_uri)
     tracker = None
     if args.run_id is not None:
         from activelearn.studies.tracking import Tracker
 
-        _existing_store(args.tracking_uri)
         tracker = Tracker(args.tracking_uri)
         tracker.run_status(args.run_id)  # fails early, naming the run, before simulating
 
