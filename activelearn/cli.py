@@ -1,7 +1,9 @@
-"""Command-line interface: the only module that parses arguments or prints.
+"""Active learning of a surrogate model of Nigel's dynamics, a 1:14 car simulated in MuJoCo.
 
-Every sub-command is a thin layer over the Python API. User mistakes (bad values, unknown names,
-malformed files) become one red line on stderr and exit code 2; nothing is written in that case.
+This module is the command-line interface, the only one that parses arguments or prints. Every
+sub-command is a thin layer over the Python API. User mistakes (bad values, unknown names, malformed
+files, output paths that cannot be written) become one red line on stderr and exit code 2; nothing
+is written in that case.
 """
 
 from __future__ import annotations
@@ -9,6 +11,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 from activelearn.errors import ActiveLearnError
 from simulator.errors import SimulatorError
@@ -45,17 +48,49 @@ class _Parser(argparse.ArgumentParser):
     """ArgumentParser whose errors are one red line and exit code 2."""
 
     def error(self, message: str) -> None:  # type: ignore[override]
+        for action in self._actions:  # a missing sub-command: name the choices
+            if isinstance(action, argparse._SubParsersAction) and message.endswith(f": {action.metavar}"):
+                message += f" (one of {', '.join(action.choices)})"
         fail(message)
         raise SystemExit(EXIT_USAGE)
 
 
 def build_parser() -> argparse.ArgumentParser:
     """Build the top-level parser with every sub-command registered."""
-    parser = _Parser(prog="activelearn", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    parser = _Parser(prog="activelearn", description=__doc__.splitlines()[0],
+                     epilog="`activelearn COMMAND --help` describes each command.")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser, metavar="COMMAND",
+                                title="commands")
     for register in _REGISTRARS:
         register(sub)
     return parser
+
+
+def _output_path(
+    option: str, value: str | Path, *, folder: bool = False, suffixes: Sequence[str] = ()
+) -> Path:
+    """`value` as the path of an output file (or `folder`), checked before any work is done.
+
+    Rejects a wrong suffix, a file where a folder must be (the path itself or any folder above it), a
+    folder where a file must be, and a place this process cannot write to.
+    """
+    import os
+
+    from activelearn.errors import InputError
+
+    path = Path(value)
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise InputError(option, str(value), f"must end in {', '.join(suffixes)}")
+    if path.exists() and path.is_dir() != folder:
+        raise InputError(option, str(value), "is a folder" if path.is_dir() else "is a file, not a folder")
+    parent = path if folder else path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise InputError(option, str(value), f"{parent} is a file, not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(option, str(value), f"cannot write in {parent}")
+    return path
 
 
 # Each registrar adds one sub-command and sets `handler` on its parser.
@@ -81,7 +116,8 @@ def _add_maneuver_options(p: argparse.ArgumentParser) -> None:
                    help="straight, skidpad, fishhook, slalom or eight")
     p.add_argument("--throttle", required=True, type=float, metavar="T", help="throttle in [-1, 1]")
     p.add_argument("--steering", type=float, default=None, metavar="S",
-                   help="steering amplitude in [0, 0.5236] rad (default: 0.5236 for fishhook, else 0)")
+                   help="steering amplitude in (0, 0.5236] rad: required for skidpad, slalom and eight; "
+                        "fishhook's default 0.5236; a straight takes none")
     p.add_argument("--direction", default="ccw", metavar="cw|ccw", help="ccw turns left first (default)")
     p.add_argument("--duration", type=float, default=90.0, metavar="SEC", help="seconds (default 90)")
 
@@ -92,6 +128,11 @@ def _maneuver_from_args(args: argparse.Namespace):
     from simulator import STEERING_LIMIT, Maneuver, ManeuverError
 
     steering = args.steering
+    if args.maneuver == "straight" and steering:
+        raise InputError("--steering", steering, "a straight does not steer; drop --steering")
+    if args.maneuver in ("skidpad", "slalom", "eight") and steering is None:
+        raise InputError("--steering", None,
+                         f"a {args.maneuver} needs its steering amplitude in rad, e.g. --steering 0.3142")
     if steering is None:
         steering = STEERING_LIMIT if args.maneuver == "fishhook" else 0.0
     try:
@@ -121,7 +162,6 @@ def _register_simulate(sub: argparse._SubParsersAction) -> None:
 def _simulate(args: argparse.Namespace) -> int:
     import math
     import warnings
-    from pathlib import Path
 
     from activelearn.errors import InputError
     from simulator import DivergenceWarning, NoiseConfig, collect
@@ -132,16 +172,10 @@ def _simulate(args: argparse.Namespace) -> int:
         raise InputError("--rate", args.rate, "must lie in (0, 300] Hz")
     if args.seed < 0:
         raise InputError("--seed", args.seed, "must be >= 0")
-    out = Path(args.out)
-    if out.suffix.lower() not in (".csv", ".parquet"):
-        raise InputError("--out", args.out, "must end in .csv or .parquet")
-    if out.is_dir():
-        raise InputError("--out", args.out, "is a directory")
+    out = _output_path("--out", args.out, suffixes=(".csv", ".parquet"))
     if args.autodrive and out.suffix.lower() != ".csv":
         raise InputError("--out", args.out, "an AutoDRIVE log (--autodrive) is a .csv file")
-    plot = Path(args.plot) if args.plot else None
-    if plot is not None and plot.suffix.lower() not in _PLOT_SUFFIXES:
-        raise InputError("--plot", args.plot, f"must end in {', '.join(_PLOT_SUFFIXES)}")
+    plot = _output_path("--plot", args.plot, suffixes=_PLOT_SUFFIXES) if args.plot else None
 
     from tqdm import tqdm
 
@@ -200,16 +234,28 @@ _ROUND_COLUMNS = {
 }
 
 
-def _add_config_options(p: argparse.ArgumentParser) -> None:
+# Mirrors activelearn.loop.acquisition.STRATEGIES for the help texts: importing it (torch) here would
+# slow down every command; tests check the copy agrees.
+_STRATEGIES = ("grid", "uniform", "random", "sobol", "lhs", "max_epistemic", "epistemic_maximin", "max_total",
+               "bald", "integrated_variance", "auto", "oracle_error", "oracle_lookahead")
+_CACHE_NOTE = ("simulated maneuvers are cached in the config's output_dir/cache (default ./runs/cache), "
+               "whatever --out says")
+
+
+def _add_config_options(p: argparse.ArgumentParser, out_default: str) -> None:
     p.add_argument("config", metavar="CONFIG",
                    help="campaign config (TOML), e.g. experiments/configs/skidpad.toml")
     p.add_argument("--tracking-uri", default=None, metavar="URI",
                    help="MLflow tracking URI (default: the config's, sqlite:///mlruns/mlflow.db)")
     p.add_argument("--no-tracking", action="store_true", help="do not log to MLflow")
     p.add_argument("--params", default=None, metavar="TOML",
-                   help="[model]/[training] overrides, e.g. the best.toml written by `activelearn tune`")
-    p.add_argument("--out", default=None, metavar="DIR", help="output directory (default: under runs/)")
-    p.add_argument("--resume", action="store_true", help="continue a stopped run in --out")
+                   help="[model]/[training] overrides, e.g. runs/tuning/<study>/best.toml written by "
+                        "`activelearn tune`")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help=f"output directory (default {out_default}, <output_dir> being the config's, "
+                        f"default runs); {_CACHE_NOTE}")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the stopped run in --out (an error if it holds none)")
 
 
 def _load_campaign_config(args: argparse.Namespace, **overrides: object):
@@ -221,11 +267,16 @@ def _load_campaign_config(args: argparse.Namespace, **overrides: object):
 
 
 def _register_campaign(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("campaign", help="run one active-learning campaign",
-                       description="Active-learning campaigns: one config, one strategy, one seed.")
-    campaign_sub = p.add_subparsers(dest="campaign_command", required=True, parser_class=_Parser)
-    run = campaign_sub.add_parser("run", help="run (or resume) a campaign")
-    _add_config_options(run)
+    p = sub.add_parser("campaign", help="run, propose or ingest one active-learning campaign",
+                       description="Active-learning campaigns: one config, one strategy, one seed. `run` "
+                                   "lets the simulator answer every batch; `propose` and `ingest` let a "
+                                   "person drive the car.")
+    campaign_sub = p.add_subparsers(dest="campaign_command", required=True, parser_class=_Parser,
+                                    metavar="COMMAND", title="commands")
+    run = campaign_sub.add_parser("run", help="run (or resume) a campaign, the simulator answering",
+                                  description="Run (or resume) a campaign to its budget; the config's oracle "
+                                              "(the simulator, a twin or recorded logs) answers every batch.")
+    _add_config_options(run, "<output_dir>/<name>/<strategy>/seed<N>")
     _add_strategy_seed(run)
     run.set_defaults(handler=_campaign_run)
 
@@ -235,7 +286,7 @@ def _register_campaign(sub: argparse._SubParsersAction) -> None:
                     "DIR/proposals/round-NNN.csv with the maneuvers to drive (the values `activelearn "
                     "simulate` takes).",
     )  # fmt: skip
-    _add_config_options(propose)
+    _add_config_options(propose, "<output_dir>/<name>/<strategy>/seed<N>")
     _add_strategy_seed(propose)
     propose.set_defaults(handler=_campaign_propose)
 
@@ -255,7 +306,8 @@ def _register_campaign(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_strategy_seed(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--strategy", default=None, metavar="S", help="strategy (default: the config's)")
+    p.add_argument("--strategy", default=None, metavar="S",
+                   help=f"strategy (default: the config's): {', '.join(_STRATEGIES)}")
     p.add_argument("--seed", type=int, default=None, metavar="N", help="seed (default: the config's)")
 
 
@@ -275,6 +327,19 @@ def _print_proposals(maneuvers: list, path) -> None:
           "--steering {steering} --duration {duration} --out LOG.csv".format(**rows[0]))  # fmt: skip
 
 
+def _campaign_directory(args: argparse.Namespace, cfg) -> Path:
+    """The campaign directory of --out (or the config's default), checked before any work is done."""
+    from activelearn.errors import InputError
+    from activelearn.loop.campaign import default_directory
+    from activelearn.loop.state import STATE_FILE
+
+    directory = _output_path("--out", args.out or default_directory(cfg), folder=True)
+    if args.resume and not (directory / STATE_FILE).is_file():
+        raise InputError("--resume", str(directory),
+                         f"holds no campaign to resume (no {STATE_FILE}): check --out, or drop --resume")
+    return directory
+
+
 def _campaign_tracker(cfg, args):
     if not cfg.tracking.enabled or args.no_tracking:
         return None
@@ -284,12 +349,11 @@ def _campaign_tracker(cfg, args):
 
 
 def _campaign_propose(args: argparse.Namespace) -> int:
-    from pathlib import Path
 
-    from activelearn.loop.campaign import Campaign, CampaignInterrupted, default_directory
+    from activelearn.loop.campaign import Campaign, CampaignInterrupted
 
     cfg = _load_campaign_config(args, **_strategy_seed(args))
-    directory = Path(args.out) if args.out else default_directory(cfg)
+    directory = _campaign_directory(args, cfg)
     campaign = Campaign(cfg, directory, tracker=_campaign_tracker(cfg, args))
     try:
         proposals = campaign.propose(resume=args.resume)
@@ -335,14 +399,13 @@ def _campaign_ingest(args: argparse.Namespace) -> int:
 
 
 def _campaign_run(args: argparse.Namespace) -> int:
-    from pathlib import Path
 
     from tqdm import tqdm
 
-    from activelearn.loop.campaign import Campaign, CampaignInterrupted, default_directory, total_rounds
+    from activelearn.loop.campaign import Campaign, CampaignInterrupted, total_rounds
 
     cfg = _load_campaign_config(args, **_strategy_seed(args))
-    directory = Path(args.out) if args.out else default_directory(cfg)
+    directory = _campaign_directory(args, cfg)
     tracker = _campaign_tracker(cfg, args)
     campaign = Campaign(cfg, directory, tracker=tracker)
     bar = tqdm(total=total_rounds(cfg, len(campaign.maneuvers)), unit="round",
@@ -397,9 +460,10 @@ _SUMMARY_COLUMNS = {
 def _register_compare(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("compare", help="compare strategies over seeds under one MLflow parent run",
                        description="Run strategies x seeds on one config and compare them with uniform.")
-    _add_config_options(p)
+    _add_config_options(p, "<output_dir>/<name>/compare")
     p.add_argument("--strategies", default="uniform,max_epistemic", metavar="A,B,...",
-                   help="comma-separated strategies (default: uniform,max_epistemic)")
+                   help="comma-separated strategies (default: uniform,max_epistemic), from "
+                        f"{', '.join(_STRATEGIES)}")
     p.add_argument("--seeds", type=int, default=3, metavar="N", help="seeds 0..N-1 (default 3)")
     p.add_argument("--workers", type=int, default=None, metavar="K",
                    help="parallel processes, or CPUs of a local Ray cluster (default: number of cores)")
@@ -426,6 +490,10 @@ def _compare(args: argparse.Namespace) -> int:
     if args.workers is not None and args.workers < 1:
         raise InputError("--workers", args.workers, "must be at least 1")
     cfg = _load_campaign_config(args)
+    directory = _output_path("--out", args.out or Path(cfg.output_dir) / cfg.name / "compare", folder=True)
+    if args.resume and not (directory / "compare.json").is_file():
+        raise InputError("--resume", str(directory),
+                         "holds no comparison to resume (no compare.json): check --out, or drop --resume")
     n_jobs = len(strategies) * args.seeds
     bars: dict[str, tqdm] = {}
 
@@ -442,7 +510,7 @@ def _compare(args: argparse.Namespace) -> int:
             bar.set_postfix(last=f"{event['strategy']}/seed{event['seed']}", rmse=f"{event['test_rmse']:.4f}")
 
     try:
-        result = compare(cfg, strategies, list(range(args.seeds)), directory=args.out, workers=args.workers,
+        result = compare(cfg, strategies, list(range(args.seeds)), directory=directory, workers=args.workers,
                          tracking=cfg.tracking.enabled and not args.no_tracking, resume=args.resume,
                          progress=progress, executor=args.executor, ray_address=args.ray_address,
                          metric=args.metric)
@@ -548,6 +616,8 @@ def _tune(args: argparse.Namespace) -> int:
         raise InputError("--workers", args.workers, "must be at least 1")
     if args.timeout is not None and not args.timeout > 0:
         raise InputError("--timeout", args.timeout, "must be > 0 seconds")
+    if args.out is not None:
+        _output_path("--out", args.out)
     objectives = parse_objectives(args.objectives)
     overrides: dict[str, object] = {}
     if args.tracking_uri is not None:
@@ -651,6 +721,9 @@ def _load_any_model(spec: str, tracking_uri: str):
 
     path = Path(spec)
     if path.is_dir():
+        if not (path / "model.pt").is_file():
+            raise InputError("--model", spec, "the folder holds no model.pt (a campaign directory has one "
+                                              "once a round is fitted: after `campaign run` or an ingest)")
         path = path / "model.pt"
     if path.is_file():
         try:
@@ -659,13 +732,23 @@ def _load_any_model(spec: str, tracking_uri: str):
             raise InputError("--model", spec, f"cannot read the model file: {exc}") from None
     if "://" not in spec and not spec.startswith(("runs:/", "models:/")):
         raise InputError("--model", spec, "no such file, directory or MLflow model URI")
+    _existing_store(tracking_uri)
     from activelearn.studies.tracking import load_model as load_mlflow_model
 
     return load_mlflow_model(spec, tracking_uri)
 
 
+def _existing_store(tracking_uri: str) -> None:
+    """Refuse a local SQLite MLflow store that does not exist (MLflow would create it, empty)."""
+    from activelearn.errors import InputError
+
+    if tracking_uri.startswith("sqlite:///") and not Path(tracking_uri.removeprefix("sqlite:///")).is_file():
+        raise InputError("--tracking-uri", tracking_uri,
+                         "no MLflow store there; give the store that holds the run (the command that "
+                         "logged it printed it)")
+
+
 def _predict(args: argparse.Namespace) -> int:
-    from pathlib import Path
 
     from activelearn.errors import InputError
 
@@ -674,9 +757,9 @@ def _predict(args: argparse.Namespace) -> int:
         raise InputError("--samples", args.samples, "must be at least 2")
     if not 0 <= args.seed < 2**32:  # torch's manual_seed overflows past 2**64
         raise InputError("--seed", args.seed, "must lie in [0, 2**32)")
-    out = Path(args.out) if args.out else None
-    if out is not None and out.suffix.lower() not in _PLOT_SUFFIXES:
-        raise InputError("--out", args.out, f"must end in {', '.join(_PLOT_SUFFIXES)}")
+    out = _output_path("--out", args.out, suffixes=_PLOT_SUFFIXES) if args.out else None
+    if args.run_id is not None:
+        _existing_store(args.tracking_uri)
     model = _load_any_model(args.model, args.tracking_uri)
     tracker = None
     if args.run_id is not None:
@@ -768,14 +851,11 @@ def _log_files(specs: Sequence[str]) -> list:
 
 def _fidelity(args: argparse.Namespace) -> int:
     import math
-    from pathlib import Path
 
     from activelearn.errors import InputError
     from activelearn.fidelity import FidelitySettings, compare, read_log_file
 
-    plot = Path(args.plot) if args.plot else None
-    if plot is not None and plot.suffix.lower() not in _PLOT_SUFFIXES:
-        raise InputError("--plot", args.plot, f"must end in {', '.join(_PLOT_SUFFIXES)}")
+    plot = _output_path("--plot", args.plot, suffixes=_PLOT_SUFFIXES) if args.plot else None
     if not math.isfinite(args.settle) or args.settle < 0:
         raise InputError("--settle", args.settle, "must be a finite number of seconds >= 0")
     if not math.isfinite(args.min_window) or args.min_window <= 0:
@@ -832,6 +912,33 @@ def _fidelity(args: argparse.Namespace) -> int:
 _REGISTRARS.append(_register_fidelity)
 
 
+def _nearest_key(exc: Exception) -> str:
+    """'; did you mean KEY?' for a config key that does not exist but is close to one that does."""
+    import difflib
+    import typing
+
+    from activelearn.errors import ConfigError
+
+    if not isinstance(exc, ConfigError) or not exc.reason.startswith("Extra inputs"):
+        return ""
+    from pydantic import BaseModel
+
+    from activelearn.config import CampaignConfig
+
+    *sections, key = exc.field.split(".")
+    schema: type[BaseModel] = CampaignConfig
+    for section in sections:
+        field = schema.model_fields.get(section)
+        # a section's type, or the model of an optional one (`PriorConfig | None`)
+        kinds = [field.annotation, *typing.get_args(field.annotation)] if field is not None else []
+        models = [k for k in kinds if isinstance(k, type) and issubclass(k, BaseModel)]
+        if not models:
+            return ""
+        schema = models[0]
+    found = difflib.get_close_matches(key, list(schema.model_fields), n=1)
+    return f"; did you mean {'.'.join([*sections, found[0]])}?" if found else ""
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `activelearn` console script."""
     parser = build_parser()
@@ -840,7 +947,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return handler(args)
     except (ActiveLearnError, SimulatorError) as exc:
-        return fail(str(exc))
+        return fail(str(exc) + _nearest_key(exc))
 
 
 if __name__ == "__main__":

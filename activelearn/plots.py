@@ -27,14 +27,14 @@ def plot_log(table: pd.DataFrame, title: str | None = None) -> Figure:
     right the rate variables (speed, angZ), the state (unwrapped yaw) and the controls (throttle,
     steering), each against the time since the run started.
     """
-    fig = _new_figure(13.0, 8.0)
-    grid = fig.add_gridspec(4, 2, width_ratios=(1.0, 1.3))
+    fig = _new_figure(13.0, 9.0)
+    grid = fig.add_gridspec(5, 2, width_ratios=(1.0, 1.3))
     ax_xy = fig.add_subplot(grid[:, 0])
     ax_v = fig.add_subplot(grid[0, 1])
     ax_w = fig.add_subplot(grid[1, 1], sharex=ax_v)
     ax_yaw = fig.add_subplot(grid[2, 1], sharex=ax_v)
     ax_u = fig.add_subplot(grid[3, 1], sharex=ax_v)
-    ax_s = ax_u.twinx()
+    ax_s = fig.add_subplot(grid[4, 1], sharex=ax_v)  # a panel of its own: on one axis it hid under throttle
 
     run_ids = list(dict.fromkeys(table["run_id"])) if "run_id" in table else [None]
     colors = [f"C{i % 10}" for i in range(len(run_ids))]
@@ -49,21 +49,21 @@ def plot_log(table: pd.DataFrame, title: str | None = None) -> Figure:
         ax_w.plot(t, run["angZ"], color=color, lw=0.8)
         ax_yaw.plot(t, np.unwrap(run["yaw"].to_numpy()), color=color, lw=0.8)
         ax_u.plot(t, run["throttle"], color=color, lw=1.0)
-        ax_s.plot(t, run["steering"], color=color, lw=1.0, ls="--")
+        ax_s.plot(t, run["steering"], color=color, lw=1.0)
 
     ax_xy.set(xlabel="posX (m)", ylabel="posY (m)", title="trajectory (o = start)")
     ax_xy.set_aspect("equal", adjustable="datalim")
     ax_xy.grid(True, alpha=0.3)
-    if len(run_ids) <= _MAX_LEGEND and run_ids[0] is not None:
+    if 1 < len(run_ids) <= _MAX_LEGEND:  # one run: the title names it
         ax_xy.legend(fontsize="small", loc="best")
     ax_v.set(ylabel="speed (m/s)")
     ax_w.set(ylabel="yaw rate angZ (rad/s)")
     ax_yaw.set(ylabel="yaw, unwrapped (rad)")
-    ax_u.set(xlabel="time (s)", ylabel="throttle (solid)")
-    ax_s.set_ylabel("steering rad (dashed)")
-    for ax in (ax_v, ax_w, ax_yaw, ax_u):
+    ax_u.set(ylabel="throttle")
+    ax_s.set(xlabel="time (s)", ylabel="steering (rad, + left)")
+    for ax in (ax_v, ax_w, ax_yaw, ax_u, ax_s):
         ax.grid(True, alpha=0.3)
-    for ax in (ax_v, ax_w, ax_yaw):
+    for ax in (ax_v, ax_w, ax_yaw, ax_u):
         ax.tick_params(labelbottom=False)
     if title:
         fig.suptitle(title)
@@ -107,16 +107,25 @@ def epistemic_map(
         for kind in sorted({m.kind for m in group}):
             pts = np.array([(_signed_steering(m), m.throttle) for m in group if m.kind == kind])
             ax.scatter(pts[:, 0], pts[:, 1], marker=_KIND_MARKERS.get(kind, "o"), **style)
-    if len(prior):
-        ax.scatter([], [], facecolor="0.6", edgecolor="0.3", label="prior (known)")
-    ax.scatter([], [], facecolor="white", edgecolor="black", label="collected")
-    ax.scatter([], [], facecolor="red", edgecolor="black", label="chosen this round")
-    for kind in sorted({m.kind for m in [*prior, *taken, *picks]}):
-        ax.scatter([], [], marker=_KIND_MARKERS.get(kind, "o"), color="gray", label=kind)
+    # Fill says what a marker is (only the groups drawn), shape which kind of maneuver it is.
+    kinds = sorted({m.kind for m in [*prior, *taken, *picks]})
+    shape = _KIND_MARKERS.get(kinds[0], "o") if len(kinds) == 1 else "o"
+    only = f" ({kinds[0]})" if len(kinds) == 1 else ""
+    for group, style, label in zip(
+        (prior, taken, picks), (st for _, st in styles), ("prior (known)", "collected", "chosen this round"),
+        strict=True,
+    ):
+        if len(group):
+            ax.scatter([], [], marker=shape, label=label + only, **{**style, "s": 36})
+    if len(kinds) > 1:
+        for kind in kinds:
+            ax.scatter([], [], marker=_KIND_MARKERS.get(kind, "o"), facecolor="none", edgecolor="black",
+                       label=f"shape: {kind}")
     ax.set_xlabel("signed steering (rad, + = left, ccw)")
     ax.set_ylabel("throttle")
     ax.set_title(title)
-    fig.legend(loc="outside lower center", ncols=6, fontsize=7, frameon=False)
+    fig.legend(loc="outside lower center", ncols=min(4, len(ax.get_legend_handles_labels()[0]) or 1),
+               fontsize=9, frameon=False)
     return fig
 
 
@@ -150,9 +159,10 @@ def comparison_figure(
     same metrics against the track seconds spent (`track_seconds`, averaged over seeds per round).
     """
     budgets = ["n_maneuvers", *(["track_seconds"] if seconds else [])]
-    fig = _new_figure(4.4 * len(metrics), 3.9 * len(budgets))
+    fig = _new_figure(3.4 * len(metrics), 3.0 * len(budgets) + 0.6)
     grid = fig.subplots(len(budgets), len(metrics), squeeze=False)
     strategies = list(dict.fromkeys(curves["strategy"]))
+    n_seeds = int(curves.groupby("strategy")["seed"].nunique().max()) if "seed" in curves else 1
     for axes, budget in zip(grid, budgets, strict=True):
         for ax, metric in zip(axes, metrics, strict=True):
             for i, strategy in enumerate(strategies):
@@ -163,12 +173,13 @@ def comparison_figure(
                 sem = (stats["std"] / np.sqrt(stats["count"])).fillna(0.0)
                 color = f"C{i % 10}"
                 style = {"linewidth": 2.6, "linestyle": "--"} if strategy == reference else {"linewidth": 1.6}
-                ax.plot(stats["x"], stats["mean"], color=color, label=strategy, **style)
+                label = f"{strategy} (reference)" if strategy == reference else strategy
+                ax.plot(stats["x"], stats["mean"], color=color, label=label, **style)
                 ax.fill_between(stats["x"], stats["mean"] - sem, stats["mean"] + sem, color=color, alpha=0.2)
             ax.set_xlabel(_BUDGETS[budget])
             if budget == "n_maneuvers":
                 ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-            ax.set_ylabel(_METRIC_LABELS.get(metric, metric))
+            ax.set_ylabel(_METRIC_LABELS.get(metric, metric), fontsize=8.5)
             if metric != "test_nll":
                 ax.set_yscale("log")
                 # plain decimals at 1-2-5 steps: the default gives "1.3 x 10^-1"-style labels; minor
@@ -179,8 +190,11 @@ def comparison_figure(
                 minor = FormatStrFormatter("%.3g") if high < 10 * low else NullFormatter()
                 ax.yaxis.set_minor_formatter(minor)
             ax.grid(alpha=0.3)
-    grid[0][0].legend(fontsize=8)
-    fig.suptitle(title or "strategy comparison")
+    # One legend for every panel, below them; the title says what the lines and bands are.
+    fig.legend(*grid[0][0].get_legend_handles_labels(), loc="outside lower center", ncols=len(strategies),
+               fontsize=11, frameon=False)
+    spread = (f"mean ± 1 s.e. over {n_seeds} seeds" if n_seeds > 1 else "1 seed (no band)")
+    fig.suptitle(f"{title or 'strategy comparison'}: {spread}", fontsize=13)
     return fig
 
 
@@ -233,7 +247,7 @@ def fidelity_figure(points: pd.DataFrame, title: str = "") -> Figure:
 
     `points` is `FidelityReport.points`; one colour per throttle.
     """
-    fig = _new_figure(13.0, 4.2)
+    fig = _new_figure(14.5, 4.2)
     axes = fig.subplots(1, 3)
     panels = (
         ("v", "steady speed (m/s)"),
@@ -253,7 +267,12 @@ def fidelity_figure(points: pd.DataFrame, title: str = "") -> Figure:
     for ax, (_, label) in zip(axes, panels, strict=True):
         ax.set(xlabel="steering (rad, + left)", ylabel=label)
         ax.grid(True, alpha=0.3)
-    axes[0].legend(fontsize="small", title="x-line: simulator, o: log", title_fontsize="small")
+    # Colour is the throttle; the marker says which side a point comes from.
+    handles, labels = axes[0].get_legend_handles_labels()
+    handles += [axes[0].plot([], [], "-x", color="black", lw=1.2, ms=5)[0],
+                axes[0].plot([], [], "o", color="black", ms=5, mfc="none")[0]]
+    labels += ["simulator (line, ×)", "recorded log (○)"]
+    fig.legend(handles, labels, loc="outside right upper", fontsize="medium", frameon=False)
     if title:
         fig.suptitle(title)
     return fig

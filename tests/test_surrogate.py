@@ -142,6 +142,7 @@ def test_predict_cli_bad_input_is_one_line_and_exit_2(tmp_path, skidpad_model):
         (["--model", str(path), "--maneuver", "skidpad", "--throttle", "0.5", "--out", "x.txt"], "--out"),
     ]
     for args, field in cases:
+        args = [*args, "--steering", "0.3"]  # a skidpad needs one (issue 26)
         proc = _cli(*args)
         assert proc.returncode == 2, (args, proc.stderr)
         assert field in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr

@@ -286,7 +286,7 @@ def compare(
 
     shown = (metric, *(m for m in CURVE_METRICS if m != metric and m in curves))
     fig = comparison_figure(
-        curves, shown, reference=reference, title=f"{cfg.name}: {len(seeds)} seeds",
+        curves, shown, reference=reference, title=cfg.name,
         seconds="track_seconds" in curves,
     )  # fmt: skip
     figure_path = directory / "comparison.png"

@@ -1,0 +1,294 @@
+"""What a newcomer trips over (issue 26): output paths, --resume, silent defaults, help texts, figures.
+
+Every mistake is one error line naming the option, exit code 2, and nothing written anywhere: neither
+next to the output nor in the current directory (no runs/, no mlruns/).
+"""
+
+from __future__ import annotations
+
+import re
+import shlex
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from activelearn.cli import build_parser, main
+
+ROOT = Path(__file__).resolve().parents[1]
+SMOKE = ROOT / "experiments" / "configs" / "smoke.toml"
+SKIDPAD = ["--maneuver", "skidpad", "--throttle", "0.6", "--steering", "0.3", "--duration", "2"]
+
+
+def run(argv: list[str]) -> int:
+    """Exit code of the CLI, whether it returns or exits."""
+    try:
+        return main(argv)
+    except SystemExit as exc:
+        return int(exc.code or 0)
+
+
+def rejected(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
+    """The one error line of a command that must fail with exit code 2."""
+    assert run(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error:"), err
+    return err[0]
+
+
+@pytest.fixture
+def cwd(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A fresh current directory holding one plain file, `afile`."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "afile").write_text("not a folder")
+    return tmp_path
+
+
+def untouched(directory: Path) -> bool:
+    return sorted(p.name for p in directory.iterdir()) == ["afile"]
+
+
+# --- 1. output paths are checked before any work --------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("argv", "option"),
+    [
+        (["simulate", *SKIDPAD, "--out", "afile/sub.csv"], "--out"),
+        (["simulate", *SKIDPAD, "--out", "ok.csv", "--plot", "afile/sub.png"], "--plot"),
+        (["predict", "--model", "none.pt", *SKIDPAD, "--out", "afile/sub.png"], "--out"),
+        (["campaign", "run", str(SMOKE), "--no-tracking", "--out", "afile/sub"], "--out"),
+        (["campaign", "run", str(SMOKE), "--no-tracking", "--out", "afile"], "--out"),
+        (["campaign", "propose", str(SMOKE), "--no-tracking", "--out", "afile/sub"], "--out"),
+        (["compare", str(SMOKE), "--no-tracking", "--seeds", "1", "--out", "afile/sub"], "--out"),
+        (["fidelity", "afile", "--plot", "afile/sub.png"], "--plot"),
+        (["tune", str(SMOKE), "--n-trials", "1", "--no-tracking", "--out", "afile/best.toml"], "--out"),
+    ],
+)
+def test_an_output_path_through_a_file_is_one_line_before_any_work(
+    cwd: Path, capsys: pytest.CaptureFixture[str], argv: list[str], option: str
+) -> None:
+    line = rejected(argv, capsys)
+    assert option in line and "afile" in line and "not a folder" in line
+    assert untouched(cwd)
+
+
+# --- 2. --resume needs something to resume --------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["campaign", "run", str(SMOKE), "--no-tracking", "--resume", "--out", "mistyped"],
+        ["campaign", "propose", str(SMOKE), "--no-tracking", "--resume", "--out", "mistyped"],
+        ["compare", str(SMOKE), "--no-tracking", "--seeds", "1", "--resume", "--out", "mistyped"],
+    ],
+)
+def test_resume_of_a_directory_without_a_campaign_is_an_error(
+    cwd: Path, capsys: pytest.CaptureFixture[str], argv: list[str]
+) -> None:
+    line = rejected(argv, capsys)
+    assert "--resume" in line and "mistyped" in line and "to resume" in line
+    assert untouched(cwd)
+
+
+# --- 3. and 4. predict: what a model folder lacks; no store created ---------------------------------
+
+
+def test_predict_names_what_a_model_folder_lacks(cwd: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (cwd / "proposed").mkdir()  # e.g. a campaign directory before its first fitted round
+    (cwd / "proposed" / "state.json").write_text("{}")
+    line = rejected(["predict", "--model", "proposed", *SKIDPAD], capsys)
+    assert "--model" in line and "no model.pt" in line
+    assert sorted(p.name for p in cwd.iterdir()) == ["afile", "proposed"]
+
+
+def test_predict_of_a_run_in_a_missing_store_creates_no_store(
+    cwd: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    line = rejected(["predict", "--model", "runs:/deadbeef/model", *SKIDPAD], capsys)
+    assert "--tracking-uri" in line and "mlruns/mlflow.db" in line
+    line = rejected(["predict", "--model", "none.pt", *SKIDPAD, "--run-id", "deadbeef"], capsys)
+    assert "--tracking-uri" in line
+    assert untouched(cwd)
+
+
+def test_help_says_where_the_simulation_cache_goes(capsys: pytest.CaptureFixture[str]) -> None:
+    for command in (["compare"], ["campaign", "run"], ["campaign", "propose"]):
+        assert run([*command, "--help"]) == 0
+        text = " ".join(capsys.readouterr().out.split())
+        assert "output_dir/cache (default ./runs/cache), whatever --out says" in text
+
+
+# --- 5. no silent defaults for the steering ---------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("maneuver", "steering", "reason"),
+    [
+        ("skidpad", None, "needs its steering amplitude"),
+        ("slalom", None, "needs its steering amplitude"),
+        ("eight", None, "needs its steering amplitude"),
+        ("straight", "0.3", "does not steer"),
+    ],
+)
+@pytest.mark.parametrize("command", ["simulate", "predict"])
+def test_steering_is_never_silently_dropped_or_defaulted(
+    cwd: Path, capsys: pytest.CaptureFixture[str], command: str, maneuver: str, steering: str | None,
+    reason: str,
+) -> None:
+    argv = [command, "--maneuver", maneuver, "--throttle", "0.5", "--duration", "1"]
+    argv += ["--steering", steering] if steering is not None else []
+    argv += ["--out", "run.csv"] if command == "simulate" else ["--model", "none.pt"]
+    line = rejected(argv, capsys)
+    assert "--steering" in line and reason in line
+    assert untouched(cwd)
+
+
+def test_a_straight_without_steering_still_drives(cwd: Path) -> None:
+    argv = ["simulate", "--maneuver", "straight", "--throttle", "0.5", "--duration", "1", "--out", "s.csv"]
+    assert run(argv) == 0
+    assert (pd.read_csv(cwd / "s.csv")["op_steering"] == 0.0).all()
+
+
+# --- 6. help texts and the README ---------------------------------------------------------------------
+
+
+def test_help_lists_every_strategy_and_the_real_out_defaults(capsys: pytest.CaptureFixture[str]) -> None:
+    from activelearn.cli import _STRATEGIES
+    from activelearn.loop.acquisition import STRATEGIES
+
+    assert _STRATEGIES == tuple(STRATEGIES)
+    for command, default in ((["campaign", "run"], "<output_dir>/<name>/<strategy>/seed<N>"),
+                             (["compare"], "<output_dir>/<name>/compare")):
+        assert run([*command, "--help"]) == 0
+        text = " ".join(capsys.readouterr().out.split())
+        assert all(re.search(rf"\b{name}\b", text) for name in STRATEGIES), command
+        assert f"default {default}" in text
+
+
+def test_top_level_help_describes_the_tool_not_the_module(capsys: pytest.CaptureFixture[str]) -> None:
+    assert run(["--help"]) == 0
+    out = capsys.readouterr().out
+    assert "only module" not in out and "Nigel" in out
+    assert re.search(r"campaign\s+run, propose or ingest", out)
+
+
+@pytest.mark.parametrize(
+    ("argv", "choices"), [([], "simulate, campaign"), (["campaign"], "run, propose, ingest")]
+)
+def test_a_missing_sub_command_names_the_choices(
+    capsys: pytest.CaptureFixture[str], argv: list[str], choices: str
+) -> None:
+    line = rejected(argv, capsys)
+    assert "campaign_command" not in line and choices in line
+
+
+def test_a_typo_in_a_config_key_suggests_the_nearest(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    config = tmp_path / "typo.toml"
+    config.write_text(SMOKE.read_text().replace("initial = 3", "inital = 3"))
+    line = rejected(["campaign", "run", str(config), "--no-tracking", "--out", str(tmp_path / "o")], capsys)
+    assert "design.inital" in line and "did you mean design.initial?" in line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["typo.toml"]
+
+
+def _readme_commands() -> list[list[str]]:
+    """Every `$A ...`, `activelearn ...` or `.venv/bin/activelearn ...` command quoted in the README."""
+    text = ROOT.joinpath("README.md").read_text().replace("\\\n", " ")
+    found = []
+    for line in text.splitlines():
+        match = re.match(r"\s*(?:\$A|(?:\.venv/bin/)?activelearn)\s+([a-z].*)", line)
+        if match:
+            found.append(shlex.split(match.group(1).split("#")[0].replace("…", "x").replace("...", "x")))
+    for match in re.finditer(r"`activelearn ([a-z][^`]*)`", text):
+        found.append(shlex.split(match.group(1)))
+    return found
+
+
+def test_every_option_the_readme_quotes_exists() -> None:
+    parser = build_parser()
+    commands = _readme_commands()
+    assert len(commands) > 15
+    for words in commands:
+        sub = parser._subparsers._group_actions[0].choices[words[0]]  # type: ignore[union-attr]
+        if words[0] == "campaign" and len(words) > 1 and not words[1].startswith("-"):
+            sub = sub._subparsers._group_actions[0].choices[words[1]]  # type: ignore[union-attr]
+        known = {s for action in sub._actions for s in action.option_strings}
+        for word in words:
+            option = word.strip("[]").split("=")[0]
+            if option.startswith("--"):
+                assert option in known, (words, option)
+
+
+def test_readme_paths_are_the_ones_the_tools_write() -> None:
+    text = ROOT.joinpath("README.md").read_text()
+    assert "runs/tune/" not in text  # tune writes runs/tuning/<study>/best.toml
+    makefile = ROOT.joinpath("Makefile").read_text()
+    demo = re.search(r"^demo:.*\n((?:\t.*\n)+)", makefile, re.M).group(1)  # type: ignore[union-attr]
+    assert "--out runs/demo/" in demo and "--out runs/demo/<time>" in " ".join(text.split())
+    for flag in ("--no-tracking", "--run-id", "--samples", "--rate", "--noise", "--no-noise"):
+        assert flag in text, flag
+    assert "oracle_lookahead" in text
+
+
+# --- 7. figures -----------------------------------------------------------------------------------------
+
+
+def test_simulate_plot_draws_throttle_and_steering_on_panels_of_their_own() -> None:
+    from activelearn.plots import plot_log
+
+    t = np.arange(0, 2, 0.1)
+    table = pd.DataFrame({"timestamp": t, "posX": t, "posY": 0 * t, "speed": t, "angZ": t, "yaw": t,
+                          "throttle": 0.6 + 0 * t, "steering": 0.6 + 0 * t})  # equal values: drawn apart
+    fig = plot_log(table, title="one run")
+    labels = [ax.get_ylabel() for ax in fig.axes]
+    throttle = next(ax for ax in fig.axes if ax.get_ylabel() == "throttle")
+    steering = next(ax for ax in fig.axes if ax.get_ylabel().startswith("steering"))
+    assert throttle is not steering and len(throttle.lines) == len(steering.lines) == 1, labels
+    assert fig.axes[0].get_legend() is None  # one run: the title names it
+
+
+def test_epistemic_map_legend_shows_only_what_is_drawn() -> None:
+    from activelearn.plots import epistemic_map
+    from simulator import Maneuver
+
+    grid = np.linspace(0.3, 0.9, 3)
+    taken = [Maneuver("skidpad", 0.6, 0.3, "ccw", 10.0)]
+    fig = epistemic_map(grid, grid - 0.6, np.ones((3, 3)), taken=taken, picks=[], title="last round")
+    labels = [t.get_text() for legend in fig.legends for t in legend.get_texts()]
+    assert labels == ["collected (skidpad)"]
+    mixed = [Maneuver("straight", 0.4, 0.0, "ccw", 10.0)]
+    fig = epistemic_map(grid, grid - 0.6, np.ones((3, 3)), taken=taken, picks=mixed, title="round 1")
+    labels = [t.get_text() for legend in fig.legends for t in legend.get_texts()]
+    assert labels == ["collected", "chosen this round", "shape: skidpad", "shape: straight"]
+
+
+@pytest.mark.parametrize(("seeds", "says"), [(1, "1 seed (no band)"), (3, "mean ± 1 s.e. over 3 seeds")])
+def test_comparison_figure_has_one_legend_and_says_what_the_band_is(seeds: int, says: str) -> None:
+    from activelearn.plots import comparison_figure
+
+    curves = pd.DataFrame([
+        {"strategy": s, "seed": seed, "round": r, "n_maneuvers": 3 + 2 * r, "track_seconds": 60.0 + 40 * r,
+         "test_rmse": 0.5 / (r + 1) + 0.01 * seed, "test_nll": 1.0 - r}
+        for s in ("uniform", "auto") for seed in range(seeds) for r in range(3)
+    ])  # fmt: skip
+    fig = comparison_figure(curves, ["test_rmse", "test_nll"], title="demo", seconds=True)
+    assert fig.get_suptitle() == f"demo: {says}"
+    assert all(ax.get_legend() is None for ax in fig.axes) and len(fig.legends) == 1
+    assert [t.get_text() for t in fig.legends[0].get_texts()] == ["uniform (reference)", "auto"]
+    assert fig.legends[0].get_texts()[0].get_fontsize() >= 10
+
+
+def test_fidelity_legend_names_simulator_and_log(tmp_path: Path) -> None:
+    from activelearn.plots import fidelity_figure
+
+    points = pd.DataFrame({"throttle": [1.0, 1.0], "steering": [0.0, 0.21], "v_sim": [0.25, 0.23],
+                           "v_log": [0.26, 0.24], "w_sim": [0.0, 0.33], "w_log": [0.0, 0.37],
+                           "loss_sim": [np.nan, 0.01], "loss_log": [np.nan, 0.02]})
+    fig = fidelity_figure(points, title="t")
+    labels = [t.get_text() for legend in fig.legends for t in legend.get_texts()]
+    assert labels == ["throttle 1", "simulator (line, ×)", "recorded log (○)"]
+    assert all(ax.get_legend() is None for ax in fig.axes)
