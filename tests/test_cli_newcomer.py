@@ -114,6 +114,20 @@ def test_predict_of_a_run_in_a_missing_store_creates_no_store(
     assert untouched(cwd)
 
 
+def test_a_compare_that_cannot_reach_its_tracking_server_writes_no_cache(
+    cwd: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import socket
+
+    with socket.socket() as probe:  # a loopback port nobody listens on
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    line = rejected(["compare", str(SMOKE), "--seeds", "1", "--tracking-uri", f"http://127.0.0.1:{port}",
+                     "--out", "cmp"], capsys)  # fmt: skip
+    assert "tracking" in line
+    assert untouched(cwd)  # no runs/cache, no cmp/
+
+
 def test_help_says_where_the_simulation_cache_goes(capsys: pytest.CaptureFixture[str]) -> None:
     for command in (["compare"], ["campaign", "run"], ["campaign", "propose"]):
         assert run([*command, "--help"]) == 0

@@ -194,6 +194,11 @@ def compare(
     cache_dir = Path(cfg.output_dir) / "cache"
     workers = max(1, min(workers or os.cpu_count() or 1, len(strategies) * len(seeds)))
 
+    tracker, parent_run_id = None, None
+    if tracking:  # an unreachable store fails here, before anything is simulated or written
+        from activelearn.studies.tracking import Tracker
+
+        tracker = Tracker(cfg.tracking.uri, cfg.tracking.experiment)
     # Simulate the whole pool and the test set once, with every core, before the workers start.
     from activelearn.loop.collection import SimulationCache
 
@@ -206,12 +211,8 @@ def compare(
             progress=lambda done, total: progress({"event": "sim_progress", "done": done, "total": total}),
         )
 
-    tracker, parent_run_id = None, None
     manifest = directory / "compare.json"
-    if tracking:
-        from activelearn.studies.tracking import Tracker
-
-        tracker = Tracker(cfg.tracking.uri, cfg.tracking.experiment)
+    if tracker is not None:
         previous = (
             json.loads(manifest.read_text()).get("parent_run_id") if resume and manifest.exists() else None
         )
