@@ -306,3 +306,26 @@ def test_fidelity_legend_names_simulator_and_log(tmp_path: Path) -> None:
     labels = [t.get_text() for legend in fig.legends for t in legend.get_texts()]
     assert labels == ["throttle 1", "simulator (line, ×)", "recorded log (○)"]
     assert all(ax.get_legend() is None for ax in fig.axes)
+
+
+def test_an_mlflow_model_loads_without_leaving_files_behind(tmp_path: Path, monkeypatch) -> None:
+    import tempfile
+
+    from activelearn.config import ModelConfig
+    from activelearn.errors import ConfigError
+    from activelearn.numerics.models import build_model
+    from activelearn.studies.tracking import Tracker, load_model
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "scratch"))
+    (tmp_path / "scratch").mkdir()
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    tracker = Tracker(uri)
+    run_id = tracker.start_run("m")
+    model = build_model(ModelConfig())
+    model_uri = tracker.log_model(run_id, model)
+    x = np.array([[0.5, 0.1], [0.2, -0.3]])
+    loaded = load_model(model_uri, uri)
+    np.testing.assert_array_equal(loaded.predict(x, n_samples=4).mean, model.predict(x, n_samples=4).mean)
+    with pytest.raises(ConfigError, match="--model"):
+        load_model("runs:/deadbeef/model", uri)
+    assert list((tmp_path / "scratch").iterdir()) == []  # no activelearn-model-* folders left

@@ -237,7 +237,9 @@ class Tracker:
 def load_model(model_uri: str, tracking_uri: str = DEFAULT_TRACKING_URI) -> Any:
     """Load a model logged with `Tracker.log_model` (an MLflow model URI such as runs:/<id>/model)."""
     mlflow.set_tracking_uri(tracking_uri)
-    try:
-        return mlflow.pytorch.load_model(model_uri, dst_path=tempfile.mkdtemp(prefix="activelearn-model-"))
-    except MlflowException as exc:
-        raise ConfigError("model", model_uri, f"cannot load the MLflow model: {exc}") from exc
+    # The model's files are only a stepping stone: the loaded module lives in memory.
+    with tempfile.TemporaryDirectory(prefix="activelearn-model-") as scratch:
+        try:
+            return mlflow.pytorch.load_model(model_uri, dst_path=scratch)
+        except MlflowException as exc:
+            raise ConfigError("--model", model_uri, f"cannot load the MLflow model: {exc}") from exc
