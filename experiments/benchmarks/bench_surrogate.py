@@ -13,7 +13,7 @@
    static map's per kind.
 
 Usage: python experiments/benchmarks/bench_surrogate.py [--maneuvers 256] [--samples 32] [--epochs 120]
-       [--rounds 3] [--repeats 3] [--models static,markov,history,recurrent]
+       [--rounds 3] [--repeats 3] [--models static,markov,history,recurrent] [--horizons 10,30]
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import pandas as pd
 
 import simulator
 from activelearn.config import DataConfig, ModelConfig, TrainingConfig
-from activelearn.loop.collection import arrays, training_rows
+from activelearn.loop.collection import arrays, training_rows, training_windows
 from activelearn.numerics.models import build_model
 from activelearn.numerics.surrogate import simulate, track_metrics
 from activelearn.numerics.training import fit
@@ -60,8 +60,8 @@ def maneuver_set(n: int, seed: int, duration: float = 90.0) -> list[Maneuver]:
     return out
 
 
-def train(log: pd.DataFrame, name: str, epochs: int, seed: int):
-    """Fit one model kind of `MODELS` on a log."""
+def train(log: pd.DataFrame, name: str, epochs: int, seed: int, horizon: int = 0):
+    """Fit one model kind of `MODELS` on a log (dynamic models: with `horizon`-step windows if > 0)."""
     data_knobs, model_knobs = MODELS[name]
     # keep the transients: dynamic models need them
     data = DataConfig(stride=3, skip_seconds=0.0, **data_knobs)
@@ -71,14 +71,18 @@ def train(log: pd.DataFrame, name: str, epochs: int, seed: int):
         ModelConfig(n_inputs=x.shape[1], history_step=data.history_step if data.inputs == "history" else 1,
                     **model_knobs)
     )  # fmt: skip
+    frames = [part for _, part in log.groupby("run_id", sort=False)]
+    windows = training_windows(frames, data, horizon) if horizon else None
     started = time.perf_counter()
     fit(
         model,
         x,
         y,
-        TrainingConfig(lr=3e-3, epochs=epochs, batch_size=256, patience=None, lr_schedule="cosine"),
+        TrainingConfig(lr=3e-3, epochs=epochs, batch_size=256, patience=None, lr_schedule="cosine",
+                       rollout_horizon=horizon),
         seed=seed,
-    )
+        windows=windows,
+    )  # fmt: skip
     return model, time.perf_counter() - started, len(x)
 
 
@@ -91,17 +95,26 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3, help="rounds of MuJoCo then surrogate timings")
     parser.add_argument("--repeats", type=int, default=3, help="timed surrogate calls per variant and round")
     parser.add_argument("--models", default=",".join(MODELS), help="comma-separated model kinds to compare")
+    parser.add_argument("--horizons", default="", metavar="H,H,...",
+                        help="also train each dynamic model with multi-step windows of these lengths "
+                             "(log steps), named <kind>+h<H>")  # fmt: skip
     args = parser.parse_args()
-    names = [m for m in args.models.split(",") if m]
-    unknown = set(names) - set(MODELS)
-    if unknown or "static" not in names:
+    kinds = [m for m in args.models.split(",") if m]
+    unknown = set(kinds) - set(MODELS)
+    if unknown or "static" not in kinds:
         parser.error(f"--models: choose from {', '.join(MODELS)} (static, the baseline, included)")
+    horizons = [int(h) for h in args.horizons.split(",") if h]
+    # (label, kind, horizon): every kind as is, and each dynamic kind once per multi-step horizon
+    variants = [(k, k, 0) for k in kinds] + [
+        (f"{k}+h{h}", k, h) for h in horizons for k in kinds if k != "static"
+    ]
+    names = [label for label, _, _ in variants]
     threads = os.cpu_count() or 1
 
     train_log = simulator.collect(maneuver_set(args.train_maneuvers, seed=1), seed=1)
     models = {}
-    for name in names:
-        model, seconds, rows = train(train_log, name, args.epochs, seed=0)
+    for name, kind, horizon in variants:
+        model, seconds, rows = train(train_log, kind, args.epochs, seed=0, horizon=horizon)
         models[name] = model
         print(f"trained {name} model on {rows} rows of {args.train_maneuvers} maneuvers in {seconds:.1f} s")
 

@@ -1,0 +1,86 @@
+"""Warm-started rounds against retraining from scratch: campaigns per hour and final error, paired seeds.
+
+Runs one strategy on each config twice over the same seeds, once as configured (a fresh model every
+round) and once with `[training] warm_start = true` (each round starts from the last round's weights
+and trains `warm_epochs` epochs), and prints, per config:
+  - wall seconds per campaign (mean over seeds) and campaigns per hour, and their ratio;
+  - the final value of the config's ranking metric ([test] metric), mean ± s.e.m., and the paired
+    difference warm − scratch ± its s.e.m., with the number of seeds where warm is better.
+The rule for making warm starts a config's default: at least 2x the campaigns per hour at an equal
+final error (the paired difference within 1 s.e.m.).
+
+Usage: python experiments/benchmarks/bench_warm_start.py [--configs odd_expansion,dynamics]
+       [--strategy uniform] [--seeds 10] [--workers 2] [--warm-epochs N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from activelearn.config import load_config
+from activelearn.studies.compare import compare
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+
+def _sem(values: np.ndarray) -> float:
+    return float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) > 1 else float("nan")
+
+
+def run(config: str, strategy: str, seeds: int, workers: int, warm_epochs: int | None, out: Path) -> None:
+    """Both modes of one config, then its printout."""
+    base = load_config(CONFIGS / f"{config}.toml")
+    metric = base.test.metric
+    finals, walls = {}, {}
+    for mode, warm in (("scratch", False), ("warm", True)):
+        training = {"warm_start": warm, **({"warm_epochs": warm_epochs} if warm and warm_epochs else {})}
+        cfg = base.model_copy(update={"training": base.training.model_copy(update=training)})
+        result = compare(cfg, [strategy], list(range(seeds)), directory=out / config / mode, workers=workers,
+                         tracking=False)  # fmt: skip
+        last = result.curves.sort_values("round").groupby("seed").last()
+        finals[mode], walls[mode] = last[metric], last["wall_seconds"]
+    scratch, warm = finals["scratch"], finals["warm"]
+    diff = (warm - scratch).to_numpy()
+    speed = walls["scratch"].mean() / walls["warm"].mean()
+    epochs = warm_epochs or max(1, base.training.epochs // 4)
+    print(f"\n{config}: {strategy}, {seeds} seeds, metric {metric}; warm rounds train {epochs} of "
+          f"{base.training.epochs} epochs")  # fmt: skip
+    table = pd.DataFrame(
+        {
+            "wall s / campaign": [walls["scratch"].mean(), walls["warm"].mean()],
+            "campaigns / hour": [3600 / walls["scratch"].mean(), 3600 / walls["warm"].mean()],
+            f"final {metric}": [scratch.mean(), warm.mean()],
+            "± s.e.m.": [_sem(scratch.to_numpy()), _sem(warm.to_numpy())],
+        },
+        index=["scratch", "warm"],
+    )
+    print(table.to_string(float_format="%.4g"))
+    print(f"  speed-up x{speed:.2f}; paired difference warm - scratch {diff.mean():+.4g} ± {_sem(diff):.2g} "
+          f"(warm better on {int((diff < 0).sum())}/{len(diff)} seeds)")  # fmt: skip
+    equal = abs(diff.mean()) <= _sem(diff)
+    verdict = "meets" if speed >= 2 and equal else "does not meet"
+    print(f"  {verdict} the rule for a default (>= 2x faster, final error equal within 1 s.e.m.)")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--configs", default="odd_expansion,dynamics")
+    parser.add_argument("--strategy", default="uniform")
+    parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--warm-epochs", type=int, default=None)
+    parser.add_argument("--out", type=Path, default=None, help="keep the campaigns (default: a temp dir)")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as scratch:
+        out = args.out or Path(scratch)
+        for config in args.configs.split(","):
+            run(config, args.strategy, args.seeds, args.workers, args.warm_epochs, out)
+
+
+if __name__ == "__main__":
+    main()
