@@ -242,6 +242,47 @@ def surrogate_figure(rollout: Any, index: int, truth: pd.DataFrame, *, title: st
     return fig
 
 
+def paths_figure(
+    rollouts: dict[str, Any], cases: Sequence[tuple[str, int]], truths: Sequence[pd.DataFrame], *,
+    seconds: float = 30.0, title: str = "",
+) -> Figure:  # fmt: skip
+    """Free-run paths of several models side by side: one row per case (a label and a maneuver index
+    into every rollout and `truths`), one column per model. Each panel: the sampled paths faintly (the
+    fan), their mean and the true path, over the first `seconds`."""
+    fig = _new_figure(3.2 * len(rollouts) + 0.6, 2.9 * len(cases) + 0.6)
+    grid = fig.subplots(len(cases), len(rollouts), squeeze=False)
+    for row, (label, index) in enumerate(cases):
+        truth = truths[index]
+        x0, y0, yaw0 = (truth[c].to_numpy()[0] for c in ("posX", "posY", "yaw"))
+        c, s = np.cos(-yaw0), np.sin(-yaw0)
+        for col, (name, rollout) in enumerate(rollouts.items()):
+            ax = grid[row, col]
+            n = min(int(rollout.lengths[index]), round(seconds / rollout.dt) + 1)
+            dx, dy = truth["posX"].to_numpy()[:n] - x0, truth["posY"].to_numpy()[:n] - y0
+            for k in range(rollout.x.shape[0]):
+                ax.plot(rollout.x[k, index, :n], rollout.y[k, index, :n], color="C0", alpha=0.1, lw=0.7)
+            mx, my = rollout.mean_path(index)
+            ax.plot(mx[:n], my[:n], color="C0", lw=1.8, label="model: mean path")
+            ax.plot(c * dx - s * dy, s * dx + c * dy, color="black", lw=1.3, ls="--", label="MuJoCo")
+            ax.plot(mx[n - 1], my[n - 1], "o", color="C0", ms=4)
+            ax.plot(c * dx[-1] - s * dy[-1], s * dx[-1] + c * dy[-1], "o", color="black", ms=4)
+            ax.set_aspect("equal", adjustable="datalim")
+            ax.grid(alpha=0.3)
+            ax.tick_params(labelsize=8)
+            if row == 0:
+                ax.set_title(name, fontsize=11)
+            if col == 0:
+                ax.set_ylabel(f"{label}\ny (m)", fontsize=9)
+            if row == len(cases) - 1:
+                ax.set_xlabel("x (m, start frame)", fontsize=9)
+    grid[0, 0].plot([], [], color="C0", alpha=0.4, lw=0.7, label="sampled paths (the fan)")
+    handles, labels = grid[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncols=3, fontsize=9, frameon=False)
+    fig.suptitle(title or f"free runs, first {seconds:g} s")
+    fig.tight_layout(rect=(0, 0.04, 1, 0.97))
+    return fig
+
+
 def fidelity_figure(points: pd.DataFrame, title: str = "") -> Figure:
     """Fidelity figure: steady speed, yaw rate and turn speed loss against steering, sim (line) vs log (dots).
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -95,6 +96,8 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3, help="rounds of MuJoCo then surrogate timings")
     parser.add_argument("--repeats", type=int, default=3, help="timed surrogate calls per variant and round")
     parser.add_argument("--models", default=",".join(MODELS), help="comma-separated model kinds to compare")
+    parser.add_argument("--figure", type=Path, default=None, metavar="PNG",
+                        help="draw one maneuver of each kind, every model side by side, here")
     parser.add_argument("--horizons", default="", metavar="H,H,...",
                         help="also train each dynamic model with multi-step windows of these lengths "
                              "(log steps), named <kind>+h<H>")  # fmt: skip
@@ -190,6 +193,12 @@ def main() -> None:
                     "cover_pos": tm.coverage_position,
                 }
             )
+    if args.figure is not None:
+        from activelearn.plots import paths_figure
+
+        cases = [(f"{test[i].kind} {test[i].direction}", i) for i in range(len(KINDS))]
+        paths_figure(rollouts, cases, truth).savefig(args.figure, dpi=100)
+        print(f"figure: {args.figure}")
     table = pd.DataFrame(rows).groupby(["kind", "variant"]).mean().reindex(KINDS, level=0)
     pd.set_option("display.width", 160)
     print("\naccuracy against MuJoCo (means over maneuvers of each kind; positions in m, rates in SI):")
