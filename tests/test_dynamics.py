@@ -288,3 +288,26 @@ def test_tune_searches_the_recurrent_trunk_width(tmp_path, slalom_log):
     assert len(trials) == 3 and all(t.state.name == "COMPLETE" for t in trials)
     assert {t.params["hidden_size"] for t in trials} <= {6, 10}
     assert "hidden_size" in (tmp_path / "runs" / "tuning" / "rec" / "best.toml").read_text()
+
+
+def test_a_residual_models_free_run_adds_the_base_mean(history_models, slalom_log):
+    """Sim-to-real campaigns run their test maneuvers free too: base mean + residual draws per step."""
+    from activelearn.numerics.models import ResidualModel
+
+    base, residual = history_models["hybrid"], build_model(ModelConfig(n_inputs=12, history_step=2))
+    model = ResidualModel(base, residual)
+    controls = [np.column_stack([np.full(12, 0.5), np.linspace(-0.3, 0.3, 12)])]
+    rollout = simulate(model, controls, n_samples=4, seed=2)
+    draw_seed = int(torch.randint(2**31 - 1, (1,), generator=torch.Generator().manual_seed(2)))
+    draws = model.draw(4, seed=draw_seed)
+    rates = np.stack([rollout.v[:, 0], rollout.w[:, 0]], axis=-1)
+    lags = Lags(3, 2)
+    for t in (0, 3, 9):
+        inputs = np.stack([
+            np.concatenate([controls[0][max(t - d, 0)] for d in lags.control_lags]
+                           + [rates[s, t - d] if t >= d else np.zeros(2) for d in lags.rate_lags])
+            for s in range(4)
+        ])[:, None, :]  # fmt: skip
+        means, _ = draws(inputs)
+        np.testing.assert_allclose(rollout.mean_rates[0, t], means[:, 0].mean(axis=0), rtol=1e-4, atol=1e-6)
+    assert np.abs(rollout.mean_rates[0]).max() > 0

@@ -22,10 +22,33 @@ BASE_SAMPLES = 32  # posterior draws averaged for the base's mean (a fixed seed:
 class ResidualDraws:
     """S posterior draws of a residual model, each shifted by the base model's mean (see SampledModel)."""
 
+    kernel = None  # rollouts take the block-by-block path: the base's mean is added per block
+
     def __init__(self, owner: ResidualModel, draws: Any) -> None:
         self.owner = owner
         self.draws = draws
         self.n_samples = draws.n_samples
+
+    def block(
+        self,
+        x: Tensor,
+        out: tuple[Tensor, Tensor] | None = None,
+        moments: tuple[Tensor, Tensor, Tensor] | None = None,
+    ) -> tuple[Tensor, Tensor]:
+        """`SampledModel.block` of base + residual: columns x (d, n) or (S, d, n), physical units."""
+        means, var = self.draws.block(x, out=out)
+        rows = x.t() if x.dim() == 2 else x.transpose(1, 2).reshape(-1, x.shape[1])
+        shift = torch.as_tensor(self.owner.base_mean(rows.numpy()), dtype=means.dtype)
+        if x.dim() == 2:
+            means += shift.t()
+        else:
+            means += shift.reshape(x.shape[0], x.shape[2], -1).transpose(1, 2)
+        if moments is not None:
+            centre, aleatoric, epistemic = moments
+            torch.mean(means, dim=0, out=centre)
+            torch.mean(var, dim=0, out=aleatoric)
+            torch.mean((means - centre).square_(), dim=0, out=epistemic)
+        return means, var
 
     def __call__(self, x: np.ndarray | Tensor) -> tuple[np.ndarray | Tensor, np.ndarray | Tensor]:
         """(means, variances), each (S, N, n_outputs), physical units; numpy in → numpy out."""
