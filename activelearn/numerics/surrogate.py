@@ -39,6 +39,7 @@ from activelearn.numerics.threads import even_blocks, parallel_map
 from simulator import Maneuver, nominal_controls
 
 N_CONTROLS = 2
+TORCH_BLOCK = 16  # maneuvers per task of a sequential rollout on torch (no compiled kernel)
 BANDS = (0.025, 0.25, 0.5, 0.75, 0.975)  # quantiles of the 95% and 50% bands and the median
 
 
@@ -314,9 +315,8 @@ def _sequential_rollout(
     Each trajectory feeds its own sampled rates (aleatoric noise included) back in, so the spread of
     the fan grows with the uncertainty it propagates. Before the first step the past rates are
     `initial_rates` and the past controls the first control. Moments are over the S trajectories per
-    step. Maneuvers are independent, so with the compiled kernel each thread-pool task runs every
-    step of its own block of maneuvers (no per-step synchronisation: 2 700 steps of hand-offs cost
-    more than the kernel); torch runs the whole batch per step on its intra-op threads.
+    step. Maneuvers are independent, so each thread-pool task runs every step of its own block of
+    maneuvers (no per-step synchronisation: 2 700 steps of hand-offs cost more than the kernel).
     """
     n_maneuvers, n_steps, _ = controls.shape
     seed = int(torch.randint(2**31 - 1, (1,), generator=gen))
@@ -333,6 +333,7 @@ def _sequential_rollout(
     moments = tuple(torch.empty((n_steps, 2, n_maneuvers)) for _ in range(3))
     n_ctrl = N_CONTROLS * lags.history  # rate inputs start here
 
+    @torch.no_grad()  # grad mode is per thread: the pool's threads do not inherit the caller's
     def run(block: slice) -> None:
         width = block.stop - block.start
         inputs = torch.empty((n_samples, lags.n_inputs, width))
@@ -349,7 +350,10 @@ def _sequential_rollout(
             torch.addcmul(means, noise[k, ..., block], variances.sqrt_(), out=rates[:, :, block, k])
 
     if sampled_model.kernel is None:
-        run(slice(0, n_maneuvers))
+        # Torch: blocks of a fixed size (so the numbers do not depend on the thread count) on the
+        # thread pool, one intra-op thread each. Torch's own intra-op threads sync at every one of
+        # the thousands of small ops: 13x slower on a busy 2-core machine (recurrent model, measured).
+        parallel_map(run, even_blocks(n_maneuvers, TORCH_BLOCK))
     else:
         parallel_map(run, even_blocks(n_maneuvers, -(-n_maneuvers // torch.get_num_threads())))
     # (T, 2, M) → (M, T, 2); v and ω are (S, M, T) views of the rates.
