@@ -205,19 +205,22 @@ class Campaign:
         x, y = arrays(rows, self.cfg.data)
         return x, y, rows["pool_index"].to_numpy()
 
+    def _with_prior(self, samples: pd.DataFrame) -> pd.DataFrame:
+        """The logs a round trains on: the campaign's and, where the prior is data, the prior's."""
+        if self.prior is not None and self.prior.trains:
+            return pd.concat([self.prior.rows, samples], ignore_index=True)
+        return samples
+
     def _training_data(self, samples: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Inputs, targets and maneuver ids the model of a round trains on (prior rows included)."""
-        if self.prior is not None and self.prior.trains:
-            samples = pd.concat([self.prior.rows, samples], ignore_index=True)
-        return self._rows(samples)
+        return self._rows(self._with_prior(samples))
 
     def _training_windows(self, samples: pd.DataFrame) -> Any:
         """Free-running windows for multi-step training (`[training] rollout_horizon`), else None."""
         horizon = self.cfg.training.rollout_horizon
         if not horizon:
             return None
-        if self.prior is not None and self.prior.trains:
-            samples = pd.concat([self.prior.rows, samples], ignore_index=True)
+        samples = self._with_prior(samples)
         if samples.empty:
             return None
         frames = [part for _, part in samples.groupby("pool_index", sort=False)]
@@ -420,7 +423,7 @@ class Campaign:
         """Test RMSE of the next round's model if `batch` were collected (the lookahead oracle only)."""
         new = self._collect(batch, len(state.batches))
         trial = self.fit_model(pd.concat([samples, new], ignore_index=True), round_index + 1, previous=model)
-        return self.evaluate(trial)["test_rmse"]
+        return self.evaluate(trial, rollouts=False)["test_rmse"]
 
     def _applied_scale(self, state: CampaignState) -> float:
         """Geometric mean of the last two prequential scales (1 before any was measured).
@@ -433,8 +436,9 @@ class Campaign:
         scales = [r["prequential_scale"] for r in state.rounds if "prequential_scale" in r][-2:]
         return float(np.exp(np.mean(np.log(scales)))) if scales else 1.0
 
-    def evaluate(self, model: Any) -> dict[str, float]:
-        """Test-set accuracy and calibration, and uncertainty over the evaluation grid."""
+    def evaluate(self, model: Any, *, rollouts: bool = True) -> dict[str, float]:
+        """Test-set accuracy and calibration, uncertainty over the evaluation grid, and (`rollouts`)
+        the free runs of the test maneuvers."""
         test = self.test_set
         pred = model.predict(test.x, n_samples=EVAL_SAMPLES, seed=0)
         std_pred = _standardise(pred, test.scale)
@@ -458,7 +462,7 @@ class Campaign:
         metrics["epistemic_std_mean"] = float(epi.mean())
         metrics["epistemic_std_max"] = float(epi.max())
         metrics["aleatoric_std_mean"] = float(np.sqrt(grid_pred.aleatoric_var).mean())
-        if test.logs and self.cfg.test.rollout_samples:
+        if rollouts and test.logs and self.cfg.test.rollout_samples:
             # Free runs of the whole test maneuvers: what a surrogate that simulates is for. Timed,
             # so a round's log says what the rollouts cost beside the fit.
             started = time.perf_counter()
