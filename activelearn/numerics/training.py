@@ -292,8 +292,8 @@ def fit(
     validation rows per operating point. `keep_scalers` keeps the model's input/output standardisation
     (fine-tuning weights learnt under it, with `config.reinit = False`) instead of refitting it to (x, y).
     With `config.rollout_horizon` > 0, `windows` (free runs of a dynamic model,
-    `activelearn.numerics.multistep`) add their loss to every step, `rollout_batch` windows a step
-    (eager steps: the compiled path trains one-step losses only).
+    `activelearn.numerics.multistep`) add their loss to every `rollout_every`-th step,
+    `rollout_batch` windows at a time (eager steps: the compiled path trains one-step losses only).
     """
     x, y = _check_xy(model, x, y, "")
     if config.rollout_horizon and windows is not None:
@@ -428,6 +428,7 @@ class _Stepper:
     ) -> None:
         self.model, self.config, self.kl_weight, self.batch = model, config, kl_weight, batch
         self.windows, self.gen = windows, gen
+        self.n_steps = 0
         self.variational = kl_weight > 0 and _is_variational(model)
         self.flat = _FlatTrainer(model, config, kl_weight, compiled=True) if use_compile else None
         self.opt = _optimizer([p for p in model.parameters() if p.requires_grad], config)
@@ -441,9 +442,11 @@ class _Stepper:
 
     def _eager_step(self, xb: Tensor, yb: Tensor) -> tuple[Tensor, Tensor]:
         loss, data = _elbo(self.model, xb, yb, self.config.loss, self.kl_weight, self.variational)
-        if self.windows is not None:
+        self.n_steps += 1
+        if self.windows is not None and self.n_steps % self.config.rollout_every == 0:
             rows = torch.randint(len(self.windows), (self.config.rollout_batch,), generator=self.gen)
-            loss = loss + self.config.rollout_weight * window_loss(self.model, self.windows, rows)
+            weight = self.config.rollout_weight * self.config.rollout_every
+            loss = loss + weight * window_loss(self.model, self.windows, rows)
         self.opt.zero_grad(set_to_none=True)
         loss.backward()
         self.opt.step()
