@@ -42,6 +42,13 @@ def _database_url(variable: str) -> str:
     return url
 
 
+def weights(model):
+    """Every parameter of a torch model, flattened into one vector (a tensor)."""
+    import torch
+
+    return torch.cat([p.detach().reshape(-1) for p in model.parameters()])
+
+
 def skip_or_fail(message: str, *, allow_module_level: bool = False) -> None:
     """Skip on a developer machine what CI (`CI` set) must run: there a missing part fails the test."""
     if os.environ.get("CI"):

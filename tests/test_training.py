@@ -14,6 +14,7 @@ from activelearn.numerics import synthetic as syn
 from activelearn.numerics.models import build_model
 from activelearn.numerics.training import History, fit, kl_count_value
 from activelearn.numerics.uncertainty import recalibrate_epistemic, rmse
+from tests.conftest import weights
 
 FAST = {"epochs": 3, "batch_size": 64, "patience": None}
 
@@ -22,10 +23,6 @@ FAST = {"epochs": 3, "batch_size": 64, "patience": None}
 def data():
     x, y, groups = syn.repeated_rows(syn.random_points(12, seed=0), 40, seed=1)
     return x, y, groups
-
-
-def _weights(model) -> torch.Tensor:
-    return torch.cat([p.detach().reshape(-1) for p in model.parameters()])
 
 
 def test_same_seed_same_weights_and_global_rng_untouched(data):
@@ -37,8 +34,8 @@ def test_same_seed_same_weights_and_global_rng_untouched(data):
     fit(a, x, y, cfg, seed=7)
     fit(b, x, y, cfg, seed=7)  # different initial weights: reinit from the fit seed
     fit(c, x, y, cfg, seed=8)
-    torch.testing.assert_close(_weights(a), _weights(b), rtol=0, atol=0)
-    assert not torch.equal(_weights(a), _weights(c))
+    torch.testing.assert_close(weights(a), weights(b), rtol=0, atol=0)
+    assert not torch.equal(weights(a), weights(c))
     assert torch.equal(torch.random.get_rng_state(), before)
 
 
@@ -187,9 +184,9 @@ def test_compiled_step_computes_what_the_eager_step_computes(data):
             y,
             TrainingConfig(epochs=2, batch_size=100, patience=None, compile=compiled, weight_decay=1e-3),
         )
-        weights.append(_weights(m))
+        weights.append(weights(m))
     torch.testing.assert_close(weights[0], weights[1], rtol=1e-4, atol=1e-5)
-    assert not torch.equal(weights[0], _weights(build_model(ModelConfig(kind="pnn", arch="D8-D"))))
+    assert not torch.equal(weights[0], weights(build_model(ModelConfig(kind="pnn", arch="D8-D"))))
 
 
 def test_compiled_hybrid_training_is_reproducible(data):
@@ -199,6 +196,6 @@ def test_compiled_hybrid_training_is_reproducible(data):
     for seed in (0, 0, 1):
         m = build_model(ModelConfig(arch="D8-V8-V"))
         fit(m, x, y, TrainingConfig(epochs=2, batch_size=64, patience=None, compile=True), seed=seed)
-        weights.append(_weights(m))
+        weights.append(weights(m))
     assert torch.equal(weights[0], weights[1])
     assert not torch.equal(weights[0], weights[2])
