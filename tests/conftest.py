@@ -42,7 +42,7 @@ def _database_url(variable: str) -> str:
     return url
 
 
-def weights(model):
+def flat_weights(model):
     """Every parameter of a torch model, flattened into one vector (a tensor)."""
     import torch
 

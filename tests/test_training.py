@@ -14,7 +14,7 @@ from activelearn.numerics import synthetic as syn
 from activelearn.numerics.models import build_model
 from activelearn.numerics.training import History, fit, kl_count_value
 from activelearn.numerics.uncertainty import recalibrate_epistemic, rmse
-from tests.conftest import weights
+from tests.conftest import flat_weights
 
 FAST = {"epochs": 3, "batch_size": 64, "patience": None}
 
@@ -34,8 +34,8 @@ def test_same_seed_same_weights_and_global_rng_untouched(data):
     fit(a, x, y, cfg, seed=7)
     fit(b, x, y, cfg, seed=7)  # different initial weights: reinit from the fit seed
     fit(c, x, y, cfg, seed=8)
-    torch.testing.assert_close(weights(a), weights(b), rtol=0, atol=0)
-    assert not torch.equal(weights(a), weights(c))
+    torch.testing.assert_close(flat_weights(a), flat_weights(b), rtol=0, atol=0)
+    assert not torch.equal(flat_weights(a), flat_weights(c))
     assert torch.equal(torch.random.get_rng_state(), before)
 
 
@@ -184,9 +184,9 @@ def test_compiled_step_computes_what_the_eager_step_computes(data):
             y,
             TrainingConfig(epochs=2, batch_size=100, patience=None, compile=compiled, weight_decay=1e-3),
         )
-        weights.append(weights(m))
+        weights.append(flat_weights(m))
     torch.testing.assert_close(weights[0], weights[1], rtol=1e-4, atol=1e-5)
-    assert not torch.equal(weights[0], weights(build_model(ModelConfig(kind="pnn", arch="D8-D"))))
+    assert not torch.equal(weights[0], flat_weights(build_model(ModelConfig(kind="pnn", arch="D8-D"))))
 
 
 def test_compiled_hybrid_training_is_reproducible(data):
@@ -196,6 +196,6 @@ def test_compiled_hybrid_training_is_reproducible(data):
     for seed in (0, 0, 1):
         m = build_model(ModelConfig(arch="D8-V8-V"))
         fit(m, x, y, TrainingConfig(epochs=2, batch_size=64, patience=None, compile=True), seed=seed)
-        weights.append(weights(m))
+        weights.append(flat_weights(m))
     assert torch.equal(weights[0], weights[1])
     assert not torch.equal(weights[0], weights[2])

@@ -35,7 +35,7 @@ from activelearn.numerics.models import ResidualModel, build_model, load_model, 
 from activelearn.numerics.models.residual import BASE_SAMPLES
 from activelearn.numerics.training import fit
 from activelearn.numerics.uncertainty import rmse
-from tests.conftest import weights
+from tests.conftest import flat_weights
 
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
 PRIOR_GRID = {"kinds": ["skidpad"], "throttles": [0.3, 0.6], "steerings": [0.15], "duration": 10.0}
@@ -162,7 +162,7 @@ def test_finetune_and_residual_warm_starts_run_and_keep_their_prior_model(tmp_pa
         # The last round's model is the stored prior plus a residual learnt on the difference from it.
         model = load_model(tmp_path / "c" / MODEL_FILE)
         assert isinstance(model, ResidualModel)
-        assert torch.equal(weights(model.base), weights(prior))
+        assert torch.equal(flat_weights(model.base), flat_weights(prior))
         mean = model.predict(x, n_samples=8, seed=0).mean
         base = prior.predict(x, n_samples=BASE_SAMPLES, seed=0).mean
         residual = model.residual.predict(x, n_samples=8, seed=0).mean
@@ -172,7 +172,7 @@ def test_finetune_and_residual_warm_starts_run_and_keep_their_prior_model(tmp_pa
         # A round fine-tunes a copy of the prior: with a vanishing learning rate it stays the prior.
         still = warm_config(tmp_path, training={"epochs": 1, "lr": 1e-9}, design=cfg.design.model_dump())
         tuned = Campaign(still, tmp_path / "c").fit_model(samples, 1)
-        torch.testing.assert_close(weights(tuned), weights(prior), rtol=0, atol=1e-6)
+        torch.testing.assert_close(flat_weights(tuned), flat_weights(prior), rtol=0, atol=1e-6)
         assert torch.equal(tuned.x_mean, prior.x_mean) and torch.equal(tuned.y_std, prior.y_std)
 
 
