@@ -9,12 +9,15 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
 from activelearn.cli import main
 from activelearn.data import read_autodrive_log
 from activelearn.loop.campaign import CampaignState
+from activelearn.loop.collection import test_set_from_logs
+from activelearn.loop.oracles import make_oracle
 from activelearn.studies.compare import compare
 from activelearn.studies.tracking import Tracker
 
@@ -162,3 +165,11 @@ def test_a_logs_pool_in_the_autodrive_layout_runs_compare(tmp_path):
     # the test set is a held-out share of the recorded logs; no candidate is ever one of them
     state = CampaignState.load(tmp_path / "cmp" / "uniform" / "seed0")
     assert len(set(state.taken)) == 6
+    oracle = make_oracle(cfg, tmp_path / "runs")
+    files = set(root.rglob("*.csv"))
+    candidates = {root / m.name for m in oracle.candidates()}
+    held = sorted(files - candidates)
+    assert candidates < files and len(held) == round(cfg.oracle.test_fraction * len(files))
+    expected = test_set_from_logs([read_autodrive_log(f) for f in held], cfg.data)
+    np.testing.assert_array_equal(oracle.test_set().x, expected.x)
+    np.testing.assert_array_equal(oracle.test_set().y_noisy, expected.y_noisy)
