@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import socket
 
 import pytest
 from hypothesis import settings
@@ -17,6 +18,23 @@ _COMMON = dict(database=None, deadline=None, print_blob=True)
 settings.register_profile("ci", derandomize=True, max_examples=100, **_COMMON)
 settings.register_profile("explore", max_examples=2000, **_COMMON)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+
+# What the README promises for an unreachable tracking server or storage: one error within 5 s. A
+# command may spend up to a second of its own (config, imports) before it waits on the server.
+UNREACHABLE_SECONDS = 5.0 + 1.0
+
+
+@pytest.fixture
+def silent_server():
+    """A loopback port where connections open and then hear nothing (a server hung or firewalled).
+
+    Unlike a closed port, which refuses at once, every client has to time out here.
+    """
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen(64)  # the kernel completes handshakes into the backlog; nobody ever accepts
+        yield server.getsockname()[1]
 
 
 @pytest.fixture(scope="session")

@@ -43,6 +43,7 @@ from activelearn.studies.tuning.storage import (
     open_storage,
 )
 from activelearn.studies.tuning.workers import RUN_TOKEN_TAG, close_lost_run
+from tests.conftest import UNREACHABLE_SECONDS
 
 ROWS_PER_POINT = 30  # logged rows per operating point
 KEPT = ROWS_PER_POINT - 1  # training_rows drops each run's first row (it has no previous rates)
@@ -533,24 +534,26 @@ def test_a_trial_whose_machine_died_is_retried_by_the_next_worker(tmp_path, data
     assert retry["user_attrs"]["model"] == lost["user_attrs"]["model"]
 
 
-def test_unreachable_tracking_server_fails_fast_and_creates_nothing(tmp_path, data_file, capsys):
-    config = write_config(tmp_path, "http://127.0.0.1:1")
+def test_unreachable_tracking_server_fails_fast_and_creates_nothing(
+    tmp_path, data_file, capsys, silent_server
+):
+    config = write_config(tmp_path, f"http://127.0.0.1:{silent_server}")
     started = time.perf_counter()
     code = cli.main(["tune", str(config), "--n-trials", "2", "--data", str(data_file),
                      "--storage", sqlite_url(tmp_path)])  # fmt: skip
-    assert code == 2 and time.perf_counter() - started < 15
+    assert code == 2 and time.perf_counter() - started < UNREACHABLE_SECONDS
     err = capsys.readouterr().err
     assert "tracking.uri" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "optuna.db").exists()
 
 
-def test_unreachable_storage_fails_fast_and_creates_nothing(tmp_path, data_file, capsys):
+def test_unreachable_storage_fails_fast_and_creates_nothing(tmp_path, data_file, capsys, silent_server):
     mlflow_db = tmp_path / "mlflow.db"
     config = write_config(tmp_path, f"sqlite:///{mlflow_db}")
     started = time.perf_counter()
     code = cli.main(["tune", str(config), "--n-trials", "2", "--data", str(data_file),
-                     "--storage", "postgresql://user:secret@127.0.0.1:1/db"])  # fmt: skip
-    assert code == 2 and time.perf_counter() - started < 15
+                     "--storage", f"postgresql://user:secret@127.0.0.1:{silent_server}/db"])  # fmt: skip
+    assert code == 2 and time.perf_counter() - started < UNREACHABLE_SECONDS
     err = capsys.readouterr().err
     assert "--storage" in err and "secret" not in err and len(err.strip().splitlines()) == 1
     assert not mlflow_db.exists()  # no MLflow run for a study that never started
