@@ -201,13 +201,22 @@ def test_sqlite_study_logs_nested_runs_and_resumes(tmp_path, data_file, mlflow_u
         assert {"model.arch", "training.lr", "training.batch_size"} <= set(child.data.params)
         curve = tracker.metric_history(child.info.run_id, "val_nll")
         assert [step for step, _ in curve] == list(range(len(curve))) and curve
+        for name in ("val_rmse", "train_loss"):  # the other per-epoch curves, on the same epochs
+            steps = [step for step, _ in tracker.metric_history(child.info.run_id, name)]
+            assert steps == list(range(len(curve))), name
         if child.data.tags["optuna.state"] == "COMPLETE":
             assert "objective_nll" in child.data.metrics
     best = tmp_path / "runs" / "tuning" / "s1"
     assert (best / "best.toml").is_file()
     assert (best / "optimization_history.png").stat().st_size > 0
+    assert (best / "param_importances.png").stat().st_size > 0
     artifacts = {a.path for a in tracker.client.list_artifacts(parent)}
-    assert {"best.toml", "optimization_history.png"} <= artifacts
+    assert {"best.toml", "optimization_history.png", "param_importances.png", "best_trials.csv"} <= artifacts
+    # the best-trials table: the complete trials, lowest validation NLL first
+    table = pd.read_csv(tracker.client.download_artifacts(parent, "best_trials.csv", str(tmp_path)))
+    complete = sorted((t["values"][0], t["number"]) for t in trials if t["state"] == "COMPLETE")
+    assert table["trial"].tolist() == [number for _, number in complete]
+    np.testing.assert_allclose(table["val_nll"], [value for value, _ in complete])
     assert "best trials:" in out
 
     # Same study name: the study continues (new trials, numbered on), under a new parent run.
@@ -219,6 +228,16 @@ def test_sqlite_study_logs_nested_runs_and_resumes(tmp_path, data_file, mlflow_u
     assert second != parent and len(_children(tracker, second)) == 2
     tagged = tracker.client.search_runs([tracker.experiment_id], filter_string="tags.`optuna.study` = 's1'")
     assert {r.info.run_id for r in tagged} >= {parent, second}
+
+    # It refuses to continue on another search space or on other data, and adds no trial.
+    other_space = write_config(tmp_path / "runs", mlflow_uri, TINY_SPACE.replace("high = 8", "high = 6"))
+    other_data = write_table(pd.read_parquet(data_file).iloc[ROWS_PER_POINT:], tmp_path / "other.parquet")
+    for changed, option in (([*args[:1], str(other_space), *args[2:]], "tuning.space"),
+                            ([*args[:-3], str(other_data), *args[-2:]], "--data")):  # fmt: skip
+        assert cli.main(changed) == 2, option
+        err = capsys.readouterr().err
+        assert option in err and "another --study-name" in err and len(err.strip().splitlines()) == 1
+    assert len(study_trials(storage, "s1")) == 6
 
 
 def test_best_params_round_trip_into_campaign_config(tmp_path, data_file, mlflow_uri):
