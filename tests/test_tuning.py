@@ -12,6 +12,7 @@ import signal
 import subprocess
 import sys
 import time
+import tomllib
 import uuid
 from pathlib import Path
 
@@ -342,19 +343,31 @@ def test_postgres_study_with_two_workers_records_every_trial_once(
 
 
 def test_multi_objective_study_does_not_prune(tmp_path, data_file, mlflow_uri, capsys):
-    config = write_config(tmp_path, mlflow_uri)
+    config = write_config(tmp_path, mlflow_uri, TINY_SPACE + 'loss = ["nll", "mse"]\n')
     storage = sqlite_url(tmp_path)
     args = ["tune", str(config), "--n-trials", "3", "--storage", storage, "--data", str(data_file),
-            "--objectives", "nll,rmse", "--no-tracking"]  # fmt: skip
+            "--seed", "1", "--objectives", "nll,rmse", "--no-tracking"]  # fmt: skip
     assert cli.main(args) == 0
     captured = capsys.readouterr()
     assert "pruning is disabled" in captured.err + captured.out
     assert "Pareto front" in captured.out
     trials = study_trials(storage, "study")
     assert all(t["state"] == "COMPLETE" and len(t["values"]) == 2 for t in trials)
+    # best.toml holds the Pareto-front trial with the lowest NLL (seed 1: the front's lowest RMSE is
+    # another trial, so picking by RMSE or by trial number would fail)
+    front = [t for t in trials if not any(_dominates(o["values"], t["values"]) for o in trials)]
+    lowest_nll = min(front, key=lambda t: t["values"])
+    assert lowest_nll != min(front, key=lambda t: t["values"][::-1])
+    best = tomllib.loads((tmp_path / "runs" / "tuning" / "study" / "best.toml").read_text())
+    assert best == {key: lowest_nll["user_attrs"][key] for key in ("model", "training")}
     # Continuing it as a single-objective study is refused, naming the option.
     assert cli.main([*args[:-3], "--no-tracking"]) == 2
     assert "--objectives" in capsys.readouterr().err
+
+
+def _dominates(a: list[float], b: list[float]) -> bool:
+    """Whether values `a` are no worse than `b` in every objective and better in one (minimising)."""
+    return all(x <= y for x, y in zip(a, b, strict=True)) and a != b
 
 
 def test_timeout_stops_starting_trials(tmp_path, data_file, mlflow_uri):
