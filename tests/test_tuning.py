@@ -259,8 +259,7 @@ def test_best_params_round_trip_into_campaign_config(tmp_path, data_file, mlflow
     assert merged.model.kind == cfg.model.kind
 
 
-def test_pruning_stops_a_clearly_worse_trial(tmp_path, data_file, mlflow_uri):
-    space = """
+PRUNING_SPACE = """
 [tuning]
 pruner_startup_trials = 2
 pruner_warmup_epochs = 3
@@ -279,7 +278,10 @@ n_layers = 1
 width = 16
 variational = false
 """
-    cfg = load_config(write_config(tmp_path, mlflow_uri, space))
+
+
+def test_pruning_stops_a_clearly_worse_trial(tmp_path, data_file, mlflow_uri):
+    cfg = load_config(write_config(tmp_path, mlflow_uri, PRUNING_SPACE))
     # Two good trials complete first; then a learning rate far too small to learn in 25 epochs.
     result = tune(cfg, n_trials=3, storage=sqlite_url(tmp_path), data=[data_file],
                   enqueue=[{"lr": 0.02}, {"lr": 0.01}, {"lr": 1e-6}])  # fmt: skip
@@ -291,6 +293,23 @@ variational = false
     pruned = [c for c in _children(tracker, result.parent_run_id) if c.data.tags["optuna.trial"] == "2"]
     assert pruned[0].data.tags["optuna.state"] == "PRUNED"
     assert len(tracker.metric_history(pruned[0].info.run_id, "val_nll")) == trials[2]["last_step"] + 1
+
+
+def test_hyperband_prunes_at_its_rungs(tmp_path, data_file, mlflow_uri):
+    cfg = load_config(write_config(tmp_path, mlflow_uri, PRUNING_SPACE))
+    storage = sqlite_url(tmp_path)
+    tune(cfg, n_trials=3, storage=storage, data=[data_file], pruner="hyperband", tracking=False,
+         enqueue=[{"lr": 0.02}, {"lr": 0.01}, {"lr": 1e-6}])  # fmt: skip
+    trials = optuna.load_study(study_name=cfg.name, storage=storage).get_trials()
+    # Successive halving records each trial at its bracket's first rung: hyperband_min_epochs epochs
+    # in, times 3 per bracket (two brackets for 5 to 25 epochs); the median pruner records no rungs.
+    # A trial is pruned only at a rung.
+    rungs = (cfg.tuning.hyperband_min_epochs, 3 * cfg.tuning.hyperband_min_epochs)
+    for t in trials:
+        at_rungs = [t.intermediate_values[r] for r in rungs if r in t.intermediate_values]
+        assert t.system_attrs["completed_rung_0"] in at_rungs, t.number
+    pruned = [t for t in trials if t.state == optuna.trial.TrialState.PRUNED]
+    assert pruned and all(t.last_step in rungs for t in pruned)
 
 
 def test_same_seed_and_storage_state_give_the_same_suggestions(tmp_path, data_file, mlflow_uri):
