@@ -118,8 +118,20 @@ def test_bad_logs_are_refused_and_the_directory_is_unchanged(proposed, capsys):
     capsys.readouterr()
     before = _snapshot(directory)
 
-    unplanned = proposals.iloc[1].copy()
-    unplanned["throttle"] = 0.9 if unplanned["throttle"] != 0.9 else 0.3
+    open_one = proposals.iloc[1]
+    assert open_one["maneuver"] == "skidpad"  # a turn: its amplitude, direction and shape can differ
+    other_steering = 0.35 if open_one["steering"] != 0.35 else 0.15
+    other_direction = "ccw" if open_one["direction"] == "cw" else "cw"
+    unplanned = {
+        "throttle": open_one.copy(),
+        "steering amplitude": open_one.copy(),
+        "direction": open_one.copy(),
+        "shape": open_one.copy(),
+    }
+    unplanned["throttle"]["throttle"] = 0.9 if open_one["throttle"] != 0.9 else 0.3
+    unplanned["steering amplitude"]["steering"] = other_steering
+    unplanned["direction"]["direction"] = other_direction
+    unplanned["shape"]["maneuver"] = "slalom"  # the same amplitude, oscillating instead of constant
     cut = tmp_path / "cut.csv"
     whole = _drive(proposals.iloc[1], tmp_path / "whole.csv").read_text().splitlines(keepends=True)
     cut.write_text("".join(whole[: len(whole) // 2]) + whole[len(whole) // 2][:17])  # cut mid-line
@@ -127,7 +139,10 @@ def test_bad_logs_are_refused_and_the_directory_is_unchanged(proposed, capsys):
     short.write_text("".join(whole[: len(whole) // 2]))  # cut at a line: half the proposed duration
     cases = {
         "repeated": (good, "ingested already"),
-        "unplanned": (_drive(unplanned, tmp_path / "unplanned.csv"), "matches no open proposal"),
+        **{
+            f"another {what}": (_drive(row, tmp_path / f"unplanned {what}.csv"), "matches no open proposal")
+            for what, row in unplanned.items()
+        },
         "cut mid-line": (cut, "expected"),
         "cut short": (short, "cut off"),
     }
