@@ -373,7 +373,7 @@ def test_multi_objective_study_does_not_prune(tmp_path, data_file, mlflow_uri, c
     trials = study_trials(storage, "study")
     assert all(t["state"] == "COMPLETE" and len(t["values"]) == 2 for t in trials)
     # best.toml holds the Pareto-front trial with the lowest NLL (seed 1: the front's lowest RMSE is
-    # another trial, so picking by RMSE or by trial number would fail)
+    # another trial, so picking by RMSE would fail)
     front = [t for t in trials if not any(_dominates(o["values"], t["values"]) for o in trials)]
     lowest_nll = min(front, key=lambda t: t["values"])
     assert lowest_nll != min(front, key=lambda t: t["values"][::-1])
