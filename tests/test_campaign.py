@@ -5,17 +5,20 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
+from activelearn.cli import main
 from activelearn.config import load_config, validate_config
 from activelearn.errors import ConfigError
 from activelearn.loop.campaign import Campaign, CampaignState
 from activelearn.studies.compare import compare
 from activelearn.studies.tracking import Tracker
+from tests.conftest import UNREACHABLE_SECONDS
 
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
 ROUND_METRICS = (
@@ -175,6 +178,22 @@ def test_cli_rejects_a_bad_config_with_exit_code_2(tmp_path):
     assert proc.returncode == 2
     assert "design.initial" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("command", ["campaign run", "compare"])
+def test_an_unreachable_tracking_server_is_one_error_within_5_s_and_nothing_runs(
+    tmp_path, capsys, silent_server, command
+):
+    config = tmp_path / "smoke.toml"
+    config.write_text(f'output_dir = "{tmp_path / "runs"}"\n' + SMOKE.read_text())
+    extra = ["--strategies", "uniform", "--seeds", "1"] if command == "compare" else []
+    started = time.perf_counter()
+    code = main([*command.split(), str(config), *extra, "--out", str(tmp_path / "out"),
+                 "--tracking-uri", f"http://127.0.0.1:{silent_server}"])  # fmt: skip
+    assert code == 2 and time.perf_counter() - started < UNREACHABLE_SECONDS
+    err = capsys.readouterr().err
+    assert "tracking.uri" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists() and not (tmp_path / "runs").exists()  # nothing simulated
 
 
 def test_comparison_produces_its_table_and_figure(tmp_path):

@@ -165,6 +165,12 @@ def compare(
     cache_dir = Path(cfg.output_dir) / "cache"
     workers = max(1, min(workers or os.cpu_count() or 1, len(strategies) * len(seeds)))
 
+    tracker = None
+    if tracking:  # first: an unreachable tracking server is one error before anything is simulated
+        from activelearn.studies.tracking import Tracker
+
+        tracker = Tracker(cfg.tracking.uri, cfg.tracking.experiment)
+
     # Simulate the whole pool and the test set once, with every core, before the workers start.
     from activelearn.loop.collection import SimulationCache
 
@@ -177,12 +183,9 @@ def compare(
             progress=lambda done, total: progress({"event": "sim_progress", "done": done, "total": total}),
         )
 
-    tracker, parent_run_id = None, None
+    parent_run_id = None
     manifest = directory / "compare.json"
-    if tracking:
-        from activelearn.studies.tracking import Tracker
-
-        tracker = Tracker(cfg.tracking.uri, cfg.tracking.experiment)
+    if tracker is not None:
         previous = (
             json.loads(manifest.read_text()).get("parent_run_id") if resume and manifest.exists() else None
         )
