@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import socket
+from pathlib import Path
 
 import pytest
 from hypothesis import settings
@@ -18,6 +19,17 @@ _COMMON = dict(database=None, deadline=None, print_blob=True)
 settings.register_profile("ci", derandomize=True, max_examples=100, **_COMMON)
 settings.register_profile("explore", max_examples=2000, **_COMMON)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+
+SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
+
+
+def smoke_file(tmp_path: Path, max_maneuvers: int = 7) -> Path:
+    """The smoke config writing under tmp_path (output_dir runs/), with `max_maneuvers` new maneuvers."""
+    text = SMOKE.read_text().replace("max_maneuvers = 7", f"max_maneuvers = {max_maneuvers}")
+    path = tmp_path / "smoke.toml"
+    path.write_text(f'output_dir = "{tmp_path / "runs"}"\n' + text)
+    return path
 
 
 # What the README promises for an unreachable tracking server or storage: one error within 5 s. A

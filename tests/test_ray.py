@@ -25,14 +25,13 @@ from activelearn.config import load_config
 from activelearn.data import read_table
 from activelearn.loop.state import SAMPLES_FILE, CampaignState
 from activelearn.studies.compare import compare
-from tests.conftest import skip_or_fail
+from tests.conftest import skip_or_fail, smoke_file
 
 try:
     import ray  # noqa: F401
 except ImportError:  # skipped on a developer machine without Ray; in CI (`CI` set) the module fails
     skip_or_fail("Ray is in the dev extra; install it with pip install -e '.[dev]'", allow_module_level=True)
 
-SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
 ACTIVELEARN = Path(sys.executable).with_name("activelearn")
 
 
@@ -87,14 +86,6 @@ def ray_head():
                 os.environ[key] = value
 
 
-def _config(tmp_path: Path, max_maneuvers: int = 7) -> Path:
-    """The smoke config writing under tmp_path, with `max_maneuvers` new maneuvers."""
-    text = SMOKE.read_text().replace("max_maneuvers = 7", f"max_maneuvers = {max_maneuvers}")
-    path = tmp_path / "smoke.toml"
-    path.write_text(f'output_dir = "{tmp_path / "runs"}"\n' + text)
-    return path
-
-
 def _rounds(directory: Path, strategy: str, seeds: range) -> dict[int, list[float]]:
     return {
         seed: [r["test_rmse"] for r in CampaignState.load(directory / strategy / f"seed{seed}").rounds]
@@ -106,15 +97,16 @@ def _rounds(directory: Path, strategy: str, seeds: range) -> dict[int, list[floa
 def process_reference(tmp_path_factory):
     """Per-round test RMSE of uniform, seeds 0-1, 4 rounds, run by two local processes."""
     tmp_path = tmp_path_factory.mktemp("process")
-    cfg = load_config(_config(tmp_path, max_maneuvers=9))
+    cfg = load_config(smoke_file(tmp_path, max_maneuvers=9))
     compare(cfg, ["uniform"], [0, 1], directory=tmp_path / "out", workers=2, tracking=False)
     return cfg, _rounds(tmp_path / "out", "uniform", range(2))
 
 
 def _ray_compare(tmp_path: Path, address: str, out: Path) -> list[str]:
     """The CLI command comparing uniform over seeds 0-1 (4 rounds) on the Ray cluster at `address`."""
-    return [str(ACTIVELEARN), "compare", str(_config(tmp_path, max_maneuvers=9)), "--strategies", "uniform",
-            "--seeds", "2", "--no-tracking", "--executor", "ray", "--ray-address", address, "--out", str(out)]
+    config = smoke_file(tmp_path, max_maneuvers=9)
+    return [str(ACTIVELEARN), "compare", str(config), "--strategies", "uniform", "--seeds", "2",
+            "--no-tracking", "--executor", "ray", "--ray-address", address, "--out", str(out)]
 
 
 def test_ray_executor_gives_the_process_executors_numbers(tmp_path, ray_head, process_reference):
@@ -195,7 +187,7 @@ def _hash(frame: pd.DataFrame) -> int:
 
 
 def test_ray_missing_or_unknown_executor_is_one_clear_error(tmp_path, monkeypatch, capsys):
-    path = _config(tmp_path)
+    path = smoke_file(tmp_path)
     common = ["compare", str(path), "--no-tracking", "--out"]
     assert main([*common, str(tmp_path / "a"), "--executor", "dask"]) == 2
     assert "--executor" in capsys.readouterr().err
