@@ -7,6 +7,7 @@ maneuvers, few epochs), never the components.
 from __future__ import annotations
 
 import hashlib
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,7 @@ import pytest
 
 from activelearn.cli import main
 from activelearn.data import read_autodrive_log
+from activelearn.loop.asktell import open_campaign, read_log
 from activelearn.loop.campaign import CampaignState
 from activelearn.loop.collection import test_set_from_logs
 from activelearn.loop.oracles import make_oracle
@@ -108,6 +110,30 @@ def test_propose_drive_ingest_propose_round_trip(proposed, capsys):
         int(r["n_samples"]) for r in state.rounds
     ]
     assert tracker.run_status(state.run_id) == "FINISHED"
+
+
+def test_an_ingest_interrupted_after_taking_its_logs_is_finished_with_resume(proposed, capsys):
+    tmp_path, directory = proposed
+    proposals = pd.read_csv(directory / "proposals" / "round-000.csv")
+    logs = [_drive(row, tmp_path / f"log{i}.csv") for i, row in proposals.iterrows()]
+    reference = tmp_path / "reference"  # the same campaign, its ingest run through
+    shutil.copytree(directory, reference)
+    assert main(["campaign", "ingest", str(reference), *map(str, logs), "--no-tracking"]) == 0
+    # The logs are taken in (the batch committed), then the ingest is killed before it proposes.
+    campaign = open_campaign(directory)
+    state, samples = campaign._open(resume=True)
+    frames = [read_log(log).table for log in logs]  # proposal order, as ingest stages them
+    campaign._receive(state, samples, campaign._label(frames, state.pending, len(state.batches)))
+    capsys.readouterr()
+    assert main(["campaign", "ingest", str(directory), "--no-tracking"]) == 2
+    assert "--resume" in capsys.readouterr().err
+    assert main(["campaign", "ingest", str(directory), "--resume", "--no-tracking"]) == 0
+    assert "round-001.csv" in capsys.readouterr().out
+    finished, expected = CampaignState.load(directory), CampaignState.load(reference)
+    assert finished.batches == expected.batches and finished.pending == expected.pending
+    assert [r["test_rmse"] for r in finished.rounds] == [r["test_rmse"] for r in expected.rounds]
+    name = "proposals/round-001.csv"
+    assert (directory / name).read_text() == (reference / name).read_text()
 
 
 def test_bad_logs_are_refused_and_the_directory_is_unchanged(proposed, capsys):
