@@ -15,9 +15,10 @@ import pandas as pd
 import pytest
 
 from activelearn.cli import main
+from activelearn.config import load_config
 from activelearn.data import read_autodrive_log
 from activelearn.loop.asktell import open_campaign, read_log
-from activelearn.loop.campaign import CampaignState
+from activelearn.loop.campaign import Campaign, CampaignState
 from activelearn.loop.collection import test_set_from_logs
 from activelearn.loop.oracles import make_oracle
 from activelearn.studies.compare import compare
@@ -191,8 +192,6 @@ def test_a_logs_pool_in_the_autodrive_layout_runs_compare(tmp_path):
                                      "steering": steering, "duration": 12.0})  # fmt: skip
                     _drive(row, root / f"{kind}_30_hz" / f"V{n} Log.csv")
     assert len(read_autodrive_log(root / "skidpad_30_hz" / "V1 Log.csv")) > 300
-    from activelearn.config import load_config
-
     config = tmp_path / "logs.toml"
     text = CONFIG.replace('kind = "external"', f'kind = "logs"\npath = "{root}"')
     config.write_text(text)
@@ -214,3 +213,30 @@ def test_a_logs_pool_in_the_autodrive_layout_runs_compare(tmp_path):
     expected = test_set_from_logs([read_autodrive_log(f) for f in held], cfg.data)
     np.testing.assert_array_equal(oracle.test_set().x, expected.x)
     np.testing.assert_array_equal(oracle.test_set().y_noisy, expected.y_noisy)
+
+
+@pytest.mark.parametrize("oracle", ["external", "logs"])
+def test_test_logs_are_the_test_set_and_no_candidate_is_held_out(tmp_path, oracle):
+    """`[test] logs`: the recorded logs are the test set (not the simulated grid, not a held-out share)."""
+    recorded = tmp_path / "test logs"
+    for i, (throttle, steering) in enumerate(((0.45, 0.25), (0.75, 0.45))):
+        row = pd.Series({"maneuver": "skidpad", "direction": "ccw", "throttle": throttle,
+                         "steering": steering, "duration": 10.0})  # fmt: skip
+        _drive(row, recorded / f"V{i} Log.csv")
+    config = tmp_path / "car.toml"
+    config.write_text(CONFIG)
+    if oracle == "logs":
+        root = tmp_path / "nigel" / "skidpad_30_hz"
+        for i, throttle in enumerate((0.3, 0.6, 0.9)):  # a small logs pool
+            row = pd.Series({"maneuver": "skidpad", "direction": "cw", "throttle": throttle,
+                             "steering": 0.35, "duration": 8.0})  # fmt: skip
+            _drive(row, root / f"V{i} Log.csv")
+        config.write_text(CONFIG.replace('kind = "external"', f'kind = "logs"\npath = "{root.parent}"'))
+    cfg = load_config(config, overrides={"output_dir": str(tmp_path / "runs"), "tracking": {"enabled": False},
+                                         "test": {"logs": [str(recorded)]}})  # fmt: skip
+    campaign = Campaign(cfg, tmp_path / "c")
+    expected = test_set_from_logs([read_autodrive_log(p) for p in sorted(recorded.glob("*.csv"))], cfg.data)
+    np.testing.assert_array_equal(campaign.test_set.x, expected.x)
+    np.testing.assert_array_equal(campaign.test_set.y_noisy, expected.y_noisy)
+    if oracle == "logs":
+        assert len(campaign.maneuvers) == 3  # every recorded log is a candidate
