@@ -539,6 +539,22 @@ def _add_running_trial(storage: optuna.storages.RDBStorage, study: optuna.Study,
     return storage.create_new_trial(study._study_id, template_trial=template)
 
 
+def test_a_lost_trial_is_retried_at_most_retry_lost_times(tmp_path):
+    tuning = TuningConfig(heartbeat_interval=1, grace_period=2, retry_lost=1)
+    storage = open_storage(sqlite_url(tmp_path), tuning)
+    study = optuna.create_study(storage=storage, study_name="s")
+    for _ in range(2):  # a trial, then its retry, each lose their machine after one heartbeat
+        with pytest.warns(UserWarning, match="Heartbeat"):  # ask() outside optimize(): Optuna says so
+            trial = study.ask()  # the second time: the queued retry
+        storage.record_heartbeat(trial._trial_id)
+        time.sleep(tuning.grace_period + 1.5)  # SQLite keeps heartbeats to the whole second
+        with pytest.warns(optuna.exceptions.ExperimentalWarning):
+            optuna.storages.fail_stale_trials(study)  # what every worker does before its next trial
+    trials = study.get_trials()
+    assert [t.state for t in trials] == [optuna.trial.TrialState.FAIL] * 2  # no second retry queued
+    assert trials[1].system_attrs["failed_trial"] == trials[0].number
+
+
 def test_trials_silent_since_they_started_are_failed_once_old_enough(tmp_path):
     storage = open_storage(sqlite_url(tmp_path), HEARTBEATS)
     study = optuna.create_study(storage=storage, study_name="s")
