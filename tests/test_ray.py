@@ -102,10 +102,10 @@ def process_reference(tmp_path_factory):
     return cfg, _rounds(tmp_path / "out", "uniform", range(2))
 
 
-def _ray_compare(tmp_path: Path, address: str, out: Path) -> list[str]:
+def _ray_compare(tmp_path: Path, address: str, out: Path, seeds: int = 2) -> list[str]:
     """The CLI command comparing uniform over seeds 0-1 (4 rounds) on the Ray cluster at `address`."""
     config = smoke_file(tmp_path, max_maneuvers=9)
-    return [str(ACTIVELEARN), "compare", str(config), "--strategies", "uniform", "--seeds", "2",
+    return [str(ACTIVELEARN), "compare", str(config), "--strategies", "uniform", "--seeds", str(seeds),
             "--no-tracking", "--executor", "ray", "--ray-address", address, "--out", str(out)]
 
 
@@ -119,6 +119,17 @@ def test_ray_executor_gives_the_process_executors_numbers(tmp_path, ray_head, pr
     assert done.returncode == 0, done.stderr[-2000:]
     assert _rounds(out, "uniform", range(2)) == reference
     assert len(reference[0]) == 4
+
+
+def test_ray_address_local_starts_an_in_process_cluster_with_the_same_numbers(tmp_path, process_reference):
+    """`--ray-address local`: no cluster to join, Ray started inside the command (one seed: small)."""
+    _, reference = process_reference
+    out = tmp_path / "local"
+    command = [*_ray_compare(tmp_path, "local", out, seeds=1), "--workers", "1"]
+    environment = {k: v for k, v in os.environ.items() if not k.startswith("RAY_")}  # no cluster known
+    done = subprocess.run(command, capture_output=True, text=True, timeout=600, env=environment)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert _rounds(out, "uniform", range(1)) == {0: reference[0]}
 
 
 def _ray_job_pids() -> list[int]:
