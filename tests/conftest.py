@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import socket
+from pathlib import Path
 
 import pytest
 from hypothesis import settings
@@ -17,6 +19,34 @@ _COMMON = dict(database=None, deadline=None, print_blob=True)
 settings.register_profile("ci", derandomize=True, max_examples=100, **_COMMON)
 settings.register_profile("explore", max_examples=2000, **_COMMON)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+
+SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
+
+
+def smoke_file(tmp_path: Path, max_maneuvers: int = 7) -> Path:
+    """The smoke config writing under tmp_path (output_dir runs/), with `max_maneuvers` new maneuvers."""
+    text = SMOKE.read_text().replace("max_maneuvers = 7", f"max_maneuvers = {max_maneuvers}")
+    path = tmp_path / "smoke.toml"
+    path.write_text(f'output_dir = "{tmp_path / "runs"}"\n' + text)
+    return path
+
+
+# What the README promises for an unreachable tracking server or storage: one error within 5 s. A
+# command may spend up to a second of its own (config, imports) before it waits on the server.
+UNREACHABLE_SECONDS = 5.0 + 1.0
+
+
+@pytest.fixture
+def silent_server():
+    """A loopback port where connections open and then hear nothing (a server hung or firewalled).
+
+    Unlike a closed port, which refuses at once, every client has to time out here.
+    """
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen(64)  # the kernel completes handshakes into the backlog; nobody ever accepts
+        yield server.getsockname()[1]
 
 
 @pytest.fixture(scope="session")
@@ -38,8 +68,19 @@ def mlflow_postgres_url() -> str:
 def _database_url(variable: str) -> str:
     url = os.environ.get(variable)
     if not url:
-        message = f"{variable} is not set: run the suite through .ci/run, which starts PostgreSQL"
-        if os.environ.get("CI"):
-            pytest.fail(message)
-        pytest.skip(message)
+        skip_or_fail(f"{variable} is not set: run the suite through .ci/run, which starts PostgreSQL")
     return url
+
+
+def flat_weights(model):
+    """Every parameter of a torch model, flattened into one vector (a tensor)."""
+    import torch
+
+    return torch.cat([p.detach().reshape(-1) for p in model.parameters()])
+
+
+def skip_or_fail(message: str, *, allow_module_level: bool = False) -> None:
+    """Skip on a developer machine what CI (`CI` set) must run: there a missing part fails the test."""
+    if os.environ.get("CI"):
+        pytest.fail(message)
+    pytest.skip(message, allow_module_level=allow_module_level)

@@ -7,14 +7,20 @@ maneuvers, few epochs), never the components.
 from __future__ import annotations
 
 import hashlib
+import shutil
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
 from activelearn.cli import main
+from activelearn.config import load_config
 from activelearn.data import read_autodrive_log
-from activelearn.loop.campaign import CampaignState
+from activelearn.loop.asktell import open_campaign, read_log
+from activelearn.loop.campaign import Campaign, CampaignState
+from activelearn.loop.collection import test_set_from_logs
+from activelearn.loop.oracles import make_oracle
 from activelearn.studies.compare import compare
 from activelearn.studies.tracking import Tracker
 
@@ -107,6 +113,30 @@ def test_propose_drive_ingest_propose_round_trip(proposed, capsys):
     assert tracker.run_status(state.run_id) == "FINISHED"
 
 
+def test_an_ingest_interrupted_after_taking_its_logs_is_finished_with_resume(proposed, capsys):
+    tmp_path, directory = proposed
+    proposals = pd.read_csv(directory / "proposals" / "round-000.csv")
+    logs = [_drive(row, tmp_path / f"log{i}.csv") for i, row in proposals.iterrows()]
+    reference = tmp_path / "reference"  # the same campaign, its ingest run through
+    shutil.copytree(directory, reference)
+    assert main(["campaign", "ingest", str(reference), *map(str, logs), "--no-tracking"]) == 0
+    # The logs are taken in (the batch committed), then the ingest is killed before it proposes.
+    campaign = open_campaign(directory)
+    state, samples = campaign._open(resume=True)
+    frames = [read_log(log).table for log in logs]  # proposal order, as ingest stages them
+    campaign._receive(state, samples, campaign._label(frames, state.pending, len(state.batches)))
+    capsys.readouterr()
+    assert main(["campaign", "ingest", str(directory), "--no-tracking"]) == 2
+    assert "--resume" in capsys.readouterr().err
+    assert main(["campaign", "ingest", str(directory), "--resume", "--no-tracking"]) == 0
+    assert "round-001.csv" in capsys.readouterr().out
+    finished, expected = CampaignState.load(directory), CampaignState.load(reference)
+    assert finished.batches == expected.batches and finished.pending == expected.pending
+    assert [r["test_rmse"] for r in finished.rounds] == [r["test_rmse"] for r in expected.rounds]
+    name = "proposals/round-001.csv"
+    assert (directory / name).read_text() == (reference / name).read_text()
+
+
 def test_bad_logs_are_refused_and_the_directory_is_unchanged(proposed, capsys):
     tmp_path, directory = proposed
     proposals = pd.read_csv(directory / "proposals" / "round-000.csv")
@@ -115,8 +145,20 @@ def test_bad_logs_are_refused_and_the_directory_is_unchanged(proposed, capsys):
     capsys.readouterr()
     before = _snapshot(directory)
 
-    unplanned = proposals.iloc[1].copy()
-    unplanned["throttle"] = 0.9 if unplanned["throttle"] != 0.9 else 0.3
+    open_one = proposals.iloc[1]
+    assert open_one["maneuver"] == "skidpad"  # a turn: its amplitude, direction and shape can differ
+    other_steering = 0.35 if open_one["steering"] != 0.35 else 0.15
+    other_direction = "ccw" if open_one["direction"] == "cw" else "cw"
+    unplanned = {
+        "throttle": open_one.copy(),
+        "steering amplitude": open_one.copy(),
+        "direction": open_one.copy(),
+        "shape": open_one.copy(),
+    }
+    unplanned["throttle"]["throttle"] = 0.9 if open_one["throttle"] != 0.9 else 0.3
+    unplanned["steering amplitude"]["steering"] = other_steering
+    unplanned["direction"]["direction"] = other_direction
+    unplanned["shape"]["maneuver"] = "slalom"  # the same amplitude, oscillating instead of constant
     cut = tmp_path / "cut.csv"
     whole = _drive(proposals.iloc[1], tmp_path / "whole.csv").read_text().splitlines(keepends=True)
     cut.write_text("".join(whole[: len(whole) // 2]) + whole[len(whole) // 2][:17])  # cut mid-line
@@ -124,7 +166,10 @@ def test_bad_logs_are_refused_and_the_directory_is_unchanged(proposed, capsys):
     short.write_text("".join(whole[: len(whole) // 2]))  # cut at a line: half the proposed duration
     cases = {
         "repeated": (good, "ingested already"),
-        "unplanned": (_drive(unplanned, tmp_path / "unplanned.csv"), "matches no open proposal"),
+        **{
+            f"another {what}": (_drive(row, tmp_path / f"unplanned {what}.csv"), "matches no open proposal")
+            for what, row in unplanned.items()
+        },
         "cut mid-line": (cut, "expected"),
         "cut short": (short, "cut off"),
     }
@@ -147,8 +192,6 @@ def test_a_logs_pool_in_the_autodrive_layout_runs_compare(tmp_path):
                                      "steering": steering, "duration": 12.0})  # fmt: skip
                     _drive(row, root / f"{kind}_30_hz" / f"V{n} Log.csv")
     assert len(read_autodrive_log(root / "skidpad_30_hz" / "V1 Log.csv")) > 300
-    from activelearn.config import load_config
-
     config = tmp_path / "logs.toml"
     text = CONFIG.replace('kind = "external"', f'kind = "logs"\npath = "{root}"')
     config.write_text(text)
@@ -162,3 +205,38 @@ def test_a_logs_pool_in_the_autodrive_layout_runs_compare(tmp_path):
     # the test set is a held-out share of the recorded logs; no candidate is ever one of them
     state = CampaignState.load(tmp_path / "cmp" / "uniform" / "seed0")
     assert len(set(state.taken)) == 6
+    oracle = make_oracle(cfg, tmp_path / "runs")
+    files = set(root.rglob("*.csv"))
+    candidates = {root / m.name for m in oracle.candidates()}
+    held = sorted(files - candidates)
+    assert candidates < files and len(held) == round(cfg.oracle.test_fraction * len(files))
+    expected = test_set_from_logs([read_autodrive_log(f) for f in held], cfg.data)
+    np.testing.assert_array_equal(oracle.test_set().x, expected.x)
+    np.testing.assert_array_equal(oracle.test_set().y_noisy, expected.y_noisy)
+
+
+@pytest.mark.parametrize("oracle", ["external", "logs"])
+def test_test_logs_are_the_test_set_and_no_candidate_is_held_out(tmp_path, oracle):
+    """`[test] logs`: the recorded logs are the test set (not the simulated grid, not a held-out share)."""
+    recorded = tmp_path / "test logs"
+    for i, (throttle, steering) in enumerate(((0.45, 0.25), (0.75, 0.45))):
+        row = pd.Series({"maneuver": "skidpad", "direction": "ccw", "throttle": throttle,
+                         "steering": steering, "duration": 10.0})  # fmt: skip
+        _drive(row, recorded / f"V{i} Log.csv")
+    config = tmp_path / "car.toml"
+    config.write_text(CONFIG)
+    if oracle == "logs":
+        root = tmp_path / "nigel" / "skidpad_30_hz"
+        for i, throttle in enumerate((0.3, 0.6, 0.9)):  # a small logs pool
+            row = pd.Series({"maneuver": "skidpad", "direction": "cw", "throttle": throttle,
+                             "steering": 0.35, "duration": 8.0})  # fmt: skip
+            _drive(row, root / f"V{i} Log.csv")
+        config.write_text(CONFIG.replace('kind = "external"', f'kind = "logs"\npath = "{root.parent}"'))
+    cfg = load_config(config, overrides={"output_dir": str(tmp_path / "runs"), "tracking": {"enabled": False},
+                                         "test": {"logs": [str(recorded)]}})  # fmt: skip
+    campaign = Campaign(cfg, tmp_path / "c")
+    expected = test_set_from_logs([read_autodrive_log(p) for p in sorted(recorded.glob("*.csv"))], cfg.data)
+    np.testing.assert_array_equal(campaign.test_set.x, expected.x)
+    np.testing.assert_array_equal(campaign.test_set.y_noisy, expected.y_noisy)
+    if oracle == "logs":
+        assert len(campaign.maneuvers) == 3  # every recorded log is a candidate

@@ -112,3 +112,5 @@ def test_7_epistemic_calibration_after_recalibration():
     after = epistemic_diagnostic(d["test_truth"], model.predict(d["test_points"], 64))
     assert scale > 0
     assert 0.5 <= after["z_spread"] <= 2.0, (before, scale, after)
+    # the recalibration moved the spread towards 1 (by a ratio: 2 is as far off as 0.5)
+    assert abs(np.log(after["z_spread"])) < abs(np.log(before["z_spread"])), (before, scale, after)

@@ -2,20 +2,27 @@
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
+from activelearn.cli import main
 from activelearn.config import load_config, validate_config
 from activelearn.errors import ConfigError
 from activelearn.loop.campaign import Campaign, CampaignState
+from activelearn.loop.state import CONFIG_FILE, MODEL_FILE
+from activelearn.numerics.models import load_model
 from activelearn.studies.compare import compare
 from activelearn.studies.tracking import Tracker
+from activelearn.studies.tuning import params_toml
+from tests.conftest import UNREACHABLE_SECONDS, smoke_file
 
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
 ROUND_METRICS = (
@@ -175,6 +182,35 @@ def test_cli_rejects_a_bad_config_with_exit_code_2(tmp_path):
     assert proc.returncode == 2
     assert "design.initial" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("command", ["campaign run", "compare"])
+def test_an_unreachable_tracking_server_is_one_error_within_5_s_and_nothing_runs(
+    tmp_path, capsys, silent_server, command
+):
+    config = smoke_file(tmp_path)
+    extra = ["--strategies", "uniform", "--seeds", "1"] if command == "compare" else []
+    started = time.perf_counter()
+    code = main([*command.split(), str(config), *extra, "--out", str(tmp_path / "out"),
+                 "--tracking-uri", f"http://127.0.0.1:{silent_server}"])  # fmt: skip
+    assert code == 2 and time.perf_counter() - started < UNREACHABLE_SECONDS
+    err = capsys.readouterr().err
+    assert "tracking.uri" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists() and not (tmp_path / "runs").exists()  # nothing simulated
+
+
+def test_campaign_run_with_params_trains_the_tuned_model(tmp_path):
+    config = smoke_file(tmp_path, max_maneuvers=3)  # one round
+    params = tmp_path / "best.toml"  # written as `tune` writes best.toml
+    params.write_text(params_toml({"arch": "D8-V4-V", "activation": "tanh"}, {"epochs": 7, "lr": 0.0123}))
+    out = tmp_path / "out"
+    args = ["campaign", "run", str(config), "--params", str(params), "--out", str(out), "--no-tracking"]
+    assert main(args) == 0
+    used = json.loads((out / CONFIG_FILE).read_text())
+    assert (used["model"]["arch"], used["model"]["activation"]) == ("D8-V4-V", "tanh")
+    assert (used["training"]["epochs"], used["training"]["lr"]) == (7, 0.0123)
+    assert used["training"]["batch_size"] == 64  # the rest is the config's own
+    assert load_model(out / MODEL_FILE).config.arch == "D8-V4-V"
 
 
 def test_comparison_produces_its_table_and_figure(tmp_path):

@@ -85,3 +85,15 @@ def test_cli_prints_a_table_writes_the_figure_and_a_bad_log_is_exit_2(logs, tmp_
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no stretch of constant" in err[0] and "short.csv" in err[0]
     assert np.isfinite(dv)
+
+
+def test_cli_settle_and_min_window_set_the_steady_windows(logs, capsys):
+    """`--settle` drops that many seconds of each stretch; `--min-window` is the steady time it must keep."""
+    log = str(logs["nominal"])  # one 5-s stretch
+    for settle in ("1", "2"):
+        assert cli.main(["fidelity", log, "--settle", settle]) == 0
+        row = next(line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("0.90"))
+        assert float(row.split()[2]) == 5 - float(settle)  # the seconds averaged
+    assert cli.main(["fidelity", log, "--min-window", "4.5"]) == 2  # 4 s left after the default 1-s settle
+    err = capsys.readouterr().err
+    assert "no stretch of constant" in err and "lasts 5.5 s" in err

@@ -12,6 +12,7 @@ import signal
 import subprocess
 import sys
 import time
+import tomllib
 import uuid
 from pathlib import Path
 
@@ -43,6 +44,7 @@ from activelearn.studies.tuning.storage import (
     open_storage,
 )
 from activelearn.studies.tuning.workers import RUN_TOKEN_TAG, close_lost_run
+from tests.conftest import UNREACHABLE_SECONDS
 
 ROWS_PER_POINT = 30  # logged rows per operating point
 KEPT = ROWS_PER_POINT - 1  # training_rows drops each run's first row (it has no previous rates)
@@ -200,13 +202,22 @@ def test_sqlite_study_logs_nested_runs_and_resumes(tmp_path, data_file, mlflow_u
         assert {"model.arch", "training.lr", "training.batch_size"} <= set(child.data.params)
         curve = tracker.metric_history(child.info.run_id, "val_nll")
         assert [step for step, _ in curve] == list(range(len(curve))) and curve
+        for name in ("val_rmse", "train_loss"):  # the other per-epoch curves, on the same epochs
+            steps = [step for step, _ in tracker.metric_history(child.info.run_id, name)]
+            assert steps == list(range(len(curve))), name
         if child.data.tags["optuna.state"] == "COMPLETE":
             assert "objective_nll" in child.data.metrics
     best = tmp_path / "runs" / "tuning" / "s1"
     assert (best / "best.toml").is_file()
     assert (best / "optimization_history.png").stat().st_size > 0
+    assert (best / "param_importances.png").stat().st_size > 0
     artifacts = {a.path for a in tracker.client.list_artifacts(parent)}
-    assert {"best.toml", "optimization_history.png"} <= artifacts
+    assert {"best.toml", "optimization_history.png", "param_importances.png", "best_trials.csv"} <= artifacts
+    # the best-trials table: the complete trials, lowest validation NLL first
+    table = pd.read_csv(tracker.client.download_artifacts(parent, "best_trials.csv", str(tmp_path)))
+    complete = sorted((t["values"][0], t["number"]) for t in trials if t["state"] == "COMPLETE")
+    assert table["trial"].tolist() == [number for _, number in complete]
+    np.testing.assert_allclose(table["val_nll"], [value for value, _ in complete])
     assert "best trials:" in out
 
     # Same study name: the study continues (new trials, numbered on), under a new parent run.
@@ -218,6 +229,16 @@ def test_sqlite_study_logs_nested_runs_and_resumes(tmp_path, data_file, mlflow_u
     assert second != parent and len(_children(tracker, second)) == 2
     tagged = tracker.client.search_runs([tracker.experiment_id], filter_string="tags.`optuna.study` = 's1'")
     assert {r.info.run_id for r in tagged} >= {parent, second}
+
+    # It refuses to continue on another search space or on other data, and adds no trial.
+    other_space = write_config(tmp_path / "runs", mlflow_uri, TINY_SPACE.replace("high = 8", "high = 6"))
+    other_data = write_table(pd.read_parquet(data_file).iloc[ROWS_PER_POINT:], tmp_path / "other.parquet")
+    for changed, option in (([*args[:1], str(other_space), *args[2:]], "tuning.space"),
+                            ([*args[:-3], str(other_data), *args[-2:]], "--data")):  # fmt: skip
+        assert cli.main(changed) == 2, option
+        err = capsys.readouterr().err
+        assert option in err and "another --study-name" in err and len(err.strip().splitlines()) == 1
+    assert len(study_trials(storage, "s1")) == 6
 
 
 def test_best_params_round_trip_into_campaign_config(tmp_path, data_file, mlflow_uri):
@@ -238,8 +259,7 @@ def test_best_params_round_trip_into_campaign_config(tmp_path, data_file, mlflow
     assert merged.model.kind == cfg.model.kind
 
 
-def test_pruning_stops_a_clearly_worse_trial(tmp_path, data_file, mlflow_uri):
-    space = """
+PRUNING_SPACE = """
 [tuning]
 pruner_startup_trials = 2
 pruner_warmup_epochs = 3
@@ -258,7 +278,10 @@ n_layers = 1
 width = 16
 variational = false
 """
-    cfg = load_config(write_config(tmp_path, mlflow_uri, space))
+
+
+def test_pruning_stops_a_clearly_worse_trial(tmp_path, data_file, mlflow_uri):
+    cfg = load_config(write_config(tmp_path, mlflow_uri, PRUNING_SPACE))
     # Two good trials complete first; then a learning rate far too small to learn in 25 epochs.
     result = tune(cfg, n_trials=3, storage=sqlite_url(tmp_path), data=[data_file],
                   enqueue=[{"lr": 0.02}, {"lr": 0.01}, {"lr": 1e-6}])  # fmt: skip
@@ -270,6 +293,23 @@ variational = false
     pruned = [c for c in _children(tracker, result.parent_run_id) if c.data.tags["optuna.trial"] == "2"]
     assert pruned[0].data.tags["optuna.state"] == "PRUNED"
     assert len(tracker.metric_history(pruned[0].info.run_id, "val_nll")) == trials[2]["last_step"] + 1
+
+
+def test_hyperband_prunes_at_its_rungs(tmp_path, data_file, mlflow_uri):
+    cfg = load_config(write_config(tmp_path, mlflow_uri, PRUNING_SPACE))
+    storage = sqlite_url(tmp_path)
+    tune(cfg, n_trials=3, storage=storage, data=[data_file], pruner="hyperband", tracking=False,
+         enqueue=[{"lr": 0.02}, {"lr": 0.01}, {"lr": 1e-6}])  # fmt: skip
+    trials = optuna.load_study(study_name=cfg.name, storage=storage).get_trials()
+    # Successive halving records each trial at its bracket's first rung: hyperband_min_epochs epochs
+    # in, times 3 per bracket (two brackets for 5 to 25 epochs); the median pruner records no rungs.
+    # A trial is pruned only at a rung.
+    rungs = (cfg.tuning.hyperband_min_epochs, 3 * cfg.tuning.hyperband_min_epochs)
+    for t in trials:
+        at_rungs = [t.intermediate_values[r] for r in rungs if r in t.intermediate_values]
+        assert t.system_attrs["completed_rung_0"] in at_rungs, t.number
+    pruned = [t for t in trials if t.state == optuna.trial.TrialState.PRUNED]
+    assert pruned and all(t.last_step in rungs for t in pruned)
 
 
 def test_same_seed_and_storage_state_give_the_same_suggestions(tmp_path, data_file, mlflow_uri):
@@ -291,7 +331,10 @@ def test_two_workers_on_sqlite_finish_exactly_the_requested_trials(tmp_path, dat
     result = tune(cfg, n_trials=5, storage=storage, data=[data_file], workers=2)
     trials = study_trials(storage, cfg.name)
     assert [t["number"] for t in trials] == list(range(5))
-    assert all(t["state"] in ("COMPLETE", "PRUNED", "FAIL") for t in trials)
+    # every trial trained (none failed), at least one to the end, and both processes took trials
+    assert all(t["state"] in ("COMPLETE", "PRUNED") for t in trials)
+    assert any(t["state"] == "COMPLETE" for t in trials)
+    assert {t["user_attrs"]["worker"] for t in trials} == {0, 1}
     assert result.n_trials == 5
     children = _children(Tracker(mlflow_uri), result.parent_run_id)
     assert sorted(int(c.data.tags["optuna.trial"]) for c in children) == list(range(5))
@@ -319,28 +362,49 @@ def test_postgres_study_with_two_workers_records_every_trial_once(
 
 
 def test_multi_objective_study_does_not_prune(tmp_path, data_file, mlflow_uri, capsys):
-    config = write_config(tmp_path, mlflow_uri)
+    config = write_config(tmp_path, mlflow_uri, TINY_SPACE + 'loss = ["nll", "mse"]\n')
     storage = sqlite_url(tmp_path)
     args = ["tune", str(config), "--n-trials", "3", "--storage", storage, "--data", str(data_file),
-            "--objectives", "nll,rmse", "--no-tracking"]  # fmt: skip
+            "--seed", "1", "--objectives", "nll,rmse", "--no-tracking"]  # fmt: skip
     assert cli.main(args) == 0
     captured = capsys.readouterr()
     assert "pruning is disabled" in captured.err + captured.out
     assert "Pareto front" in captured.out
     trials = study_trials(storage, "study")
     assert all(t["state"] == "COMPLETE" and len(t["values"]) == 2 for t in trials)
+    # best.toml holds the Pareto-front trial with the lowest NLL (seed 1: the front's lowest RMSE is
+    # another trial, so picking by RMSE would fail)
+    front = [t for t in trials if not any(_dominates(o["values"], t["values"]) for o in trials)]
+    lowest_nll = min(front, key=lambda t: t["values"])
+    assert lowest_nll != min(front, key=lambda t: t["values"][::-1])
+    best = tomllib.loads((tmp_path / "runs" / "tuning" / "study" / "best.toml").read_text())
+    assert best == {key: lowest_nll["user_attrs"][key] for key in ("model", "training")}
     # Continuing it as a single-objective study is refused, naming the option.
     assert cli.main([*args[:-3], "--no-tracking"]) == 2
     assert "--objectives" in capsys.readouterr().err
+
+
+def _dominates(a: list[float], b: list[float]) -> bool:
+    """Whether values `a` are no worse than `b` in every objective and better in one (minimising)."""
+    return all(x <= y for x, y in zip(a, b, strict=True)) and a != b
 
 
 def test_timeout_stops_starting_trials(tmp_path, data_file, mlflow_uri):
     cfg = load_config(write_config(tmp_path, mlflow_uri))
     started = time.perf_counter()
     storage = sqlite_url(tmp_path)
-    result = tune(cfg, n_trials=500, storage=storage, data=[data_file], timeout=2, tracking=False)
-    assert 1 <= result.n_trials < 500
-    assert time.perf_counter() - started < 30
+    timeout = 2.0
+    result = tune(cfg, n_trials=500, storage=storage, data=[data_file], timeout=timeout, tracking=False)
+    finished = time.perf_counter()
+    trials = optuna.load_study(study_name=cfg.name, storage=storage).get_trials()
+    assert 1 <= result.n_trials == len(trials) < 500
+    # No trial started after the timeout, and the command ended with the last trial it had started.
+    first = min(t.datetime_start for t in trials)
+    assert max(t.datetime_start for t in trials) - first < datetime.timedelta(seconds=timeout)
+    last = max(t.datetime_complete for t in trials)
+    longest = max((t.datetime_complete - t.datetime_start).total_seconds() for t in trials)
+    assert (last - first).total_seconds() < timeout + longest
+    assert finished - started < 30
 
 
 # --------------------------------------------------------------------------------------- errors
@@ -475,6 +539,22 @@ def _add_running_trial(storage: optuna.storages.RDBStorage, study: optuna.Study,
     return storage.create_new_trial(study._study_id, template_trial=template)
 
 
+def test_a_lost_trial_is_retried_at_most_retry_lost_times(tmp_path):
+    tuning = TuningConfig(heartbeat_interval=1, grace_period=2, retry_lost=1)
+    storage = open_storage(sqlite_url(tmp_path), tuning)
+    study = optuna.create_study(storage=storage, study_name="s")
+    for _ in range(2):  # a trial, then its retry, each lose their machine after one heartbeat
+        with pytest.warns(UserWarning, match="Heartbeat"):  # ask() outside optimize(): Optuna says so
+            trial = study.ask()  # the second time: the queued retry
+        storage.record_heartbeat(trial._trial_id)
+        time.sleep(tuning.grace_period + 1.5)  # SQLite keeps heartbeats to the whole second
+        with pytest.warns(optuna.exceptions.ExperimentalWarning):
+            optuna.storages.fail_stale_trials(study)  # what every worker does before its next trial
+    trials = study.get_trials()
+    assert [t.state for t in trials] == [optuna.trial.TrialState.FAIL] * 2  # no second retry queued
+    assert trials[1].system_attrs["failed_trial"] == trials[0].number
+
+
 def test_trials_silent_since_they_started_are_failed_once_old_enough(tmp_path):
     storage = open_storage(sqlite_url(tmp_path), HEARTBEATS)
     study = optuna.create_study(storage=storage, study_name="s")
@@ -533,24 +613,26 @@ def test_a_trial_whose_machine_died_is_retried_by_the_next_worker(tmp_path, data
     assert retry["user_attrs"]["model"] == lost["user_attrs"]["model"]
 
 
-def test_unreachable_tracking_server_fails_fast_and_creates_nothing(tmp_path, data_file, capsys):
-    config = write_config(tmp_path, "http://127.0.0.1:1")
+def test_unreachable_tracking_server_fails_fast_and_creates_nothing(
+    tmp_path, data_file, capsys, silent_server
+):
+    config = write_config(tmp_path, f"http://127.0.0.1:{silent_server}")
     started = time.perf_counter()
     code = cli.main(["tune", str(config), "--n-trials", "2", "--data", str(data_file),
                      "--storage", sqlite_url(tmp_path)])  # fmt: skip
-    assert code == 2 and time.perf_counter() - started < 15
+    assert code == 2 and time.perf_counter() - started < UNREACHABLE_SECONDS
     err = capsys.readouterr().err
     assert "tracking.uri" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "optuna.db").exists()
 
 
-def test_unreachable_storage_fails_fast_and_creates_nothing(tmp_path, data_file, capsys):
+def test_unreachable_storage_fails_fast_and_creates_nothing(tmp_path, data_file, capsys, silent_server):
     mlflow_db = tmp_path / "mlflow.db"
     config = write_config(tmp_path, f"sqlite:///{mlflow_db}")
     started = time.perf_counter()
     code = cli.main(["tune", str(config), "--n-trials", "2", "--data", str(data_file),
-                     "--storage", "postgresql://user:secret@127.0.0.1:1/db"])  # fmt: skip
-    assert code == 2 and time.perf_counter() - started < 15
+                     "--storage", f"postgresql://user:secret@127.0.0.1:{silent_server}/db"])  # fmt: skip
+    assert code == 2 and time.perf_counter() - started < UNREACHABLE_SECONDS
     err = capsys.readouterr().err
     assert "--storage" in err and "secret" not in err and len(err.strip().splitlines()) == 1
     assert not mlflow_db.exists()  # no MLflow run for a study that never started

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import torch
 
 from activelearn.cli import main
 from activelearn.config import ModelConfig, TrainingConfig, load_config
@@ -28,9 +29,13 @@ from activelearn.loop.pool import (
     test_maneuvers,
 )
 from activelearn.loop.prior import PRIOR_FILE
+from activelearn.loop.state import MODEL_FILE, PRIOR_MODEL_FILE
 from activelearn.numerics import synthetic
-from activelearn.numerics.models import build_model, save_model
+from activelearn.numerics.models import ResidualModel, build_model, load_model, save_model
+from activelearn.numerics.models.residual import BASE_SAMPLES
 from activelearn.numerics.training import fit
+from activelearn.numerics.uncertainty import rmse
+from tests.conftest import flat_weights
 
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
 PRIOR_GRID = {"kinds": ["skidpad"], "throttles": [0.3, 0.6], "steerings": [0.15], "duration": 10.0}
@@ -150,8 +155,25 @@ def test_finetune_and_residual_warm_starts_run_and_keep_their_prior_model(tmp_pa
     assert np.isfinite(result.history["test_rmse"]).all()
     # the prior rows do not train the rounds: only the new maneuvers' rows count
     samples = read_table(tmp_path / "c" / "samples.parquet")
-    x, _, _ = Campaign(cfg, tmp_path / "other")._rows(samples)
+    x, y, _ = Campaign(cfg, tmp_path / "other")._rows(samples)
     assert result.history["n_samples"].iloc[-1] == len(x)
+    prior = load_model(tmp_path / "c" / PRIOR_MODEL_FILE)
+    if use == "residual":
+        # The last round's model is the stored prior plus a residual learnt on the difference from it.
+        model = load_model(tmp_path / "c" / MODEL_FILE)
+        assert isinstance(model, ResidualModel)
+        assert torch.equal(flat_weights(model.base), flat_weights(prior))
+        mean = model.predict(x, n_samples=8, seed=0).mean
+        base = prior.predict(x, n_samples=BASE_SAMPLES, seed=0).mean
+        residual = model.residual.predict(x, n_samples=8, seed=0).mean
+        np.testing.assert_allclose(mean, base + residual, rtol=1e-5, atol=1e-6)
+        assert rmse(y, mean) < rmse(y, residual)  # the residual alone misses what the prior knows
+    else:
+        # A round fine-tunes a copy of the prior: with a vanishing learning rate it stays the prior.
+        still = warm_config(tmp_path, training={"epochs": 1, "lr": 1e-9}, design=cfg.design.model_dump())
+        tuned = Campaign(still, tmp_path / "c").fit_model(samples, 1)
+        torch.testing.assert_close(flat_weights(tuned), flat_weights(prior), rtol=0, atol=1e-6)
+        assert torch.equal(tuned.x_mean, prior.x_mean) and torch.equal(tuned.y_std, prior.y_std)
 
 
 # --------------------------------------------------------------------------------------- strategies
