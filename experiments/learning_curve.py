@@ -128,6 +128,8 @@ def breakdown(campaign: Campaign, model: Any) -> dict[str, Any]:
     region = np.array([f"{tests[g].kind}/{'rev' if tests[g].throttle < 0 else 'fwd'}" for g in test.groups])
     out["regions"] = {r: [float(np.sqrt(sq[region == r].mean())), float(sq[region == r].sum() / sq.sum())]
                       for r in sorted(set(region))}  # fmt: skip
+    throttle = np.array([tests[g].throttle for g in test.groups])
+    out["throttles"] = {f"{t:+.1f}": float(np.sqrt(sq[throttle == t].mean())) for t in sorted(set(throttle))}
     if pred.sample_means is not None and model.n_members is not None:
         members = pred.sample_means  # (K, N, outputs)
         out["members"] = [float(np.sqrt((((m - test.y_clean) / test.scale) ** 2).mean())) for m in members]
@@ -140,7 +142,10 @@ def main() -> None:
     parser.add_argument("--config", default="experiments/configs/demo.toml")
     parser.add_argument("--strategy", default="uniform")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="campaign seeds")
-    parser.add_argument("--train-seeds", type=int, default=3, help="training seeds per fit (100, 101, ...)")
+    parser.add_argument(
+        "--train-seeds", type=int, default=3, help="training seeds per fit (first, first + 1, ...)"
+    )
+    parser.add_argument("--first-train-seed", type=int, default=100, help="the first training seed")
     parser.add_argument("--rounds", type=int, nargs="+", default=[1, 2], help="rounds to refit")
     parser.add_argument("--variants", default="base", help=f"comma list of {', '.join(VARIANTS)}")
     parser.add_argument("--out", default="runs/learning_curve", help="campaigns and the fit cache")
@@ -153,7 +158,7 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     cache_file = out / "fits.json"
     cache: dict[str, Any] = json.loads(cache_file.read_text()) if cache_file.exists() else {}
-    train_seeds = [100 + t for t in range(args.train_seeds)]
+    train_seeds = [args.first_train_seed + t for t in range(args.train_seeds)]
 
     print(f"# {args.config}: {args.strategy}, campaign seeds {args.seeds}, training seeds {train_seeds}")
     campaigns = {}
