@@ -206,36 +206,50 @@ def _get(cache: dict, seed: int, r: int, v: str, seeds: list[int]) -> list[dict]
     return [cache[k] for t in seeds if (k := f"{seed}|{r}|{v}|{t}") in cache]
 
 
+def _cell(vals: list[float]) -> str:
+    if not vals:
+        return "-"
+    return f"{np.mean(vals):.4f} ± {np.std(vals, ddof=1) if len(vals) > 1 else 0:.4f} ({len(vals)})"
+
+
 def report(cache: dict, seeds: list[int], rounds: list[int], variants: list[str], tseeds: list[int]) -> None:
     """The tables: RMSE per variant and round (mean ± sd over training seeds), regions, members."""
-    print("\n## Test RMSE per round, mean ± sd over training seeds (and the change from the round before)")
-    header = "variant        seed " + "".join(f"  round {r:<13d}" for r in rounds)
-    print(header)
+    print("\n## Test RMSE per round: mean ± sd over training seeds (number of fits)")
+    print("variant        seed " + "".join(f"{'round ' + str(r):>26s}" for r in rounds))
     for v in variants:
         for seed in [*seeds, "all"]:
             cells = []
             for r in rounds:
-                if seed == "all":
-                    vals = [f["test_rmse"] for s in seeds for f in _get(cache, s, r, v, tseeds)]
-                else:
-                    vals = [f["test_rmse"] for f in _get(cache, seed, r, v, tseeds)]
-                cells.append(f"  {np.mean(vals):.4f} ± {np.std(vals):.4f}" if vals else "  " + "-" * 15)
-            print(f"{v:<14s} {seed!s:>4s} " + "".join(f"{c:<21s}" for c in cells))
-    # paired change between consecutive rounds: per (seed, training seed)
-    print("\n## Paired change round r-1 -> r (same campaign seed, same training seed): mean, and rises/pairs")
+                fits = [f for s in seeds for f in _get(cache, s, r, v, tseeds)] if seed == "all" else (
+                    _get(cache, seed, r, v, tseeds))  # fmt: skip
+                cells.append(_cell([f["test_rmse"] for f in fits]))
+            print(f"{v:<14s} {seed!s:>4s} " + "".join(f"{c:>26s}" for c in cells))
+
+    print("\n## Change round a -> b. paired: same campaign and training seed, mean ± s.e.m. and rises/pairs;")
+    print("## unpaired: P(rise) when the two rounds use different training seeds, as a campaign does")
     for v in variants:
         parts = []
         for a, b in itertools.pairwise(rounds):
-            diffs = [cache[f"{s}|{b}|{v}|{t}"]["test_rmse"] - cache[f"{s}|{a}|{v}|{t}"]["test_rmse"]
-                     for s in seeds for t in tseeds
-                     if f"{s}|{a}|{v}|{t}" in cache and f"{s}|{b}|{v}|{t}" in cache]  # fmt: skip
+            diffs, ups = [], []
+            for s in seeds:
+                keys = [(f"{s}|{a}|{v}|{t}", f"{s}|{b}|{v}|{t}") for t in tseeds]
+                pairs = [(cache[ka]["test_rmse"], cache[kb]["test_rmse"])
+                         for ka, kb in keys if ka in cache and kb in cache]  # fmt: skip
+                if not pairs:
+                    continue
+                xa, xb = np.array(pairs).T
+                diffs.extend(xb - xa)
+                ups.append(np.mean(xb[:, None] > xa[None, :]))
             if diffs:
-                parts.append(f"{a}->{b}: {np.mean(diffs):+.4f} ({sum(d > 0 for d in diffs)}/{len(diffs)} up)")
+                d = np.array(diffs)
+                sem = d.std(ddof=1) / np.sqrt(len(d)) if len(d) > 1 else float("nan")
+                parts.append(f"{a}->{b}: {d.mean():+.4f} ± {sem:.4f} ({int((d > 0).sum())}/{len(d)} up), "
+                             f"unpaired P(rise) {np.mean(ups):.2f}")  # fmt: skip
         print(f"{v:<14s} " + "   ".join(parts))
 
     print("\n## Base fits: RMSE per test region (share of the squared error), mean over training seeds")
     regions = sorted({k for f in cache.values() for k in f.get("regions", {})})
-    print("seed round " + "".join(f"{r:>22s}" for r in regions))
+    print("seed round  fits" + "".join(f"{r:>22s}" for r in regions))
     for seed in seeds:
         for r in rounds:
             fits = _get(cache, seed, r, "base", tseeds)
@@ -245,15 +259,33 @@ def report(cache: dict, seeds: list[int], rounds: list[int], variants: list[str]
             for reg in regions:
                 vals = np.array([f["regions"][reg] for f in fits if reg in f["regions"]])
                 cells.append(f"{vals[:, 0].mean():.4f} ({100 * vals[:, 1].mean():4.1f} %)")
-            print(f"{seed:>4d} {r:>5d} " + "".join(f"{c:>22s}" for c in cells))
+            print(f"{seed:>4d} {r:>5d} {len(fits):>5d}" + "".join(f"{c:>22s}" for c in cells))
 
-    print("\n## Base fits: RMSE of each ensemble member (sorted), the ensemble mean's RMSE last")
+    print("\n## Base fits: RMSE per test throttle, mean over training seeds (fits that recorded it)")
+    throttles = sorted({k for f in cache.values() for k in f.get("throttles", {})}, key=float)
+    print("seed round  fits" + "".join(f"{t:>9s}" for t in throttles))
     for seed in seeds:
         for r in rounds:
-            for t, f in zip(tseeds, _get(cache, seed, r, "base", tseeds), strict=False):
-                if "members" in f:
-                    m = " ".join(f"{x:.4f}" for x in sorted(f["members"]))
-                    print(f"seed {seed} round {r} t{t}: {m}   ensemble {f['test_rmse']:.4f}")
+            fits = [f for f in _get(cache, seed, r, "base", tseeds) if "throttles" in f]
+            if fits:
+                cells = [f"{np.mean([f['throttles'][t] for f in fits]):.4f}" for t in throttles]
+                print(f"{seed:>4d} {r:>5d} {len(fits):>5d}" + "".join(f"{c:>9s}" for c in cells))
+
+    print("\n## Base fits: ensemble members. Mean over fits of the best, median and worst member's RMSE,")
+    print("## the ensemble's; 'failed': fits whose worst member is over 3x the ensemble's RMSE")
+    print("seed round  fits     best   median    worst ensemble  failed")
+    for seed in seeds:
+        for r in rounds:
+            fits = [f for f in _get(cache, seed, r, "base", tseeds) if "members" in f]
+            if not fits:
+                continue
+            m = np.sort(np.array([f["members"] for f in fits]), axis=1)
+            ens = np.array([f["test_rmse"] for f in fits])
+            failed = int((m[:, -1] > 3 * ens).sum())
+            stats = (m[:, 0].mean(), np.median(m, axis=1).mean(), m[:, -1].mean(), ens.mean())
+            print(
+                f"{seed:>4d} {r:>5d} {len(fits):>5d}" + "".join(f"{x:9.4f}" for x in stats) + f"{failed:>8d}"
+            )
 
 
 if __name__ == "__main__":
