@@ -148,6 +148,7 @@ def main() -> None:
     parser.add_argument("--first-train-seed", type=int, default=100, help="the first training seed")
     parser.add_argument("--rounds", type=int, nargs="+", default=[1, 2], help="rounds to refit")
     parser.add_argument("--variants", default="base", help=f"comma list of {', '.join(VARIANTS)}")
+    parser.add_argument("--no-fit", action="store_true", help="print the tables from the cache only")
     parser.add_argument("--out", default="runs/learning_curve", help="campaigns and the fit cache")
     args = parser.parse_args()
     variants = args.variants.split(",")
@@ -191,7 +192,7 @@ def main() -> None:
             for v in variants:
                 for t in train_seeds:
                     key = f"{seed}|{r}|{v}|{t}"
-                    if key in cache:
+                    if key in cache or args.no_fit:
                         continue
                     started = time.perf_counter()
                     model = fit_variant(campaign, part, r, v, t, context)
