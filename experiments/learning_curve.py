@@ -15,6 +15,8 @@ to round 2 on all three seeds. This script separates the candidate causes:
                    evenly (does a 90-s fishhook with 3x a skidpad's rows dominate?);
      const_steps   epochs scaled so that every round takes the optimizer steps of round 0;
      epochs300     twice the epochs (is a round under-trained?);
+     alt_batch     the data control: the round's last batch replaced by other maneuvers (`--alt`,
+                   default two reverse skidpads at throttle -0.4), trained as base;
 3. breaks each fit's test error down by test region (kind x forward/reverse) and by ensemble member.
 
 Every fit is cached in <out>/fits.json, so a rerun only fits what is missing.
@@ -47,7 +49,9 @@ from activelearn.loop.state import SAMPLES_FILE, CampaignState
 from activelearn.numerics.models import build_model
 from activelearn.numerics.training import fit
 
-VARIANTS = ("base", "fixed_scalers", "equal_rows", "const_steps", "epochs300")
+VARIANTS = ("base", "fixed_scalers", "equal_rows", "const_steps", "epochs300", "alt_batch")
+# alt_batch: the round's last batch replaced by these (reverse, mid throttle: where the test error is)
+ALT_BATCH = "skidpad_ccw_t-0.40_s0.3142_d30,skidpad_cw_t-0.40_s0.3142_d30"
 
 
 def campaign_config(path: str, seed: int, strategy: str) -> CampaignConfig:
@@ -148,6 +152,7 @@ def main() -> None:
     parser.add_argument("--first-train-seed", type=int, default=100, help="the first training seed")
     parser.add_argument("--rounds", type=int, nargs="+", default=[1, 2], help="rounds to refit")
     parser.add_argument("--variants", default="base", help=f"comma list of {', '.join(VARIANTS)}")
+    parser.add_argument("--alt", default=ALT_BATCH, help="maneuvers of alt_batch, comma separated")
     parser.add_argument("--no-fit", action="store_true", help="print the tables from the cache only")
     parser.add_argument("--out", default="runs/learning_curve", help="campaigns and the fit cache")
     args = parser.parse_args()
@@ -190,12 +195,21 @@ def main() -> None:
                 continue
             part = samples[samples["batch"] < r].reset_index(drop=True)
             for v in variants:
+                data = part
+                if v == "alt_batch":
+                    if r == 0:
+                        continue
+                    names = [m.name for m in campaign.maneuvers]
+                    picks = [names.index(name) for name in args.alt.split(",")]
+                    alt = campaign._collect(picks, r - 1)
+                    data = pd.concat([samples[samples["batch"] < r - 1], alt], ignore_index=True)
                 for t in train_seeds:
                     key = f"{seed}|{r}|{v}|{t}"
                     if key in cache or args.no_fit:
                         continue
                     started = time.perf_counter()
-                    model = fit_variant(campaign, part, r, v, t, context)
+                    variant = "base" if v == "alt_batch" else v
+                    model = fit_variant(campaign, data, r, variant, t, context)
                     cache[key] = {**breakdown(campaign, model), "fit_seconds": time.perf_counter() - started}
                     cache_file.write_text(json.dumps(cache, indent=0))
                     print(f"  fitted seed {seed} round {r} {v} t{t}: {cache[key]['test_rmse']:.4f}",
