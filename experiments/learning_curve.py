@@ -262,6 +262,24 @@ def report(cache: dict, seeds: list[int], rounds: list[int], variants: list[str]
                              f"unpaired P(rise) {np.mean(ups):.2f}")  # fmt: skip
         print(f"{v:<14s} " + "   ".join(parts))
 
+    print("\n## Variants against base, paired (same campaign seed, training seed and round): mean ± s.e.m.")
+    print("## of variant - base and how many fits the variant made worse; alt_batch also against base one")
+    print("## round earlier (what the replaced batch would have changed)")
+    for v in variants:
+        if v == "base":
+            continue
+        parts = []
+        for r in rounds:
+            for lag in (0, 1) if v == "alt_batch" else (0,):
+                keys = [(f"{s}|{r}|{v}|{t}", f"{s}|{r - lag}|base|{t}") for s in seeds for t in tseeds]
+                d = np.array([cache[a]["test_rmse"] - cache[b]["test_rmse"]
+                              for a, b in keys if a in cache and b in cache])  # fmt: skip
+                if len(d) > 1:
+                    sem = d.std(ddof=1) / np.sqrt(len(d))
+                    parts.append(f"round {r} vs base round {r - lag}: {d.mean():+.4f} ± {sem:.4f} "
+                                 f"({int((d > 0).sum())}/{len(d)} worse)")  # fmt: skip
+        print(f"{v:<14s} " + "   ".join(parts))
+
     print("\n## Base fits: RMSE per test region (share of the squared error), mean over training seeds")
     regions = sorted({k for f in cache.values() for k in f.get("regions", {})})
     print("seed round  fits" + "".join(f"{r:>22s}" for r in regions))
