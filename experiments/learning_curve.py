@@ -11,6 +11,7 @@ to round 2 on all three seeds. This script separates the candidate causes:
      base          the campaign's recipe (`Campaign.fit_model` with cfg.seed = training seed);
      fixed_scalers input scalers fitted on the candidate pool's inputs and output scalers on the last
                    round's data, the same at every round (are refitted scalers the cause?);
+     pool_x_scaler input scalers fitted on the candidate pool's inputs, output scalers refitted as usual;
      equal_rows    every maneuver contributes the same number of rows (the median), long ones thinned
                    evenly (does a 90-s fishhook with 3x a skidpad's rows dominate?);
      const_steps   epochs scaled so that every round takes the optimizer steps of round 0;
@@ -54,7 +55,7 @@ from activelearn.loop.state import SAMPLES_FILE, CampaignState
 from activelearn.numerics.models import build_model
 from activelearn.numerics.training import fit
 
-VARIANTS = ("base", "fixed_scalers", "equal_rows", "const_steps", "epochs300", "alt_batch")
+VARIANTS = ("base", "fixed_scalers", "pool_x_scaler", "equal_rows", "const_steps", "epochs300", "alt_batch")
 # alt_batch: the round's last batch replaced by these (reverse, mid throttle: where the test error is)
 ALT_BATCH = "skidpad_ccw_t-0.40_s0.3142_d30,skidpad_cw_t-0.40_s0.3142_d30"
 
@@ -107,8 +108,9 @@ def fit_variant(
     training = cfg.training
     model = build_model(cfg.model)
     keep_scalers = False
-    if variant == "fixed_scalers":
-        model.set_scalers(context["final_x"], context["final_y"])
+    if variant in ("fixed_scalers", "pool_x_scaler"):
+        model.set_scalers(context["final_x"] if variant == "fixed_scalers" else x,
+                          context["final_y"] if variant == "fixed_scalers" else y)  # fmt: skip
         pool_x = torch.as_tensor(context["pool_x"], dtype=torch.float32)
         model.x_mean.copy_(pool_x.mean(dim=0))
         model.x_std.copy_(pool_x.std(dim=0, unbiased=False).clamp_min(1e-8))
