@@ -210,6 +210,26 @@ def _add_config_options(p: argparse.ArgumentParser) -> None:
                    help="[model]/[training] overrides, e.g. the best.toml written by `activelearn tune`")
     p.add_argument("--out", default=None, metavar="DIR", help="output directory (default: under runs/)")
     p.add_argument("--resume", action="store_true", help="continue a stopped run in --out")
+    _add_wait(p)
+
+
+def _add_wait(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--wait", type=float, default=120.0, metavar="S",
+                   help="seconds to wait while another command writes the same campaign (default 120)")
+
+
+def _notice(event: dict) -> bool:
+    """Print a campaign's notices (another writer holds its lock; the tracking server went away or is
+    back) as one yellow line on stderr; False for any other event."""
+    if event["event"] == "lock_wait":
+        text = (f"{event['directory']} is being written by {event['holder']}; "
+                f"waiting up to {event['wait']:g} s")
+    elif event["event"] in ("tracking_down", "tracking_back"):
+        text = event["message"]
+    else:
+        return False
+    print(_yellow(f"warning: {_one_line(text)}"), file=sys.stderr)
+    return True
 
 
 def _load_campaign_config(args: argparse.Namespace, **overrides: object):
@@ -251,6 +271,7 @@ def _register_campaign(sub: argparse._SubParsersAction) -> None:
     ingest.add_argument("--tracking-uri", default=None, metavar="URI",
                         help="MLflow tracking URI (default: the campaign config's)")
     ingest.add_argument("--no-tracking", action="store_true", help="do not log to MLflow")
+    _add_wait(ingest)
     ingest.set_defaults(handler=_campaign_ingest)
 
 
@@ -290,7 +311,8 @@ def _campaign_propose(args: argparse.Namespace) -> int:
 
     cfg = _load_campaign_config(args, **_strategy_seed(args))
     directory = Path(args.out) if args.out else default_directory(cfg)
-    campaign = Campaign(cfg, directory, tracker=_campaign_tracker(cfg, args))
+    campaign = Campaign(cfg, directory, tracker=_campaign_tracker(cfg, args), progress=_notice)
+    campaign.lock_wait = args.wait
     try:
         proposals = campaign.propose(resume=args.resume)
     except CampaignInterrupted as exc:
@@ -312,6 +334,7 @@ def _campaign_ingest(args: argparse.Namespace) -> int:
 
     campaign = open_campaign(args.directory)
     campaign.tracker = _campaign_tracker(campaign.cfg, args)
+    campaign.progress, campaign.lock_wait = _notice, args.wait
     try:
         report = ingest(campaign, args.logs, resume=args.resume)
     except CampaignInterrupted as exc:
@@ -349,12 +372,14 @@ def _campaign_run(args: argparse.Namespace) -> int:
                desc=f"{cfg.name} {cfg.strategy} seed {cfg.seed}", disable=None)
 
     def progress(event: dict) -> None:
-        if event["event"] == "round":
+        if _notice(event):
+            bar.refresh()
+        elif event["event"] == "round":
             bar.update(1)
             bar.set_postfix(maneuvers=event["n_maneuvers"], samples=event["n_samples"],
                             rmse=f"{event['test_rmse']:.4f}")
 
-    campaign.progress = progress
+    campaign.progress, campaign.lock_wait = progress, args.wait
     try:
         result = campaign.run(resume=args.resume)
     except CampaignInterrupted as exc:
@@ -438,7 +463,8 @@ def _compare(args: argparse.Namespace) -> int:
     try:
         result = compare(cfg, strategies, list(range(args.seeds)), directory=args.out, workers=args.workers,
                          tracking=cfg.tracking.enabled and not args.no_tracking, resume=args.resume,
-                         progress=progress, executor=args.executor, ray_address=args.ray_address)
+                         progress=progress, executor=args.executor, ray_address=args.ray_address,
+                         lock_wait=args.wait)
     except KeyboardInterrupt:
         print(_red("interrupted: finished rounds are checkpointed; rerun the same command with --resume"),
               file=sys.stderr)

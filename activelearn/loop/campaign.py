@@ -37,6 +37,7 @@ import torch
 from activelearn.config import CampaignConfig
 from activelearn.data import atomic_write_bytes, read_table, write_table
 from activelearn.errors import ActiveLearnError, InputError
+from activelearn.loop import lock
 from activelearn.loop.acquisition import (
     AutoStrategy,
     LookaheadOracleStrategy,
@@ -158,6 +159,7 @@ class Campaign:
         self.tracker = tracker
         self.parent_run_id = parent_run_id
         self.progress = progress or (lambda event: None)
+        self.lock_wait = lock.DEFAULT_WAIT  # s a second writer of the directory waits for the first
         self.maneuvers = self.oracle.candidates()
         if len(self.maneuvers) < cfg.design.initial + 1:
             raise InputError(
@@ -691,6 +693,7 @@ class Campaign:
         base, started = self._clock
         return base + time.perf_counter() - started
 
+    @lock.writer
     def run(self, *, resume: bool = False, figures: bool = True, log_model: bool = True) -> CampaignResult:
         """Run (or resume) the campaign to its budget or stop rule, the oracle answering every batch."""
         if not self.oracle.automatic:
@@ -713,6 +716,7 @@ class Campaign:
         self._finish(state, log_model)
         return CampaignResult(self.directory, state)
 
+    @lock.writer
     def propose(self, *, resume: bool = False, figures: bool = True) -> list[Any]:
         """Ask: the maneuvers to drive next (written to proposals/round-NNN.csv); [] once finished."""
         state, samples = self._open(resume)
@@ -746,6 +750,7 @@ class Campaign:
         )
         return path
 
+    @lock.writer
     def tell(self, logs: Sequence[pd.DataFrame], *, figures: bool = True) -> list[Any]:
         """Tell: logs of the pending batch, one per proposal, in proposal order; then propose the next.
 

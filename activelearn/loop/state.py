@@ -15,6 +15,7 @@ from typing import Any
 
 from activelearn.data import atomic_write_bytes
 from activelearn.errors import DataFormatError
+from activelearn.loop import lock
 
 STATE_FILE = "state.json"
 SAMPLES_FILE = "samples.parquet"
@@ -54,6 +55,7 @@ class CampaignState:
 
     def save(self, directory: Path) -> None:
         """Write the state atomically (the checkpoint's commit point)."""
+        lock.check(directory)  # never commit after another command took the directory over
         atomic_write_bytes(directory / STATE_FILE, json.dumps(dataclasses.asdict(self), indent=1).encode())
 
     @classmethod
