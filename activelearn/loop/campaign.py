@@ -63,6 +63,7 @@ from activelearn.loop.state import (
     PRIOR_MODEL_FILE,
     PROPOSALS_DIR,
     SAMPLES_FILE,
+    STAGED_DIR,
     STATE_FILE,
     CampaignState,
 )
@@ -194,6 +195,18 @@ class Campaign:
         """Ask the oracle for the chosen maneuvers (simulated, noised with this campaign's seed)."""
         chosen = [self.maneuvers[i] for i in indices]
         return self._label(self.oracle.answer(chosen, self.cfg.seed), indices, batch)
+
+    def _answer(self, state: CampaignState) -> pd.DataFrame:
+        """The pending batch's logs: those `ingest` took in already (staged), the oracle answers the rest."""
+        assert state.pending is not None
+        asked = [i for i in state.pending if str(i) not in state.staged]
+        answers = dict(zip(asked, self.oracle.answer([self.maneuvers[i] for i in asked], self.cfg.seed),
+                           strict=True)) if asked else {}  # fmt: skip
+        frames = [
+            answers[i] if i in answers else read_table(self.directory / STAGED_DIR / f"{i}.parquet")
+            for i in state.pending
+        ]
+        return self._label(frames, state.pending, len(state.batches))
 
     def _rows(self, samples: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if samples.empty:
@@ -709,7 +722,7 @@ class Campaign:
                 if state.pending is None:
                     self._propose(state, samples, figures)
                 else:
-                    new = self._collect(state.pending, len(state.batches))
+                    new = self._answer(state)
                     samples = self._receive(state, samples, new)
 
         self._guarded(state, loop)
