@@ -10,10 +10,11 @@ import argparse
 import sys
 from collections.abc import Callable, Sequence
 
-from activelearn.errors import ActiveLearnError
+from activelearn.errors import ActiveLearnError, CampaignStopped
 from simulator.errors import SimulatorError
 
 EXIT_USAGE = 2
+EXIT_STOPPED = 75  # EX_TEMPFAIL: a campaign stopped for a cause outside it; --resume continues it
 
 Handler = Callable[[argparse.Namespace], int]
 
@@ -232,6 +233,13 @@ def _notice(event: dict) -> bool:
     return True
 
 
+def _ui_hint(uri: str) -> str:
+    """Where to look at the runs: a tracking server's own address, else `mlflow ui` on the store."""
+    if uri.startswith(("http://", "https://")):
+        return f"open {uri} in a browser"
+    return f"mlflow ui --backend-store-uri {uri}"
+
+
 def _load_campaign_config(args: argparse.Namespace, **overrides: object):
     from activelearn.config import load_config
 
@@ -393,7 +401,7 @@ def _campaign_run(args: argparse.Namespace) -> int:
     print(f"stopped by {result.state.stop_reason}; campaign directory: {directory}")
     if tracker is not None:
         print(f"MLflow run {result.state.run_id} in {cfg.tracking.uri} "
-              f"(mlflow ui --backend-store-uri {cfg.tracking.uri})")
+              f"({_ui_hint(cfg.tracking.uri)})")
     return 0
 
 
@@ -480,7 +488,7 @@ def _compare(args: argparse.Namespace) -> int:
     print(f"figure: {result.figure_path}")
     print(f"curves and table: {result.directory}")
     if result.parent_run_id is not None:
-        print(f"MLflow parent run {result.parent_run_id} (mlflow ui --backend-store-uri {cfg.tracking.uri})")
+        print(f"MLflow parent run {result.parent_run_id} ({_ui_hint(cfg.tracking.uri)})")
     return 0
 
 
@@ -632,7 +640,7 @@ def _tune(args: argparse.Namespace) -> int:
         print("figures: " + ", ".join(str(f) for f in result.figures))
     print(f"storage: {result.storage}  (optuna-dashboard {result.storage})")
     if result.parent_run_id is not None:
-        print(f"MLflow parent run {result.parent_run_id} (mlflow ui --backend-store-uri {cfg.tracking.uri})")
+        print(f"MLflow parent run {result.parent_run_id} ({_ui_hint(cfg.tracking.uri)})")
     return 0
 
 
@@ -853,6 +861,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     handler: Handler = args.handler
     try:
         return handler(args)
+    except CampaignStopped as exc:
+        fail(str(exc))
+        return EXIT_STOPPED
     except (ActiveLearnError, SimulatorError) as exc:
         return fail(str(exc))
 

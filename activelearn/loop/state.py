@@ -36,6 +36,8 @@ class CampaignState:
     batches: list[list[int]] = field(default_factory=list)  # pool indices collected, batch 0 = initial
     rounds: list[dict[str, Any]] = field(default_factory=list)  # metrics of each fitted round
     logged: int = 0  # rounds already written to MLflow
+    # ms timestamp of each round's metrics in MLflow: logging a round again (a retry) adds nothing
+    stamps: list[int] = field(default_factory=list)
     model_logged: bool = False
     run_id: str | None = None
     finished: bool = False
