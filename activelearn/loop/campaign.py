@@ -97,11 +97,6 @@ class CampaignInterrupted(ActiveLearnError):
     """The campaign was stopped by the user; its directory can be resumed."""
 
 
-def _in(filename: Any, directory: Path) -> bool:
-    """Whether an OSError's file lies in `directory` (a checkpoint write that failed)."""
-    return isinstance(filename, str | Path) and Path(filename).absolute().is_relative_to(directory.absolute())
-
-
 def config_hash(cfg: CampaignConfig) -> str:
     """Hash of everything that determines a campaign's data except strategy and seed."""
     payload = cfg.model_dump(mode="json", exclude={"strategy", "seed", "tracking", "output_dir", "name"})
@@ -734,14 +729,9 @@ class Campaign:
             raise CampaignInterrupted(
                 f"interrupted; {self.directory} holds the last finished step: rerun with --resume"
             ) from None
-        except BaseException as exc:
+        except BaseException:
             if tracker is not None and run_id is not None:
                 self._track(lambda: tracker.end_run(run_id, "FAILED"))
-            if isinstance(exc, OSError) and _in(exc.filename, self.directory):
-                raise CampaignStopped(
-                    f"cannot write {exc.filename} ({exc.strerror}); {self.directory} holds the last "
-                    "finished step: rerun with --resume once it can be written"
-                ) from None
             raise
 
     # ------------------------------------------------------------------ the loop

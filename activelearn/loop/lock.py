@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from activelearn.data import atomic_write_bytes
-from activelearn.errors import ActiveLearnError, InputError
+from activelearn.errors import ActiveLearnError, CampaignStopped, InputError
 
 LOCK_FILE = ".lock"
 HOLDER_FILE = "lock.json"
@@ -135,7 +135,11 @@ class DirectoryLock:
         command = shlex.join(getattr(sys, "orig_argv", sys.argv))[:300]
         self._holder = Holder(socket.gethostname(), os.getpid(), command, now, now, self.lease,
                               secrets.token_hex(8))  # fmt: skip
-        self._write()
+        try:
+            self._write()
+        except OSError:
+            self.release()
+            raise
         self._stop.clear()
         self._renewer = threading.Thread(target=self._renew, name="campaign-lock", daemon=True)
         self._renewer.start()
@@ -235,6 +239,11 @@ def hold(
             lock.release()
 
 
+def _within(filename: Any, directory: Path) -> bool:
+    """Whether an OSError's file lies in `directory`."""
+    return isinstance(filename, str | Path) and Path(filename).absolute().is_relative_to(directory.absolute())
+
+
 def check(directory: str | Path) -> None:
     """Raise CampaignLocked if this thread held the directory's lock and another process took it over."""
     entry = _held.get((Path(directory).absolute(), threading.get_ident()))
@@ -246,7 +255,11 @@ def check(directory: str | Path) -> None:
 
 
 def writer(method: F) -> F:
-    """Run `method(campaign, ...)` holding the lock of `campaign.directory` (wait: `campaign.lock_wait`)."""
+    """Run `method(campaign, ...)` holding the lock of `campaign.directory` (wait: `campaign.lock_wait`).
+
+    A write into the directory that fails (disk full, read-only) stops it with CampaignStopped: every
+    write is atomic and the state is written last, so the directory holds its last finished step.
+    """
 
     @functools.wraps(method)
     def locked(campaign: Any, *args: Any, **kwargs: Any) -> Any:
@@ -255,7 +268,15 @@ def writer(method: F) -> F:
             campaign.progress({"event": "lock_wait", "holder": who, "wait": campaign.lock_wait,
                                "directory": str(campaign.directory)})  # fmt: skip
 
-        with hold(campaign.directory, campaign.lock_wait, tell):
-            return method(campaign, *args, **kwargs)
+        try:
+            with hold(campaign.directory, campaign.lock_wait, tell):
+                return method(campaign, *args, **kwargs)
+        except OSError as exc:
+            if not _within(exc.filename, campaign.directory):
+                raise
+            raise CampaignStopped(
+                f"cannot write {exc.filename} ({exc.strerror}); {campaign.directory} holds its last "
+                "finished step: rerun with --resume once it can be written"
+            ) from None
 
     return locked  # type: ignore[return-value]
