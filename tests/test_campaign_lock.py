@@ -25,6 +25,7 @@ from activelearn.data import read_recorded_log
 from activelearn.loop.lock import HOLDER_FILE, LOCK_FILE, read_holder
 from activelearn.loop.state import CampaignState
 from activelearn.studies.tracking import Tracker
+from tests.test_asktell import _drive
 
 RACES = int(os.environ.get("ACTIVELEARN_RACES", "2"))
 OUTCOMES = os.environ.get("ACTIVELEARN_RACES_LOG")  # a file to append each race's outcome to
@@ -79,14 +80,6 @@ def _finish(proc: subprocess.Popen) -> tuple[int, str]:
     _, err = proc.communicate(timeout=600)
     assert "Traceback" not in err, err
     return proc.returncode, err
-
-
-def _drive(row: pd.Series, out: Path) -> Path:
-    args = ["simulate", "--maneuver", row["maneuver"], "--direction", row["direction"],
-            "--throttle", str(row["throttle"]), "--steering", str(row["steering"]),
-            "--duration", str(row["duration"]), "--seed", "7", "--autodrive", "--out", str(out)]  # fmt: skip
-    assert main(args) == 0
-    return out
 
 
 def _digest(path: Path) -> str:

@@ -24,43 +24,32 @@ from activelearn.studies.tracking import Tracker
 
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
 
-# The real CLI; when its campaign reports an event named in argv it asks the test to stop or start the
-# server (a file in CONTROL) and waits until that is done, so the outage lands at exactly that point.
+# The real CLI; when its campaign reports an event named in argv (every event passes the CLI's notice
+# printer) it asks the test to stop or start the server (a file in CONTROL) and waits until that is
+# done, so the outage lands at exactly that point of the campaign.
 _AT_EVENTS = """
 import sys, time
 from pathlib import Path
 
 from activelearn import cli
-from activelearn.loop import campaign
 
 control, plan, *argv = sys.argv[1:]
-actions = {}
-for item in plan.split(","):
-    event, round_, action = item.split(":")
-    actions[(event, int(round_))] = action
+actions = {(e, int(r)): a for e, r, a in (item.split(":") for item in plan.split(","))}
+notice = cli._notice
 
 
-class Outage(campaign.Campaign):
-    @property
-    def progress(self):
-        return self._progress
-
-    @progress.setter
-    def progress(self, report):
-        def progress(event):
-            report(event)
-            action = actions.get((event["event"], event.get("round")))
-            if action:
-                request = Path(control) / action
-                request.touch()
-                deadline = time.monotonic() + 300
-                while request.exists() and time.monotonic() < deadline:
-                    time.sleep(0.1)
-
-        self._progress = progress
+def at_event(event):
+    action = actions.get((event["event"], event.get("round")))
+    if action:
+        request = Path(control) / action
+        request.touch()
+        deadline = time.monotonic() + 300
+        while request.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+    return notice(event)
 
 
-campaign.Campaign = Outage
+cli._notice = at_event
 raise SystemExit(cli.main(argv))
 """
 
