@@ -711,11 +711,13 @@ class Campaign:
                 state.save(self.directory)
         done = state.logged == len(state.rounds) and (state.model_logged or not log_model)
         if not (done and self._track(lambda: tracker.end_run(run_id, "FINISHED"))):
-            missing = len(state.rounds) - state.logged
+            unlogged = len(state.rounds) - state.logged
+            missing = [f"{unlogged} round(s)"] if unlogged else []
+            missing += ["the model"] if log_model and not state.model_logged else []
             raise CampaignStopped(
-                f"the MLflow tracking server at {tracker.tracking_uri} does not answer: {missing} round(s)"
-                f"{' and the model' if log_model and not state.model_logged else ''} are not logged yet; "
-                f"the campaign's data is complete in {self.directory}: rerun with --resume once it answers"
+                f"the MLflow tracking server at {tracker.tracking_uri} does not answer: "
+                f"{' and '.join(missing) or 'the end of the run'} not logged yet; the campaign's data is "
+                f"complete in {self.directory}: rerun with --resume once the server answers"
             )
 
     def _guarded(self, state: CampaignState, step: Callable[[], Any]) -> Any:
