@@ -562,7 +562,7 @@ class Campaign:
         try:
             self._open_run(state)
         except TrackingUnavailable as exc:
-            raise CampaignStopped(f"{exc}; {self.directory} is as it was: rerun once it answers") from None
+            raise CampaignStopped(f"{exc}; nothing was trained or logged: rerun once it answers") from None
 
     def _open_run(self, state: CampaignState) -> None:
         assert self.tracker is not None
