@@ -13,10 +13,11 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from activelearn.errors import ActiveLearnError
+from activelearn.errors import ActiveLearnError, CampaignStopped
 from simulator.errors import SimulatorError
 
 EXIT_USAGE = 2
+EXIT_STOPPED = 75  # EX_TEMPFAIL: a campaign stopped for a cause outside it; --resume continues it
 
 Handler = Callable[[argparse.Namespace], int]
 
@@ -256,6 +257,33 @@ def _add_config_options(p: argparse.ArgumentParser, out_default: str) -> None:
                         f"default runs); {_CACHE_NOTE}")
     p.add_argument("--resume", action="store_true",
                    help="continue the stopped run in --out (an error if it holds none)")
+    _add_wait(p)
+
+
+def _add_wait(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--wait", type=float, default=120.0, metavar="S",
+                   help="seconds to wait while another command writes the same campaign (default 120)")
+
+
+def _notice(event: dict) -> bool:
+    """Print a campaign's notices (another writer holds its lock; the tracking server went away or is
+    back) as one yellow line on stderr; False for any other event."""
+    if event["event"] == "lock_wait":
+        text = (f"{event['directory']} is being written by {event['holder']}; "
+                f"waiting up to {event['wait']:g} s")
+    elif event["event"] in ("tracking_down", "tracking_back"):
+        text = event["message"]
+    else:
+        return False
+    print(_yellow(f"warning: {_one_line(text)}"), file=sys.stderr)
+    return True
+
+
+def _ui_hint(uri: str) -> str:
+    """Where to look at the runs: a tracking server's own address, else `mlflow ui` on the store."""
+    if uri.startswith(("http://", "https://")):
+        return f"open {uri} in a browser"
+    return f"mlflow ui --backend-store-uri {uri}"
 
 
 def _load_campaign_config(args: argparse.Namespace, **overrides: object):
@@ -302,6 +330,7 @@ def _register_campaign(sub: argparse._SubParsersAction) -> None:
     ingest.add_argument("--tracking-uri", default=None, metavar="URI",
                         help="MLflow tracking URI (default: the campaign config's)")
     ingest.add_argument("--no-tracking", action="store_true", help="do not log to MLflow")
+    _add_wait(ingest)
     ingest.set_defaults(handler=_campaign_ingest)
 
 
@@ -354,7 +383,8 @@ def _campaign_propose(args: argparse.Namespace) -> int:
 
     cfg = _load_campaign_config(args, **_strategy_seed(args))
     directory = _campaign_directory(args, cfg)
-    campaign = Campaign(cfg, directory, tracker=_campaign_tracker(cfg, args))
+    campaign = Campaign(cfg, directory, tracker=_campaign_tracker(cfg, args), progress=_notice)
+    campaign.lock_wait = args.wait
     try:
         proposals = campaign.propose(resume=args.resume)
     except CampaignInterrupted as exc:
@@ -376,6 +406,7 @@ def _campaign_ingest(args: argparse.Namespace) -> int:
 
     campaign = open_campaign(args.directory)
     campaign.tracker = _campaign_tracker(campaign.cfg, args)
+    campaign.progress, campaign.lock_wait = _notice, args.wait
     try:
         report = ingest(campaign, args.logs, resume=args.resume)
     except CampaignInterrupted as exc:
@@ -412,12 +443,14 @@ def _campaign_run(args: argparse.Namespace) -> int:
                desc=f"{cfg.name} {cfg.strategy} seed {cfg.seed}", disable=None)
 
     def progress(event: dict) -> None:
-        if event["event"] == "round":
+        if _notice(event):
+            bar.refresh()
+        elif event["event"] == "round":
             bar.update(1)
             bar.set_postfix(maneuvers=event["n_maneuvers"], samples=event["n_samples"],
                             rmse=f"{event['test_rmse']:.4f}")
 
-    campaign.progress = progress
+    campaign.progress, campaign.lock_wait = progress, args.wait
     try:
         result = campaign.run(resume=args.resume)
     except CampaignInterrupted as exc:
@@ -431,7 +464,7 @@ def _campaign_run(args: argparse.Namespace) -> int:
     print(f"stopped by {result.state.stop_reason}; campaign directory: {directory}")
     if tracker is not None:
         print(f"MLflow run {result.state.run_id} in {cfg.tracking.uri} "
-              f"(mlflow ui --backend-store-uri {cfg.tracking.uri})")
+              f"({_ui_hint(cfg.tracking.uri)})")
     return 0
 
 
@@ -513,7 +546,7 @@ def _compare(args: argparse.Namespace) -> int:
         result = compare(cfg, strategies, list(range(args.seeds)), directory=directory, workers=args.workers,
                          tracking=cfg.tracking.enabled and not args.no_tracking, resume=args.resume,
                          progress=progress, executor=args.executor, ray_address=args.ray_address,
-                         metric=args.metric)
+                         metric=args.metric, lock_wait=args.wait)
     except KeyboardInterrupt:
         print(_red("interrupted: finished rounds are checkpointed; rerun the same command with --resume"),
               file=sys.stderr)
@@ -534,7 +567,7 @@ def _compare(args: argparse.Namespace) -> int:
     print(f"figure: {result.figure_path}")
     print(f"curves and table: {result.directory}")
     if result.parent_run_id is not None:
-        print(f"MLflow parent run {result.parent_run_id} (mlflow ui --backend-store-uri {cfg.tracking.uri})")
+        print(f"MLflow parent run {result.parent_run_id} ({_ui_hint(cfg.tracking.uri)})")
     return 0
 
 
@@ -688,7 +721,7 @@ def _tune(args: argparse.Namespace) -> int:
         print("figures: " + ", ".join(str(f) for f in result.figures))
     print(f"storage: {result.storage}  (optuna-dashboard {result.storage})")
     if result.parent_run_id is not None:
-        print(f"MLflow parent run {result.parent_run_id} (mlflow ui --backend-store-uri {cfg.tracking.uri})")
+        print(f"MLflow parent run {result.parent_run_id} ({_ui_hint(cfg.tracking.uri)})")
     return 0
 
 
@@ -946,6 +979,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     handler: Handler = args.handler
     try:
         return handler(args)
+    except CampaignStopped as exc:
+        fail(str(exc))
+        return EXIT_STOPPED
     except (ActiveLearnError, SimulatorError) as exc:
         return fail(str(exc) + _nearest_key(exc))
 

@@ -25,3 +25,12 @@ class ConfigError(InputError):
 
 class DataFormatError(ActiveLearnError, ValueError):
     """A data file is malformed; the message names the file and line."""
+
+
+class TrackingUnavailable(ActiveLearnError):
+    """The MLflow tracking server does not answer; the call logged nothing."""
+
+
+class CampaignStopped(ActiveLearnError):
+    """A campaign stopped for a cause outside it (a write failed, the tracking server is gone); its
+    directory holds its last finished step and resumes with --resume."""

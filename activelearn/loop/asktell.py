@@ -24,6 +24,7 @@ import pandas as pd
 from activelearn.config import CampaignConfig, validate_config
 from activelearn.data import read_recorded_log, read_table, write_table
 from activelearn.errors import InputError
+from activelearn.loop import lock
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.pool import maneuver_controls
 from activelearn.loop.state import CONFIG_FILE, STAGED_DIR, STATE_FILE, CampaignState
@@ -158,6 +159,7 @@ class IngestReport:
     finished: bool
 
 
+@lock.writer
 def ingest(campaign: Campaign, paths: Sequence[str | Path], *, resume: bool = False) -> IngestReport:
     """Take logs of the pending batch; once it is complete, retrain and propose the next batch.
 

@@ -36,7 +36,8 @@ import torch
 
 from activelearn.config import CampaignConfig
 from activelearn.data import atomic_write_bytes, read_table, write_table
-from activelearn.errors import ActiveLearnError, InputError
+from activelearn.errors import ActiveLearnError, CampaignStopped, InputError, TrackingUnavailable
+from activelearn.loop import lock
 from activelearn.loop.acquisition import (
     AutoStrategy,
     LookaheadOracleStrategy,
@@ -63,6 +64,7 @@ from activelearn.loop.state import (
     PRIOR_MODEL_FILE,
     PROPOSALS_DIR,
     SAMPLES_FILE,
+    STAGED_DIR,
     STATE_FILE,
     CampaignState,
 )
@@ -160,6 +162,8 @@ class Campaign:
         self.tracker = tracker
         self.parent_run_id = parent_run_id
         self.progress = progress or (lambda event: None)
+        self.lock_wait = lock.DEFAULT_WAIT  # s a second writer of the directory waits for the first
+        self._tracking_down = False  # the tracking server stopped answering (warned once)
         self.maneuvers = self.oracle.candidates()
         if len(self.maneuvers) < cfg.design.initial + 1:
             raise InputError(
@@ -194,6 +198,18 @@ class Campaign:
         """Ask the oracle for the chosen maneuvers (simulated, noised with this campaign's seed)."""
         chosen = [self.maneuvers[i] for i in indices]
         return self._label(self.oracle.answer(chosen, self.cfg.seed), indices, batch)
+
+    def _answer(self, state: CampaignState) -> pd.DataFrame:
+        """The pending batch's logs: those `ingest` took in already (staged), the oracle answers the rest."""
+        assert state.pending is not None
+        asked = [i for i in state.pending if str(i) not in state.staged]
+        answers = dict(zip(asked, self.oracle.answer([self.maneuvers[i] for i in asked], self.cfg.seed),
+                           strict=True)) if asked else {}  # fmt: skip
+        frames = [
+            answers[i] if i in answers else read_table(self.directory / STAGED_DIR / f"{i}.parquet")
+            for i in state.pending
+        ]
+        return self._label(frames, state.pending, len(state.batches))
 
     def _rows(self, samples: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if samples.empty:
@@ -597,9 +613,30 @@ class Campaign:
 
     # ------------------------------------------------------------------ tracking
 
+    def _track(self, call: Callable[[], Any]) -> bool:
+        """Make a tracking call. A tracking server that went away is one warning and False: the campaign
+        goes on, and what it missed is logged once the server is back (or at --resume)."""
+        try:
+            call()
+        except TrackingUnavailable as exc:
+            if not self._tracking_down:
+                self.progress({"event": "tracking_down", "message": f"{exc}: the campaign goes on and logs "
+                               "what it missed once the server is back (or at --resume)"})  # fmt: skip
+            self._tracking_down = True
+            return False
+        self._tracking_down = False
+        return True
+
     def _start_tracking(self, state: CampaignState) -> None:
         if self.tracker is None:
             return
+        try:
+            self._open_run(state)
+        except TrackingUnavailable as exc:
+            raise CampaignStopped(f"{exc}; nothing was trained or logged: rerun once it answers") from None
+
+    def _open_run(self, state: CampaignState) -> None:
+        assert self.tracker is not None
         name = f"{self.cfg.name}-{self.cfg.strategy}-seed{self.cfg.seed}"
         state.run_id = self.tracker.start_run(
             name,
@@ -617,13 +654,20 @@ class Campaign:
     def _flush_metrics(self, state: CampaignState) -> None:
         if self.tracker is None or state.run_id is None:
             return
-        for record in state.rounds[state.logged :]:
-            self.tracker.log_metrics(state.run_id, record, step=int(record["n_samples"]))
-            figure_path = self.directory / "figures" / f"epistemic_round{int(record['round']):02d}.png"
-            if figure_path.exists():
-                self.tracker.log_artifact(state.run_id, figure_path, "figures")
+        for index in range(state.logged, len(state.rounds)):
+            if not self._track(lambda index=index: self._log_round(state, index)):
+                break
             state.logged += 1
         state.save(self.directory)
+
+    def _log_round(self, state: CampaignState, index: int) -> None:
+        assert self.tracker is not None and state.run_id is not None
+        record = state.rounds[index]
+        stamp = state.stamps[index] if index < len(state.stamps) else None
+        self.tracker.log_metrics(state.run_id, record, step=int(record["n_samples"]), timestamp=stamp)
+        figure_path = self.directory / "figures" / f"epistemic_round{int(record['round']):02d}.png"
+        if figure_path.exists():
+            self.tracker.log_artifact(state.run_id, figure_path, "figures")
 
     def _figure(self, model: Any, state: CampaignState, picks: list[int], round_index: int) -> None:
         from activelearn.plots import epistemic_map  # matplotlib only when figures are drawn
@@ -691,6 +735,7 @@ class Campaign:
                 metrics["auto_model_based"] = float(self.strategy.last_choice != "uniform")
         if figures:
             self._figure(model, state, picks, round_index)
+        state.stamps.extend([int(time.time() * 1000)] * (len(state.rounds) + 1 - len(state.stamps)))
         state.rounds.append(metrics)
         if picks:
             state.pending = picks
@@ -713,8 +758,10 @@ class Campaign:
                 checks["prequential_scale"] = self.prequential_scale(model, new)
             state.rounds[-1].update(checks)
             if self.tracker is not None and state.run_id is not None:
-                step = int(state.rounds[-1]["n_samples"])
-                self.tracker.log_metrics(state.run_id, checks, step=step)
+                tracker, run_id, step = self.tracker, state.run_id, int(state.rounds[-1]["n_samples"])
+                stamp = state.stamps[-1] if len(state.stamps) == len(state.rounds) else None
+                if not self._track(lambda: tracker.log_metrics(run_id, checks, step=step, timestamp=stamp)):
+                    state.logged = min(state.logged, len(state.rounds) - 1)  # the round again, later
         samples = pd.concat([samples, new], ignore_index=True)
         state.batches.append(state.pending)
         state.pending = None
@@ -726,25 +773,39 @@ class Campaign:
     def _finish(self, state: CampaignState, log_model: bool) -> None:
         if self.tracker is None or state.run_id is None:
             return
-        if log_model and not state.model_logged:
-            self.tracker.log_model(state.run_id, self._model or load_model(self.directory / MODEL_FILE))
-            state.model_logged = True
-            state.save(self.directory)
-        self.tracker.end_run(state.run_id, "FINISHED")
+        tracker, run_id = self.tracker, state.run_id
+        if state.logged < len(state.rounds):
+            self._flush_metrics(state)
+        if log_model and not state.model_logged and state.logged == len(state.rounds):
+            model = self._model or load_model(self.directory / MODEL_FILE)
+            if self._track(lambda: tracker.log_model(run_id, model)):
+                state.model_logged = True
+                state.save(self.directory)
+        done = state.logged == len(state.rounds) and (state.model_logged or not log_model)
+        if not (done and self._track(lambda: tracker.end_run(run_id, "FINISHED"))):
+            unlogged = len(state.rounds) - state.logged
+            missing = [f"{unlogged} round(s)"] if unlogged else []
+            missing += ["the model"] if log_model and not state.model_logged else []
+            raise CampaignStopped(
+                f"the MLflow tracking server at {tracker.tracking_uri} does not answer: "
+                f"{' and '.join(missing) or 'the end of the run'} not logged yet; the campaign's data is "
+                f"complete in {self.directory}: rerun with --resume once the server answers"
+            )
 
     def _guarded(self, state: CampaignState, step: Callable[[], Any]) -> Any:
         """Run a step; Ctrl-C marks the MLflow run KILLED, any other error FAILED."""
+        tracker, run_id = self.tracker, state.run_id
         try:
             return step()
         except KeyboardInterrupt:
-            if self.tracker is not None and state.run_id is not None:
-                self.tracker.end_run(state.run_id, "KILLED")
+            if tracker is not None and run_id is not None:
+                self._track(lambda: tracker.end_run(run_id, "KILLED"))
             raise CampaignInterrupted(
                 f"interrupted; {self.directory} holds the last finished step: rerun with --resume"
             ) from None
         except BaseException:
-            if self.tracker is not None and state.run_id is not None:
-                self.tracker.end_run(state.run_id, "FAILED")
+            if tracker is not None and run_id is not None:
+                self._track(lambda: tracker.end_run(run_id, "FAILED"))
             raise
 
     # ------------------------------------------------------------------ the loop
@@ -763,6 +824,7 @@ class Campaign:
         base, started = self._clock
         return base + time.perf_counter() - started
 
+    @lock.writer
     def run(self, *, resume: bool = False, figures: bool = True, log_model: bool = True) -> CampaignResult:
         """Run (or resume) the campaign to its budget or stop rule, the oracle answering every batch."""
         if not self.oracle.automatic:
@@ -778,13 +840,14 @@ class Campaign:
                 if state.pending is None:
                     self._propose(state, samples, figures)
                 else:
-                    new = self._collect(state.pending, len(state.batches))
+                    new = self._answer(state)
                     samples = self._receive(state, samples, new)
 
         self._guarded(state, loop)
         self._finish(state, log_model)
         return CampaignResult(self.directory, state)
 
+    @lock.writer
     def propose(self, *, resume: bool = False, figures: bool = True) -> list[Any]:
         """Ask: the maneuvers to drive next (written to proposals/round-NNN.csv); [] once finished."""
         state, samples = self._open(resume)
@@ -818,6 +881,7 @@ class Campaign:
         )
         return path
 
+    @lock.writer
     def tell(self, logs: Sequence[pd.DataFrame], *, figures: bool = True) -> list[Any]:
         """Tell: logs of the pending batch, one per proposal, in proposal order; then propose the next.
 

@@ -15,6 +15,7 @@ from typing import Any
 
 from activelearn.data import atomic_write_bytes
 from activelearn.errors import DataFormatError
+from activelearn.loop import lock
 
 STATE_FILE = "state.json"
 SAMPLES_FILE = "samples.parquet"
@@ -35,6 +36,8 @@ class CampaignState:
     batches: list[list[int]] = field(default_factory=list)  # pool indices collected, batch 0 = initial
     rounds: list[dict[str, Any]] = field(default_factory=list)  # metrics of each fitted round
     logged: int = 0  # rounds already written to MLflow
+    # ms timestamp of each round's metrics in MLflow: logging a round again (a retry) adds nothing
+    stamps: list[int] = field(default_factory=list)
     model_logged: bool = False
     run_id: str | None = None
     finished: bool = False
@@ -54,6 +57,7 @@ class CampaignState:
 
     def save(self, directory: Path) -> None:
         """Write the state atomically (the checkpoint's commit point)."""
+        lock.check(directory)  # never commit after another command took the directory over
         atomic_write_bytes(directory / STATE_FILE, json.dumps(dataclasses.asdict(self), indent=1).encode())
 
     @classmethod

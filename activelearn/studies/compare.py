@@ -17,6 +17,7 @@ from activelearn.config import CampaignConfig
 from activelearn.data import atomic_write_bytes
 from activelearn.errors import InputError
 from activelearn.loop.campaign import Campaign
+from activelearn.loop.lock import DEFAULT_WAIT
 from activelearn.loop.pool import pool_maneuvers, test_maneuvers
 from activelearn.loop.state import STATE_FILE
 from activelearn.studies.executors import check_executor, run_jobs
@@ -45,6 +46,7 @@ def _run_job(
     parent_run_id: str | None,
     resume: bool,
     single_thread: bool,
+    lock_wait: float = DEFAULT_WAIT,
 ) -> list[dict[str, Any]]:
     """Worker: run one campaign and return its per-round metrics."""
     import torch
@@ -58,6 +60,7 @@ def _run_job(
 
         tracker = Tracker(*tracking)
     campaign = Campaign(cfg, directory, cache_dir=cache_dir, tracker=tracker, parent_run_id=parent_run_id)
+    campaign.lock_wait = lock_wait
     result = campaign.run(resume=resume, figures=True, log_model=False)
     return result.state.rounds
 
@@ -152,6 +155,7 @@ def compare(
     executor: str = "process",
     ray_address: str | None = None,
     metric: str | None = None,
+    lock_wait: float = DEFAULT_WAIT,
 ) -> Comparison:
     """Run every strategy with every seed on one config and compare them against `uniform`.
 
@@ -159,7 +163,8 @@ def compare(
     first: a one-step test error, or a free-running rollout error for dynamics models.
 
     `executor` "process" runs `workers` local processes; "ray" one task per campaign on the Ray
-    cluster at `ray_address` (see `activelearn.studies.executors`). The output directory, the
+    cluster at `ray_address` (see `activelearn.studies.executors`). Each campaign holds its directory's
+    lock while it runs; one another command writes waits up to `lock_wait` s. The output directory, the
     simulation cache (under `cfg.output_dir`) and the tracking store must be reachable by every node.
     """
     from activelearn.config import RANKING_METRICS
@@ -246,6 +251,7 @@ def compare(
             # (the directories were checked above, so nothing else can be there).
             resume or executor == "ray",
             workers > 1 or executor == "ray",
+            lock_wait,
         )
 
     results: dict[tuple[str, int], list[dict[str, Any]]] = {}

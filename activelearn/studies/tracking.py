@@ -23,10 +23,14 @@ from mlflow.entities import Metric, Param, RunStatus
 from mlflow.exceptions import MlflowException
 from mlflow.tracking import MlflowClient
 
-from activelearn.errors import ConfigError
+from activelearn.errors import ConfigError, TrackingUnavailable
 
 # No usage reports from a research tool on a closed network (they would only time out).
 os.environ.setdefault("MLFLOW_DISABLE_TELEMETRY", "true")
+# A tracking server that went away costs seconds, not MLflow's four minutes of retries per call: the
+# campaign goes on without it and logs what it missed once the server is back (Tracker._call).
+os.environ.setdefault("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "3")
+os.environ.setdefault("MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR", "1")
 
 DEFAULT_TRACKING_URI = "sqlite:///mlruns/mlflow.db"
 DEFAULT_EXPERIMENT = "activelearn"
@@ -105,12 +109,33 @@ class Tracker:
         if tracking_uri.startswith("sqlite:///"):
             Path(tracking_uri.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
         self.tracking_uri = tracking_uri
+        self._down = False  # the server stopped answering; each call checks it is back first
         check_server(tracking_uri)
         try:
             self.client = MlflowClient(tracking_uri)
             self.experiment_id = self._experiment_id(experiment)
         except MlflowException as exc:
             raise ConfigError("tracking.uri", tracking_uri, f"cannot open the MLflow store: {exc}") from exc
+
+    def _call(self, call: Callable[[], T]) -> T:
+        """`_retry(call)`; a tracking server that does not answer is TrackingUnavailable (nothing logged)."""
+        if self._down:
+            self._check()
+        try:
+            return _retry(call)
+        except Exception:
+            self._check()  # a server that answers: the error is the call's own
+            raise
+
+    def _check(self) -> None:
+        try:
+            check_server(self.tracking_uri)
+        except ConfigError as exc:
+            self._down = True
+            raise TrackingUnavailable(
+                f"the MLflow tracking server at {self.tracking_uri} does not answer ({exc.reason})"
+            ) from None
+        self._down = False
 
     def _experiment_id(self, name: str) -> str:
         found = _retry(lambda: self.client.get_experiment_by_name(name))
@@ -138,33 +163,39 @@ class Tracker:
     ) -> str:
         """Create a run (nested under `parent_run_id` if given) or reopen `resume_run_id`; return its id."""
         if resume_run_id is not None:
-            _retry(lambda: self.client.update_run(resume_run_id, status="RUNNING"))
+            self._call(lambda: self.client.update_run(resume_run_id, status="RUNNING"))
             return resume_run_id
         all_tags = dict(tags or {})
         if parent_run_id is not None:
             all_tags["mlflow.parentRunId"] = parent_run_id
-        run = _retry(lambda: self.client.create_run(self.experiment_id, run_name=name, tags=all_tags))
+        run = self._call(lambda: self.client.create_run(self.experiment_id, run_name=name, tags=all_tags))
         return run.info.run_id
 
     def log_params(self, run_id: str, params: Mapping[str, Any]) -> None:
         """Log a (possibly nested) mapping of params, flattened to dotted keys."""
         items = [Param(k, v) for k, v in flatten_params(params).items()]
-        existing = _retry(lambda: self.client.get_run(run_id)).data.params
+        existing = self._call(lambda: self.client.get_run(run_id)).data.params
         items = [p for p in items if p.key not in existing]  # params are immutable; resume re-logs nothing
         for start in range(0, len(items), _BATCH):
             chunk = items[start : start + _BATCH]
-            _retry(lambda chunk=chunk: self.client.log_batch(run_id, params=chunk))
+            self._call(lambda chunk=chunk: self.client.log_batch(run_id, params=chunk))
 
     def set_tags(self, run_id: str, tags: Mapping[str, Any]) -> None:
         """Set string tags on a run."""
         for key, value in tags.items():
-            _retry(lambda key=key, value=value: self.client.set_tag(run_id, key, str(value)))
+            self._call(lambda key=key, value=value: self.client.set_tag(run_id, key, str(value)))
 
-    def log_metrics(self, run_id: str, metrics: Mapping[str, float], step: int) -> None:
-        """Log one step of metrics in a single batch."""
-        now = int(time.time() * 1000)
+    def log_metrics(
+        self, run_id: str, metrics: Mapping[str, float], step: int, timestamp: int | None = None
+    ) -> None:
+        """Log one step of metrics in a single batch.
+
+        With a fixed `timestamp` (ms) logging the same values again adds nothing: MLflow's store keeps
+        one copy of a metric with the same key, value, step and timestamp (a retry after a lost reply).
+        """
+        now = int(time.time() * 1000) if timestamp is None else timestamp
         items = [Metric(k, float(v), now, int(step)) for k, v in metrics.items()]
-        _retry(lambda: self.client.log_batch(run_id, metrics=items))
+        self._call(lambda: self.client.log_batch(run_id, metrics=items))
 
     def log_metric_series(self, run_id: str, rows: Sequence[tuple[int, Mapping[str, float]]]) -> None:
         """Log many steps of metrics (e.g. a per-epoch curve) in as few store calls as MLflow allows."""
@@ -172,39 +203,41 @@ class Tracker:
         items = [Metric(k, float(v), now, int(step)) for step, values in rows for k, v in values.items()]
         for start in range(0, len(items), _METRIC_BATCH):
             chunk = items[start : start + _METRIC_BATCH]
-            _retry(lambda chunk=chunk: self.client.log_batch(run_id, metrics=chunk))
+            self._call(lambda chunk=chunk: self.client.log_batch(run_id, metrics=chunk))
 
     def log_figure(self, run_id: str, figure: Any, artifact_file: str) -> None:
         """Log a matplotlib figure as a PNG artifact."""
-        _retry(lambda: self.client.log_figure(run_id, figure, artifact_file))
+        self._call(lambda: self.client.log_figure(run_id, figure, artifact_file))
 
     def log_artifact(self, run_id: str, path: str | Path, artifact_path: str | None = None) -> None:
         """Log a local file as an artifact."""
-        _retry(lambda: self.client.log_artifact(run_id, str(path), artifact_path))
+        self._call(lambda: self.client.log_artifact(run_id, str(path), artifact_path))
 
     def log_text(self, run_id: str, text: str, artifact_file: str) -> None:
         """Log a text artifact."""
-        _retry(lambda: self.client.log_text(run_id, text, artifact_file))
+        self._call(lambda: self.client.log_text(run_id, text, artifact_file))
 
     def log_model(self, run_id: str, model: Any, name: str = "model") -> str:
         """Log a torch model through `mlflow.pytorch`; return its model URI."""
-        with self._active(run_id):
-            # pickle: MLflow 3's default "pt2" format needs a traced input example and drops our methods
-            info = mlflow.pytorch.log_model(model, name=name, serialization_format="pickle")
-        return info.model_uri
+        def log() -> Any:
+            with self._active(run_id):
+                # pickle: MLflow 3's default "pt2" format needs a traced input example and drops our methods
+                return mlflow.pytorch.log_model(model, name=name, serialization_format="pickle")
+
+        return self._call(log).model_uri
 
     def end_run(self, run_id: str, status: str = "FINISHED") -> None:
         """Mark a run FINISHED, FAILED or KILLED."""
         RunStatus.from_string(status)  # raises on a typo
-        _retry(lambda: self.client.set_terminated(run_id, status))
+        self._call(lambda: self.client.set_terminated(run_id, status))
 
     def run_status(self, run_id: str) -> str:
         """Return the status of a run (RUNNING, FINISHED, KILLED, FAILED)."""
-        return _retry(lambda: self.client.get_run(run_id)).info.status
+        return self._call(lambda: self.client.get_run(run_id)).info.status
 
     def metric_history(self, run_id: str, key: str) -> list[tuple[int, float]]:
         """Return (step, value) pairs of a metric, in step order."""
-        history = _retry(lambda: self.client.get_metric_history(run_id, key))
+        history = self._call(lambda: self.client.get_metric_history(run_id, key))
         return sorted((m.step, m.value) for m in history)
 
     def child_runs(self, parent_run_id: str) -> list[str]:

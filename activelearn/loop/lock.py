@@ -1,0 +1,282 @@
+"""One writer per campaign directory: an OS lock, and a record of who holds it.
+
+Every command that writes a campaign (`campaign run`, `propose`, `ingest`, a comparison's workers) holds
+the directory's lock while it works. The lock is an exclusive `flock` on DIR/.lock: the kernel (or the
+NFS server) drops it when its process dies, so a lock left by a dead process is taken over at once. Beside
+it, DIR/lock.json records the holder (host, pid, command, since when) for the message a second writer
+gets, and a lease the holder renews every LEASE_SECONDS / 3: a record from another host that was not
+renewed for LEASE_SECONDS is stale (its holder is gone, or its file system's locks did not reach this
+host), one from this host is stale once its pid is gone. A second writer waits up to `wait` seconds,
+then raises CampaignLocked naming the holder. Re-entering the lock in the same thread (`tell` proposes,
+`ingest` tells) only counts.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import functools
+import json
+import os
+import secrets
+import shlex
+import socket
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, TypeVar
+
+from activelearn.data import atomic_write_bytes
+from activelearn.errors import ActiveLearnError, CampaignStopped, InputError
+
+LOCK_FILE = ".lock"
+HOLDER_FILE = "lock.json"
+LEASE_SECONDS = 60.0
+DEFAULT_WAIT = 120.0  # s a second writer waits before it gives up
+_POLL = 0.2
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+class CampaignLocked(ActiveLearnError):
+    """Another process writes this campaign directory; nothing was written."""
+
+
+@dataclass(frozen=True)
+class Holder:
+    """Who holds a campaign directory's lock."""
+
+    host: str
+    pid: int
+    command: str
+    since: float  # Unix time the lock was taken
+    renewed: float  # Unix time the holder last renewed its lease
+    lease: float
+    token: str
+
+    def describe(self) -> str:
+        """host, pid, command and since when, in one line."""
+        since = datetime.fromtimestamp(self.since, UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
+        return f"host {self.host}, pid {self.pid} (`{self.command}`), since {since}"
+
+    def stale(self, now: float) -> bool:
+        """Its holder is gone: a dead pid on this host, or a lease not renewed in time."""
+        if now - self.renewed > self.lease:
+            return True
+        return self.host == socket.gethostname() and not _alive(self.pid)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+def read_holder(directory: str | Path) -> Holder | None:
+    """The record of a directory's lock holder, or None (no record, or one being written)."""
+    try:
+        return Holder(**json.loads((Path(directory) / HOLDER_FILE).read_text()))
+    except (OSError, ValueError, TypeError):
+        return None
+
+
+class DirectoryLock:
+    """The exclusive lock of one campaign directory, held by this process (see the module's docstring)."""
+
+    def __init__(self, directory: str | Path, *, lease: float = LEASE_SECONDS) -> None:
+        self.directory = Path(directory)
+        self.lease = lease
+        self.lost = False  # another process took the lock over (a lease this one did not renew in time)
+        self._fd: int | None = None
+        self._created: list[Path] = []
+        self._holder: Holder | None = None
+        self._stop = threading.Event()
+        self._renewer: threading.Thread | None = None
+
+    def acquire(self, wait: float = DEFAULT_WAIT, on_wait: Callable[[Holder], None] | None = None) -> None:
+        """Take the lock, waiting up to `wait` s (`on_wait` is told the holder once); else CampaignLocked."""
+        deadline = time.monotonic() + wait
+        told = False
+        while True:
+            holder = self._try()
+            if holder is None:
+                return
+            if time.monotonic() >= deadline:
+                what = holder.describe() if holder is not _UNKNOWN else "another process"
+                raise CampaignLocked(
+                    f"{self.directory}: another command writes this campaign ({what}); nothing was "
+                    f"written: retry when it has finished (or wait longer with --wait)"
+                )
+            if not told and on_wait is not None:
+                on_wait(holder)
+                told = True
+            time.sleep(min(_POLL, max(0.0, deadline - time.monotonic())))
+
+    def _try(self) -> Holder | None:
+        """Take the lock now and return None, or return the holder (_UNKNOWN before it wrote its record)."""
+        fd = self._flock()
+        holder = read_holder(self.directory)
+        if fd is None:
+            return holder or _UNKNOWN
+        if holder is not None and not holder.stale(time.time()):
+            # A live holder the OS lock did not see: another host on a file system whose locks stay local.
+            os.close(fd)
+            return holder
+        self._fd = fd
+        now = time.time()
+        command = shlex.join(getattr(sys, "orig_argv", sys.argv))[:300]
+        self._holder = Holder(socket.gethostname(), os.getpid(), command, now, now, self.lease,
+                              secrets.token_hex(8))  # fmt: skip
+        try:
+            self._write()
+        except OSError:
+            self.release()
+            raise
+        self._stop.clear()
+        self._renewer = threading.Thread(target=self._renew, name="campaign-lock", daemon=True)
+        self._renewer.start()
+        return None
+
+    def _flock(self) -> int | None:
+        """An fd holding the OS lock on DIR/.lock, or None if another process holds it."""
+        missing = []
+        for parent in (self.directory, *self.directory.parents):
+            if parent.exists():
+                break
+            missing.append(parent)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self._created = self._created or missing
+        path = self.directory / LOCK_FILE
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except FileNotFoundError:  # the last holder removed the directory it had made: try again
+            return None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            return None
+        try:  # the last holder may have removed the file (an empty directory it had made)
+            same = os.stat(path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if not same:
+            os.close(fd)
+            return None
+        return fd
+
+    def _write(self) -> None:
+        assert self._holder is not None
+        atomic_write_bytes(self.directory / HOLDER_FILE, json.dumps(asdict(self._holder)).encode())
+
+    def _renew(self) -> None:
+        while not self._stop.wait(self.lease / 3):
+            assert self._holder is not None
+            current = read_holder(self.directory)
+            if current is not None and current.token != self._holder.token:
+                self.lost = True
+                return
+            self._holder = Holder(**{**asdict(self._holder), "renewed": time.time()})
+            with contextlib.suppress(OSError):  # a full disk: the next renewal tries again
+                self._write()
+
+    def release(self) -> None:
+        """Drop the record and the lock; remove the directory again if the lock made it and it is empty."""
+        self._stop.set()
+        if self._renewer is not None:
+            self._renewer.join()
+        if self._fd is None:
+            return
+        holder = read_holder(self.directory)
+        if holder is not None and self._holder is not None and holder.token == self._holder.token:
+            (self.directory / HOLDER_FILE).unlink(missing_ok=True)
+        if self._created and [p.name for p in self.directory.iterdir()] == [LOCK_FILE]:
+            (self.directory / LOCK_FILE).unlink()  # waiters see the inode change and try again
+            os.close(self._fd)
+            for path in self._created:
+                with contextlib.suppress(OSError):
+                    path.rmdir()
+        else:
+            os.close(self._fd)
+        self._fd = None
+
+
+_UNKNOWN = Holder("?", 0, "?", 0.0, 0.0, 0.0, "")  # the lock is taken and its record not written yet
+_held: dict[tuple[Path, int], tuple[DirectoryLock, int]] = {}
+
+
+@contextlib.contextmanager
+def hold(
+    directory: str | Path, wait: float = DEFAULT_WAIT, on_wait: Callable[[Holder], None] | None = None
+) -> Iterator[DirectoryLock]:
+    """Hold a campaign directory's lock for the block (re-entrant within a thread)."""
+    if not wait >= 0:
+        raise InputError("--wait", wait, "must be a number of seconds >= 0")
+    key = (Path(directory).absolute(), threading.get_ident())
+    if key in _held:
+        lock, depth = _held[key]
+        _held[key] = (lock, depth + 1)
+    else:
+        lock = DirectoryLock(directory)
+        lock.acquire(wait, on_wait)
+        _held[key] = (lock, 1)
+    try:
+        yield lock
+    finally:
+        lock, depth = _held[key]
+        if depth > 1:
+            _held[key] = (lock, depth - 1)
+        else:
+            del _held[key]
+            lock.release()
+
+
+def _within(filename: Any, directory: Path) -> bool:
+    """Whether an OSError's file lies in `directory`."""
+    return isinstance(filename, str | Path) and Path(filename).absolute().is_relative_to(directory.absolute())
+
+
+def check(directory: str | Path) -> None:
+    """Raise CampaignLocked if this thread held the directory's lock and another process took it over."""
+    entry = _held.get((Path(directory).absolute(), threading.get_ident()))
+    if entry is not None and entry[0].lost:
+        raise CampaignLocked(
+            f"{directory}: another command took this campaign over while this one was stalled for more "
+            f"than {entry[0].lease:g} s; this one stops without writing"
+        )
+
+
+def writer(method: F) -> F:
+    """Run `method(campaign, ...)` holding the lock of `campaign.directory` (wait: `campaign.lock_wait`).
+
+    A write into the directory that fails (disk full, read-only) stops it with CampaignStopped: every
+    write is atomic and the state is written last, so the directory holds its last finished step.
+    """
+
+    @functools.wraps(method)
+    def locked(campaign: Any, *args: Any, **kwargs: Any) -> Any:
+        def tell(holder: Holder) -> None:
+            who = holder.describe() if holder is not _UNKNOWN else "another process"
+            campaign.progress({"event": "lock_wait", "holder": who, "wait": campaign.lock_wait,
+                               "directory": str(campaign.directory)})  # fmt: skip
+
+        try:
+            with hold(campaign.directory, campaign.lock_wait, tell):
+                return method(campaign, *args, **kwargs)
+        except OSError as exc:
+            if not _within(exc.filename, campaign.directory):
+                raise
+            raise CampaignStopped(
+                f"cannot write {exc.filename} ({exc.strerror}); {campaign.directory} holds its last "
+                "finished step: rerun with --resume once it can be written"
+            ) from None
+
+    return locked  # type: ignore[return-value]
