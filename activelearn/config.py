@@ -845,8 +845,20 @@ class SafetyConfig(_Section):
     max_lateral_acceleration: Positive = 0.2  # |v·ω|, m/s²
     delta: float = 0.05
     margin: NonNegative = 0.16  # m: half the car's length, so its body stays inside too
+    # m, fans only: the rollout integrates the speed along the heading, while the centre of gravity
+    # side-slips in turns; the two paths differ by at most 2 lr = 0.16 m (lr: CG to rear axle).
+    path_tolerance: NonNegative = 0.16
     min_duration: Positive = 5.0  # s: a candidate cut shorter than this is not admissible
     n_samples: Annotated[int, Field(ge=8)] = 64  # trajectories of the fan
+    # Widens the fan's epistemic spread (a std factor) over the model's own: its epistemic std ranks
+    # errors but is 2-4x too small on campaign designs (README, calibration; z spread 2.9-5.6 on
+    # safe_track.toml), and a fan too narrow drives the car into the wall.
+    fan_scale: Annotated[float, Field(ge=1)] = 3.0
+    # The fan is trusted alone where the model's own epistemic std of the speed stays within this
+    # share of the speed along the maneuver; beyond, the kinematic worst case must hold as well
+    # (activelearn/loop/safety.py). Measured on safe_track.toml's prior model: 0.001-0.013 on the
+    # prior's forward operating points, 0.03-0.08 in reverse, where the fan missed the true speed.
+    trust_std: Positive = 0.02
     limit_window: NonNegative = 0.5  # s: rates are averaged over this window before the limits apply
     enforce: bool = True  # false: measure risk and violations only, pick from every candidate
 

@@ -4,8 +4,9 @@ A track day happens in an arena (`[safety] arena`, a polygon in metres, every ma
 from `start`) with limits the car must not exceed (|v|, |ω|, the lateral acceleration |v·ω|). For
 each candidate the round's model rolls the maneuver out (`activelearn.numerics.surrogate.simulate`:
 S trajectories, each one posterior draw with aleatoric noise at every step) from the start pose.
-A trajectory *violates* at its first step whose position lies closer than `margin` to a wall (or
-outside) or whose rates, averaged over `limit_window` seconds, exceed a limit. The candidate's
+A trajectory *violates* at its first step whose position lies closer than `margin` (the car's
+body) plus `path_tolerance` (the rollout's point-mass kinematics against the side-slipping car) to a
+wall or whose rates, averaged over `limit_window` seconds, exceed a limit. The candidate's
 risk over a duration T is the share of trajectories that violated before T:
 
   * risk(full duration) <= delta: admissible as it is;
@@ -13,11 +14,14 @@ risk over a duration T is the share of trajectories that violated before T:
     T >= `min_duration` (the proposal carries T and says it was cut);
   * else not admissible.
 
-Before the first model (a cold start's initial design without a prior model) a kinematic worst case
-stands in for the fan: speed at most SPEED_PER_THROTTLE x |throttle| (the reference throttle table
-lies below that line), yaw rate at most v tan(steering) / L (no-slip kinematics; Nigel understeers, so
-its true yaw rate is lower). A candidate is admissible when that worst case respects the limits, cut
-to the time the car cannot reach a wall at that speed, whatever its heading.
+Before the first model (a cold start's initial design without a prior model), and wherever the
+model extrapolates (its epistemic std of the speed along the maneuver exceeds `trust_std` of the
+speed: there its fan missed the true speed, measured in reverse after a forward-only prior), a
+kinematic worst case stands in for the fan, or must hold beside it: speed at most
+SPEED_PER_THROTTLE x |throttle| (the reference throttle table lies below that line), yaw rate at
+most v tan(steering) / L (no-slip kinematics; Nigel understeers, so its true yaw rate is lower). A
+candidate is admissible when that worst case respects the limits, cut to the time the car cannot
+reach a wall at that speed, whatever its heading.
 
 `violations` checks the logs that came back (simulated or driven) against the same arena and limits:
 what the benchmark counts. The fan is the rollout of the lead's dynamics issue too: one rollout
@@ -34,6 +38,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import torch
 
 from activelearn.config import SafetyConfig, boundary_distance
 from activelearn.loop.pool import maneuver_controls
@@ -86,16 +91,17 @@ def _smooth(values: np.ndarray, steps: int) -> np.ndarray:
 
 
 def violating(x: np.ndarray, y: np.ndarray, v: np.ndarray, w: np.ndarray, cfg: SafetyConfig,
-              rate_hz: float) -> np.ndarray:  # fmt: skip
+              rate_hz: float, tolerance: float = 0.0) -> np.ndarray:  # fmt: skip
     """(..., T) code of what each step violates: 0 none, else 1 + index in REASONS (first one wins).
 
     Positions in the arena frame (m), rates sampled at `rate_hz` (m/s, rad/s); the rates are
     averaged over `cfg.limit_window` seconds first, so one noisy sample is not a limit violation.
+    A position closer than `cfg.margin + tolerance` to a wall violates.
     """
     window = max(1, round(cfg.limit_window * rate_hz))
     v_avg, w_avg = _smooth(v, window), _smooth(w, window)
     checks = (
-        boundary_distance(cfg.arena, x, y) < cfg.margin,
+        boundary_distance(cfg.arena, x, y) < cfg.margin + tolerance,
         np.abs(v_avg) > cfg.max_speed,
         np.abs(w_avg) > cfg.max_yaw_rate,
         np.abs(v_avg * w_avg) > cfg.max_lateral_acceleration,
@@ -107,18 +113,28 @@ def violating(x: np.ndarray, y: np.ndarray, v: np.ndarray, w: np.ndarray, cfg: S
 
 
 def fan(model: Any, maneuvers: Sequence[Any], cfg: SafetyConfig, rate_hz: float, seed: int) -> Rollout:
-    """The model's rollout of `maneuvers` from the start pose, positions in the arena frame."""
+    """The model's rollout of `maneuvers` from the start pose (epistemic spread widened by `fan_scale`).
+
+    Positions are in the arena frame.
+    """
     x0, y0, yaw0 = cfg.start
-    rollout = simulate(
-        model, [maneuver_controls(m, rate_hz) for m in maneuvers], rate_hz=rate_hz,
-        n_samples=cfg.n_samples, seed=seed, initial_yaw=yaw0,
-    )  # fmt: skip
+    previous = float(model.epistemic_scale)
+    try:
+        with torch.no_grad():  # the scale is a variance factor; fan_scale widens the std
+            model.epistemic_scale.fill_(previous * cfg.fan_scale**2)
+        rollout = simulate(
+            model, [maneuver_controls(m, rate_hz) for m in maneuvers], rate_hz=rate_hz,
+            n_samples=cfg.n_samples, seed=seed, initial_yaw=yaw0,
+        )  # fmt: skip
+    finally:
+        with torch.no_grad():
+            model.epistemic_scale.fill_(previous)
     return dataclasses.replace(rollout, x=rollout.x + x0, y=rollout.y + y0)
 
 
 def first_violations(rollout: Rollout, cfg: SafetyConfig, rate_hz: float) -> np.ndarray:
     """(S, M) seconds at which each trajectory first violates (inf: never within its maneuver)."""
-    code = violating(rollout.x, rollout.y, rollout.v, rollout.w, cfg, rate_hz)
+    code = violating(rollout.x, rollout.y, rollout.v, rollout.w, cfg, rate_hz, cfg.path_tolerance)
     steps = np.arange(code.shape[-1])
     code[:, steps[None, :] >= rollout.lengths[:, None]] = 0  # padding past a maneuver's end
     bad = code > 0
@@ -158,24 +174,48 @@ def assess(
     risk, duration, cut_risk = np.full(n, np.nan), np.zeros(n), np.full(n, np.nan)
     todo = np.arange(n) if which is None else np.flatnonzero(which)
     if model is None:
-        room = max(float(boundary_distance(cfg.arena, cfg.start[0], cfg.start[1])) - cfg.margin, 0.0)
         for i in todo:
-            m = maneuvers[i]
-            v = SPEED_PER_THROTTLE * abs(m.throttle)
-            w = v * math.tan(m.steering if m.kind != "straight" else 0.0) / WHEELBASE
-            within = v <= cfg.max_speed and w <= cfg.max_yaw_rate and v * w <= cfg.max_lateral_acceleration
-            reach = min(full[i], math.floor(room / v) if v > 0 else full[i])
-            risk[i] = 0.0 if within and reach >= full[i] else 1.0
-            if within and reach >= cfg.min_duration:
-                duration[i], cut_risk[i] = reach, 0.0
+            risk[i], duration[i], cut_risk[i] = kinematic_bound(maneuvers[i], cfg)
         return Assessment(risk, duration, cut_risk, full)
     for block in range(0, len(todo), CHUNK):
         rows = todo[block : block + CHUNK]
         rollout = fan(model, [maneuvers[i] for i in rows], cfg, rate_hz, seed + block)
         times = first_violations(rollout, cfg, rate_hz)
+        untrusted = relative_speed_std(rollout) / cfg.fan_scale > cfg.trust_std
         for j, i in enumerate(rows):
             risk[i], duration[i], cut_risk[i] = admissible_duration(times[:, j], full[i], cfg)
+            if untrusted[j]:  # the model extrapolates: the kinematic worst case must hold as well
+                bound = kinematic_bound(maneuvers[i], cfg)
+                risk[i] = max(risk[i], bound[0])
+                if bound[1] < duration[i]:
+                    duration[i], cut_risk[i] = bound[1], bound[2] if bound[1] > 0 else float("nan")
     return Assessment(risk, duration, cut_risk, full)
+
+
+def relative_speed_std(rollout: Rollout) -> np.ndarray:
+    """(M,) largest epistemic std of the speed along each maneuver, relative to the speed (>= 0.02 m/s)."""
+    std = np.sqrt(rollout.epistemic_var[..., 0])
+    relative = std / np.maximum(np.abs(rollout.mean_rates[..., 0]), 0.02)
+    relative[np.arange(relative.shape[1])[None, :] >= rollout.lengths[:, None]] = 0.0
+    return relative.max(axis=1)
+
+
+def kinematic_bound(maneuver: Any, cfg: SafetyConfig) -> tuple[float, float, float]:
+    """Risk, admissible duration and its risk by the kinematic worst case (see the module docstring).
+
+    Speed at most SPEED_PER_THROTTLE |throttle|, yaw rate at most v tan(steering) / L, heading
+    anything: within the limits, the car cannot reach a wall before `room / v` seconds.
+    """
+    room = max(float(boundary_distance(cfg.arena, cfg.start[0], cfg.start[1])) - cfg.margin, 0.0)
+    full = float(maneuver.duration)
+    v = SPEED_PER_THROTTLE * abs(maneuver.throttle)
+    w = v * math.tan(maneuver.steering if maneuver.kind != "straight" else 0.0) / WHEELBASE
+    within = v <= cfg.max_speed and w <= cfg.max_yaw_rate and v * w <= cfg.max_lateral_acceleration
+    reach = min(full, math.floor(room / v) if v > 0 else full)
+    risk = 0.0 if within and reach >= full else 1.0
+    if within and reach >= cfg.min_duration:
+        return risk, float(reach), 0.0
+    return risk, 0.0, float("nan")
 
 
 def log_violation(log: pd.DataFrame, cfg: SafetyConfig, rate_hz: float) -> str:
