@@ -34,6 +34,7 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -241,3 +242,43 @@ def violations(logs: pd.DataFrame, cfg: SafetyConfig, rate_hz: float) -> dict[in
         int(index): log_violation(part.reset_index(drop=True), cfg, rate_hz)
         for index, part in logs.groupby("pool_index", sort=False)
     }
+
+
+def proposal_figure(campaign: Any, path: str | Path) -> Path:
+    """Draw the pending proposals of a campaign in its arena (`campaign propose --plot`); return the path.
+
+    The fans come from the model that judged them (the round's, or a warm start's prior model for
+    the initial design; without either, the kinematic worst case's reach is drawn instead).
+    """
+    from activelearn.loop.state import MODEL_FILE, CampaignState
+    from activelearn.numerics.models import load_model
+    from activelearn.plots import arena_figure
+
+    cfg, safety = campaign.cfg, campaign.cfg.safety
+    state = CampaignState.load(campaign.directory)
+    campaign.cuts = dict(state.cuts)
+    pending = state.pending or []
+    model_file = campaign.directory / MODEL_FILE
+    model = load_model(model_file) if state.rounds and model_file.exists() else campaign.prior_model()
+    maneuvers = [campaign.driven(i) for i in pending]
+    proposals = []
+    for i, m in zip(pending, maneuvers, strict=True):
+        cut = " (cut)" if str(i) in state.cuts else ""
+        proposals.append({"label": f"{m.name}{cut}", "risk": state.risks.get(str(i), float("nan"))})
+    if model is not None and maneuvers:
+        rollout = fan(model, maneuvers, safety, cfg.simulation.rate_hz, cfg.seed * 10_007 + len(state.rounds))
+        for j, proposal in enumerate(proposals):
+            n = int(rollout.lengths[j])
+            proposal.update(x=rollout.x[:, j, :n], y=rollout.y[:, j, :n])
+    reach = None
+    if model is None:
+        room = float(boundary_distance(safety.arena, safety.start[0], safety.start[1])) - safety.margin
+        reach = max(room, 0.0)
+    title = f"{cfg.name}: proposals of batch {len(state.batches)}, delta {safety.delta:g}"
+    fig = arena_figure(safety.arena, safety.start, proposals, margin=safety.margin, reach=reach, title=title)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{path.suffix}")
+    fig.savefig(tmp, dpi=110)
+    tmp.replace(path)
+    return path
