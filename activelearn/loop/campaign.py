@@ -164,6 +164,8 @@ class Campaign:
         self.parent_run_id = parent_run_id
         self.progress = progress or (lambda event: None)
         self.maneuvers = self.oracle.candidates()
+        if cfg.safety is not None and self.oracle.kind == "logs":
+            raise InputError("safety", "[safety]", "judges maneuvers to drive, not oracle.kind = 'logs'")
         if len(self.maneuvers) < cfg.design.initial + 1:
             raise InputError(
                 "pool", len(self.maneuvers), "the pool must hold more maneuvers than design.initial"
@@ -626,7 +628,7 @@ class Campaign:
             pool, safe = self._safe_pool(pool, model, round_index)
             if safe is not None:
                 metrics.update(self._safety_metrics(state, safe, time.perf_counter() - started))
-                k = min(k, safe.size) if self.cfg.safety.enforce else k  # type: ignore[union-attr]
+                k = min(k, len(pool.available))
                 reason = "nothing_admissible" if k <= 0 else None
         elif self.cfg.safety is not None:
             metrics.update(self._safety_metrics(state, None, 0.0))
