@@ -17,6 +17,7 @@ from activelearn.config import (
     SafetyConfig,
     boundary_distance,
     load_config,
+    polygon_clearance,
     polygon_self_crossing,
     validate_config,
 )
@@ -89,6 +90,11 @@ def test_polygon_geometry():
     # a concave arena (an L): the notch is outside
     ell = [(0, 0), (2, 0), (2, 1), (1, 1), (1, 2), (0, 2)]
     assert boundary_distance(ell, 1.5, 1.5) < 0 < boundary_distance(ell, 0.5, 1.5)
+    # the fast clearance of convex arenas (either orientation) agrees with it inside, and in sign
+    x, y = np.random.default_rng(0).uniform(-2, 3, (2, 5000))
+    for arena in (SQUARE, SQUARE[::-1], [(0, 0), (2, 0), (3, 1), (1, 3), (-1, 1)], ell):
+        exact, fast = boundary_distance(arena, x, y), polygon_clearance(arena, x, y)
+        assert np.allclose(fast[exact >= 0], exact[exact >= 0]) and ((fast >= 0.1) == (exact >= 0.1)).all()
 
 
 def test_admissible_duration_keeps_cuts_or_drops():

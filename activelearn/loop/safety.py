@@ -41,7 +41,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from activelearn.config import SafetyConfig, boundary_distance
+from activelearn.config import SafetyConfig, boundary_distance, polygon_clearance
 from activelearn.loop.pool import maneuver_controls
 from activelearn.numerics.surrogate import Rollout, simulate
 
@@ -102,7 +102,7 @@ def violating(x: np.ndarray, y: np.ndarray, v: np.ndarray, w: np.ndarray, cfg: S
     window = max(1, round(cfg.limit_window * rate_hz))
     v_avg, w_avg = _smooth(v, window), _smooth(w, window)
     checks = (
-        boundary_distance(cfg.arena, x, y) < cfg.margin + tolerance,
+        polygon_clearance(cfg.arena, x, y) < cfg.margin + tolerance,
         np.abs(v_avg) > cfg.max_speed,
         np.abs(w_avg) > cfg.max_yaw_rate,
         np.abs(v_avg * w_avg) > cfg.max_lateral_acceleration,
