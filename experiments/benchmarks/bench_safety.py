@@ -62,6 +62,22 @@ def summary(curves: pd.DataFrame, label: str, directory: Path) -> dict:
     }
 
 
+def at_equal_seconds(safe: pd.DataFrame, free: pd.DataFrame) -> tuple[float, float, float]:
+    """Mean track seconds the safe campaigns spent, and both variants' mean test RMSE at that point.
+
+    Per seed, the unconstrained campaign's last round whose track seconds do not exceed what the
+    safe campaign of that seed spent in all (the safe campaigns drive shorter, cut maneuvers).
+    """
+    seconds, safe_rmse, free_rmse = [], [], []
+    for seed, part in safe.groupby("seed"):
+        last = part.sort_values("round").iloc[-1]
+        other = free[(free["seed"] == seed) & (free["track_seconds"] <= last["track_seconds"] + 1e-9)]
+        seconds.append(last["track_seconds"])
+        safe_rmse.append(last["test_rmse"])
+        free_rmse.append(other.sort_values("round").iloc[-1]["test_rmse"])
+    return float(np.mean(seconds)), float(np.mean(safe_rmse)), float(np.mean(free_rmse))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default=str(CONFIGS / "safe_track.toml"))
@@ -85,7 +101,7 @@ def main() -> None:
         f"safe (delta {cfg.safety.delta:g})": cfg,
         "unconstrained": cfg.model_copy(update={"safety": cfg.safety.model_copy(update={"enforce": False})}),
     }
-    rows, started = [], time.perf_counter()
+    rows, curves, started = [], [], time.perf_counter()
     for label, variant in variants.items():
         directory = Path(args.out) / ("safe" if variant.safety.enforce else "unconstrained")
         result = compare(
@@ -93,6 +109,7 @@ def main() -> None:
             resume=args.resume, tracking=not args.no_tracking,
         )  # fmt: skip
         rows.append(summary(result.curves, label, directory))
+        curves.append(result.curves)
     base = rows[-1]["final_rmse"]
     print(f"# {cfg.name}: strategy {cfg.strategy}, {len(seeds)} seeds, arena {cfg.safety.arena}, "
           f"start {list(cfg.safety.start)}, limits |v| <= {cfg.safety.max_speed} m/s, "
@@ -107,6 +124,11 @@ def main() -> None:
             f"unconstrained); safe set {row['safe_set_mean']:.1f} candidates per round; risk "
             f"computation {row['safety_s_per_round']:.2f} s per round; picks cut short {row['cut_share']:.0%}"
         )
+    free_seconds = curves[-1].sort_values("round").groupby("seed").last()["track_seconds"].mean()
+    seconds, safe_rmse, free_rmse = at_equal_seconds(*curves)
+    print(f"track seconds spent: safe {seconds:.0f} s, unconstrained {free_seconds:.0f} s (mean); "
+          f"at the safe campaigns' track seconds the unconstrained ones had test RMSE {free_rmse:.4f} "
+          f"(safe {safe_rmse:.4f}, {safe_rmse / free_rmse:.2f}x)")  # fmt: skip
     print(f"wall time {time.perf_counter() - started:.0f} s")
 
 
