@@ -48,7 +48,7 @@ from activelearn.numerics.surrogate import Rollout, simulate
 SPEED_PER_THROTTLE = 0.287  # m/s: above every point of the reference throttle -> speed table
 WHEELBASE = 0.1415  # m, Nigel (reference/nigel.md)
 CHUNK = 16  # maneuvers per rollout: S x 16 x 2 700 steps x 5 arrays of float32 stay near 60 MB
-REASONS = ("arena", "speed", "yaw_rate", "lateral")
+REASONS = ("arena", "speed", "yaw_rate", "lateral", "diverged")  # diverged: a fan's NaN or inf
 
 
 @dataclass(frozen=True)
@@ -100,13 +100,15 @@ def violating(x: np.ndarray, y: np.ndarray, v: np.ndarray, w: np.ndarray, cfg: S
     A position closer than `cfg.margin + tolerance` to a wall violates.
     """
     window = max(1, round(cfg.limit_window * rate_hz))
-    v_avg, w_avg = _smooth(v, window), _smooth(w, window)
-    checks = (
-        polygon_clearance(cfg.arena, x, y) < cfg.margin + tolerance,
-        np.abs(v_avg) > cfg.max_speed,
-        np.abs(w_avg) > cfg.max_yaw_rate,
-        np.abs(v_avg * w_avg) > cfg.max_lateral_acceleration,
-    )
+    with np.errstate(invalid="ignore", over="ignore"):  # a diverged trajectory is caught below
+        v_avg, w_avg = _smooth(v, window), _smooth(w, window)
+        checks = (
+            polygon_clearance(cfg.arena, x, y) < cfg.margin + tolerance,
+            np.abs(v_avg) > cfg.max_speed,
+            np.abs(w_avg) > cfg.max_yaw_rate,
+            np.abs(v_avg * w_avg) > cfg.max_lateral_acceleration,
+            ~(np.isfinite(x) & np.isfinite(y) & np.isfinite(v_avg) & np.isfinite(w_avg)),
+        )
     code = np.zeros(x.shape, dtype=np.int8)
     for i, bad in reversed(list(enumerate(checks))):
         code[bad] = i + 1
