@@ -23,7 +23,7 @@ from activelearn.config import (
 )
 from activelearn.errors import ConfigError
 from activelearn.loop.campaign import Campaign, CampaignState
-from activelearn.loop.safety import admissible_duration, log_violation
+from activelearn.loop.safety import REASONS, admissible_duration, log_violation, violating
 from activelearn.studies.tracking import Tracker
 
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
@@ -126,6 +126,16 @@ def test_log_violation_reads_the_path_in_the_arena_frame():
     assert log_violation(log[t < 5], cfg, 30.0) == ""
     fast = log[t < 5].assign(speed=0.5)
     assert log_violation(fast, cfg, 30.0) == "speed"
+
+
+def test_a_diverged_fan_trajectory_is_a_violation():
+    cfg = SafetyConfig(arena=SQUARE)
+    zeros = np.zeros((2, 60))
+    x = zeros.copy()
+    x[1, 30:] = np.nan  # the second trajectory blew up half-way (a Markov rollout can)
+    code = violating(x, zeros, zeros + 0.1, zeros, cfg, 30.0)
+    assert not code[0].any()
+    assert REASONS[code[1, 30] - 1] == "diverged" and not code[1, :30].any()
 
 
 # ------------------------------------------------------------------------------------- campaigns
