@@ -178,6 +178,7 @@ class Campaign:
         self._clock = (0.0, time.perf_counter())
         self._truth: dict[str, np.ndarray] | None = None
         self.cuts: dict[str, float] = {}  # the state's [safety] cuts (pool index -> seconds)
+        self._pick_costs: np.ndarray | None = None  # this round's costs as [safety] would drive them
 
     # ------------------------------------------------------------------ data
 
@@ -476,10 +477,11 @@ class Campaign:
             return picks
         room = budget - self._track_seconds(state.taken) + 1e-9
         kept = []
+        costs = self.costs if self._pick_costs is None else self._pick_costs
         for pick in picks:
-            if self.costs[pick] <= room:
+            if costs[pick] <= room:
                 kept.append(pick)
-                room -= self.costs[pick]
+                room -= costs[pick]
         return kept
 
     # ------------------------------------------------------------------ checkpoints
@@ -625,7 +627,7 @@ class Campaign:
         safe: Assessment | None = None
         if reason is None:
             started = time.perf_counter()
-            pool, safe = self._safe_pool(pool, model, round_index)
+            pool, safe = self._safe_pool(pool, model, round_index, state.taken)
             if safe is not None:
                 metrics.update(self._safety_metrics(state, safe, time.perf_counter() - started))
                 k = min(k, len(pool.available))
@@ -659,23 +661,24 @@ class Campaign:
         self._flush_metrics(state)
         self.progress({"event": "round", **metrics, "picks": [self.maneuvers[i].name for i in picks]})
 
-    def _safe_pool(self, pool: Pool, model: Any | None, round_index: int) -> tuple[Pool, Assessment | None]:
+    def _safe_pool(
+        self, pool: Pool, model: Any | None, round_index: int, taken: Sequence[int] = ()
+    ) -> tuple[Pool, Assessment | None]:
         """The pool restricted to the candidates [safety] admits, and their assessment (None: no [safety])."""
         safety = self.cfg.safety
         if safety is None:
             return pool, None
         safe = assess(model, self.maneuvers, safety, rate_hz=self.cfg.simulation.rate_hz,
-                      seed=self.cfg.seed * 10_007 + round_index, which=self._open_mask(pool))  # fmt: skip
+                      seed=self.cfg.seed * 10_007 + round_index, which=~pool.taken)  # fmt: skip
         if not safety.enforce:
             return pool, safe
-        affordable = safe.admissible if pool.affordable is None else pool.affordable & safe.admissible
-        return dataclasses.replace(pool, affordable=affordable), safe
-
-    @staticmethod
-    def _open_mask(pool: Pool) -> np.ndarray:
-        mask = np.zeros(len(pool.maneuvers), dtype=bool)
-        mask[pool.available] = True
-        return mask
+        # what each candidate costs as it would be driven (cut short or whole), for the seconds budget
+        self._pick_costs = np.where(safe.admissible, safe.duration, safe.full) + self.cfg.design.setup_seconds
+        affordable = safe.admissible
+        budget = self.cfg.design.max_sim_seconds
+        if budget is not None:
+            affordable = affordable & (self._pick_costs <= budget - self._track_seconds(taken) + 1e-9)
+        return dataclasses.replace(pool, affordable=affordable, costs=self._pick_costs), safe
 
     def _safety_metrics(
         self, state: CampaignState, safe: Assessment | None, seconds: float

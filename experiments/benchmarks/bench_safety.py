@@ -10,7 +10,7 @@ one, the safe-set size and the seconds the risk computation cost per round, and 
 that were cut short.
 
 Usage: python experiments/benchmarks/bench_safety.py [--config FILE] [--strategy auto] [--seeds 10]
-       [--workers 2] [--delta 0.05] [--out DIR] [--resume]
+       [--workers 2] [--delta 0.05] [--max-sim-seconds S] [--per-round K] [--out DIR] [--resume]
 """
 
 from __future__ import annotations
@@ -85,6 +85,9 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--delta", type=float, default=None, help="default: the config's")
+    parser.add_argument("--max-sim-seconds", type=float, default=None,
+                        help="a budget in track seconds for both variants instead of the config's count")
+    parser.add_argument("--per-round", type=int, default=None, help="default: the config's")
     parser.add_argument("--out", default="runs/bench_safety")
     parser.add_argument("--resume", action="store_true")
     parser.add_argument("--no-tracking", action="store_true")
@@ -93,6 +96,10 @@ def main() -> None:
     overrides: dict = {} if args.delta is None else {"safety": {"delta": args.delta}}
     if args.strategy:
         overrides["strategy"] = args.strategy
+    if args.max_sim_seconds is not None:  # a track day: the safe variant drives more, shorter maneuvers
+        overrides["design"] = {"max_sim_seconds": args.max_sim_seconds, "max_maneuvers": None}
+    if args.per_round is not None:
+        overrides.setdefault("design", {})["per_round"] = args.per_round
     cfg = load_config(args.config, overrides=overrides)
     if cfg.safety is None:
         raise SystemExit(f"{args.config} has no [safety] section")
