@@ -22,8 +22,11 @@ from activelearn.config import (
     validate_config,
 )
 from activelearn.errors import ConfigError
+from activelearn.loop.acquisition import make_strategy
 from activelearn.loop.campaign import Campaign, CampaignState
 from activelearn.loop.safety import REASONS, admissible_duration, log_violation, violating
+from activelearn.numerics.models import build_model
+from activelearn.numerics.training import fit
 from activelearn.studies.tracking import Tracker
 
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
@@ -164,6 +167,23 @@ def test_safe_campaign_drives_admissible_cuts_and_logs_safety(tmp_path):
     for name in ("safe_set_size", "violations", "violations_total", "safety_seconds"):
         assert len(tracker.metric_history(state.run_id, name)) >= 1, name
     assert history["violations_total"].iloc[-1] == sum(1 for r in state.violated.values() if r)
+
+
+def test_every_strategy_picks_among_admissible_candidates_only(tmp_path):
+    # a 2 x 2 m arena: part of the pool is not admissible, part only when cut short
+    cfg = safe_config(tmp_path, {"arena": [[-1, -1], [1, -1], [1, 1], [-1, 1]]}, tracking={"enabled": False})
+    campaign = Campaign(cfg, tmp_path / "c")
+    model = build_model(cfg.model)
+    test = campaign.test_set
+    fit(model, test.x, test.y_noisy, cfg.training, groups=test.groups, seed=0)
+    pool, safe = campaign._safe_pool(campaign.pool([], model), model, 1)
+    admissible = set(np.flatnonzero(safe.admissible).tolist())
+    assert 2 <= len(admissible) < len(campaign.maneuvers) and safe.cut.any()
+    assert set(pool.available.tolist()) == admissible
+    for name in ("grid", "random", "sobol", "lhs", "uniform", "max_epistemic", "max_total", "bald",
+                 "epistemic_maximin", "integrated_variance", "auto"):  # fmt: skip
+        picks = make_strategy(name, n_samples=16).select(model, pool, 2, np.random.default_rng(0))
+        assert set(picks) <= admissible, name
 
 
 def test_unconstrained_campaign_counts_its_violations(tmp_path):
