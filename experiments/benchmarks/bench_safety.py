@@ -10,7 +10,8 @@ one, the safe-set size and the seconds the risk computation cost per round, and 
 that were cut short.
 
 Usage: python experiments/benchmarks/bench_safety.py [--config FILE] [--strategy auto] [--seeds 10]
-       [--workers 2] [--delta 0.05] [--max-sim-seconds S] [--per-round K] [--out DIR] [--resume]
+       [--workers 2] [--delta 0.05] [--max-sim-seconds S] [--per-round K] [--setup-seconds S]
+       [--out DIR] [--resume]
 """
 
 from __future__ import annotations
@@ -88,6 +89,8 @@ def main() -> None:
     parser.add_argument("--max-sim-seconds", type=float, default=None,
                         help="a budget in track seconds for both variants instead of the config's count")
     parser.add_argument("--per-round", type=int, default=None, help="default: the config's")
+    parser.add_argument("--setup-seconds", type=float, default=None,
+                        help="track seconds each maneuver costs besides its duration (default: the config's)")
     parser.add_argument("--out", default="runs/bench_safety")
     parser.add_argument("--resume", action="store_true")
     parser.add_argument("--no-tracking", action="store_true")
@@ -100,6 +103,8 @@ def main() -> None:
         overrides["design"] = {"max_sim_seconds": args.max_sim_seconds, "max_maneuvers": None}
     if args.per_round is not None:
         overrides.setdefault("design", {})["per_round"] = args.per_round
+    if args.setup_seconds is not None:
+        overrides.setdefault("design", {})["setup_seconds"] = args.setup_seconds
     cfg = load_config(args.config, overrides=overrides)
     if cfg.safety is None:
         raise SystemExit(f"{args.config} has no [safety] section")
