@@ -599,11 +599,12 @@ class Campaign:
         """Fit and evaluate the round's model (or take the initial design), then propose the next batch."""
         if not state.batches and self.cfg.design.initial > 0:
             pool, safe = self._safe_pool(self.pool([]), self.prior_model(), 0)
-            if safe is not None and self.cfg.safety.enforce and safe.size < self.cfg.design.initial:  # type: ignore[union-attr]
+            k = min(self.cfg.design.initial, len(pool.available))  # [safety] may admit fewer
+            if k == 0:
                 state.finished, state.stop_reason = True, "nothing_admissible"
                 self._checkpoint(state, None, None)
                 return
-            initial = greedy_maximin(pool, self.cfg.design.initial, _rng(self.cfg.seed, 0x1D))
+            initial = greedy_maximin(pool, k, _rng(self.cfg.seed, 0x1D))
             self._set_pending(state, initial, safe)
             self._checkpoint(state, None, None)
             return
