@@ -375,6 +375,10 @@ def _campaign_ingest(args: argparse.Namespace) -> int:
               or f"the campaign has finished; directory: {campaign.directory}")  # fmt: skip
     else:
         _print_proposals(report.proposals, report.proposals_path)
+        if campaign.cfg.safety is not None:
+            from activelearn.loop.state import CampaignState
+
+            _print_safety(campaign, CampaignState.load(campaign.directory))
     return 0
 
 
