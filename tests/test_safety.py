@@ -229,3 +229,29 @@ def test_plot_needs_an_arena(tmp_path):
                 "--plot", str(tmp_path / "p.png"))  # fmt: skip
     assert done.returncode == 2 and "--plot" in done.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_a_cut_proposal_is_driven_short_and_ingested(tmp_path, capsys):
+    from activelearn.cli import main
+
+    config = tmp_path / "car.toml"
+    config.write_text(SMOKE.read_text().replace('strategy = "max_epistemic"', 'strategy = "uniform"')
+                      + '\n[oracle]\nkind = "external"\n[tracking]\nenabled = false\n'
+                      + f"[safety]\narena = {SQUARE}\nmin_duration = 3.0\nn_samples = 16\n")  # fmt: skip
+    directory = tmp_path / "campaign"
+    assert main(["campaign", "propose", str(config), "--out", str(directory)]) == 0
+    assert "cut from 20 s" in capsys.readouterr().out
+    proposals = pd.read_csv(directory / "proposals" / "round-000.csv")
+    assert (proposals["duration"] < proposals["cut_from"]).all()  # before any model: all cut
+    logs = []
+    for i, row in proposals.iterrows():
+        out = tmp_path / f"log{i}.csv"
+        assert main(["simulate", "--maneuver", row["maneuver"], "--direction", row["direction"],
+                     "--throttle", str(row["throttle"]), "--steering", str(row["steering"]),
+                     "--duration", str(row["duration"]), "--autodrive", "--out", str(out)]) == 0  # fmt: skip
+        logs.append(str(out))
+    assert main(["campaign", "ingest", str(directory), *logs]) == 0
+    assert "[safety]" in capsys.readouterr().out
+    state = CampaignState.load(directory)
+    assert len(state.batches) == 1 and len(state.rounds) == 1 and state.violated
+    assert all(reason == "" for reason in state.violated.values())
