@@ -316,6 +316,8 @@ def _register_campaign(sub: argparse._SubParsersAction) -> None:
     )  # fmt: skip
     _add_config_options(propose, "<output_dir>/<name>/<strategy>/seed<N>")
     _add_strategy_seed(propose)
+    propose.add_argument("--plot", default=None, metavar="PNG",
+                         help="also draw the proposals' predicted paths, fans and risks in the arena")
     propose.set_defaults(handler=_campaign_propose)
 
     ingest = campaign_sub.add_parser(
@@ -379,9 +381,15 @@ def _campaign_tracker(cfg, args):
 
 def _campaign_propose(args: argparse.Namespace) -> int:
 
+    from activelearn.errors import InputError
     from activelearn.loop.campaign import Campaign, CampaignInterrupted
 
     cfg = _load_campaign_config(args, **_strategy_seed(args))
+    plot = Path(args.plot) if args.plot else None
+    if plot is not None and plot.suffix.lower() not in _PLOT_SUFFIXES:
+        raise InputError("--plot", args.plot, f"must end in {', '.join(_PLOT_SUFFIXES)}")
+    if plot is not None and cfg.safety is None:
+        raise InputError("--plot", args.plot, "draws the [safety] arena: the config has no [safety] section")
     directory = _campaign_directory(args, cfg)
     campaign = Campaign(cfg, directory, tracker=_campaign_tracker(cfg, args), progress=_notice)
     campaign.lock_wait = args.wait
@@ -390,14 +398,46 @@ def _campaign_propose(args: argparse.Namespace) -> int:
     except CampaignInterrupted as exc:
         print(_red(f"interrupted: {exc}"), file=sys.stderr)
         return 130
-    if not proposals:
-        print(f"the campaign has finished; directory: {directory}")
-        return 0
     from activelearn.loop.state import CampaignState
 
-    _print_proposals(proposals, campaign.proposal_path(CampaignState.load(directory)))
+    if not proposals:
+        print(_finished_message(CampaignState.load(directory), cfg, directory)
+              or f"the campaign has finished; directory: {directory}")  # fmt: skip
+        return 0
+
+    state = CampaignState.load(directory)
+    _print_proposals(proposals, campaign.proposal_path(state))
+    if cfg.safety is not None:
+        _print_safety(campaign, state)
+    if plot is not None:
+        from activelearn.loop.safety import proposal_figure
+
+        print(f"wrote {proposal_figure(campaign, plot)}")
     print(f"then: activelearn campaign ingest {directory} LOG...")
     return 0
+
+
+def _finished_message(state, cfg, directory) -> str:
+    """What to change before `--resume` when [safety] stopped a campaign ("" for any other stop)."""
+    if state.stop_reason != "nothing_admissible":
+        return ""
+    last = state.rounds[-1] if state.rounds else {}
+    risk = f" (the safest candidate's risk: {last['risk_min']:.3f})" if "risk_min" in last else ""
+    return (f"stopped: no candidate is admissible at safety.delta = {cfg.safety.delta:g}{risk}. The "
+            f"directory {directory} is kept: widen safety.arena, move safety.start, raise safety.delta or "
+            "lower safety.min_duration in the config, then rerun with --resume")  # fmt: skip
+
+
+def _print_safety(campaign, state) -> None:
+    """Risk of each proposal and the durations [safety] cut, under the proposals' table."""
+    safety = campaign.cfg.safety
+    last = state.rounds[-1] if state.rounds else {}
+    size = f"{int(last['safe_set_size'])} admissible candidates, " if "safe_set_size" in last else ""
+    print(f"[safety] {size}delta {safety.delta:g}: " + "; ".join(
+        f"#{n + 1} risk {state.risks.get(str(i), float('nan')):.3f}"
+        + (f", cut from {campaign.maneuvers[i].duration:g} s" if str(i) in state.cuts else "")
+        for n, i in enumerate(state.pending or [])
+    ))  # fmt: skip
 
 
 def _campaign_ingest(args: argparse.Namespace) -> int:
@@ -423,9 +463,17 @@ def _campaign_ingest(args: argparse.Namespace) -> int:
         last = history[columns].tail(1).rename(columns=_ROUND_COLUMNS)
         print(last.to_string(index=False, float_format="%.4g"))
     if report.finished:
-        print(f"the campaign has finished; directory: {campaign.directory}")
+        from activelearn.loop.state import CampaignState
+
+        state = CampaignState.load(campaign.directory)
+        print(_finished_message(state, campaign.cfg, campaign.directory)
+              or f"the campaign has finished; directory: {campaign.directory}")  # fmt: skip
     else:
         _print_proposals(report.proposals, report.proposals_path)
+        if campaign.cfg.safety is not None:
+            from activelearn.loop.state import CampaignState
+
+            _print_safety(campaign, CampaignState.load(campaign.directory))
     return 0
 
 
@@ -461,7 +509,8 @@ def _campaign_run(args: argparse.Namespace) -> int:
     history = result.history
     columns = [c for c in _ROUND_COLUMNS if c in history]
     print(history[columns].rename(columns=_ROUND_COLUMNS).to_string(index=False, float_format="%.4g"))
-    print(f"stopped by {result.state.stop_reason}; campaign directory: {directory}")
+    print(_finished_message(result.state, cfg, directory)
+          or f"stopped by {result.state.stop_reason}; campaign directory: {directory}")  # fmt: skip
     if tracker is not None:
         print(f"MLflow run {result.state.run_id} in {cfg.tracking.uri} "
               f"({_ui_hint(cfg.tracking.uri)})")

@@ -600,6 +600,8 @@ class CampaignConfig(_Section):
     target: TargetConfig = TargetConfig()
     oracle: OracleConfig = OracleConfig()
     tracking: TrackingConfig = TrackingConfig()
+    # [safety] (issue 23): the arena and limits of a track day; None = no walls. Defined at the end.
+    safety: SafetyConfig | None = None
     # [tuning] (issue 5) is read by `activelearn tune` only; excluded from dumps, so campaign hashes,
     # logged params and the configs sent to workers do not depend on it. Defined at the end of the file.
     tuning: TuningConfig = Field(default_factory=lambda: TuningConfig(), exclude=True)
@@ -849,6 +851,167 @@ class TuningConfig(_Section):
     def _grace_exceeds_heartbeat(self) -> TuningConfig:
         if self.grace_period <= self.heartbeat_interval:
             raise ValueError("grace_period must exceed heartbeat_interval")
+        return self
+
+
+# ------------------------------------------------------------------------------------- safety section
+# [safety] (issue 23): the arena a track day happens in, the car's limits and the risk level. The
+# admissibility of candidates is computed in activelearn/loop/safety.py; the polygon helpers live
+# here so that the config can check an arena without importing the loop.
+
+
+def polygon_area(vertices: Any) -> float:
+    """Signed area of a polygon (positive when counter-clockwise), shoelace formula."""
+    import numpy as np
+
+    xy = np.asarray(vertices, dtype=np.float64)
+    x, y = xy[:, 0], xy[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+
+def _segments_cross(p1: Any, p2: Any, q1: Any, q2: Any) -> bool:
+    """Whether closed segments p1-p2 and q1-q2 share a point (touching counts)."""
+
+    def orient(a: Any, b: Any, c: Any) -> float:
+        return (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+
+    def on(a: Any, b: Any, c: Any) -> bool:  # c on segment a-b, given collinear
+        return min(a[0], b[0]) <= c[0] <= max(a[0], b[0]) and min(a[1], b[1]) <= c[1] <= max(a[1], b[1])
+
+    d1, d2, d3, d4 = orient(q1, q2, p1), orient(q1, q2, p2), orient(p1, p2, q1), orient(p1, p2, q2)
+    if ((d1 > 0) != (d2 > 0)) and ((d3 > 0) != (d4 > 0)) and 0 not in (d1, d2, d3, d4):
+        return True
+    return (
+        (d1 == 0 and on(q1, q2, p1)) or (d2 == 0 and on(q1, q2, p2))
+        or (d3 == 0 and on(p1, p2, q1)) or (d4 == 0 and on(p1, p2, q2))
+    )  # fmt: skip
+
+
+def polygon_self_crossing(vertices: Any) -> tuple[int, int] | None:
+    """Indices (i, j) of two non-adjacent edges of a closed polygon that cross, or None."""
+    n = len(vertices)
+    edges = [(vertices[i], vertices[(i + 1) % n]) for i in range(n)]
+    for i in range(n):
+        for j in range(i + 2, n):
+            if i == 0 and j == n - 1:  # the closing edge meets the first one at vertex 0
+                continue
+            if _segments_cross(*edges[i], *edges[j]):
+                return i, j
+    return None
+
+
+def boundary_distance(vertices: Any, x: Any, y: Any) -> Any:
+    """Signed distance (m) of points (x, y) to a polygon's boundary: positive inside, negative outside."""
+    import numpy as np
+
+    xy = np.asarray(vertices, dtype=np.float64)
+    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    nearest = np.full(np.broadcast(x, y).shape, np.inf)
+    inside = np.zeros(nearest.shape, dtype=bool)
+    for (ax, ay), (bx, by) in zip(xy, np.roll(xy, -1, axis=0), strict=True):
+        ex, ey = bx - ax, by - ay
+        t = np.clip(((x - ax) * ex + (y - ay) * ey) / (ex * ex + ey * ey), 0.0, 1.0)
+        np.minimum(nearest, np.hypot(x - ax - t * ex, y - ay - t * ey), out=nearest)
+        # even-odd rule: count edges crossed by a ray towards +x
+        straddles = (ay > y) != (by > y)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x_cross = ax + (y - ay) * ex / np.where(ey == 0, 1.0, ey)
+        inside ^= straddles & (x < x_cross)
+    return np.where(inside, nearest, -nearest)
+
+
+def polygon_clearance(vertices: Any, x: Any, y: Any) -> Any:
+    """Like `boundary_distance` where it is >= 0, faster for a convex polygon; negative outside.
+
+    Inside a convex polygon the distance to the boundary is the smallest distance to an edge's line,
+    one multiply-add per edge and point (outside it is negative, though not the Euclidean distance).
+    Other polygons take `boundary_distance`.
+    """
+    import numpy as np
+
+    xy = np.asarray(vertices, dtype=np.float64)
+    edges = np.roll(xy, -1, axis=0) - xy
+    turns = edges[:, 0] * np.roll(edges[:, 1], -1) - edges[:, 1] * np.roll(edges[:, 0], -1)
+    if not ((turns >= 0).all() or (turns <= 0).all()):
+        return boundary_distance(vertices, x, y)
+    inward = np.sign(polygon_area(vertices)) * np.column_stack([-edges[:, 1], edges[:, 0]])
+    inward /= np.linalg.norm(inward, axis=1, keepdims=True)
+    offset = (inward * xy).sum(axis=1)
+    clearance = None
+    for (nx, ny), c in zip(inward, offset, strict=True):
+        distance = nx * x + ny * y - c
+        clearance = distance if clearance is None else np.minimum(clearance, distance, out=clearance)
+    return clearance
+
+
+class SafetyConfig(_Section):
+    """A bounded arena, the car's limits and the risk a proposal may carry (`activelearn.loop.safety`).
+
+    arena: the polygon the car must stay in, vertices [x, y] in metres (closed implicitly; repeating
+        the first vertex at the end is allowed). start: the pose [x, y, yaw] every maneuver starts
+        from. A candidate is admissible when the model's rollout fan gives it a probability of at
+        most `delta` of leaving the arena (its centre closer than `margin` to a wall) or exceeding a
+        limit; one whose risk reaches delta later than `min_duration` is cut short there.
+    """
+
+    arena: list[tuple[float, float]]
+    start: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # Defaults a little above what Nigel can do (0.267 m/s, 0.805 rad/s, about 0.17 m/s² at full
+    # throttle and full lock), so the arena binds and the limits only where set lower.
+    max_speed: Positive = 0.3  # |v|, m/s
+    max_yaw_rate: Positive = 0.9  # |ω|, rad/s
+    max_lateral_acceleration: Positive = 0.2  # |v·ω|, m/s²
+    delta: float = 0.05
+    margin: NonNegative = 0.16  # m: half the car's length, so its body stays inside too
+    # m, fans only: the rollout integrates the speed along the heading, while the centre of gravity
+    # side-slips in turns; the two paths differ by at most 2 lr = 0.16 m (lr: CG to rear axle).
+    path_tolerance: NonNegative = 0.16
+    min_duration: Positive = 5.0  # s: a candidate cut shorter than this is not admissible
+    n_samples: Annotated[int, Field(ge=8)] = 64  # trajectories of the fan
+    # Widens the fan's epistemic spread (a std factor) over the model's own: its epistemic std ranks
+    # errors but is 2-4x too small on campaign designs (README, calibration; z spread 2.9-5.6 on
+    # safe_track.toml), and a fan too narrow drives the car into the wall.
+    fan_scale: Annotated[float, Field(ge=1)] = 3.0
+    # The fan is trusted alone where the model's own epistemic std of the speed stays within this
+    # share of the speed along the maneuver; beyond, the kinematic worst case must hold as well
+    # (activelearn/loop/safety.py). Measured on safe_track.toml's prior model: 0.001-0.013 on the
+    # prior's forward operating points, 0.03-0.08 in reverse, where the fan missed the true speed.
+    trust_std: Positive = 0.02
+    limit_window: NonNegative = 0.5  # s: rates are averaged over this window before the limits apply
+    enforce: bool = True  # false: measure risk and violations only, pick from every candidate
+
+    @field_validator("arena", mode="after")
+    @classmethod
+    def _check_arena(cls, value: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        if len(value) > 1 and value[0] == value[-1]:
+            value = value[:-1]
+        if any(not math.isfinite(c) for vertex in value for c in vertex):
+            raise ValueError("vertices must be finite")
+        if len(value) < 3 or len(set(value)) < 3:
+            raise ValueError("the polygon is open: it needs 3 or more distinct vertices")
+        crossing = polygon_self_crossing(value)
+        if crossing is not None:
+            i, j = crossing
+            raise ValueError(f"the polygon crosses itself (edge {i} and edge {j})")
+        if abs(polygon_area(value)) < 1e-9:
+            raise ValueError("the polygon is open: its vertices enclose no area")
+        return value
+
+    @field_validator("delta")
+    @classmethod
+    def _check_delta(cls, value: float) -> float:
+        if not 0.0 < value < 1.0:
+            raise ValueError("delta must lie in (0, 1)")
+        return value
+
+    @model_validator(mode="after")
+    def _start_inside(self) -> SafetyConfig:
+        if not all(math.isfinite(c) for c in self.start):
+            raise ConfigError("start", list(self.start), "must be finite")
+        room = float(boundary_distance(self.arena, self.start[0], self.start[1]))
+        if room <= self.margin:
+            where = "outside the arena" if room <= 0 else f"within margin = {self.margin} m of a wall"
+            raise ConfigError("start", list(self.start), f"the start lies {where}")
         return self
 
 

@@ -317,3 +317,58 @@ def fidelity_figure(points: pd.DataFrame, title: str = "") -> Figure:
     if title:
         fig.suptitle(title)
     return fig
+
+
+def arena_figure(
+    arena: Sequence[tuple[float, float]],
+    start: tuple[float, float, float],
+    proposals: Sequence[dict[str, Any]],
+    *,
+    margin: float = 0.0,
+    reach: float | None = None,
+    title: str = "",
+) -> Figure:
+    """The arena, the start pose and each proposal's predicted path with its 95 % fan and risk.
+
+    Each proposal is a dict with `label`, `risk` and, when a model predicted it, `x`, `y` (S, T)
+    sampled paths in the arena frame; the 5 % of paths farthest from the mean path are left out, so
+    the band drawn holds 95 % of the fan. `reach` (m) draws the circle the kinematic worst case keeps
+    the car in (before any model).
+    """
+    fig = _new_figure(9.5, 6.0)
+    ax = fig.add_subplot()
+    ring = np.vstack([np.asarray(arena, dtype=float), np.asarray(arena[:1], dtype=float)])
+    ax.fill(ring[:, 0], ring[:, 1], color="0.95", zorder=0)
+    ax.plot(ring[:, 0], ring[:, 1], color="k", lw=2.0, label="arena")
+    x0, y0, yaw0 = start
+    arrow = 0.25
+    ax.annotate("", xy=(x0 + arrow * np.cos(yaw0), y0 + arrow * np.sin(yaw0)), xytext=(x0, y0),
+                arrowprops={"arrowstyle": "-|>", "color": "k", "lw": 1.5})  # fmt: skip
+    ax.plot([x0], [y0], "ko", ms=6, label=f"start (yaw {yaw0:.2f} rad)")
+    if reach is not None and reach > 0:
+        circle = np.linspace(0, 2 * np.pi, 200)
+        ax.plot(x0 + reach * np.cos(circle), y0 + reach * np.sin(circle), "k:", lw=1.0,
+                label="worst-case reach (no model yet)")  # fmt: skip
+    colors = [f"C{i % 10}" for i in range(len(proposals))]
+    for proposal, color in zip(proposals, colors, strict=True):
+        label = f"{proposal['label']}: risk {proposal['risk']:.3f}"
+        if "x" not in proposal:
+            ax.plot([], [], color=color, label=label)
+            continue
+        x, y = np.asarray(proposal["x"]), np.asarray(proposal["y"])
+        mx, my = x.mean(axis=0), y.mean(axis=0)
+        deviation = np.hypot(x - mx, y - my).max(axis=1)
+        keep = deviation <= np.quantile(deviation, 0.95)
+        for xs, ys in zip(x[keep], y[keep], strict=True):
+            ax.plot(xs, ys, color=color, lw=0.5, alpha=0.15)
+        ax.plot(mx, my, color=color, lw=2.0, label=label)
+        ax.plot(mx[-1:], my[-1:], "s", color=color, ms=5)
+    ax.set_aspect("equal")
+    span = ring.max(axis=0) - ring.min(axis=0)
+    pad = 0.05 * float(span.max())
+    ax.set_xlim(ring[:, 0].min() - pad, ring[:, 0].max() + pad)
+    ax.set_ylim(ring[:, 1].min() - pad, ring[:, 1].max() + pad)
+    ax.set(xlabel="x (m)", ylabel="y (m)", title=(title + "\n" if title else "")
+           + f"mean path and 95 % of the fan (margin {margin:g} m; square = end)")  # fmt: skip
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=7, framealpha=0.8)
+    return fig

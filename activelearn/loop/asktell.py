@@ -97,7 +97,7 @@ def match_logs(campaign: Campaign, state: CampaignState, logs: Sequence[LogFile]
     seen = set(state.ingested) | set(state.staged.values())
     open_ = [i for i in state.pending if str(i) not in state.staged]
     expected = {
-        i: signature(maneuver_controls(campaign.maneuvers[i], rate), rate, cfg.steering_tolerance)
+        i: signature(maneuver_controls(campaign.driven(i), rate), rate, cfg.steering_tolerance)
         for i in open_
     }
     matched: dict[int, LogFile] = {}
@@ -121,7 +121,7 @@ def match_logs(campaign: Campaign, state: CampaignState, logs: Sequence[LogFile]
         ]
         if not candidates:
             still = "; ".join(
-                f"{campaign.maneuvers[i].name} ({_describe(expected[i])})" for i in open_ if i not in matched
+                f"{campaign.driven(i).name} ({_describe(expected[i])})" for i in open_ if i not in matched
             )
             raise InputError(
                 "LOG",
@@ -129,7 +129,7 @@ def match_logs(campaign: Campaign, state: CampaignState, logs: Sequence[LogFile]
                 f"matches no open proposal: it drove {_describe(got)}; open: {still or 'none'}",
             )
         best = min(candidates, key=lambda i: abs(got.flips_per_minute - expected[i].flips_per_minute))
-        proposed = campaign.maneuvers[best].duration
+        proposed = campaign.driven(best).duration
         span = float(log.table["time"].iloc[-1] - log.table["time"].iloc[0])
         if span < (1.0 - cfg.duration_tolerance) * proposed:
             raise InputError("LOG", str(log.path), f"is cut off: {span:.1f} s of the proposed {proposed:g} s")
@@ -168,6 +168,7 @@ def ingest(campaign: Campaign, paths: Sequence[str | Path], *, resume: bool = Fa
     """
     directory = campaign.directory
     state = CampaignState.load(directory)
+    campaign.cuts = dict(state.cuts)  # [safety]: proposals cut short are driven (and matched) short
     if state.finished:
         raise InputError("DIR", str(directory), f"the campaign has finished ({state.stop_reason})")
     if state.pending is None:
@@ -188,8 +189,8 @@ def ingest(campaign: Campaign, paths: Sequence[str | Path], *, resume: bool = Fa
     for index, log in matched.items():
         write_table(log.table, directory / STAGED_DIR / f"{index}.parquet")
         state.staged[str(index)] = log.digest
-    names = {str(log.path): campaign.maneuvers[i].name for i, log in matched.items()}
-    missing = [campaign.maneuvers[i] for i in state.pending if str(i) not in state.staged]
+    names = {str(log.path): campaign.driven(i).name for i, log in matched.items()}
+    missing = [campaign.driven(i) for i in state.pending if str(i) not in state.staged]
     state.save(directory)  # staged logs are kept: a later ingest (or --resume) completes the batch
     if missing:
         return IngestReport(names, missing, [], None, False)

@@ -58,6 +58,7 @@ from activelearn.loop.collection import (
 from activelearn.loop.oracles import Oracle, make_oracle
 from activelearn.loop.pool import build_pool, evaluation_grid, maneuver_costs, target_points
 from activelearn.loop.prior import PRIOR_FILE, Prior, load_prior, prior_from_rows
+from activelearn.loop.safety import Assessment, assess, violations
 from activelearn.loop.state import (
     CONFIG_FILE,
     MODEL_FILE,
@@ -100,8 +101,12 @@ class CampaignInterrupted(ActiveLearnError):
 
 
 def config_hash(cfg: CampaignConfig) -> str:
-    """Hash of everything that determines a campaign's data except strategy and seed."""
-    payload = cfg.model_dump(mode="json", exclude={"strategy", "seed", "tracking", "output_dir", "name"})
+    """Hash of everything that determines a campaign's data except strategy and seed.
+
+    [safety] is left out: at the track the arena or delta may change between rounds (`--resume`).
+    """
+    exclude = {"strategy", "seed", "tracking", "output_dir", "name", "safety"}
+    payload = cfg.model_dump(mode="json", exclude=exclude)
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -165,6 +170,8 @@ class Campaign:
         self.lock_wait = lock.DEFAULT_WAIT  # s a second writer of the directory waits for the first
         self._tracking_down = False  # the tracking server stopped answering (warned once)
         self.maneuvers = self.oracle.candidates()
+        if cfg.safety is not None and self.oracle.kind == "logs":
+            raise InputError("safety", "[safety]", "judges maneuvers to drive, not oracle.kind = 'logs'")
         if len(self.maneuvers) < cfg.design.initial + 1:
             raise InputError(
                 "pool", len(self.maneuvers), "the pool must hold more maneuvers than design.initial"
@@ -176,6 +183,8 @@ class Campaign:
         self._target: tuple[np.ndarray, np.ndarray] | None = None
         self._clock = (0.0, time.perf_counter())
         self._truth: dict[str, np.ndarray] | None = None
+        self.cuts: dict[str, float] = {}  # the state's [safety] cuts (pool index -> seconds)
+        self._pick_costs: np.ndarray | None = None  # this round's costs as [safety] would drive them
 
     # ------------------------------------------------------------------ data
 
@@ -196,20 +205,26 @@ class Campaign:
 
     def _collect(self, indices: list[int], batch: int) -> pd.DataFrame:
         """Ask the oracle for the chosen maneuvers (simulated, noised with this campaign's seed)."""
-        chosen = [self.maneuvers[i] for i in indices]
+        chosen = [self.driven(i) for i in indices]
         return self._label(self.oracle.answer(chosen, self.cfg.seed), indices, batch)
 
     def _answer(self, state: CampaignState) -> pd.DataFrame:
         """The pending batch's logs: those `ingest` took in already (staged), the oracle answers the rest."""
         assert state.pending is not None
         asked = [i for i in state.pending if str(i) not in state.staged]
-        answers = dict(zip(asked, self.oracle.answer([self.maneuvers[i] for i in asked], self.cfg.seed),
+        answers = dict(zip(asked, self.oracle.answer([self.driven(i) for i in asked], self.cfg.seed),
                            strict=True)) if asked else {}  # fmt: skip
         frames = [
             answers[i] if i in answers else read_table(self.directory / STAGED_DIR / f"{i}.parquet")
             for i in state.pending
         ]
         return self._label(frames, state.pending, len(state.batches))
+
+    def driven(self, index: int) -> Any:
+        """Candidate `index` as it is driven: cut to a shorter duration where [safety] said so."""
+        cut = self.cuts.get(str(index))
+        maneuver = self.maneuvers[index]
+        return maneuver if cut is None else dataclasses.replace(maneuver, duration=cut)
 
     def _rows(self, samples: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if samples.empty:
@@ -505,11 +520,11 @@ class Campaign:
     # ------------------------------------------------------------------ budget
 
     def _sim_seconds(self, taken: list[int]) -> float:
-        return float(sum(self.maneuvers[i].duration for i in taken))
+        return float(sum(self.driven(i).duration for i in taken))
 
     def _track_seconds(self, taken: list[int]) -> float:
-        """Seconds of track time spent: durations plus the set-up time of every maneuver."""
-        return float(self.costs[taken].sum()) if taken else 0.0
+        """Seconds of track time spent: durations (as driven) plus the set-up time of every maneuver."""
+        return self._sim_seconds(taken) + self.cfg.design.setup_seconds * len(taken)
 
     def _affordable(self, state: CampaignState) -> np.ndarray | None:
         """Candidates that still fit the seconds budget (None without one)."""
@@ -549,10 +564,11 @@ class Campaign:
             return picks
         room = budget - self._track_seconds(state.taken) + 1e-9
         kept = []
+        costs = self.costs if self._pick_costs is None else self._pick_costs
         for pick in picks:
-            if self.costs[pick] <= room:
+            if costs[pick] <= room:
                 kept.append(pick)
-                room -= self.costs[pick]
+                room -= costs[pick]
         return kept
 
     # ------------------------------------------------------------------ checkpoints
@@ -697,8 +713,14 @@ class Campaign:
     def _propose(self, state: CampaignState, samples: pd.DataFrame, figures: bool) -> None:
         """Fit and evaluate the round's model (or take the initial design), then propose the next batch."""
         if not state.batches and self.cfg.design.initial > 0:
-            initial = greedy_maximin(self.pool([]), self.cfg.design.initial, _rng(self.cfg.seed, 0x1D))
-            state.pending = initial
+            pool, safe = self._safe_pool(self.pool([]), self.prior_model(), 0)
+            k = min(self.cfg.design.initial, len(pool.available))  # [safety] may admit fewer
+            if k == 0:
+                state.finished, state.stop_reason = True, "nothing_admissible"
+                self._checkpoint(state, None, None)
+                return
+            initial = greedy_maximin(pool, k, _rng(self.cfg.seed, 0x1D))
+            self._set_pending(state, initial, safe)
             self._checkpoint(state, None, None)
             return
         round_index = len(state.rounds)
@@ -718,6 +740,16 @@ class Campaign:
         pool = dataclasses.replace(
             self.pool(state.taken, model, self._affordable(state)), context=self._context(state)
         )
+        safe: Assessment | None = None
+        if reason is None:
+            started = time.perf_counter()
+            pool, safe = self._safe_pool(pool, model, round_index, state.taken)
+            if safe is not None:
+                metrics.update(self._safety_metrics(state, safe, time.perf_counter() - started))
+                k = min(k, len(pool.available))
+                reason = "nothing_admissible" if k <= 0 else None
+        elif self.cfg.safety is not None:
+            metrics.update(self._safety_metrics(state, None, 0.0))
         if reason is None and self.cfg.design.stop_epistemic_std is not None:
             metrics["pool_epistemic_std_max"] = self.pool_epistemic_max(model, pool)
             if metrics["pool_epistemic_std_max"] < self.cfg.design.stop_epistemic_std:
@@ -738,7 +770,7 @@ class Campaign:
         state.stamps.extend([int(time.time() * 1000)] * (len(state.rounds) + 1 - len(state.stamps)))
         state.rounds.append(metrics)
         if picks:
-            state.pending = picks
+            self._set_pending(state, picks, safe)
         else:
             state.finished, state.stop_reason = True, reason or "max_sim_seconds"
         self._model = model
@@ -747,9 +779,59 @@ class Campaign:
         self._flush_metrics(state)
         self.progress({"event": "round", **metrics, "picks": [self.maneuvers[i].name for i in picks]})
 
+    def _safe_pool(
+        self, pool: Pool, model: Any | None, round_index: int, taken: Sequence[int] = ()
+    ) -> tuple[Pool, Assessment | None]:
+        """The pool restricted to the candidates [safety] admits, and their assessment (None: no [safety])."""
+        safety = self.cfg.safety
+        if safety is None:
+            return pool, None
+        safe = assess(model, self.maneuvers, safety, rate_hz=self.cfg.simulation.rate_hz,
+                      seed=self.cfg.seed * 10_007 + round_index, which=~pool.taken)  # fmt: skip
+        if not safety.enforce:
+            return pool, safe
+        # what each candidate costs as it would be driven (cut short or whole), for the seconds budget
+        self._pick_costs = np.where(safe.admissible, safe.duration, safe.full) + self.cfg.design.setup_seconds
+        affordable = safe.admissible
+        budget = self.cfg.design.max_sim_seconds
+        if budget is not None:
+            affordable = affordable & (self._pick_costs <= budget - self._track_seconds(taken) + 1e-9)
+        return dataclasses.replace(pool, affordable=affordable, costs=self._pick_costs), safe
+
+    def _safety_metrics(
+        self, state: CampaignState, safe: Assessment | None, seconds: float
+    ) -> dict[str, float]:
+        """What a round logs of [safety]: safe-set size, risk, violations of its batch and in total."""
+        total = sum(1 for reason in state.violated.values() if reason)
+        before = next((r["violations_total"] for r in reversed(state.rounds) if "violations_total" in r), 0)
+        metrics = {"violations": float(total - before), "violations_total": float(total)}
+        if safe is not None:
+            assessed = np.isfinite(safe.risk)
+            metrics.update(
+                safe_set_size=float(safe.size),
+                safe_set_cut=float(safe.cut.sum()),
+                risk_min=float(np.nanmin(safe.risk)) if assessed.any() else float("nan"),
+                safety_seconds=seconds,
+            )
+        return metrics
+
+    def _set_pending(self, state: CampaignState, picks: list[int], safe: Assessment | None) -> None:
+        """Propose `picks`; with [safety], record their risks and the shorter durations of those cut."""
+        state.pending = picks
+        if safe is None:
+            return
+        for i in picks:
+            state.risks[str(i)] = float(safe.cut_risk[i] if safe.admissible[i] else safe.risk[i])
+            if safe.cut[i] and self.cfg.safety.enforce:  # type: ignore[union-attr]
+                state.cuts[str(i)] = float(safe.duration[i])
+        self.cuts = dict(state.cuts)
+
     def _receive(self, state: CampaignState, samples: pd.DataFrame, new: pd.DataFrame) -> pd.DataFrame:
         """Append the logs of the pending batch; measure the prequential scale on them if asked."""
         assert state.pending is not None
+        if self.cfg.safety is not None:  # what the car did: the true path against the arena and limits
+            found = violations(new, self.cfg.safety, self.cfg.simulation.rate_hz)
+            state.violated.update({str(i): reason for i, reason in found.items()})
         model = (self._model or load_model(self.directory / MODEL_FILE)) if state.rounds else None
         if model is not None and model.has_epistemic:
             # The model of the last round meets maneuvers it never saw: an honest calibration check.
@@ -813,6 +895,14 @@ class Campaign:
     def _open(self, resume: bool) -> tuple[CampaignState, pd.DataFrame]:
         """Load or create the directory's state, start the clock and the MLflow run."""
         state, samples = self._load(resume)
+        if state.stop_reason == "nothing_admissible" and state.pending is None:
+            # [safety] stopped it; [safety] may have changed since (it is not in the config hash):
+            # the last round is fitted and judged again (its metrics are logged again at that step).
+            state.finished, state.stop_reason = False, None
+            if state.rounds and "test_rmse" in state.rounds[-1]:
+                state.rounds.pop()
+            state.logged = min(state.logged, len(state.rounds))
+        self.cuts = dict(state.cuts)
         self._clock = (state.wall_seconds, time.perf_counter())
         self._start_tracking(state)
         if state.rounds:  # a resumed run may hold rounds that never reached MLflow
@@ -858,7 +948,7 @@ class Campaign:
             return []
         assert state.pending is not None
         self._write_proposals(state)
-        return [self.maneuvers[i] for i in state.pending]
+        return [self.driven(i) for i in state.pending]
 
     def history(self) -> pd.DataFrame:
         """One row per fitted round with every logged metric (from the directory's state)."""
@@ -873,12 +963,16 @@ class Campaign:
         rows = [
             {"maneuver": m.kind, "direction": m.direction, "throttle": m.throttle, "steering": m.steering,
              "duration": m.duration}
-            for m in (self.maneuvers[i] for i in state.pending)
+            for m in (self.driven(i) for i in state.pending)
         ]  # fmt: skip
+        columns = list(PROPOSAL_COLUMNS)
+        if self.cfg.safety is not None:  # the risk of each proposal, and the duration it was cut from
+            columns += ["risk", "cut_from"]
+            for row, i in zip(rows, state.pending, strict=True):
+                row["risk"] = state.risks.get(str(i), float("nan"))
+                row["cut_from"] = self.maneuvers[i].duration if str(i) in state.cuts else None
         path = self.proposal_path(state)
-        atomic_write_bytes(
-            path, pd.DataFrame(rows, columns=list(PROPOSAL_COLUMNS)).to_csv(index=False).encode()
-        )
+        atomic_write_bytes(path, pd.DataFrame(rows, columns=columns).to_csv(index=False).encode())
         return path
 
     @lock.writer

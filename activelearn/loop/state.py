@@ -49,6 +49,11 @@ class CampaignState:
     staged: dict[str, str] = field(default_factory=dict)
     ingested: list[str] = field(default_factory=list)  # content hashes of every log taken in
     prior_digest: str | None = None
+    # [safety] (issue 23): driven duration of candidates cut short and the risk of each pick (pool
+    # index -> seconds / probability), and what each collected maneuver violated (pool index -> reason).
+    cuts: dict[str, float] = field(default_factory=dict)
+    risks: dict[str, float] = field(default_factory=dict)
+    violated: dict[str, str] = field(default_factory=dict)
 
     @property
     def taken(self) -> list[int]:

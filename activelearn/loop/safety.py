@@ -1,0 +1,286 @@
+"""Safe exploration in a bounded arena: which candidates the car may drive, and what it did.
+
+A track day happens in an arena (`[safety] arena`, a polygon in metres, every maneuver starting
+from `start`) with limits the car must not exceed (|v|, |ω|, the lateral acceleration |v·ω|). For
+each candidate the round's model rolls the maneuver out (`activelearn.numerics.surrogate.simulate`:
+S trajectories, each one posterior draw with aleatoric noise at every step) from the start pose.
+A trajectory *violates* at its first step whose position lies closer than `margin` (the car's
+body) plus `path_tolerance` (the rollout's point-mass kinematics against the side-slipping car) to a
+wall or whose rates, averaged over `limit_window` seconds, exceed a limit. The candidate's
+risk over a duration T is the share of trajectories that violated before T:
+
+  * risk(full duration) <= delta: admissible as it is;
+  * else, cut short: the longest whole number of seconds T with risk(T) <= delta, when
+    T >= `min_duration` (the proposal carries T and says it was cut);
+  * else not admissible.
+
+Before the first model (a cold start's initial design without a prior model), and wherever the
+model extrapolates (its epistemic std of the speed along the maneuver exceeds `trust_std` of the
+speed: there its fan missed the true speed, measured in reverse after a forward-only prior), a
+kinematic worst case stands in for the fan, or must hold beside it: speed at most
+SPEED_PER_THROTTLE x |throttle| (the reference throttle table lies below that line), yaw rate at
+most v tan(steering) / L (no-slip kinematics; Nigel understeers, so its true yaw rate is lower). A
+candidate is admissible when that worst case respects the limits, cut to the time the car cannot
+reach a wall at that speed, whatever its heading.
+
+`violations` checks the logs that came back (simulated or driven) against the same arena and limits:
+what the benchmark counts. The fan is the rollout of the lead's dynamics issue too: one rollout
+serves evaluation, acquisition and safety.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import torch
+
+from activelearn.config import SafetyConfig, boundary_distance, polygon_clearance
+from activelearn.loop.pool import maneuver_controls
+from activelearn.numerics.surrogate import Rollout, simulate
+
+SPEED_PER_THROTTLE = 0.287  # m/s: above every point of the reference throttle -> speed table
+WHEELBASE = 0.1415  # m, Nigel (reference/nigel.md)
+CHUNK = 16  # maneuvers per rollout: S x 16 x 2 700 steps x 5 arrays of float32 stay near 60 MB
+REASONS = ("arena", "speed", "yaw_rate", "lateral", "diverged")  # diverged: a fan's NaN or inf
+
+
+@dataclass(frozen=True)
+class Assessment:
+    """Admissibility of candidates: risk over the full duration, admissible duration, why not.
+
+    risk: (n,) share of fan trajectories that violate within the full duration (NaN: not assessed).
+    duration: (n,) seconds the candidate may be driven (its full duration, shorter when cut, 0 when
+        not admissible). cut_risk: (n,) risk over that duration.
+    """
+
+    risk: np.ndarray
+    duration: np.ndarray
+    cut_risk: np.ndarray
+    full: np.ndarray  # (n,) the candidates' full durations
+
+    @property
+    def admissible(self) -> np.ndarray:
+        """(n,) True where the candidate may be driven (perhaps cut short)."""
+        return self.duration > 0
+
+    @property
+    def cut(self) -> np.ndarray:
+        """(n,) True where the candidate is admissible only when cut short."""
+        return self.admissible & (self.duration < self.full - 1e-9)
+
+    @property
+    def size(self) -> int:
+        """Number of admissible candidates (the safe set)."""
+        return int(self.admissible.sum())
+
+
+def _smooth(values: np.ndarray, steps: int) -> np.ndarray:
+    """Trailing moving average over `steps` along the last axis (the first steps average fewer)."""
+    if steps <= 1:
+        return values
+    total = np.cumsum(values, axis=-1, dtype=np.float64)
+    total[..., steps:] = total[..., steps:] - total[..., :-steps]
+    count = np.minimum(np.arange(1, values.shape[-1] + 1), steps)
+    return total / count
+
+
+def violating(x: np.ndarray, y: np.ndarray, v: np.ndarray, w: np.ndarray, cfg: SafetyConfig,
+              rate_hz: float, tolerance: float = 0.0) -> np.ndarray:  # fmt: skip
+    """(..., T) code of what each step violates: 0 none, else 1 + index in REASONS (first one wins).
+
+    Positions in the arena frame (m), rates sampled at `rate_hz` (m/s, rad/s); the rates are
+    averaged over `cfg.limit_window` seconds first, so one noisy sample is not a limit violation.
+    A position closer than `cfg.margin + tolerance` to a wall violates.
+    """
+    window = max(1, round(cfg.limit_window * rate_hz))
+    with np.errstate(invalid="ignore", over="ignore"):  # a diverged trajectory is caught below
+        v_avg, w_avg = _smooth(v, window), _smooth(w, window)
+        checks = (
+            polygon_clearance(cfg.arena, x, y) < cfg.margin + tolerance,
+            np.abs(v_avg) > cfg.max_speed,
+            np.abs(w_avg) > cfg.max_yaw_rate,
+            np.abs(v_avg * w_avg) > cfg.max_lateral_acceleration,
+            ~(np.isfinite(x) & np.isfinite(y) & np.isfinite(v_avg) & np.isfinite(w_avg)),
+        )
+    code = np.zeros(x.shape, dtype=np.int8)
+    for i, bad in reversed(list(enumerate(checks))):
+        code[bad] = i + 1
+    return code
+
+
+def fan(model: Any, maneuvers: Sequence[Any], cfg: SafetyConfig, rate_hz: float, seed: int) -> Rollout:
+    """The model's rollout of `maneuvers` from the start pose (epistemic spread widened by `fan_scale`).
+
+    Positions are in the arena frame.
+    """
+    x0, y0, yaw0 = cfg.start
+    previous = float(model.epistemic_scale)
+    try:
+        with torch.no_grad():  # the scale is a variance factor; fan_scale widens the std
+            model.epistemic_scale.fill_(previous * cfg.fan_scale**2)
+        rollout = simulate(
+            model, [maneuver_controls(m, rate_hz) for m in maneuvers], rate_hz=rate_hz,
+            n_samples=cfg.n_samples, seed=seed, initial_yaw=yaw0,
+        )  # fmt: skip
+    finally:
+        with torch.no_grad():
+            model.epistemic_scale.fill_(previous)
+    return dataclasses.replace(rollout, x=rollout.x + x0, y=rollout.y + y0)
+
+
+def first_violations(rollout: Rollout, cfg: SafetyConfig, rate_hz: float) -> np.ndarray:
+    """(S, M) seconds at which each trajectory first violates (inf: never within its maneuver)."""
+    code = violating(rollout.x, rollout.y, rollout.v, rollout.w, cfg, rate_hz, cfg.path_tolerance)
+    steps = np.arange(code.shape[-1])
+    code[:, steps[None, :] >= rollout.lengths[:, None]] = 0  # padding past a maneuver's end
+    bad = code > 0
+    first = np.where(bad.any(axis=-1), bad.argmax(axis=-1), np.inf)
+    return first * rollout.dt
+
+
+def admissible_duration(times: np.ndarray, full: float, cfg: SafetyConfig) -> tuple[float, float, float]:
+    """Full-duration risk, the duration to drive (0: none) and its risk, from (S,) first violations."""
+    n = len(times)
+    risk = float(np.mean(times < full))
+    if risk <= cfg.delta:
+        return risk, full, risk
+    allowed = math.floor(cfg.delta * n + 1e-9)  # trajectories that may violate
+    cut = float(np.floor(np.sort(times)[allowed]))  # before it, at most `allowed` have violated
+    if cut < cfg.min_duration:
+        return risk, 0.0, float("nan")
+    return risk, cut, float(np.mean(times < cut))
+
+
+def assess(
+    model: Any | None,
+    maneuvers: Sequence[Any],
+    cfg: SafetyConfig,
+    *,
+    rate_hz: float = 30.0,
+    seed: int = 0,
+    which: np.ndarray | None = None,
+) -> Assessment:
+    """Admissibility of every candidate in `maneuvers` (only those in `which`; the rest are not admissible).
+
+    With a model: from its rollout fans, in chunks of CHUNK maneuvers. Without one: the reach of
+    `max_speed` from the start (see the module docstring).
+    """
+    n = len(maneuvers)
+    full = np.array([float(m.duration) for m in maneuvers])
+    risk, duration, cut_risk = np.full(n, np.nan), np.zeros(n), np.full(n, np.nan)
+    todo = np.arange(n) if which is None else np.flatnonzero(which)
+    if model is None:
+        for i in todo:
+            risk[i], duration[i], cut_risk[i] = kinematic_bound(maneuvers[i], cfg)
+        return Assessment(risk, duration, cut_risk, full)
+    for block in range(0, len(todo), CHUNK):
+        rows = todo[block : block + CHUNK]
+        rollout = fan(model, [maneuvers[i] for i in rows], cfg, rate_hz, seed + block)
+        times = first_violations(rollout, cfg, rate_hz)
+        untrusted = relative_speed_std(rollout) / cfg.fan_scale > cfg.trust_std
+        for j, i in enumerate(rows):
+            risk[i], duration[i], cut_risk[i] = admissible_duration(times[:, j], full[i], cfg)
+            if untrusted[j]:  # the model extrapolates: the kinematic worst case must hold as well
+                bound = kinematic_bound(maneuvers[i], cfg)
+                risk[i] = max(risk[i], bound[0])
+                if bound[1] < duration[i]:
+                    duration[i], cut_risk[i] = bound[1], bound[2] if bound[1] > 0 else float("nan")
+    return Assessment(risk, duration, cut_risk, full)
+
+
+def relative_speed_std(rollout: Rollout) -> np.ndarray:
+    """(M,) largest epistemic std of the speed along each maneuver, relative to the speed (>= 0.02 m/s)."""
+    std = np.sqrt(rollout.epistemic_var[..., 0])
+    relative = std / np.maximum(np.abs(rollout.mean_rates[..., 0]), 0.02)
+    relative[np.arange(relative.shape[1])[None, :] >= rollout.lengths[:, None]] = 0.0
+    return relative.max(axis=1)
+
+
+def kinematic_bound(maneuver: Any, cfg: SafetyConfig) -> tuple[float, float, float]:
+    """Risk, admissible duration and its risk by the kinematic worst case (see the module docstring).
+
+    Speed at most SPEED_PER_THROTTLE |throttle|, yaw rate at most v tan(steering) / L, heading
+    anything: within the limits, the car cannot reach a wall before `room / v` seconds.
+    """
+    room = max(float(boundary_distance(cfg.arena, cfg.start[0], cfg.start[1])) - cfg.margin, 0.0)
+    full = float(maneuver.duration)
+    v = SPEED_PER_THROTTLE * abs(maneuver.throttle)
+    w = v * math.tan(maneuver.steering if maneuver.kind != "straight" else 0.0) / WHEELBASE
+    within = v <= cfg.max_speed and w <= cfg.max_yaw_rate and v * w <= cfg.max_lateral_acceleration
+    reach = min(full, math.floor(room / v) if v > 0 else full)
+    risk = 0.0 if within and reach >= full else 1.0
+    if within and reach >= cfg.min_duration:
+        return risk, float(reach), 0.0
+    return risk, 0.0, float("nan")
+
+
+def log_violation(log: pd.DataFrame, cfg: SafetyConfig, rate_hz: float) -> str:
+    """What a driven maneuver's log violated first ("" if nothing): arena, speed, yaw_rate or lateral.
+
+    The log's path is taken relative to its first pose and placed at the arena's start pose, so a
+    simulator log (starting at the origin) and a car's log (in its own frame) are judged alike.
+    """
+    x0, y0, yaw0 = cfg.start
+    px, py, yaw = (log[c].to_numpy(dtype=np.float64) for c in ("posX", "posY", "yaw"))
+    dx, dy = px - px[0], py - py[0]
+    turn = yaw0 - yaw[0]
+    c, s = math.cos(turn), math.sin(turn)
+    x, y = x0 + c * dx - s * dy, y0 + s * dx + c * dy
+    code = violating(x, y, log["speed"].to_numpy(np.float64), log["angZ"].to_numpy(np.float64), cfg, rate_hz)
+    bad = np.flatnonzero(code)
+    return REASONS[int(code[bad[0]]) - 1] if len(bad) else ""
+
+
+def violations(logs: pd.DataFrame, cfg: SafetyConfig, rate_hz: float) -> dict[int, str]:
+    """Per pool index in `logs` (rows tagged with `pool_index`): what its maneuver violated ("" none)."""
+    return {
+        int(index): log_violation(part.reset_index(drop=True), cfg, rate_hz)
+        for index, part in logs.groupby("pool_index", sort=False)
+    }
+
+
+def proposal_figure(campaign: Any, path: str | Path) -> Path:
+    """Draw the pending proposals of a campaign in its arena (`campaign propose --plot`); return the path.
+
+    The fans come from the model that judged them (the round's, or a warm start's prior model for
+    the initial design; without either, the kinematic worst case's reach is drawn instead).
+    """
+    from activelearn.loop.state import MODEL_FILE, CampaignState
+    from activelearn.numerics.models import load_model
+    from activelearn.plots import arena_figure
+
+    cfg, safety = campaign.cfg, campaign.cfg.safety
+    state = CampaignState.load(campaign.directory)
+    campaign.cuts = dict(state.cuts)
+    pending = state.pending or []
+    model_file = campaign.directory / MODEL_FILE
+    model = load_model(model_file) if state.rounds and model_file.exists() else campaign.prior_model()
+    maneuvers = [campaign.driven(i) for i in pending]
+    proposals = []
+    for i, m in zip(pending, maneuvers, strict=True):
+        cut = " (cut)" if str(i) in state.cuts else ""
+        proposals.append({"label": f"{m.name}{cut}", "risk": state.risks.get(str(i), float("nan"))})
+    if model is not None and maneuvers:
+        rollout = fan(model, maneuvers, safety, cfg.simulation.rate_hz, cfg.seed * 10_007 + len(state.rounds))
+        for j, proposal in enumerate(proposals):
+            n = int(rollout.lengths[j])
+            proposal.update(x=rollout.x[:, j, :n], y=rollout.y[:, j, :n])
+    reach = None
+    if model is None:
+        room = float(boundary_distance(safety.arena, safety.start[0], safety.start[1])) - safety.margin
+        reach = max(room, 0.0)
+    title = f"{cfg.name}: proposals of batch {len(state.batches)}, delta {safety.delta:g}"
+    fig = arena_figure(safety.arena, safety.start, proposals, margin=safety.margin, reach=reach, title=title)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{path.suffix}")
+    fig.savefig(tmp, dpi=110)
+    tmp.replace(path)
+    return path

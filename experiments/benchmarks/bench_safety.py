@@ -1,0 +1,148 @@
+"""Safe exploration (issue 23): the same strategy with and without [safety] in the same arena.
+
+Runs `compare` twice on a config with a [safety] section (default experiments/configs/safe_track.toml):
+once enforcing it (every pick admissible at risk level delta, cut short where needed) and once with
+`safety.enforce = false` (the unconstrained strategy; its logs are still checked against the arena
+and the limits). Same seeds, so both share the prior, the test set and the noise streams. Prints per
+variant: violations (maneuvers whose true MuJoCo path left the arena or broke a limit) in total and
+per round, campaigns with any, final test RMSE (mean ± s.e.m.) and its ratio to the unconstrained
+one, the safe-set size and the seconds the risk computation cost per round, and the share of picks
+that were cut short.
+
+Usage: python experiments/benchmarks/bench_safety.py [--config FILE] [--strategy auto] [--seeds 10]
+       [--workers 2] [--delta 0.05] [--max-sim-seconds S] [--per-round K] [--setup-seconds S]
+       [--out DIR] [--resume]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from activelearn.config import load_config
+from activelearn.loop.state import CampaignState
+from activelearn.studies.compare import compare
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+
+def _sem(values: np.ndarray) -> float:
+    return float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) > 1 else float("nan")
+
+
+def picks_cut(directory: Path) -> tuple[int, int]:
+    """(picks cut short, picks) over every campaign under a comparison directory."""
+    cut = total = 0
+    for state_file in directory.glob("*/seed*/state.json"):
+        state = CampaignState.load(state_file.parent)
+        total += len(state.taken)
+        cut += sum(1 for i in state.taken if str(i) in state.cuts)
+    return cut, total
+
+
+def summary(curves: pd.DataFrame, label: str, directory: Path) -> dict:
+    """One line of the table for one variant."""
+    last = curves.sort_values("round").groupby("seed").last()
+    rounds = curves[curves["round"] > 0]
+    cut, total = picks_cut(directory)
+    return {
+        "variant": label,
+        "seeds": len(last),
+        "violations": int(last["violations_total"].sum()),
+        "campaigns_with_any": int((last["violations_total"] > 0).sum()),
+        "final_rmse": float(last["test_rmse"].mean()),
+        "final_rmse_sem": _sem(last["test_rmse"].to_numpy()),
+        "safe_set_mean": float(curves["safe_set_size"].mean()) if "safe_set_size" in curves else float("nan"),
+        "safety_s_per_round": float(curves["safety_seconds"].mean()) if "safety_seconds" in curves else 0.0,
+        "cut_share": cut / total if total else float("nan"),
+        "violations_by_round": rounds.groupby("round")["violations"].sum().astype(int).to_dict(),
+    }
+
+
+def at_equal_seconds(safe: pd.DataFrame, free: pd.DataFrame) -> tuple[float, float, float]:
+    """Mean track seconds the safe campaigns spent, and both variants' mean test RMSE at that point.
+
+    Per seed, the unconstrained campaign's last round whose track seconds do not exceed what the
+    safe campaign of that seed spent in all (the safe campaigns drive shorter, cut maneuvers).
+    """
+    seconds, safe_rmse, free_rmse = [], [], []
+    for seed, part in safe.groupby("seed"):
+        last = part.sort_values("round").iloc[-1]
+        other = free[(free["seed"] == seed) & (free["track_seconds"] <= last["track_seconds"] + 1e-9)]
+        seconds.append(last["track_seconds"])
+        safe_rmse.append(last["test_rmse"])
+        free_rmse.append(other.sort_values("round").iloc[-1]["test_rmse"])
+    return float(np.mean(seconds)), float(np.mean(safe_rmse)), float(np.mean(free_rmse))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", default=str(CONFIGS / "safe_track.toml"))
+    parser.add_argument("--strategy", default=None, help="default: the config's")
+    parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--delta", type=float, default=None, help="default: the config's")
+    parser.add_argument("--max-sim-seconds", type=float, default=None,
+                        help="a budget in track seconds for both variants instead of the config's count")
+    parser.add_argument("--per-round", type=int, default=None, help="default: the config's")
+    parser.add_argument("--setup-seconds", type=float, default=None,
+                        help="track seconds each maneuver costs besides its duration (default: the config's)")
+    parser.add_argument("--out", default="runs/bench_safety")
+    parser.add_argument("--resume", action="store_true")
+    parser.add_argument("--no-tracking", action="store_true")
+    args = parser.parse_args()
+
+    overrides: dict = {} if args.delta is None else {"safety": {"delta": args.delta}}
+    if args.strategy:
+        overrides["strategy"] = args.strategy
+    if args.max_sim_seconds is not None:  # a track day: the safe variant drives more, shorter maneuvers
+        overrides["design"] = {"max_sim_seconds": args.max_sim_seconds, "max_maneuvers": None}
+    if args.per_round is not None:
+        overrides.setdefault("design", {})["per_round"] = args.per_round
+    if args.setup_seconds is not None:
+        overrides.setdefault("design", {})["setup_seconds"] = args.setup_seconds
+    cfg = load_config(args.config, overrides=overrides)
+    if cfg.safety is None:
+        raise SystemExit(f"{args.config} has no [safety] section")
+    seeds = list(range(args.seeds))
+    variants = {
+        f"safe (delta {cfg.safety.delta:g})": cfg,
+        "unconstrained": cfg.model_copy(update={"safety": cfg.safety.model_copy(update={"enforce": False})}),
+    }
+    rows, curves, started = [], [], time.perf_counter()
+    for label, variant in variants.items():
+        directory = Path(args.out) / ("safe" if variant.safety.enforce else "unconstrained")
+        result = compare(
+            variant, [variant.strategy], seeds, workers=args.workers, directory=directory,
+            resume=args.resume, tracking=not args.no_tracking,
+        )  # fmt: skip
+        rows.append(summary(result.curves, label, directory))
+        curves.append(result.curves)
+    base = rows[-1]["final_rmse"]
+    print(f"# {cfg.name}: strategy {cfg.strategy}, {len(seeds)} seeds, arena {cfg.safety.arena}, "
+          f"start {list(cfg.safety.start)}, limits |v| <= {cfg.safety.max_speed} m/s, "
+          f"|w| <= {cfg.safety.max_yaw_rate} rad/s, |v w| <= {cfg.safety.max_lateral_acceleration} m/s^2, "
+          f"margin {cfg.safety.margin} m, fan {cfg.safety.n_samples} trajectories x {cfg.safety.fan_scale} "
+          f"epistemic std")  # fmt: skip
+    for row in rows:
+        print(
+            f"{row['variant']:>16}: violations {row['violations']} in {row['campaigns_with_any']} of "
+            f"{row['seeds']} campaigns (by round {row['violations_by_round']}); final test RMSE "
+            f"{row['final_rmse']:.4f} ± {row['final_rmse_sem']:.4f} ({row['final_rmse'] / base:.2f}x "
+            f"unconstrained); safe set {row['safe_set_mean']:.1f} candidates per round; risk "
+            f"computation {row['safety_s_per_round']:.2f} s per round; picks cut short {row['cut_share']:.0%}"
+        )
+    free_seconds = curves[-1].sort_values("round").groupby("seed").last()["track_seconds"].mean()
+    seconds, safe_rmse, free_rmse = at_equal_seconds(*curves)
+    print(f"track seconds spent: safe {seconds:.0f} s, unconstrained {free_seconds:.0f} s (mean); "
+          f"at the safe campaigns' track seconds the unconstrained ones had test RMSE {free_rmse:.4f} "
+          f"(safe {safe_rmse:.4f}, {safe_rmse / free_rmse:.2f}x)")  # fmt: skip
+    print(f"wall time {time.perf_counter() - started:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

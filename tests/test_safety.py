@@ -1,0 +1,257 @@
+"""[safety] (issue 23): the arena config, admissibility from the fans, cuts, violations, the stop.
+
+Real MuJoCo, real models and a real SQLite MLflow store, on a tiny skidpad-and-straight pool.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from activelearn.config import (
+    SafetyConfig,
+    boundary_distance,
+    load_config,
+    polygon_clearance,
+    polygon_self_crossing,
+    validate_config,
+)
+from activelearn.errors import ConfigError
+from activelearn.loop.acquisition import make_strategy
+from activelearn.loop.campaign import Campaign, CampaignState
+from activelearn.loop.safety import REASONS, admissible_duration, log_violation, violating
+from activelearn.numerics.models import build_model
+from activelearn.numerics.training import fit
+from activelearn.studies.tracking import Tracker
+
+SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
+SQUARE = [[-1.5, -1.5], [1.5, -1.5], [1.5, 1.5], [-1.5, 1.5]]
+
+
+def safe_config(tmp_path: Path, safety: dict | None = None, **overrides):
+    """The smoke pool with straights, a 3 x 3 m arena around the start, writing under tmp_path."""
+    data = {
+        "output_dir": str(tmp_path / "runs"),
+        "tracking": {"uri": f"sqlite:///{tmp_path}/mlruns/mlflow.db"},
+        "pool": {"kinds": ["straight", "skidpad"]},
+        "training": {"epochs": 25},
+        "design": {"initial": 3, "per_round": 2, "max_maneuvers": 5},
+        "safety": {"arena": SQUARE, "start": [0.0, 0.0, 0.0], "min_duration": 3.0, "n_samples": 16,
+                   **(safety or {})},
+        **overrides,
+    }  # fmt: skip
+    return load_config(SMOKE, overrides=data)
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "activelearn.cli", *args], capture_output=True, text=True,
+                          timeout=300)  # fmt: skip
+
+
+# ------------------------------------------------------------------------------------- the config
+
+
+@pytest.mark.parametrize(
+    ("safety", "field", "words"),
+    [
+        ({"arena": [[0, 0], [1, 0]]}, "safety.arena", "open"),
+        ({"arena": [[0, 0], [1, 0], [2, 0]]}, "safety.arena", "open"),
+        ({"arena": [[0, 0], [1, 1], [1, 0], [0, 1]]}, "safety.arena", "crosses itself"),
+        ({"arena": SQUARE, "start": [2.0, 0.0, 0.0]}, "safety.start", "outside"),
+        ({"arena": SQUARE, "start": [1.45, 0.0, 0.0]}, "safety.start", "margin"),
+        ({"arena": SQUARE, "delta": 0.0}, "safety.delta", "(0, 1)"),
+        ({"arena": SQUARE, "delta": 1.0}, "safety.delta", "(0, 1)"),
+    ],
+)
+def test_bad_safety_values_name_their_field(safety, field, words):
+    with pytest.raises(ConfigError) as info:
+        validate_config({"safety": safety})
+    assert str(info.value).startswith(field) and words in str(info.value)
+
+
+def test_bad_arena_on_the_command_line_is_one_line_exit_2_nothing_written(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(SMOKE.read_text() + '\n[safety]\narena = [[0, 0], [1, 1], [1, 0], [0, 1]]\n')
+    out = tmp_path / "o"
+    plot = str(tmp_path / "p.png")
+    done = _cli("campaign", "propose", str(bad), "--no-tracking", "--out", str(out), "--plot", plot)
+    assert done.returncode == 2
+    assert "safety.arena" in done.stderr and len(done.stderr.strip().splitlines()) == 1
+    assert not out.exists() and not (tmp_path / "p.png").exists()
+
+
+def test_polygon_geometry():
+    assert polygon_self_crossing([(0, 0), (2, 0), (2, 2), (0, 2)]) is None
+    assert polygon_self_crossing([(0, 0), (2, 0), (2, 2), (1, 2), (1, -1)]) is not None
+    d = boundary_distance(SQUARE, np.array([0.0, 1.0, 2.0]), np.array([0.0, 0.0, 0.0]))
+    assert np.allclose(d, [1.5, 0.5, -0.5])
+    # a concave arena (an L): the notch is outside
+    ell = [(0, 0), (2, 0), (2, 1), (1, 1), (1, 2), (0, 2)]
+    assert boundary_distance(ell, 1.5, 1.5) < 0 < boundary_distance(ell, 0.5, 1.5)
+    # the fast clearance of convex arenas (either orientation) agrees with it inside, and in sign
+    x, y = np.random.default_rng(0).uniform(-2, 3, (2, 5000))
+    for arena in (SQUARE, SQUARE[::-1], [(0, 0), (2, 0), (3, 1), (1, 3), (-1, 1)], ell):
+        exact, fast = boundary_distance(arena, x, y), polygon_clearance(arena, x, y)
+        assert np.allclose(fast[exact >= 0], exact[exact >= 0]) and ((fast >= 0.1) == (exact >= 0.1)).all()
+
+
+def test_admissible_duration_keeps_cuts_or_drops():
+    cfg = SafetyConfig(arena=SQUARE, delta=0.1, min_duration=5.0)
+    never = np.full(20, np.inf)
+    assert admissible_duration(never, 30.0, cfg) == (0.0, 30.0, 0.0)
+    # 2 of 20 trajectories violate (10 % <= delta): the whole maneuver
+    two = never.copy()
+    two[:2] = [3.0, 4.0]
+    assert admissible_duration(two, 30.0, cfg)[1] == 30.0
+    # 5 of 20 violate, the third earliest at 12.7 s: cut to 12 s, where only 2 have
+    five = never.copy()
+    five[:5] = [3.0, 4.0, 12.7, 20.0, 25.0]
+    risk, duration, cut_risk = admissible_duration(five, 30.0, cfg)
+    assert (risk, duration, cut_risk) == (0.25, 12.0, 0.1)
+    # ... unless that is shorter than min_duration
+    early = never.copy()
+    early[:5] = [1.0, 2.0, 3.0, 4.0, 5.0]
+    assert admissible_duration(early, 30.0, cfg)[1] == 0.0
+
+
+def test_log_violation_reads_the_path_in_the_arena_frame():
+    cfg = SafetyConfig(arena=SQUARE, start=(1.0, 0.0, 0.0), margin=0.1)
+    t = np.arange(0, 10, 1 / 30)
+    log = pd.DataFrame({"posX": 5.0 + 0.05 * t, "posY": 7.0 + 0 * t, "yaw": 0 * t, "speed": 0.05 + 0 * t,
+                        "angZ": 0 * t})  # fmt: skip
+    # from x = 1.0 at 0.05 m/s for 10 s: to 1.5, beyond the wall at 1.5 less the margin
+    assert log_violation(log, cfg, 30.0) == "arena"
+    assert log_violation(log[t < 5], cfg, 30.0) == ""
+    fast = log[t < 5].assign(speed=0.5)
+    assert log_violation(fast, cfg, 30.0) == "speed"
+
+
+def test_a_diverged_fan_trajectory_is_a_violation():
+    cfg = SafetyConfig(arena=SQUARE)
+    zeros = np.zeros((2, 60))
+    x = zeros.copy()
+    x[1, 30:] = np.nan  # the second trajectory blew up half-way (a Markov rollout can)
+    code = violating(x, zeros, zeros + 0.1, zeros, cfg, 30.0)
+    assert not code[0].any()
+    assert REASONS[code[1, 30] - 1] == "diverged" and not code[1, :30].any()
+
+
+# ------------------------------------------------------------------------------------- campaigns
+
+
+def test_safe_campaign_drives_admissible_cuts_and_logs_safety(tmp_path):
+    cfg = safe_config(tmp_path)
+    tracker = Tracker(cfg.tracking.uri, cfg.tracking.experiment)
+    result = Campaign(cfg, tmp_path / "c", tracker=tracker).run(figures=False)
+    state = result.state
+    assert len(state.taken) == 5
+    samples = pd.read_parquet(tmp_path / "c" / "samples.parquet")
+    for index in state.taken:
+        driven = samples[samples["pool_index"] == index]
+        seconds = driven["time"].max()
+        if str(index) in state.cuts:  # cut short: driven (and logged) for the shorter duration only
+            assert state.cuts[str(index)] < 20.0
+            assert seconds <= state.cuts[str(index)] + 0.05
+        else:
+            assert seconds > 19.0
+        assert state.risks[str(index)] <= cfg.safety.delta
+    assert state.cuts, "the 3 x 3 m arena cuts the fast maneuvers"
+    history = result.history
+    assert {"safe_set_size", "violations", "violations_total"} <= set(history)
+    assert (history["safe_set_size"].dropna() > 0).all()
+    for name in ("safe_set_size", "violations", "violations_total", "safety_seconds"):
+        assert len(tracker.metric_history(state.run_id, name)) >= 1, name
+    assert history["violations_total"].iloc[-1] == sum(1 for r in state.violated.values() if r)
+
+
+def test_every_strategy_picks_among_admissible_candidates_only(tmp_path):
+    # a 2 x 2 m arena: part of the pool is not admissible, part only when cut short
+    cfg = safe_config(tmp_path, {"arena": [[-1, -1], [1, -1], [1, 1], [-1, 1]]}, tracking={"enabled": False})
+    campaign = Campaign(cfg, tmp_path / "c")
+    model = build_model(cfg.model)
+    test = campaign.test_set
+    fit(model, test.x, test.y_noisy, cfg.training, groups=test.groups, seed=0)
+    pool, safe = campaign._safe_pool(campaign.pool([], model), model, 1)
+    admissible = set(np.flatnonzero(safe.admissible).tolist())
+    assert 2 <= len(admissible) < len(campaign.maneuvers) and safe.cut.any()
+    assert set(pool.available.tolist()) == admissible
+    for name in ("grid", "random", "sobol", "lhs", "uniform", "max_epistemic", "max_total", "bald",
+                 "epistemic_maximin", "integrated_variance", "auto"):  # fmt: skip
+        picks = make_strategy(name, n_samples=16).select(model, pool, 2, np.random.default_rng(0))
+        assert set(picks) <= admissible, name
+
+
+def test_unconstrained_campaign_counts_its_violations(tmp_path):
+    # a 1.2 x 1.2 m arena: 20-s skidpads and straights leave it; enforce = false picks them anyway
+    small = [[-0.6, -0.6], [0.6, -0.6], [0.6, 0.6], [-0.6, 0.6]]
+    cfg = safe_config(tmp_path, {"arena": small, "enforce": False}, strategy="uniform",
+                      design={"initial": 3, "per_round": 2, "max_maneuvers": 3})  # fmt: skip
+    result = Campaign(cfg, tmp_path / "c").run(figures=False, log_model=False)
+    assert not result.state.cuts  # nothing cut: the strategy drives what it picked
+    assert result.history["violations_total"].iloc[-1] >= 1
+    assert set(result.state.violated.values()) <= {"", "arena", "speed", "yaw_rate", "lateral"}
+
+
+def test_nothing_admissible_stops_cleanly_and_resumes_with_a_relaxed_arena(tmp_path):
+    out = tmp_path / "c"
+    tight = tmp_path / "tight.toml"
+    base = SMOKE.read_text().replace('strategy = "max_epistemic"', 'strategy = "uniform"')
+    tracking = "\n[tracking]\nenabled = false\n"
+    # 0.8 m from the walls, 19-s minimum: before any model no candidate can be driven that long
+    arena = [[-0.8, -0.8], [0.8, -0.8], [0.8, 0.8], [-0.8, 0.8]]
+    tight.write_text(base + tracking + f"\n[safety]\narena = {arena}\nmin_duration = 19.0\n")
+    done = _cli("campaign", "propose", str(tight), "--out", str(out))
+    assert done.returncode == 0, done.stderr
+    assert "no candidate is admissible" in done.stdout and "--resume" in done.stdout
+    state = CampaignState.load(out)
+    assert state.finished and state.stop_reason == "nothing_admissible" and state.pending is None
+    # the person widens the arena and lowers the minimum: the same directory continues
+    wide = tmp_path / "wide.toml"
+    wide.write_text(base + tracking + f"\n[safety]\narena = {SQUARE}\nmin_duration = 3.0\n")
+    plot = str(tmp_path / "p.png")
+    done = _cli("campaign", "propose", str(wide), "--out", str(out), "--resume", "--plot", plot)
+    assert done.returncode == 0, done.stderr
+    assert "drive these 3 maneuvers" in done.stdout and "risk" in done.stdout
+    state = CampaignState.load(out)
+    assert not state.finished and len(state.pending) == 3
+    proposals = pd.read_csv(out / "proposals" / "round-000.csv")
+    assert {"risk", "cut_from"} <= set(proposals.columns)
+    assert (tmp_path / "p.png").stat().st_size > 10_000
+
+
+def test_plot_needs_an_arena(tmp_path):
+    done = _cli("campaign", "propose", str(SMOKE), "--no-tracking", "--out", str(tmp_path / "o"),
+                "--plot", str(tmp_path / "p.png"))  # fmt: skip
+    assert done.returncode == 2 and "--plot" in done.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_cut_proposal_is_driven_short_and_ingested(tmp_path, capsys):
+    from activelearn.cli import main
+
+    config = tmp_path / "car.toml"
+    config.write_text(SMOKE.read_text().replace('strategy = "max_epistemic"', 'strategy = "uniform"')
+                      + '\n[oracle]\nkind = "external"\n[tracking]\nenabled = false\n'
+                      + f"[safety]\narena = {SQUARE}\nmin_duration = 3.0\nn_samples = 16\n")  # fmt: skip
+    directory = tmp_path / "campaign"
+    assert main(["campaign", "propose", str(config), "--out", str(directory)]) == 0
+    assert "cut from 20 s" in capsys.readouterr().out
+    proposals = pd.read_csv(directory / "proposals" / "round-000.csv")
+    assert (proposals["duration"] < proposals["cut_from"]).all()  # before any model: all cut
+    logs = []
+    for i, row in proposals.iterrows():
+        out = tmp_path / f"log{i}.csv"
+        assert main(["simulate", "--maneuver", row["maneuver"], "--direction", row["direction"],
+                     "--throttle", str(row["throttle"]), "--steering", str(row["steering"]),
+                     "--duration", str(row["duration"]), "--autodrive", "--out", str(out)]) == 0  # fmt: skip
+        logs.append(str(out))
+    assert main(["campaign", "ingest", str(directory), *logs]) == 0
+    assert "[safety]" in capsys.readouterr().out
+    state = CampaignState.load(directory)
+    assert len(state.batches) == 1 and len(state.rounds) == 1 and state.violated
+    assert all(reason == "" for reason in state.violated.values())
