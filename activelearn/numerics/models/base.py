@@ -78,6 +78,15 @@ def _as_tensor(x: np.ndarray | Tensor, n_inputs: int) -> Tensor:
     return t
 
 
+def draw_moments(means: Tensor, var: Tensor, moments: tuple[Tensor, Tensor, Tensor]) -> None:
+    """Write the mean, aleatoric and epistemic variance over S draws (S, n_outputs, n) into `moments`."""
+    centre, aleatoric, epistemic = moments
+    torch.mean(means, dim=0, out=centre)
+    torch.mean(var, dim=0, out=aleatoric)
+    # Population variance (ddof 0): the mixture's variance.
+    torch.mean((means - centre).square_(), dim=0, out=epistemic)
+
+
 class SampledModel:
     """S posterior weight draws, fixed at creation; call it on inputs to get per-draw moments.
 
@@ -147,11 +156,7 @@ class SampledModel:
         means = torch.addcmul(m.y_mean[:, None], means, m.y_std[:, None], out=out_means)
         var = torch.mul(var, m.y_std.square()[:, None], out=out_var)
         if moments is not None:
-            centre, aleatoric, epistemic = moments
-            torch.mean(means, dim=0, out=centre)
-            torch.mean(var, dim=0, out=aleatoric)
-            # Population variance (ddof 0): the mixture's variance.
-            torch.mean((means - centre).square_(), dim=0, out=epistemic)
+            draw_moments(means, var, moments)
         return means, var
 
     def _kernel_forward(

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from activelearn.numerics.models.base import Model, Prediction
+from activelearn.numerics.models.base import Model, Prediction, draw_moments
 
 BASE_SAMPLES = 32  # posterior draws averaged for the base's mean (a fixed seed: a deterministic function)
 
@@ -44,10 +44,7 @@ class ResidualDraws:
         else:
             means += shift.reshape(x.shape[0], x.shape[2], -1).transpose(1, 2)
         if moments is not None:
-            centre, aleatoric, epistemic = moments
-            torch.mean(means, dim=0, out=centre)
-            torch.mean(var, dim=0, out=aleatoric)
-            torch.mean((means - centre).square_(), dim=0, out=epistemic)
+            draw_moments(means, var, moments)
         return means, var
 
     def __call__(self, x: np.ndarray | Tensor) -> tuple[np.ndarray | Tensor, np.ndarray | Tensor]:
