@@ -163,10 +163,17 @@ def test_two_proposes_make_one_campaign_and_one_mlflow_run(simulated, tmp_path, 
     config.write_text(f'output_dir = "{runs_dir}"\n' + CONFIG + f'[tracking]\nuri = "{uri}"\n')
     tracker = Tracker(uri)  # the store exists before the race (its schema is not what is raced for)
     directory = tmp_path / "campaign"
-    procs = [_cli("campaign", "propose", str(config), "--out", str(directory), "--resume") for _ in range(2)]
+    procs = [_cli("campaign", "propose", str(config), "--out", str(directory)) for _ in range(2)]
     results = [_finish(p) for p in procs]
     _outcome("propose+propose", race, [code for code, _ in results])
-    assert [code for code, _ in results] == [0, 0], results
+    # One starts the campaign; the other, let in after it, finds the campaign and says so (exit 2, one
+    # error line naming --resume, after a warning if it waited for the lock); a --resume on a directory
+    # with no campaign is refused before the race.
+    assert sorted(code for code, _ in results) == [0, 2], results
+    loser = next(err for code, err in results if code == 2).strip().splitlines()
+    assert all(line.startswith("warning:") for line in loser[:-1]), loser  # waiting for the lock
+    assert loser[-1].startswith("error:") and "holds a campaign already" in loser[-1], loser
+    assert "--resume" in loser[-1], loser
     state = CampaignState.load(directory)
     runs = tracker.runs_tagged({"config": "race"})
     assert runs == [state.run_id]

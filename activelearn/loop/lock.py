@@ -35,6 +35,7 @@ from activelearn.errors import ActiveLearnError, CampaignStopped, InputError
 
 LOCK_FILE = ".lock"
 HOLDER_FILE = "lock.json"
+COMMIT_FILE = "state.json"  # a campaign's commit point (activelearn.loop.state.STATE_FILE is this name)
 LEASE_SECONDS = 60.0
 DEFAULT_WAIT = 120.0  # s a second writer waits before it gives up
 _POLL = 0.2
@@ -274,9 +275,15 @@ def writer(method: F) -> F:
         except OSError as exc:
             if not _within(exc.filename, campaign.directory):
                 raise
+            # state.json is the commit point: without one there is nothing to resume, only to redo
+            committed = (Path(campaign.directory) / COMMIT_FILE).is_file()
+            advice = (
+                "holds its last finished step: rerun with --resume once it can be written"
+                if committed
+                else "holds no finished step yet: rerun the same command (no --resume) once it can be written"
+            )
             raise CampaignStopped(
-                f"cannot write {exc.filename} ({exc.strerror}); {campaign.directory} holds its last "
-                "finished step: rerun with --resume once it can be written"
+                f"cannot write {exc.filename} ({exc.strerror}); {campaign.directory} {advice}"
             ) from None
 
     return locked  # type: ignore[return-value]

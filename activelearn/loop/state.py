@@ -17,7 +17,7 @@ from activelearn.data import atomic_write_bytes
 from activelearn.errors import DataFormatError
 from activelearn.loop import lock
 
-STATE_FILE = "state.json"
+STATE_FILE = lock.COMMIT_FILE
 SAMPLES_FILE = "samples.parquet"
 MODEL_FILE = "model.pt"
 PRIOR_MODEL_FILE = "prior_model.pt"
