@@ -151,11 +151,7 @@ def training_rows(frame: pd.DataFrame, cfg: DataConfig) -> pd.DataFrame:
     lags = data_lags(cfg)
     first = 1
     if lags is not None:
-        lagged = {
-            name: frame[name.rsplit("_lag", 1)[0]].shift(int(name.rsplit("_lag", 1)[1]))
-            for name in lags.columns()
-            if "_lag" in name
-        }
+        lagged = {name: frame[source].shift(back) for name, source, back in lags.inputs() if back}
         frame = pd.concat([frame, pd.DataFrame(lagged, index=frame.index)], axis=1)
         first = lags.span
     keep = frame.iloc[first:]

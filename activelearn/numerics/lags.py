@@ -52,12 +52,18 @@ class Lags:
         """Log steps of past a row needs: rows earlier than this in a log have no full history."""
         return self.history * self.step
 
+    def inputs(self) -> list[tuple[str, str, int]]:
+        """Every input in model order as (column name, the log column it reads, log steps back).
+
+        Lagged columns are named `<name>_lag<d>`; the current controls keep their names.
+        """
+        pairs = [(c, d) for d in self.control_lags for c in CONTROL_COLUMNS]
+        pairs += [(c, d) for d in self.rate_lags for c in RATE_COLUMNS]
+        return [(c if d == 0 else f"{c}_lag{d}", c, d) for c, d in pairs]
+
     def columns(self) -> list[str]:
-        """Column names of the inputs in model order (lagged columns as `<name>_lag<d>`)."""
-        names = [
-            c if d == 0 else f"{c}_lag{d}" for d in self.control_lags for c in CONTROL_COLUMNS
-        ]
-        return names + [f"{c}_lag{d}" for d in self.rate_lags for c in RATE_COLUMNS]
+        """Column names of the inputs in model order."""
+        return [name for name, _, _ in self.inputs()]
 
 
 def model_lags(model) -> Lags | None:
