@@ -28,6 +28,7 @@ from activelearn.numerics.arch import ACTIVATIONS, parse_arch
 ModelKind = Literal["hybrid", "pbnn", "pnn", "bnn", "dnn", "ensemble", "recurrent"]
 Activation = Literal[ACTIVATIONS]  # type: ignore[valid-type]
 MAX_STEERING = 0.5236  # rad, Nigel's steering limit
+POSE_LEVER_ARM = 0.07929  # m, Nigel's CG (where its pose is logged) ahead of the rear axle
 
 class _Section(BaseModel):
     """Base of every config section: unknown keys are errors, values are re-validated on assignment."""
@@ -59,6 +60,9 @@ class ModelConfig(_Section):
     # Log steps between the lagged inputs of a dynamic model (`activelearn.numerics.lags`); a campaign
     # sets it from [data] history_step. The forward simulation reads it from the saved model.
     history_step: int = 1
+    # Metres the logged position lies ahead of the rear axle; free runs place their paths there
+    # (`activelearn.numerics.surrogate`). A campaign sets it from [data] pose_lever_arm.
+    pose_lever_arm: Annotated[float, Field(ge=-1.0, le=1.0)] = POSE_LEVER_ARM
     # Width of the recurrent model's GRU trunk (kind = "recurrent"): it reads the history window as a
     # sequence of (controls, rates) tokens, oldest first; the layers of `arch` form its head.
     hidden_size: int = 32
@@ -304,6 +308,11 @@ class DataConfig(_Section):
     inputs: Literal["controls", "controls+rates", "history"] = "controls"
     history: Annotated[int, Field(ge=1, le=64)] = 4
     history_step: Annotated[int, Field(ge=1, le=300)] = 3
+    # Where the logged pose (posX, posY) lies, in metres ahead of the rear axle: a kinematic car's
+    # rear axle does not slip sideways, so a point `a` ahead of it moves sideways at a·ω in a turn.
+    # Free runs integrate v along the heading at the axle and place the path there. Nigel's IMU sits
+    # at the CG, l_r = 0.0793 m ahead (0 integrates v along the heading at the logged point itself).
+    pose_lever_arm: Annotated[float, Field(ge=-1.0, le=1.0)] = POSE_LEVER_ARM
 
     @model_validator(mode="after")
     def _history_knobs_need_history(self) -> DataConfig:
@@ -617,6 +626,10 @@ class CampaignConfig(_Section):
 
     @model_validator(mode="after")
     def _inputs_match_model(self) -> CampaignConfig:
+        if self.model.pose_lever_arm != self.data.pose_lever_arm:
+            # The data section says where the pose is logged; the saved model carries it to free runs.
+            update = {"pose_lever_arm": self.data.pose_lever_arm}
+            object.__setattr__(self, "model", self.model.model_copy(update=update))
         if self.data.inputs == "history":
             # The data section owns the layout; the model follows it (its saved config then carries
             # what the forward simulation needs).

@@ -16,7 +16,13 @@ from activelearn.config import DataConfig, ModelConfig, TrainingConfig
 from activelearn.errors import InputError
 from activelearn.loop.collection import arrays, training_rows
 from activelearn.numerics.models import build_model, save_model
-from activelearn.numerics.surrogate import _integrate, against_simulator, simulate
+from activelearn.numerics.surrogate import (
+    _integrate,
+    against_simulator,
+    estimate_lever_arm,
+    relative_pose,
+    simulate,
+)
 from activelearn.numerics.training import fit
 from simulator import Maneuver
 
@@ -262,3 +268,62 @@ def test_rollouts_alive_together_never_share_memory_and_reuse_changes_nothing(sk
     third = simulate(skidpad_model, controls, n_samples=8, seed=1)  # on the dropped rollouts' memory
     for name, values in kept.items():
         np.testing.assert_array_equal(getattr(third, name), values, err_msg=name)
+
+
+@pytest.fixture(scope="module")
+def turning_truth() -> pd.DataFrame:
+    """Noise-free logs of maneuvers that turn: a skidpad, a fishhook and an eight."""
+    maneuvers = [
+        Maneuver("skidpad", 0.6, 0.45, "ccw", 20.0),
+        Maneuver("fishhook", 0.5, 0.5236, "cw", 20.0),
+        Maneuver("eight", 0.5, 0.4, "ccw", 20.0),
+    ]
+    return simulator.collect(maneuvers, seed=0, noise=None)
+
+
+def _end_error_of_true_rates(table: pd.DataFrame, lever_arm: float) -> float:
+    """Distance after the whole log between the true path and the true rates integrated as a free run does."""
+    v, w = (torch.tensor(table[c].to_numpy(np.float64))[None] for c in ("speed", "angZ"))
+    x, y, _ = _integrate(v, w, 1.0 / 30.0, torch.zeros(1, 1, dtype=torch.float64), lever_arm=lever_arm)
+    columns = ("posX", "posY", "yaw")
+    tx, ty, _ = relative_pose({c: table[c].to_numpy(np.float64) for c in columns}, len(table))
+    return float(np.max(np.hypot(x[0].numpy() - tx, y[0].numpy() - ty)))
+
+
+def test_true_rates_integrated_at_the_rear_axle_retrace_the_logged_path(turning_truth):
+    # The floor under every model's free run: with the rates MuJoCo logged, integrating v along the
+    # heading at the CG drifts by centimetres in a turn (the CG slides sideways at l_r·ω); placing the
+    # CG l_r ahead of a rear axle that does not slip retraces the path to millimetres.
+    arm = DataConfig().pose_lever_arm
+    for run_id, table in turning_truth.groupby("run_id", sort=False):
+        at_cg, at_axle = _end_error_of_true_rates(table, 0.0), _end_error_of_true_rates(table, arm)
+        assert at_axle < 0.02, (run_id, at_axle)
+        assert at_cg > 3 * at_axle and at_cg > 0.04, (run_id, at_cg, at_axle)
+
+
+def test_lever_arm_estimated_from_logs_is_the_models_geometry(turning_truth):
+    vehicle = simulator.Vehicle()
+    rear_axle = -float(vehicle.model.body("wheel_rl").pos[0])  # the IMU site sits at the chassis origin
+    assert float(vehicle.model.site("imu").pos[0]) == 0.0
+    assert DataConfig().pose_lever_arm == pytest.approx(rear_axle)
+    logs = [part for _, part in turning_truth.groupby("run_id", sort=False)]
+    assert estimate_lever_arm(logs) == pytest.approx(rear_axle, abs=0.01)
+    noisy = [part for _, part in simulator.add_noise(turning_truth, simulator.NoiseConfig(), seed=3).groupby("run_id", sort=False)]
+    assert estimate_lever_arm(noisy) == pytest.approx(rear_axle, abs=0.02)
+    with pytest.raises(InputError, match="logs"):
+        estimate_lever_arm([turning_truth.iloc[:5]])
+
+
+def test_simulate_places_the_path_by_the_models_lever_arm(skidpad_model):
+    controls = [np.tile([0.6, 0.4], (300, 1))]
+    call = dict(n_samples=4, seed=2, initial_yaw=0.7)
+    assert skidpad_model.config.pose_lever_arm == pytest.approx(0.07929)
+    default = simulate(skidpad_model, controls, **call)
+    axle = simulate(skidpad_model, controls, lever_arm=0.0, **call)
+    np.testing.assert_array_equal(default.yaw, axle.yaw)
+    shift = 0.07929 * (np.cos(axle.yaw) - np.cos(0.7))
+    np.testing.assert_allclose(default.x - axle.x, shift, atol=1e-5)
+    assert np.abs(shift).max() > 0.1  # a full circle moves the CG 2 l_r around the axle
+    for bad in (5.0, float("nan")):
+        with pytest.raises(InputError, match="lever_arm"):
+            simulate(skidpad_model, controls, lever_arm=bad, **call)

@@ -1,9 +1,14 @@
 """Forward simulation with a trained surrogate: rates with uncertainty, integrated to a pose, with fans.
 
 Given control sequences (throttle, signed steering) at the log rate, the surrogate predicts forward
-speed v and yaw rate ω at every step and integrates the planar pose
+speed v and yaw rate ω at every step and integrates the planar pose of the rear axle, which does not
+slip sideways (kinematic Ackermann), then places the logged point a lever arm `a` ahead of it:
 
-    x' = v cos ψ,   y' = v sin ψ,   ψ' = ω.
+    x_r' = v cos ψ,   y_r' = v sin ψ,   ψ' = ω,   (x, y) = (x_r, y_r) + a (cos ψ, sin ψ).
+
+The logged point (Nigel's IMU, at the CG, a = l_r = 0.0793 m) has a lateral velocity a·ω in a turn;
+integrating v along the heading alone leaves 0.10-0.13 m of error on skidpads, fishhooks and eights
+after 30 s even with the true rates (7 mm with the arm): a floor under every model's free run.
 
 Uncertainty fans come from S sampled trajectories. Each trajectory keeps ONE posterior weight draw
 for its whole length (so a path is what one plausible model would do, not a zig-zag between
@@ -40,7 +45,8 @@ from simulator import Maneuver, nominal_controls
 
 N_CONTROLS = 2
 TORCH_BLOCK = 16  # maneuvers per task of a sequential rollout on torch (no compiled kernel)
-BANDS = (0.025, 0.25, 0.5, 0.75, 0.975)  # quantiles of the 95% and 50% bands and the median
+BANDS = (0.025, 0.25, 0.5, 0.75, 0.975)
+MAX_LEVER_ARM = 1.0  # m: a 1:14 car's logged point lies centimetres from its rear axle  # quantiles of the 95% and 50% bands and the median
 
 
 @dataclass(frozen=True)
@@ -115,10 +121,12 @@ def _integrate(
     dt: float,
     yaw0: torch.Tensor,
     out: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
+    lever_arm: float = 0.0,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Planar pose from rates (..., T): ψ_{k+1} = ψ_k + ω_k dt, position by the heading at step start.
 
-    `yaw0` broadcasts against (..., 1). Writes into `out` = (x, y, yaw) when given.
+    The sums move the rear axle; x, y are those of the point `lever_arm` metres ahead of it, relative
+    to its start. `yaw0` broadcasts against (..., 1). Writes into `out` = (x, y, yaw) when given.
     """
     x, y, yaw = out if out is not None else (torch.empty_like(v) for _ in range(3))
     scratch = torch.empty_like(v)
@@ -136,6 +144,10 @@ def _integrate(
     shifted_cumsum(scratch, x).mul_(dt)
     torch.sin(yaw, out=scratch).mul_(v)
     shifted_cumsum(scratch, y).mul_(dt)
+    if lever_arm:
+        start = torch.as_tensor(yaw0, dtype=v.dtype)
+        x.add_(torch.cos(yaw, out=scratch).sub_(torch.cos(start)), alpha=lever_arm)
+        y.add_(torch.sin(yaw, out=scratch).sub_(torch.sin(start)), alpha=lever_arm)
     return x, y, yaw
 
 
@@ -155,7 +167,7 @@ def _distinct_rows(controls: np.ndarray) -> tuple[np.ndarray, torch.Tensor]:
 
 
 def _static_rollout(
-    model, controls: np.ndarray, n_samples: int, gen: torch.Generator, dt: float, yaw0, backend
+    model, controls: np.ndarray, n_samples: int, gen: torch.Generator, dt: float, yaw0, backend, lever_arm: float
 ):
     """Sampled trajectories of a static model: rates and pose, each (S, M, T), and per-step moments.
 
@@ -169,7 +181,7 @@ def _static_rollout(
     keys = torch.randint(2**62, (n_samples,), generator=gen).tolist()
     sampled = model.draw(n_samples, seed=seed, backend=backend)
     if sampled.kernel is None:
-        return _reference_rollout(sampled, controls, keys, dt, yaw0)
+        return _reference_rollout(sampled, controls, keys, dt, yaw0, lever_arm)
     n_maneuvers, n_steps, _ = controls.shape
     # Reused memory where an earlier rollout's arrays have been dropped: first-touch page faults
     # of 440 MB of fans cost a third of a 256-maneuver rollout (`activelearn.numerics.buffers`).
@@ -186,12 +198,15 @@ def _static_rollout(
         out_mean=model.y_mean.numpy(),
         out_std=model.y_std.numpy(),
         spread=sampled.spread,
+        lever_arm=lever_arm,
         threads=torch.get_num_threads(),
     )
     return paths, tuple(torch.from_numpy(m) for m in moments)
 
 
-def _reference_rollout(sampled, controls: np.ndarray, keys: list[int], dt: float, yaw0: np.ndarray):
+def _reference_rollout(
+    sampled, controls: np.ndarray, keys: list[int], dt: float, yaw0: np.ndarray, lever_arm: float
+):
     """`_static_rollout` in torch and NumPy: each distinct control row through the network, then the paths."""
     n_maneuvers, n_steps, _ = controls.shape
     unique, index = _distinct_rows(controls)
@@ -206,7 +221,9 @@ def _reference_rollout(sampled, controls: np.ndarray, keys: list[int], dt: float
             moments=(centre[:, rows], aleatoric[:, rows], epistemic[:, rows]),
         )
     shape = (n_maneuvers, n_steps)
-    paths = _reference_trajectories(means.numpy(), variances.numpy(), index.numpy(), keys, shape, dt, yaw0)
+    paths = _reference_trajectories(
+        means.numpy(), variances.numpy(), index.numpy(), keys, shape, dt, yaw0, lever_arm
+    )
 
     def per_step(moment: torch.Tensor) -> torch.Tensor:  # (2, U) → (M, T, 2)
         return moment.index_select(1, index).t().reshape(n_maneuvers, n_steps, 2)
@@ -214,7 +231,9 @@ def _reference_rollout(sampled, controls: np.ndarray, keys: list[int], dt: float
     return paths, (per_step(centre), per_step(aleatoric), per_step(epistemic))
 
 
-def _reference_trajectories(means, variances, index, keys, shape, dt, yaw0) -> tuple[np.ndarray, ...]:
+def _reference_trajectories(
+    means, variances, index, keys, shape, dt, yaw0, lever_arm
+) -> tuple[np.ndarray, ...]:
     """What the compiled kernel computes, in NumPy and torch: the fallback without a C compiler."""
     n_maneuvers, n_steps = shape
     means, std, index = torch.from_numpy(means), torch.from_numpy(variances).sqrt(), torch.from_numpy(index)
@@ -228,7 +247,7 @@ def _reference_trajectories(means, variances, index, keys, shape, dt, yaw0) -> t
             rate.copy_(torch.from_numpy(z))
             mean_at, std_at = (m[s, j].index_select(0, index).view_as(rate) for m in (means, std))
             torch.addcmul(mean_at, std_at, rate, out=rate)
-        _integrate(v, w, dt, start, out=(x, y, yaw))
+        _integrate(v, w, dt, start, out=(x, y, yaw), lever_arm=lever_arm)
 
     parallel_map(trajectory, range(len(keys)))
     return tuple(p.numpy() for p in paths)
@@ -244,12 +263,15 @@ def simulate(
     initial_rates: np.ndarray | None = None,
     initial_yaw: np.ndarray | float = 0.0,
     backend: str = "auto",
+    lever_arm: float | None = None,
 ) -> Rollout:
     """Forward-simulate `model` along control sequences (each (T, 2) at `rate_hz`) with S samples.
 
     `initial_rates` (M, 2) seeds a dynamic model's past rates (default: standing still; its past
     controls are the first control);
-    `initial_yaw` is one heading or one per maneuver. Deterministic for a given seed.
+    `initial_yaw` is one heading or one per maneuver. Positions are those of the logged point,
+    `lever_arm` metres ahead of the rear axle (default: the model's `config.pose_lever_arm`, which a
+    campaign sets from `[data] pose_lever_arm`). Deterministic for a given seed.
 
     `backend` picks the compiled kernels ("native": network, noise and pose fused per tile for a
     static model; the network kernel for a Markov one), torch and NumPy ("reference", 3-4x slower)
@@ -269,6 +291,11 @@ def simulate(
         raise InputError(
             "initial_yaw", np.shape(initial_yaw), f"give one heading or one per maneuver ({len(stacked)})"
         ) from None
+    if lever_arm is None:
+        # a model saved before the field existed integrated at the logged point
+        lever_arm = float(getattr(model.config, "pose_lever_arm", 0.0))
+    if not (np.isfinite(lever_arm) and abs(lever_arm) <= MAX_LEVER_ARM):
+        raise InputError("lever_arm", lever_arm, f"must be finite and at most {MAX_LEVER_ARM} m in size")
     dt = 1.0 / rate_hz
     gen = torch.Generator().manual_seed(int(seed))
     try:
@@ -278,14 +305,15 @@ def simulate(
     with torch.no_grad():
         if lags is None:
             (v, w, x, y, yaw), (mean_rates, aleatoric, epistemic) = _static_rollout(
-                model, stacked, n_samples, gen, dt, start_yaw, backend
+                model, stacked, n_samples, gen, dt, start_yaw, backend, lever_arm
             )
         else:
             (v, w), (mean_rates, aleatoric, epistemic) = _sequential_rollout(
                 model, stacked, n_samples, gen, initial_rates, lags, backend
             )
             v, w, x, y, yaw = (
-                p.numpy() for p in (v, w, *_integrate(v, w, dt, torch.from_numpy(start_yaw)[:, None]))
+                p.numpy()
+                for p in (v, w, *_integrate(v, w, dt, torch.from_numpy(start_yaw)[:, None], lever_arm=lever_arm))
             )
     return Rollout(
         dt=dt,
@@ -408,6 +436,30 @@ def relative_pose(truth: dict[str, np.ndarray], n: int) -> tuple[np.ndarray, np.
     c, s = np.cos(-truth["yaw"][0]), np.sin(-truth["yaw"][0])
     heading = np.unwrap(truth["yaw"][:n]) - truth["yaw"][0]
     return c * dx - s * dy, s * dx + c * dy, heading
+
+
+def estimate_lever_arm(logs: Sequence, *, rate_hz: float = 30.0, min_yaw_rate: float = 0.2) -> float:
+    """Where the logged pose lies ahead of the rear axle (m), from logs' positions, heading and ω.
+
+    A kinematic car's rear axle does not slip sideways, so the logged point's sideways velocity in
+    the body frame is a·ω: a least-squares fit over the turning steps (|ω| >= `min_yaw_rate`, rad/s).
+    Tells `[data] pose_lever_arm` for a car whose pose reference is not documented.
+    """
+    lateral, rates = [], []
+    for table in logs:
+        x, y = (table[c].to_numpy(dtype=np.float64) for c in ("posX", "posY"))
+        yaw, w = np.unwrap(table["yaw"].to_numpy(dtype=np.float64)), table["angZ"].to_numpy(dtype=np.float64)
+        if len(x) < 3:
+            continue
+        vx, vy = np.gradient(x) * rate_hz, np.gradient(y) * rate_hz
+        sideways = -np.sin(yaw) * vx + np.cos(yaw) * vy
+        turning = np.abs(w) >= min_yaw_rate
+        lateral.append(sideways[turning])
+        rates.append(w[turning])
+    w_all = np.concatenate(rates) if rates else np.empty(0)
+    if len(w_all) < 10:
+        raise InputError("logs", len(w_all), f"need at least 10 steps turning at |ω| >= {min_yaw_rate} rad/s")
+    return float(np.dot(w_all, np.concatenate(lateral)) / np.dot(w_all, w_all))
 
 
 # Free-running rollout metrics a campaign logs every round (MLflow and curves.csv).

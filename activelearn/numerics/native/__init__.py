@@ -105,7 +105,7 @@ SIGNATURES = {
     "al_philox4x32_10": ([_u32, _u32, _u32], None),
     "al_static_rollout": (
         [ctypes.POINTER(_Network), ctypes.POINTER(_Outputs), ctypes.c_int64, ctypes.c_int64]
-        + [ctypes.c_float, _ptr, _ptr, ctypes.c_int64, _ptr, ctypes.c_int64]
+        + [ctypes.c_float, ctypes.c_float, _ptr, _ptr, ctypes.c_int64, _ptr, ctypes.c_int64]
         + [_ptr] * 8
         + [ctypes.c_int64],
         ctypes.c_int,
@@ -342,6 +342,7 @@ def static_rollout(
     out_mean: np.ndarray,
     out_std: np.ndarray,
     spread: float,
+    lever_arm: float = 0.0,
     threads: int = 1,
 ) -> None:
     """Fill S sampled trajectories of M maneuvers with `al_static_rollout` on up to `threads` threads.
@@ -351,6 +352,7 @@ def static_rollout(
     are the draws' noise keys. `paths` = (v, w, x, y, yaw), each an (S, M, T) float32 array with
     unit stride along T and whole maneuvers per draw, and `moments` = (centre, aleatoric,
     epistemic), each (M, T, 2) contiguous, are written. Draws are mapped as in `NetworkKernel.forward`.
+    x, y are the path of the point `lever_arm` metres ahead of the rear axle (`surrogate._integrate`).
     """
     n_maneuvers, n_steps, _ = controls.shape
     if controls.dtype != np.float32 or not controls.flags.c_contiguous:
@@ -368,6 +370,7 @@ def static_rollout(
         n_maneuvers,
         n_steps,
         dt,
+        lever_arm,
         _address(controls),
         _address(yaw0),
         0 if yaw0.size == 1 else 1,

@@ -105,14 +105,16 @@ static double exclusive_prefix(const float *restrict values, double *restrict su
  * mean_v/var_v/mean_w/var_w hold this draw's mean and aleatoric variance per distinct control row
  * and row[i] is the row of step i. `sums` carries the running sums of w, v cos(yaw) and v sin(yaw)
  * from tile to tile. Writes n steps at v, w, x, y, yaw. The pose is torch's reference
- * (`_integrate`): yaw[t] = yaw0 + dt * sum(w[:t]), x[t] = dt * sum(v cos yaw [:t]), likewise y,
- * with the sums in double. */
+ * (`_integrate`): yaw[t] = yaw0 + dt * sum(w[:t]), x[t] = dt * sum(v cos yaw [:t]) + arm * (cos yaw[t]
+ * - cos yaw0), likewise y with sin, with the sums in double: the sums move the rear axle, which does not
+ * slip sideways, and the logged point sits `arm` ahead of it. */
 static void trajectory_tile(int64_t n, uint32_t tile, uint32_t m, uint32_t k0, uint32_t k1, float dt,
-                            float start_yaw, const float *restrict mean_v, const float *restrict var_v,
+                            float arm, float start_yaw, const float *restrict mean_v, const float *restrict var_v,
                             const float *restrict mean_w, const float *restrict var_w,
                             const int32_t *restrict row, double sums_carried[3], float *restrict v,
                             float *restrict w, float *restrict x, float *restrict y, float *restrict yaw) {
     float zv[TILE], zw[TILE], vt[TILE], wt[TILE], var_vt[TILE], var_wt[TILE], yt[TILE], c[TILE], s[TILE];
+    float cos_yaw[TILE], sin_yaw[TILE];
     double sums[TILE];
     tile_noise(tile, m, k0, k1, zv, zw);
     for (int64_t i = 0; i < n; ++i) { /* gather this draw's moments of each step's row */
@@ -128,13 +130,16 @@ static void trajectory_tile(int64_t n, uint32_t tile, uint32_t m, uint32_t k0, u
     const double total_w = exclusive_prefix(wt, sums);
     for (int i = 0; i < TILE; ++i) yt[i] = start_yaw + dt * (float)(sums_carried[0] + sums[i]);
     sums_carried[0] += total_w;
-    for (int i = 0; i < TILE; ++i) c[i] = cosf(yt[i]) * vt[i];
-    for (int i = 0; i < TILE; ++i) s[i] = sinf(yt[i]) * vt[i];
+    for (int i = 0; i < TILE; ++i) cos_yaw[i] = cosf(yt[i]);
+    for (int i = 0; i < TILE; ++i) sin_yaw[i] = sinf(yt[i]);
+    for (int i = 0; i < TILE; ++i) c[i] = cos_yaw[i] * vt[i];
+    for (int i = 0; i < TILE; ++i) s[i] = sin_yaw[i] * vt[i];
+    const float cos0 = arm * cosf(start_yaw), sin0 = arm * sinf(start_yaw);
     const double total_x = exclusive_prefix(c, sums);
-    for (int64_t i = 0; i < n; ++i) x[i] = (float)(sums_carried[1] + sums[i]) * dt;
+    for (int64_t i = 0; i < n; ++i) x[i] = (float)(sums_carried[1] + sums[i]) * dt + (arm * cos_yaw[i] - cos0);
     sums_carried[1] += total_x;
     const double total_y = exclusive_prefix(s, sums);
-    for (int64_t i = 0; i < n; ++i) y[i] = (float)(sums_carried[2] + sums[i]) * dt;
+    for (int64_t i = 0; i < n; ++i) y[i] = (float)(sums_carried[2] + sums[i]) * dt + (arm * sin_yaw[i] - sin0);
     sums_carried[2] += total_y;
     memcpy(v, vt, (size_t)n * sizeof(float));
     memcpy(w, wt, (size_t)n * sizeof(float));
@@ -145,7 +150,7 @@ typedef struct {
     const al_network *net;
     al_outputs map; /* the draws' mapping to outputs; the rest is filled per worker */
     int64_t n_steps, yaw0_stride, ld_sample;
-    float dt;
+    float dt, arm;
     const float *controls, *yaw0;
     const uint64_t *keys;
     float *v, *w, *x, *y, *yaw, *centre, *aleatoric, *epistemic;
@@ -232,7 +237,7 @@ static void rollout_maneuver(void *context, void *scratch, int64_t m) {
             const float *mean = draw_means + 2 * s * TILE, *var = draw_vars + 2 * s * TILE;
             const int64_t o = s * c->ld_sample + at;
             trajectory_tile(n, (uint32_t)(t0 / TILE), (uint32_t)m, (uint32_t)c->keys[s],
-                            (uint32_t)(c->keys[s] >> 32), c->dt, start_yaw, mean, var, mean + TILE, var + TILE,
+                            (uint32_t)(c->keys[s] >> 32), c->dt, c->arm, start_yaw, mean, var, mean + TILE, var + TILE,
                             r->row, r->sums + 3 * s, c->v + o, c->w + o, c->x + o, c->y + o, c->yaw + o);
         }
     }
@@ -246,13 +251,14 @@ static void rollout_maneuver(void *context, void *scratch, int64_t m) {
  * rows, while they are in cache; then each draw's tile is noised and integrated. controls is
  * (n_maneuvers, n_steps, 2) float32 (throttle, steering); keys[s] is draw s's 64-bit noise key (the
  * noise of step t of maneuver m depends only on (key, m, t)). Sampled paths v, w, x, y, yaw are
- * (S, n_maneuvers, n_steps) with draw stride ld_sample. The per-step moments over draws (centre,
+ * (S, n_maneuvers, n_steps) with draw stride ld_sample; x and y are those of a point `arm` metres ahead
+ * of the rear axle (the logged pose; 0 puts it on the axle). The per-step moments over draws (centre,
  * aleatoric, epistemic) are (n_maneuvers, n_steps, 2). Returns 0, or -1 when out of memory. */
 int al_static_rollout(const al_network *net, const al_outputs *map, int64_t n_maneuvers, int64_t n_steps,
-                      float dt, const float *controls, const float *yaw0, int64_t yaw0_stride,
+                      float dt, float arm, const float *controls, const float *yaw0, int64_t yaw0_stride,
                       const uint64_t *keys, int64_t ld_sample, float *v, float *w, float *x, float *y, float *yaw,
                       float *centre, float *aleatoric, float *epistemic, int64_t n_threads) {
-    rollout_context context = {net, *map, n_steps, yaw0_stride, ld_sample, dt, controls, yaw0, keys,
+    rollout_context context = {net, *map, n_steps, yaw0_stride, ld_sample, dt, arm, controls, yaw0, keys,
                                v, w, x, y, yaw, centre, aleatoric, epistemic};
     al_job job = {rollout_scratch_new, rollout_free, rollout_maneuver, &context, n_maneuvers, 0, 0};
     return al_run_parallel(&job, n_threads);
