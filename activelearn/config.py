@@ -30,6 +30,7 @@ Activation = Literal[ACTIVATIONS]  # type: ignore[valid-type]
 MAX_STEERING = 0.5236  # rad, Nigel's steering limit
 POSE_LEVER_ARM = 0.07929  # m, Nigel's CG (where its pose is logged) ahead of the rear axle
 
+
 class _Section(BaseModel):
     """Base of every config section: unknown keys are errors, values are re-validated on assignment."""
 

@@ -241,8 +241,9 @@ def test_compiled_kernel_and_reference_give_the_same_rollout(skidpad_model):
 
 def test_a_maneuvers_rollout_does_not_depend_on_the_rest_of_the_batch(skidpad_model):
     alone = simulate(skidpad_model, [np.tile([0.5, 0.2], (300, 1))], n_samples=4, seed=9)
-    batch = simulate(skidpad_model, [np.tile([0.5, 0.2], (300, 1)), np.tile([0.9, -0.4], (900, 1))],
-                     n_samples=4, seed=9)
+    batch = simulate(
+        skidpad_model, [np.tile([0.5, 0.2], (300, 1)), np.tile([0.9, -0.4], (900, 1))], n_samples=4, seed=9
+    )
     for name in ("v", "w", "x", "y"):
         np.testing.assert_allclose(getattr(batch, name)[:, 0, :300], getattr(alone, name)[:, 0], atol=1e-6)
 
@@ -308,7 +309,8 @@ def test_lever_arm_estimated_from_logs_is_the_models_geometry(turning_truth):
     assert DataConfig().pose_lever_arm == pytest.approx(rear_axle)
     logs = [part for _, part in turning_truth.groupby("run_id", sort=False)]
     assert estimate_lever_arm(logs) == pytest.approx(rear_axle, abs=0.01)
-    noisy = [part for _, part in simulator.add_noise(turning_truth, simulator.NoiseConfig(), seed=3).groupby("run_id", sort=False)]
+    noisy = simulator.add_noise(turning_truth, simulator.NoiseConfig(), seed=3)
+    noisy = [part for _, part in noisy.groupby("run_id", sort=False)]
     assert estimate_lever_arm(noisy) == pytest.approx(rear_axle, abs=0.02)
     with pytest.raises(InputError, match="logs"):
         estimate_lever_arm([turning_truth.iloc[:5]])

@@ -45,8 +45,8 @@ from simulator import Maneuver, nominal_controls
 
 N_CONTROLS = 2
 TORCH_BLOCK = 16  # maneuvers per task of a sequential rollout on torch (no compiled kernel)
-BANDS = (0.025, 0.25, 0.5, 0.75, 0.975)
-MAX_LEVER_ARM = 1.0  # m: a 1:14 car's logged point lies centimetres from its rear axle  # quantiles of the 95% and 50% bands and the median
+BANDS = (0.025, 0.25, 0.5, 0.75, 0.975)  # quantiles of the 95% and 50% bands and the median
+MAX_LEVER_ARM = 1.0  # m: a 1:14 car's logged point lies centimetres from its rear axle
 
 
 @dataclass(frozen=True)
@@ -167,7 +167,14 @@ def _distinct_rows(controls: np.ndarray) -> tuple[np.ndarray, torch.Tensor]:
 
 
 def _static_rollout(
-    model, controls: np.ndarray, n_samples: int, gen: torch.Generator, dt: float, yaw0, backend, lever_arm: float
+    model,
+    controls: np.ndarray,
+    n_samples: int,
+    gen: torch.Generator,
+    dt: float,
+    yaw0,
+    backend: str,
+    lever_arm: float,
 ):
     """Sampled trajectories of a static model: rates and pose, each (S, M, T), and per-step moments.
 
@@ -311,10 +318,8 @@ def simulate(
             (v, w), (mean_rates, aleatoric, epistemic) = _sequential_rollout(
                 model, stacked, n_samples, gen, initial_rates, lags, backend
             )
-            v, w, x, y, yaw = (
-                p.numpy()
-                for p in (v, w, *_integrate(v, w, dt, torch.from_numpy(start_yaw)[:, None], lever_arm=lever_arm))
-            )
+            pose = _integrate(v, w, dt, torch.from_numpy(start_yaw)[:, None], lever_arm=lever_arm)
+            v, w, x, y, yaw = (p.numpy() for p in (v, w, *pose))
     return Rollout(
         dt=dt,
         v=v,
