@@ -14,12 +14,15 @@ import torch
 import simulator
 from activelearn.config import DataConfig, ModelConfig, TrainingConfig
 from activelearn.errors import InputError
+from activelearn.loop.campaign import load_model_copy
 from activelearn.loop.collection import arrays, training_rows
-from activelearn.numerics.models import build_model, save_model
+from activelearn.numerics.models import build_model, load_model, save_model
 from activelearn.numerics.surrogate import (
     _integrate,
     against_simulator,
+    calibrate_fan,
     estimate_lever_arm,
+    free_run_metrics,
     relative_pose,
     simulate,
 )
@@ -329,3 +332,42 @@ def test_simulate_places_the_path_by_the_models_lever_arm(skidpad_model):
     for bad in (5.0, float("nan")):
         with pytest.raises(InputError, match="lever_arm"):
             simulate(skidpad_model, controls, lever_arm=bad, **call)
+
+
+def test_calibrated_fan_holds_the_asked_share_of_true_positions(tmp_path, skidpad_model):
+    # Held-out maneuvers the model never saw (a slalom and skidpads between its training points):
+    # split-conformal on free runs, the fan widened or narrowed until 95 % of true positions lie in it.
+    held_out = simulator.collect(
+        [
+            Maneuver("skidpad", 0.4, 0.22, "ccw", 12.0),
+            Maneuver("skidpad", 0.8, 0.38, "cw", 12.0),
+            Maneuver("slalom", 0.6, 0.3, "ccw", 12.0),
+        ],
+        seed=7,
+    )
+    logs = [part.reset_index(drop=True) for _, part in held_out.groupby("run_id", sort=False)]
+    model = load_model_copy(skidpad_model)
+    assert float(model.fan_scale) == 1.0
+    raw = free_run_metrics(model, logs, n_samples=32)["rollout_coverage_95"]
+    scale = calibrate_fan(model, logs, n_samples=32)
+    assert float(model.fan_scale) == pytest.approx(scale)
+    assert abs(scale - 1.0) > 0.2, scale  # the raw fan was off: calibration had something to do
+    calibrated = free_run_metrics(model, logs, n_samples=32)["rollout_coverage_95"]
+    assert 0.9 <= calibrated <= 0.99, (raw, calibrated, scale)
+    assert abs(calibrated - 0.95) < abs(raw - 0.95), (raw, calibrated)
+    # The scale travels with the saved model; files written before it existed load with scale 1.
+    save_model(model, tmp_path / "m.pt")
+    assert float(load_model(tmp_path / "m.pt").fan_scale) == pytest.approx(scale)
+    payload = torch.load(tmp_path / "m.pt", weights_only=True)
+    del payload["state_dict"]["fan_scale"]
+    torch.save(payload, tmp_path / "old.pt")
+    assert float(load_model(tmp_path / "old.pt").fan_scale) == 1.0
+    # An explicit scale overrides the stored one; bad values name the field.
+    wide = simulate(model, [np.tile([0.6, 0.3], (200, 1))], n_samples=8, fan_scale=3.0 * scale)
+    narrow = simulate(model, [np.tile([0.6, 0.3], (200, 1))], n_samples=8)
+    assert np.ptp(wide.x[:, 0, -1]) > 2.0 * np.ptp(narrow.x[:, 0, -1])
+    assert float(model.epistemic_scale) == 1.0  # the widening is undone after the call
+    with pytest.raises(InputError, match="fan_scale"):
+        simulate(model, [np.tile([0.6, 0.3], (20, 1))], n_samples=8, fan_scale=0.0)
+    with pytest.raises(InputError, match="level"):
+        calibrate_fan(model, logs, level=1.5)

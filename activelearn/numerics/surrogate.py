@@ -30,7 +30,8 @@ Two model variants:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import contextlib
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -46,6 +47,7 @@ from simulator import Maneuver, nominal_controls
 N_CONTROLS = 2
 TORCH_BLOCK = 16  # maneuvers per task of a sequential rollout on torch (no compiled kernel)
 BANDS = (0.025, 0.25, 0.5, 0.75, 0.975)  # quantiles of the 95% and 50% bands and the median
+FAN_SCALE_RANGE = (1e-2, 1e3)  # free-run fan scales beyond these mean a broken model, not a fan
 MAX_LEVER_ARM = 1.0  # m: a 1:14 car's logged point lies centimetres from its rear axle
 
 
@@ -271,6 +273,7 @@ def simulate(
     initial_yaw: np.ndarray | float = 0.0,
     backend: str = "auto",
     lever_arm: float | None = None,
+    fan_scale: float | None = None,
 ) -> Rollout:
     """Forward-simulate `model` along control sequences (each (T, 2) at `rate_hz`) with S samples.
 
@@ -278,7 +281,9 @@ def simulate(
     controls are the first control);
     `initial_yaw` is one heading or one per maneuver. Positions are those of the logged point,
     `lever_arm` metres ahead of the rear axle (default: the model's `config.pose_lever_arm`, which a
-    campaign sets from `[data] pose_lever_arm`). Deterministic for a given seed.
+    campaign sets from `[data] pose_lever_arm`). `fan_scale` widens each draw's deviation from the
+    average draw (default: the model's `fan_scale`, fitted by `calibrate_fan`; 1 leaves the draws as
+    the posterior gives them). Deterministic for a given seed.
 
     `backend` picks the compiled kernels ("native": network, noise and pose fused per tile for a
     static model; the network kernel for a Markov one), torch and NumPy ("reference", 3-4x slower)
@@ -299,17 +304,19 @@ def simulate(
             "initial_yaw", np.shape(initial_yaw), f"give one heading or one per maneuver ({len(stacked)})"
         ) from None
     if lever_arm is None:
-        # a model saved before the field existed integrated at the logged point
-        lever_arm = float(getattr(model.config, "pose_lever_arm", 0.0))
+        lever_arm = float(model.config.pose_lever_arm)
     if not (np.isfinite(lever_arm) and abs(lever_arm) <= MAX_LEVER_ARM):
         raise InputError("lever_arm", lever_arm, f"must be finite and at most {MAX_LEVER_ARM} m in size")
+    fan_scale = float(model.fan_scale) if fan_scale is None else float(fan_scale)
+    if not (np.isfinite(fan_scale) and fan_scale > 0):
+        raise InputError("fan_scale", fan_scale, "must be a positive number")
     dt = 1.0 / rate_hz
     gen = torch.Generator().manual_seed(int(seed))
     try:
         lags = model_lags(model)
     except ValueError as exc:
         raise InputError("model.n_inputs", int(model.n_inputs), str(exc)) from None
-    with torch.no_grad():
+    with torch.no_grad(), _widened(model, fan_scale):
         if lags is None:
             (v, w, x, y, yaw), (mean_rates, aleatoric, epistemic) = _static_rollout(
                 model, stacked, n_samples, gen, dt, start_yaw, backend, lever_arm
@@ -332,6 +339,20 @@ def simulate(
         epistemic_var=epistemic.numpy(),
         lengths=lengths,
     )
+
+
+@contextlib.contextmanager
+def _widened(model, fan_scale: float) -> Iterator[None]:
+    """The model's draws spread `fan_scale` times wider (a variance factor on its epistemic scale)."""
+    if fan_scale == 1.0:
+        yield
+        return
+    previous = float(model.epistemic_scale)
+    model.epistemic_scale.fill_(previous * fan_scale**2)
+    try:
+        yield
+    finally:
+        model.epistemic_scale.fill_(previous)
 
 
 def _sequential_rollout(
@@ -479,6 +500,79 @@ ROLLOUT_METRICS: tuple[str, ...] = (
 _TRUTH_COLUMNS = ("speed", "angZ", "posX", "posY", "yaw")
 
 
+def free_runs(
+    model, logs: Sequence, *, rate_hz: float = 30.0, n_samples: int = 32, seed: int = 0, fan_scale=None
+) -> Rollout:
+    """Each log's recorded controls run free through `model` from its first recorded rates."""
+    controls = [np.asarray(t[["throttle", "steering"]].to_numpy(), dtype=np.float64) for t in logs]
+    initial = np.array([[t["speed"].iloc[0], t["angZ"].iloc[0]] for t in logs])
+    return simulate(
+        model, controls, rate_hz=rate_hz, n_samples=n_samples, seed=seed, initial_rates=initial,
+        fan_scale=fan_scale,
+    )  # fmt: skip
+
+
+def fan_widening_needed(rollout: Rollout, truth_logs: Sequence) -> np.ndarray:
+    """Per step of every run: the factor by which the 95 % position fan must widen about the mean
+    path to hold the true position (x and y band both; <= 1 where it already does)."""
+    band_x, band_y = (np.quantile(getattr(rollout, a), (0.025, 0.975), axis=0) for a in ("x", "y"))
+    mean_x, mean_y = rollout.mean_path()
+    needs = []
+    for i, table in enumerate(truth_logs):
+        n = int(rollout.lengths[i])
+        tx, ty, _ = relative_pose({c: table[c].to_numpy(dtype=np.float64) for c in _TRUTH_COLUMNS}, n)
+        per_axis = []
+        for truth, centre, band in (
+            (tx, mean_x[i, :n], band_x[:, i, :n]),
+            (ty, mean_y[i, :n], band_y[:, i, :n]),
+        ):
+            error = truth - centre
+            gap = np.where(error >= 0, band[1] - centre, centre - band[0])
+            with np.errstate(divide="ignore", invalid="ignore"):
+                need = np.abs(error) / np.maximum(gap, 0.0)
+            per_axis.append(np.where(np.abs(error) < 1e-9, 0.0, need))  # the start: no error, no width
+        needs.append(np.maximum(*per_axis))
+    return np.concatenate(needs)
+
+
+def fan_scale_needed(
+    model,
+    logs: Sequence,
+    *,
+    level: float = 0.95,
+    rate_hz: float = 30.0,
+    n_samples: int = 32,
+    seed: int = 0,
+    iterations: int = 2,
+) -> float:
+    """The free-run fan scale under which `level` of the true positions of `logs` lie inside the
+    95 % fan (split-conformal on held-out maneuvers). Leaves the model as it was.
+
+    The fan's width is mostly the draws' spread, which the scale widens, plus aleatoric scatter,
+    which it does not: each iteration rolls out again and corrects the scale by what is still missing.
+    """
+    if not 0.0 < level < 1.0:
+        raise InputError("level", level, "must lie in (0, 1)")
+    if not logs:
+        raise InputError("logs", 0, "need at least one log to calibrate the fan on")
+    scale = 1.0
+    for _ in range(iterations):
+        rollout = free_runs(model, logs, rate_hz=rate_hz, n_samples=n_samples, seed=seed, fan_scale=scale)
+        need = float(np.quantile(fan_widening_needed(rollout, logs), level))
+        scale = float(np.clip(scale * need, FAN_SCALE_RANGE[0], FAN_SCALE_RANGE[1]))
+        if not np.isfinite(scale):
+            break
+    return scale
+
+
+def calibrate_fan(model, logs: Sequence, **kwargs) -> float:
+    """Fit the model's `fan_scale` on held-out logs (`fan_scale_needed`); store it and return it."""
+    scale = fan_scale_needed(model, logs, **kwargs)
+    with torch.no_grad():
+        model.fan_scale.fill_(scale)
+    return scale
+
+
 def free_run_metrics(
     model,
     logs: Sequence,
@@ -498,11 +592,7 @@ def free_run_metrics(
     of true positions inside the 95 % fan (both the x and the y band), over every step of every run.
     """
     truth_logs = logs if truth_logs is None else truth_logs
-    controls = [np.asarray(t[["throttle", "steering"]].to_numpy(), dtype=np.float64) for t in logs]
-    initial = np.array([[t["speed"].iloc[0], t["angZ"].iloc[0]] for t in logs])
-    rollout = simulate(
-        model, controls, rate_hz=rate_hz, n_samples=n_samples, seed=seed, initial_rates=initial
-    )
+    rollout = free_runs(model, logs, rate_hz=rate_hz, n_samples=n_samples, seed=seed)
     band_x, band_y = (np.quantile(getattr(rollout, a), (0.025, 0.975), axis=0) for a in ("x", "y"))
     mean_x, mean_y = rollout.mean_path()
     mean_yaw = rollout.yaw.mean(axis=0)

@@ -11,9 +11,13 @@
    error at 10 s, 30 s and the end, and the fraction of ground-truth steps inside the 95% band
    (v, ω and the position), then each dynamic model's 30-s position error as a ratio of the
    static map's per kind.
+4. With `--calibration-maneuvers N`, first fits each model's free-run fan scale on N more maneuvers
+   (`surrogate.calibrate_fan`: split-conformal, held out from both sets); the table's coverage is
+   then the calibrated fans', and `cover_raw` the uncalibrated ones' (scale 1).
 
 Usage: python experiments/benchmarks/bench_surrogate.py [--maneuvers 256] [--samples 32] [--epochs 120]
        [--rounds 3] [--repeats 3] [--models static,markov,history,recurrent] [--horizons 10,30]
+       [--calibration-maneuvers 10]
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ import simulator
 from activelearn.config import DataConfig, ModelConfig, TrainingConfig
 from activelearn.loop.collection import arrays, training_rows, training_windows
 from activelearn.numerics.models import build_model
-from activelearn.numerics.surrogate import simulate, track_metrics
+from activelearn.numerics.surrogate import calibrate_fan, simulate, track_metrics
 from activelearn.numerics.training import fit
 from simulator import Maneuver
 
@@ -101,6 +105,8 @@ def main() -> None:
     parser.add_argument("--horizons", default="", metavar="H,H,...",
                         help="also train each dynamic model with multi-step windows of these lengths "
                              "(log steps), named <kind>+h<H>")  # fmt: skip
+    parser.add_argument("--calibration-maneuvers", type=int, default=0, metavar="N",
+                        help="fit each model's free-run fan scale on N more maneuvers (0: off)")  # fmt: skip
     args = parser.parse_args()
     kinds = [m for m in args.models.split(",") if m]
     unknown = set(kinds) - set(MODELS)
@@ -120,6 +126,13 @@ def main() -> None:
         model, seconds, rows = train(train_log, kind, args.epochs, seed=0, horizon=horizon)
         models[name] = model
         print(f"trained {name} model on {rows} rows of {args.train_maneuvers} maneuvers in {seconds:.1f} s")
+
+    if args.calibration_maneuvers > 0:
+        held_out = simulator.collect(maneuver_set(args.calibration_maneuvers, seed=4), seed=4)
+        held_out = [part.reset_index(drop=True) for _, part in held_out.groupby("run_id", sort=False)]
+        for name in names:
+            scale = calibrate_fan(models[name], held_out, n_samples=args.samples)
+            print(f"free-run fan scale of {name}: {scale:.2f} (on {len(held_out)} held-out maneuvers)")
 
     test = maneuver_set(args.maneuvers, seed=2)
     # Rounds of (MuJoCo, then every surrogate variant): this machine's speed drifts by a quarter
@@ -172,12 +185,16 @@ def main() -> None:
     first = {label: timings[label][0][0] for label in labels}
     print("  first call:" + "".join(f"  {k} {v:.2f} s (x{sim_seconds[0] / v:.1f})" for k, v in first.items()))
 
+    raw = {}  # the same rollouts with the uncalibrated fans, where calibration moved them
+    if args.calibration_maneuvers > 0:
+        raw = {name: simulate(models[name], controls, initial_rates=initial, n_samples=args.samples,
+                              fan_scale=1.0) for name in rollouts}  # fmt: skip
     rows = []
     for name, rollout in rollouts.items():
         for i, (m, t) in enumerate(zip(test, truth, strict=True)):
-            tm = track_metrics(
-                rollout, i, {c: t[c].to_numpy() for c in ("speed", "angZ", "posX", "posY", "yaw")}
-            )
+            columns = {c: t[c].to_numpy() for c in ("speed", "angZ", "posX", "posY", "yaw")}
+            tm = track_metrics(rollout, i, columns)
+            extra = {"cover_raw": track_metrics(raw[name], i, columns).coverage_position} if raw else {}
             marks = list(tm.position_error.values())
             rows.append(
                 {
@@ -191,6 +208,7 @@ def main() -> None:
                     "cover_v": tm.coverage_v,
                     "cover_w": tm.coverage_w,
                     "cover_pos": tm.coverage_position,
+                    **extra,
                 }
             )
     if args.figure is not None:

@@ -241,8 +241,9 @@ class Model(nn.Module, ABC):
     """Common interface of every model kind (hybrid PBNN, PBNN, PNN, BNN, DNN, deep ensemble).
 
     Inputs and outputs are standardised internally; the scalers (`x_mean`, `x_std`, `y_mean`,
-    `y_std`) are buffers fitted by `activelearn.numerics.training.fit` and saved with the state dict, as is
-    `epistemic_scale` (fitted by `activelearn.numerics.uncertainty.recalibrate_epistemic`).
+    `y_std`) are buffers fitted by `activelearn.numerics.training.fit` and saved with the state dict, as are
+    `epistemic_scale` (fitted by `activelearn.numerics.uncertainty.recalibrate_epistemic`) and
+    `fan_scale`, the factor on the draws' spread in free runs (`numerics.surrogate.calibrate_fan`).
     """
 
     kind: ClassVar[str] = ""
@@ -261,6 +262,7 @@ class Model(nn.Module, ABC):
         self.register_buffer("y_mean", torch.zeros(config.n_outputs))
         self.register_buffer("y_std", torch.ones(config.n_outputs))
         self.register_buffer("epistemic_scale", torch.tensor(1.0))
+        self.register_buffer("fan_scale", torch.tensor(1.0))
 
     # ----- what each kind implements ----------------------------------------------------------
     @abstractmethod

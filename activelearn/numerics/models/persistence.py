@@ -32,7 +32,9 @@ def _rebuild(payload: dict[str, Any]) -> Model | ResidualModel:
     if payload.get("kind") == ResidualModel.kind:
         return ResidualModel(_rebuild(payload["base"]), _rebuild(payload["residual"]))  # type: ignore[arg-type]
     model = build_model(ModelConfig(**payload["config"]))  # weights replaced below
-    model.load_state_dict(payload["state_dict"])
+    state = payload["state_dict"]
+    state.setdefault("fan_scale", torch.tensor(1.0))  # files written before free-run fans were calibrated
+    model.load_state_dict(state)
     model.eval()
     return model
 

@@ -81,6 +81,11 @@ class ResidualModel(nn.Module):
         """The residual's epistemic scale (recalibration widens what the residual does not know)."""
         return self.residual.epistemic_scale
 
+    @property
+    def fan_scale(self) -> Tensor:
+        """The residual's free-run fan scale (its draws make the fan)."""
+        return self.residual.fan_scale
+
     def base_mean(self, x: np.ndarray) -> np.ndarray:
         """The base model's predictive mean at x (N, d), physical units."""
         return self.base.predict(np.asarray(x, dtype=np.float32), n_samples=BASE_SAMPLES, seed=0).mean
