@@ -404,6 +404,10 @@ class DesignConfig(_Section):
     # default: strategies pick where the model errs most, so those points overstate its error
     # (measured: scales of 40-60 that left the test set 3-6x underconfident).
     recalibrate: Literal["none", "prequential"] = "none"
+    # "prequential": widen (or narrow) each round's free-run fans by the factor under which 95 % of
+    # the true positions of the maneuvers collected after the last two models lay inside their fans
+    # (`numerics.surrogate.fan_scale_needed`); the saved model carries it as `fan_scale`.
+    fan_calibration: Literal["none", "prequential"] = "none"
     # Seconds of set-up per maneuver (drive to the start, reset, check): part of each maneuver's cost.
     setup_seconds: NonNegative = 0.0
 

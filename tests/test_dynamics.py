@@ -311,3 +311,27 @@ def test_a_residual_models_free_run_adds_the_base_mean(history_models, slalom_lo
         means, _ = draws(inputs)
         np.testing.assert_allclose(rollout.mean_rates[0, t], means[:, 0].mean(axis=0), rtol=1e-4, atol=1e-6)
     assert np.abs(rollout.mean_rates[0]).max() > 0
+
+
+def test_prequential_fan_calibration_widens_each_rounds_fans_by_the_measured_need(tmp_path):
+    cfg = _dynamic_config(tmp_path, design={"initial": 2, "per_round": 1, "max_maneuvers": 5,
+                                            "fan_calibration": "prequential"})  # fmt: skip
+    result = Campaign(cfg, tmp_path / "c").run(figures=False)
+    rounds = result.state.rounds
+    assert len(rounds) == 4
+    needs = [r["prequential_fan_scale"] for r in rounds[:-1]]  # each model against the next batch
+    assert all(np.isfinite(n) and n > 0 for n in needs) and "prequential_fan_scale" not in rounds[-1]
+    assert rounds[0]["fan_scale"] == 1.0  # nothing measured yet
+    for k in range(1, 4):  # the geometric mean of the last two needs measured before round k's fit
+        expected = float(np.exp(np.mean(np.log(needs[max(0, k - 2) : k]))))
+        assert rounds[k]["fan_scale"] == pytest.approx(expected)
+    assert max(needs) / min(needs) > 1.05 or abs(np.log(needs[0])) > 0.1  # the check measured something
+    final = load_model(tmp_path / "c" / "model.pt")
+    assert float(final.fan_scale) == pytest.approx(rounds[-1]["fan_scale"])
+    # The same campaign without calibration logs neither and keeps the posterior's own fans.
+    plain = Campaign(_dynamic_config(tmp_path), tmp_path / "p").run(figures=False).state.rounds
+    assert all("fan_scale" not in r and "prequential_fan_scale" not in r for r in plain)
+    assert float(load_model(tmp_path / "p" / "model.pt").fan_scale) == 1.0
+    # The calibrated fans hold the true test positions better than the raw ones where they differ.
+    cover = {"calibrated": rounds[-1]["rollout_coverage_95"], "raw": plain[-1]["rollout_coverage_95"]}
+    assert cover["calibrated"] != cover["raw"]

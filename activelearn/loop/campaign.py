@@ -71,7 +71,7 @@ from activelearn.loop.state import (
 )
 from activelearn.numerics import uncertainty
 from activelearn.numerics.models import Prediction, ResidualModel, build_model, load_model, save_model
-from activelearn.numerics.surrogate import free_run_metrics, model_inputs
+from activelearn.numerics.surrogate import fan_scale_needed, free_run_metrics, model_inputs
 from activelearn.numerics.training import fit
 from activelearn.numerics.uncertainty import recalibrate_epistemic
 
@@ -90,6 +90,7 @@ __all__ = [
 ]
 
 EVAL_SAMPLES = 64  # posterior draws for test metrics and uncertainty maps
+FAN_SAMPLES = 32  # trajectories of a prequential fan check when the test set runs no free runs
 WARM_DIR = "warm"  # each round's model, kept for the next warm-started round
 PROPOSAL_COLUMNS = ("maneuver", "direction", "throttle", "steering", "duration")
 
@@ -456,15 +457,13 @@ class Campaign:
         trial = self.fit_model(pd.concat([samples, new], ignore_index=True), round_index + 1, previous=model)
         return self.evaluate(trial, rollouts=False)["test_rmse"]
 
-    def _applied_scale(self, state: CampaignState) -> float:
-        """Geometric mean of the last two prequential scales (1 before any was measured).
+    def _applied_scale(self, state: CampaignState, key: str = "prequential_scale") -> float:
+        """Geometric mean of the last two prequential scales under `key` (1 before any was measured).
 
         Only recent rounds count: a model trained on few maneuvers errs far more between its points
         than one trained on many, so old scales would inflate the variance of later models.
         """
-        if self.cfg.design.recalibrate == "none":
-            return 1.0
-        scales = [r["prequential_scale"] for r in state.rounds if "prequential_scale" in r][-2:]
+        scales = [r[key] for r in state.rounds if np.isfinite(r.get(key, np.nan))][-2:]
         return float(np.exp(np.mean(np.log(scales)))) if scales else 1.0
 
     def evaluate(self, model: Any, *, rollouts: bool = True) -> dict[str, float]:
@@ -725,10 +724,16 @@ class Campaign:
             return
         round_index = len(state.rounds)
         self.progress({"event": "fit", "round": round_index, "n_maneuvers": len(state.taken)})
-        scale = self._applied_scale(state)
+        scale = self._applied_scale(state) if self.cfg.design.recalibrate == "prequential" else 1.0
         model = self.fit_model(samples, round_index, scale, previous=self._previous_model(round_index))
+        fans: dict[str, float] = {}
+        if self.cfg.design.fan_calibration == "prequential":
+            fans["fan_scale"] = self._applied_scale(state, "prequential_fan_scale")
+            with torch.no_grad():
+                model.fan_scale.fill_(fans["fan_scale"])
         x, _, _ = self._training_data(samples)
-        metrics: dict[str, Any] = {"round": round_index, "epistemic_scale": scale, **self.evaluate(model)}
+        metrics: dict[str, Any] = {"round": round_index, "epistemic_scale": scale, **fans}
+        metrics.update(self.evaluate(model))
         metrics.update(
             n_samples=len(x),
             n_maneuvers=len(state.taken),
@@ -838,6 +843,12 @@ class Campaign:
             checks = self.prequential_check(model, new)
             if self.cfg.design.recalibrate == "prequential":
                 checks["prequential_scale"] = self.prequential_scale(model, new)
+            if self.cfg.design.fan_calibration == "prequential":
+                logs = [part.reset_index(drop=True) for _, part in new.groupby("pool_index", sort=False)]
+                checks["prequential_fan_scale"] = fan_scale_needed(
+                    model, logs, rate_hz=self.cfg.simulation.rate_hz,
+                    n_samples=self.cfg.test.rollout_samples or FAN_SAMPLES, seed=0,
+                )  # fmt: skip
             state.rounds[-1].update(checks)
             if self.tracker is not None and state.run_id is not None:
                 tracker, run_id, step = self.tracker, state.run_id, int(state.rounds[-1]["n_samples"])
