@@ -439,6 +439,11 @@ class AcquisitionConfig(_Section):
     penalty_length: Positive = 0.15
     # Points along each candidate's control sequence at which it is scored.
     score_points: Count = 24
+    # Where a dynamic model (history or Markov inputs) scores a candidate: "steady_state", at the rates
+    # it settles to under each control point held; "path", at the inputs it would see along its own
+    # free run of the candidate's whole control signal (`activelearn.numerics.paths`); the target
+    # region "test" then holds the inputs along the test maneuvers' predicted paths.
+    dynamic_points: Literal["steady_state", "path"] = "steady_state"
     # Evaluation grid (throttle × signed steering): uncertainty metrics and maps.
     grid_throttles: Annotated[int, Field(ge=2)] = 15
     grid_steerings: Annotated[int, Field(ge=2)] = 15

@@ -20,7 +20,8 @@ from activelearn.loop.collection import arrays, training_rows, training_windows
 from activelearn.numerics.lags import Lags, model_lags
 from activelearn.numerics.models import build_model, load_model, save_model
 from activelearn.numerics.multistep import window_loss
-from activelearn.numerics.surrogate import ROLLOUT_METRICS, free_run_metrics, simulate
+from activelearn.numerics.paths import evenly_spaced_steps, path_inputs
+from activelearn.numerics.surrogate import ROLLOUT_METRICS, free_run_metrics, simulate, steady_state_inputs
 from activelearn.numerics.training import fit
 from simulator import Maneuver
 from tests.test_campaign import SMOKE, _run_cli, _run_cli_signalled
@@ -335,3 +336,52 @@ def test_prequential_fan_calibration_widens_each_rounds_fans_by_the_measured_nee
     # The calibrated fans hold the true test positions better than the raw ones where they differ.
     cover = {"calibrated": rounds[-1]["rollout_coverage_95"], "raw": plain[-1]["rollout_coverage_95"]}
     assert cover["calibrated"] != cover["raw"]
+
+
+def test_path_inputs_follow_the_models_own_free_run(history_models):
+    model = history_models["hybrid"]
+    lags = model_lags(model)
+    t = np.arange(240)
+    slalom = np.column_stack([np.full(240, 0.7), np.where((t // 40) % 2 == 0, 0.4, -0.4)])
+    skidpad = np.tile([0.6, 0.3], (240, 1))
+    inputs = path_inputs(model, [slalom, skidpad], 12)
+    assert [a.shape for a in inputs] == [(12, lags.n_inputs)] * 2
+    steps = evenly_spaced_steps(240, 12)
+    np.testing.assert_array_equal(inputs[0][:, :2], slalom[steps])  # the newest controls as scheduled
+    # Held controls settle: the late path inputs are the model's quasi-steady state there.
+    steady = steady_state_inputs(model, skidpad[:1], steps=120)
+    np.testing.assert_allclose(inputs[1][-1], steady[0], atol=0.02)
+    # A slalom's rate inputs are its own free run's mean rates, lagged as the model reads them
+    run = simulate(model, [slalom, skidpad], n_samples=8, seed=0, fan_scale=1.0)  # the same draws
+    newest_rate = 2 * lags.history  # the first rate input pair: one step of the layout back
+    back = lags.rate_lags[0]
+    np.testing.assert_allclose(
+        inputs[0][3:, newest_rate + 1], run.w.mean(axis=0)[0, steps[3:] - back], atol=1e-6
+    )
+    # ... which, unlike a steady state, lag the steering: right after a switch the yaw rate still
+    # has the old sign (the static stand-in would flip at once).
+    flips = [k for k in range(1, 240) if slalom[k, 1] != slalom[k - 1, 1]]
+    just_after = path_inputs(model, [slalom], 240)[0][[f + back for f in flips[:3]]]
+    assert (np.sign(just_after[:, newest_rate + 1]) != np.sign(slalom[[f for f in flips[:3]], 1])).all()
+    # A static map's path inputs are its controls.
+    static = build_model(ModelConfig())
+    np.testing.assert_array_equal(path_inputs(static, [slalom], 5)[0], slalom[evenly_spaced_steps(240, 5)])
+
+
+def test_a_campaign_scores_dynamic_candidates_along_their_paths(tmp_path):
+    cfg = _dynamic_config(tmp_path, acquisition={"dynamic_points": "path", "score_points": 6},
+                          design={"initial": 2, "per_round": 1, "max_maneuvers": 3})  # fmt: skip
+    campaign = Campaign(cfg, tmp_path / "c")
+    result = campaign.run(figures=False)
+    assert len(result.state.rounds) == 2
+    model = load_model(tmp_path / "c" / "model.pt")
+    pool = campaign.pool(result.state.taken, model)
+    n = len(campaign.maneuvers)
+    assert pool.points.shape == (6 * n, cfg.model.n_inputs)
+    np.testing.assert_array_equal(pool.owner, np.repeat(np.arange(n), 6))
+    # the target holds the test slalom's path: its steering flips sign along the way
+    assert pool.target.shape[1] == cfg.model.n_inputs and {-1.0, 1.0} <= set(np.sign(pool.target[:, 1]))
+    update = {"acquisition": cfg.acquisition.model_copy(update={"dynamic_points": "steady_state"})}
+    steady = cfg.model_copy(update=update)
+    other = Campaign(steady, tmp_path / "s").pool(result.state.taken, model)
+    assert other.points.shape[0] < pool.points.shape[0]  # steady state: distinct control points only

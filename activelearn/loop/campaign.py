@@ -52,11 +52,18 @@ from activelearn.loop.collection import (
     TestSet,
     arrays,
     feature_columns,
+    rows_per_maneuver,
     training_rows,
     training_windows,
 )
 from activelearn.loop.oracles import Oracle, make_oracle
-from activelearn.loop.pool import build_pool, evaluation_grid, maneuver_costs, target_points
+from activelearn.loop.pool import (
+    build_pool,
+    evaluation_grid,
+    maneuver_controls,
+    maneuver_costs,
+    target_points,
+)
 from activelearn.loop.prior import PRIOR_FILE, Prior, load_prior, prior_from_rows
 from activelearn.loop.safety import Assessment, assess, violations
 from activelearn.loop.state import (
@@ -71,6 +78,7 @@ from activelearn.loop.state import (
 )
 from activelearn.numerics import uncertainty
 from activelearn.numerics.models import Prediction, ResidualModel, build_model, load_model, save_model
+from activelearn.numerics.paths import path_inputs
 from activelearn.numerics.surrogate import fan_scale_needed, free_run_metrics, model_inputs
 from activelearn.numerics.training import fit
 from activelearn.numerics.uncertainty import recalibrate_epistemic
@@ -284,9 +292,34 @@ class Campaign:
             pool = dataclasses.replace(pool, **self._pool_truth())
         if model is None or model.n_inputs == pool.points.shape[1]:
             return pool
+        if self.cfg.acquisition.dynamic_points == "path":
+            return dataclasses.replace(pool, **self._path_points(model))
         return dataclasses.replace(
             pool, points=model_inputs(model, pool.points), target=model_inputs(model, pool.target)
         )
+
+    def _path_points(self, model: Any) -> dict[str, Any]:
+        """Pool points of a dynamic model along each candidate's predicted path (and the target's)."""
+        rate, n_points = self.cfg.simulation.rate_hz, self.cfg.acquisition.score_points
+        inputs = path_inputs(
+            model, [maneuver_controls(m, rate) for m in self.maneuvers], n_points, rate_hz=rate
+        )
+        rows = [rows_per_maneuver(m.duration, self.cfg.simulation, self.cfg.data) for m in self.maneuvers]
+        fields: dict[str, Any] = {
+            "points": np.concatenate(inputs),
+            "owner": np.repeat(np.arange(len(inputs)), n_points),
+            "weights": np.repeat(np.asarray(rows) / n_points, n_points),
+        }
+        test = self.oracle.test_maneuvers()
+        if self.cfg.target.region == "test" and test:
+            per_maneuver = max(1, self.cfg.target.max_points // len(test))
+            target = path_inputs(
+                model, [maneuver_controls(m, rate) for m in test], per_maneuver, rate_hz=rate
+            )
+            fields.update(target=np.concatenate(target), target_weights=None)
+        else:
+            fields["target"] = model_inputs(model, self.target()[0])
+        return fields
 
     def _pool_truth(self) -> dict[str, np.ndarray]:
         """Noise-free training rows of every candidate, for the diagnostic oracle strategy only."""
