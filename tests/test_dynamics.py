@@ -160,6 +160,23 @@ def test_multi_step_training_changes_the_fit_and_is_seeded(slalom_log):
     np.testing.assert_array_equal(fits[1], fits[2])  # and the same seed gives the same weights
 
 
+def test_multi_step_training_clips_the_gradient_norm(slalom_log):
+    data = DataConfig(stride=2, skip_seconds=0.0, **HISTORY)
+    x, y = _rows(slalom_log, data)
+    windows = training_windows([p for _, p in slalom_log.groupby("run_id", sort=False)], data, 10)
+    moved = {}
+    for clip in (0.0, 1e-6):
+        model = build_model(ModelConfig(n_inputs=12, history_step=2))
+        fit(model, x, y, TrainingConfig(epochs=1, patience=None), seed=3)  # scalers and a start
+        start = [p.detach().clone() for p in model.parameters()]
+        cfg = TrainingConfig(epochs=2, patience=None, rollout_horizon=10, rollout_batch=8,
+                             rollout_clip=clip, reinit=False, optimizer="sgd", momentum=0.0)  # fmt: skip
+        fit(model, x, y, cfg, seed=3, windows=windows, keep_scalers=True)
+        moved[clip] = sum(float((p - q).norm()) for p, q in zip(model.parameters(), start, strict=True))
+    # plain SGD moves each step by lr x the gradient: clipped to a norm of 1e-6 it barely moves
+    assert moved[1e-6] < 1e-3 * moved[0.0], moved
+
+
 def _dynamic_config(tmp_path: Path, **overrides):
     data = {
         "output_dir": str(tmp_path / "runs"),

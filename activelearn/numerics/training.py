@@ -449,6 +449,8 @@ class _Stepper:
             loss = loss + weight * window_loss(self.model, self.windows, rows)
         self.opt.zero_grad(set_to_none=True)
         loss.backward()
+        if self.windows is not None and self.config.rollout_clip > 0:
+            torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.config.rollout_clip)
         self.opt.step()
         return loss.detach(), data.detach()
 
