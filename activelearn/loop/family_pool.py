@@ -142,7 +142,11 @@ def proposal_table(maneuvers: Sequence[Any], schedules: Sequence[str]) -> pd.Dat
         {"maneuver": m.kind, "direction": m.direction, "duration": m.duration, **m.values, "schedule": path}
         for m, path in zip(maneuvers, schedules, strict=True)
     ]
-    return pd.DataFrame(rows, columns=["maneuver", "direction", "duration", *columns, "schedule"])
+    table = pd.DataFrame(rows, columns=["maneuver", "direction", "duration", *columns, "schedule"])
+    seeds = {p.name for f in FAMILIES.values() for p in f.parameters if p.integer}
+    for column in seeds & set(columns):
+        table[column] = table[column].astype("Int64")  # a seed reads as a whole number, empty elsewhere
+    return table
 
 
 def schedule_table(maneuver: FamilyManeuver, rate_hz: float) -> pd.DataFrame:
