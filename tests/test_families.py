@@ -182,7 +182,9 @@ def test_a_family_pool_is_a_seeded_sobol_set_over_four_parameters(tmp_path):
     expected = np.round(qmc.scale(qmc.Sobol(4, scramble=True, rng=rng).random(cfg.pool.size), low, high), 4)
     got = np.array([[m.values[n] for n in names] for m in slaloms])
     assert np.allclose(got, expected, atol=1e-9)
-    other = load_config(_config(tmp_path, text=SMOKE.read_text().replace("seed = 0\nduration", "seed = 1\nduration")))
+    other = load_config(
+        _config(tmp_path, text=SMOKE.read_text().replace("seed = 0\nduration", "seed = 1\nduration"))
+    )
     assert {m.name for m in pool_maneuvers(other.pool)}.isdisjoint(m.name for m in pool)
 
 
@@ -215,7 +217,9 @@ def test_existing_strategies_select_from_a_family_pool_and_maximin_spreads_in_pa
         ("size = 8\n", "", "pool.size"),
     ],
 )
-def test_a_bad_family_config_is_one_line_naming_the_field_and_writes_nothing(tmp_path, capsys, old, new, field):
+def test_a_bad_family_config_is_one_line_naming_the_field_and_writes_nothing(
+    tmp_path, capsys, old, new, field
+):
     text = SMOKE.read_text()
     assert old in text
     config = _config(tmp_path, text=text.replace(old, new))
