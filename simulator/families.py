@@ -11,9 +11,9 @@ A family maps named parameters to a command schedule, drivable open loop by a sc
                  goes from start to end at switch_time, linearly over ramp_time (0 = a step); end 0
                  brakes, a negative end reverses. Steering is held constant.
   chirp          throttle, amplitude A, f0, f1 (Hz):  A sin(2 pi (f0 t + (f1 - f0) t^2 / (2 T))), T the
-                 duration, so the frequency moves linearly from f0 to f1.
+                 span (the duration), so the frequency moves linearly from f0 to f1.
   multisine      throttle, amplitude A, f_low, f_high (Hz): MULTISINE_TONES tones evenly spread over
-                 [f_low, f_high] with Schroeder phases, scaled so the peak over the duration is A.
+                 [f_low, f_high] with Schroeder phases, scaled so the peak over the span is A.
   prbs           throttle, amplitude A, switch_time h (s), seed: +A or -A held for h s, the level of
                  every interval after the first (+A) drawn by numpy's Generator(seed); reproducible.
 
@@ -100,16 +100,16 @@ def _const(value: float, t: np.ndarray) -> np.ndarray:
     return np.full_like(t, value)
 
 
-def _slalom(p: Mapping[str, float], t: np.ndarray, duration: float) -> tuple[np.ndarray, np.ndarray]:
+def _slalom(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
     wave = p["amplitude"] * np.cos(2.0 * math.pi * p["frequency"] * (t - p["delay"]))
     return _const(p["throttle"], t), np.where(t < p["delay"], 0.0, wave)
 
 
-def _fishhook(p: Mapping[str, float], t: np.ndarray, duration: float) -> tuple[np.ndarray, np.ndarray]:
+def _fishhook(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
     return _const(p["throttle"], t), np.minimum(p["rate"] * t, p["amplitude"])
 
 
-def _throttle_step(p: Mapping[str, float], t: np.ndarray, duration: float) -> tuple[np.ndarray, np.ndarray]:
+def _throttle_step(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
     ramp = p["ramp_time"]
     if ramp > 0.0:
         share = np.clip((t - p["switch_time"]) / ramp, 0.0, 1.0)
@@ -119,9 +119,9 @@ def _throttle_step(p: Mapping[str, float], t: np.ndarray, duration: float) -> tu
     return throttle, _const(p["steering"], t)
 
 
-def _chirp(p: Mapping[str, float], t: np.ndarray, duration: float) -> tuple[np.ndarray, np.ndarray]:
+def _chirp(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
     f0, f1 = p["f0"], p["f1"]
-    phase = 2.0 * math.pi * (f0 * t + (f1 - f0) * t**2 / (2.0 * duration))
+    phase = 2.0 * math.pi * (f0 * t + (f1 - f0) * t**2 / (2.0 * span))
     return _const(p["throttle"], t), p["amplitude"] * np.sin(phase)
 
 
@@ -132,16 +132,16 @@ def _multisine_wave(p: Mapping[str, float], t: np.ndarray) -> np.ndarray:
     return np.sin(2.0 * math.pi * freqs[:, None] * t[None, :] + phases[:, None]).sum(axis=0)
 
 
-def _multisine(p: Mapping[str, float], t: np.ndarray, duration: float) -> tuple[np.ndarray, np.ndarray]:
-    fine = np.arange(math.floor(duration * _FINE_RATE) + 1) / _FINE_RATE
+def _multisine(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
+    fine = np.arange(math.floor(span * _FINE_RATE) + 1) / _FINE_RATE
     peak = float(np.abs(_multisine_wave(p, fine)).max()) or 1.0
     steering = np.clip(p["amplitude"] * _multisine_wave(p, t) / peak, -p["amplitude"], p["amplitude"])
     return _const(p["throttle"], t), steering
 
 
-def _prbs(p: Mapping[str, float], t: np.ndarray, duration: float) -> tuple[np.ndarray, np.ndarray]:
+def _prbs(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
     hold = p["switch_time"]
-    n = math.floor(duration / hold + 1e-9) + 1
+    n = math.floor(span / hold + 1e-9) + 1
     levels = np.where(np.random.default_rng(int(p["seed"])).integers(0, 2, n) == 1, 1.0, -1.0)
     levels[0] = 1.0  # the first turn goes towards the direction
     index = np.minimum(np.floor(t / hold + 1e-9).astype(int), n - 1)
@@ -207,13 +207,16 @@ class FamilyManeuver:
     """One member of a family: its parameter values, direction and duration (s). Quacks like `Maneuver`.
 
     `params` may be given as a mapping; it is stored as (name, value) pairs in the family's order.
-    `controls(rate_hz)` is the schedule `simulator.collect` applies and logs.
+    `controls(rate_hz)` is the schedule `simulator.collect` applies and logs. `span` (default: the
+    duration) is the time over which the signal is laid out (a chirp's sweep, a multisine's peak), so
+    `dataclasses.replace(m, duration=shorter)` drives the first seconds of the same signal.
     """
 
     family: str
     params: Any
     direction: str = "ccw"
     duration: float = 30.0
+    span: float | None = None
 
     def __post_init__(self) -> None:
         fam = family(self.family)
@@ -236,8 +239,12 @@ class FamilyManeuver:
         duration = _check_real("duration", self.duration)
         if duration <= 0.0:
             raise ManeuverError("duration", self.duration, "must be > 0")
+        span = duration if self.span is None else _check_real("span", self.span)
+        if span <= 0.0:
+            raise ManeuverError("span", self.span, "must be > 0")
         object.__setattr__(self, "params", tuple(values))
         object.__setattr__(self, "duration", duration)
+        object.__setattr__(self, "span", span)
 
     @property
     def kind(self) -> str:
@@ -260,7 +267,8 @@ class FamilyManeuver:
         fam = FAMILIES[self.family]
         pairs = zip(fam.parameters, self.params, strict=True)
         tags = "_".join(f"{p.tag}{_short(v, p.integer)}" for p, (_, v) in pairs)
-        return f"{self.family}_{self.direction}_{tags}_d{self.duration:g}"
+        cut = f"_of{self.span:g}" if self.span != self.duration else ""
+        return f"{self.family}_{self.direction}_{tags}_d{self.duration:g}{cut}"
 
     def controls(self, rate_hz: float = REFERENCE_RATE) -> np.ndarray:
         """(T, 2) throttle and signed steering at the log times k / rate_hz, as `collect` applies them."""
@@ -268,7 +276,7 @@ class FamilyManeuver:
         if rate <= 0.0:
             raise ManeuverError("rate_hz", rate_hz, "must be > 0")
         t = sample_times(self.duration, rate)
-        throttle, steering = FAMILIES[self.family].signal(self.values, t, self.duration)
+        throttle, steering = FAMILIES[self.family].signal(self.values, t, float(self.span or self.duration))
         throttle = np.clip(throttle, -THROTTLE_LIMIT, THROTTLE_LIMIT)
         steering = self.sign * np.clip(steering, -STEERING_LIMIT, STEERING_LIMIT) + 0.0  # no -0.0
         return np.column_stack([throttle, steering]).astype(np.float64)

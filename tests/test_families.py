@@ -316,3 +316,16 @@ def test_a_tiny_family_campaign_runs_with_uniform_and_max_epistemic(tmp_path, ca
         assert set(samples["run_id"]) <= names and set(samples["maneuver"]) <= {"slalom", "chirp", "prbs"}
         batches[strategy] = state.batches
     assert batches["uniform"][0] == batches["max_epistemic"][0]  # the initial design is shared
+
+
+@pytest.mark.parametrize("family", ["chirp", "multisine", "prbs", "slalom"])
+def test_a_shortened_member_drives_the_first_seconds_of_the_same_signal(family: str):
+    # [safety] cuts a proposal short with dataclasses.replace(m, duration=...): the prefix must not change
+    import dataclasses
+
+    draws = {"chirp": {"f0": 0.05, "f1": 0.6}, "multisine": {"f_low": 0.05, "f_high": 0.6},
+             "prbs": {"switch_time": 0.7, "seed": 5}, "slalom": {"frequency": 0.3, "delay": 1.0}}  # fmt: skip
+    full = _member(family, duration=30.0, throttle=0.5, amplitude=0.3, **draws[family])
+    cut = dataclasses.replace(full, duration=12.0)
+    assert np.array_equal(cut.controls(RATE), full.controls(RATE)[: int(12 * RATE) + 1])
+    assert cut.name != full.name and cut.name.endswith("_d12_of30")

@@ -1,4 +1,7 @@
-"""Candidate pools, the evaluation grid, the target region and the fixed test set, from a campaign config."""
+"""Candidate pools, the evaluation grid, the target region and the fixed test set, from a campaign config.
+
+Family pools (`[pool] families`) are drawn by `activelearn.loop.family_pool`.
+"""
 
 from __future__ import annotations
 
