@@ -350,6 +350,17 @@ def _strategy_seed(args: argparse.Namespace) -> dict[str, object]:
 def _print_proposals(maneuvers: list, path) -> None:
     import pandas as pd
 
+    from simulator import FamilyManeuver
+
+    if any(isinstance(m, FamilyManeuver) for m in maneuvers):
+        rows = [{"#": i + 1, "maneuver": m.kind, "direction": m.direction, "duration": m.duration,
+                 "parameters": ", ".join(f"{k}={v:g}" for k, v in m.params)}
+                for i, m in enumerate(maneuvers)]  # fmt: skip
+        print(f"drive these {len(rows)} maneuvers ({path}):")
+        print(pd.DataFrame(rows).to_string(index=False))
+        print(f"each row's schedule file (in {Path(path).with_suffix('')}) lists time (s), throttle and "
+              "steering (rad, + left): hold each command until the next row")  # fmt: skip
+        return
     rows = [{"#": i + 1, "maneuver": m.kind, "direction": m.direction, "throttle": m.throttle,
              "steering": m.steering, "duration": m.duration} for i, m in enumerate(maneuvers)]  # fmt: skip
     print(f"drive these {len(rows)} maneuvers ({path}):")

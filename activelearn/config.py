@@ -221,6 +221,8 @@ Seed = Annotated[int, Field(ge=0, lt=2**32)]
 Throttle = Annotated[float, Field(ge=-1.0, le=1.0)]
 Steering = Annotated[float, Field(ge=0.0, le=MAX_STEERING)]
 Kind = Literal["straight", "skidpad", "fishhook", "slalom", "eight"]
+# The families of simulator.families.FAMILIES (tests/test_families.py keeps the two lists equal).
+FamilyName = Literal["slalom", "fishhook", "throttle_step", "chirp", "multisine", "prbs"]
 Direction = Literal["ccw", "cw"]
 
 
@@ -239,6 +241,10 @@ class PoolConfig(_Section):
     a scrambled-Sobol set of operating points (seeded by `seed`, the same for every campaign seed).
     Steering is the unsigned amplitude; `directions` carries the sign. Straight maneuvers have no
     steering; fishhooks ramp to full lock, so they vary in throttle and direction only.
+
+    Or give `families` (simulator.families) and `size`: a scrambled-Sobol set of `size` parameter
+    vectors per family over `ranges` ({family = {parameter = [low, high]}}, default each family's own
+    pool range; low = high fixes a parameter), times `directions`. It replaces kinds and the grid.
     """
 
     kinds: list[Kind] = ["skidpad"]
@@ -252,9 +258,12 @@ class PoolConfig(_Section):
     duration: Positive = 90.0
     # Seconds per maneuver kind, overriding `duration` (e.g. {straight = 20, eight = 90}): maneuvers
     # differ in what they cost on a track, and a seconds budget (design.max_sim_seconds) counts it.
-    durations: dict[Kind, Positive] = {}
-    # Distance added between candidates of different kinds, in units of the [0, 1] operating-point cube.
+    durations: dict[Kind | FamilyName, Positive] = {}
+    # Distance added between candidates of different kinds, in units of the [0, 1] operating-point cube
+    # (of the normalised family-parameter cube for a family pool).
     kind_distance: NonNegative = 0.5
+    families: list[FamilyName] = []
+    ranges: dict[FamilyName, dict[str, tuple[float, float]]] = {}
 
     def duration_of(self, kind: str) -> float:
         """Seconds a maneuver of `kind` lasts in this pool."""
@@ -265,8 +274,62 @@ class PoolConfig(_Section):
     def _non_empty_unique(cls, value: list[Any] | None, info: ValidationInfo) -> list[Any] | None:
         return value if value is None else _unique(value, info.field_name)
 
+    @field_validator("families")
+    @classmethod
+    def _unique_families(cls, value: list[str]) -> list[str]:
+        if len(set(value)) != len(value):
+            raise ValueError(f"families has duplicates: {value}")
+        return value
+
+    def family_range(self, family: str, parameter: str) -> tuple[float, float]:
+        """[low, high] of a family parameter in this pool: `ranges`, else the family's default."""
+        from simulator.families import FAMILIES
+
+        given = self.ranges.get(family, {})  # type: ignore[call-overload]
+        if parameter in given:
+            return given[parameter]
+        return FAMILIES[family].parameter(parameter).pool
+
+    def _check_families(self) -> None:
+        from simulator.families import FAMILIES
+
+        for name in ("throttle_range", "steering_range"):
+            if getattr(self, name) is not None:
+                raise ConfigError(
+                    name, getattr(self, name), "applies to an operating-point pool, not to families"
+                )
+        if self.kinds != ["skidpad"]:
+            raise ConfigError(
+                "kinds", self.kinds, "applies to a reference pool: a family pool is set by families"
+            )
+        if self.size is None:
+            raise ConfigError("size", None, "a family pool needs size (Sobol draws per family)")
+        for family, bounds in self.ranges.items():
+            if family not in self.families:
+                raise ConfigError(f"ranges.{family}", family, f"is not in families {self.families}")
+            spec = FAMILIES[family]
+            for parameter, (low, high) in bounds.items():
+                field = f"ranges.{family}.{parameter}"
+                if parameter not in spec.names:
+                    raise ConfigError(
+                        field, parameter, f"unknown parameter; choose from {', '.join(spec.names)}"
+                    )
+                p = spec.parameter(parameter)
+                if not (math.isfinite(low) and math.isfinite(high) and low <= high):
+                    raise ConfigError(field, [low, high], "must be [low, high] with low <= high")
+                if low < p.low or high > p.high:
+                    unit = f" {p.unit}" if p.unit else ""
+                    raise ConfigError(field, [low, high], f"must lie within [{p.low:g}, {p.high:g}]{unit}")
+        object.__setattr__(self, "throttles", None)
+        object.__setattr__(self, "steerings", None)
+
     @model_validator(mode="after")
     def _grid_or_range(self) -> PoolConfig:
+        if self.families:
+            self._check_families()
+            return self
+        if self.ranges:
+            raise ConfigError("ranges", sorted(self.ranges), "applies to a family pool: give families too")
         ranged = (self.throttle_range, self.steering_range, self.size)
         if any(v is not None for v in ranged):
             if any(v is None for v in ranged):

@@ -5,6 +5,7 @@ Knows nothing about learning; `activelearn` reaches MuJoCo only through this pac
 
 from simulator.collect import AUTODRIVE_COLUMNS, COLUMNS, EXTRA_COLUMNS, NoiseConfig, add_noise, collect
 from simulator.errors import DivergenceError, DivergenceWarning, ManeuverError, OverrideError, SimulatorError
+from simulator.families import FAMILIES, Family, FamilyManeuver, as_family, family
 from simulator.maneuvers import (
     DIRECTIONS,
     KINDS,
@@ -35,6 +36,7 @@ __all__ = [
     "DIRECTIONS",
     "ENCODER_CPR",
     "EXTRA_COLUMNS",
+    "FAMILIES",
     "KINDS",
     "MAX_SPEED",
     "MAX_YAW_RATE",
@@ -43,6 +45,8 @@ __all__ = [
     "TWIN_PARAMETERS",
     "DivergenceError",
     "DivergenceWarning",
+    "Family",
+    "FamilyManeuver",
     "Maneuver",
     "ManeuverError",
     "NoiseConfig",
@@ -54,8 +58,10 @@ __all__ = [
     "__version__",
     "ackermann_angles",
     "add_noise",
+    "as_family",
     "check_overrides",
     "collect",
+    "family",
     "model_xml",
     "nominal_controls",
     "nominal_turn",

@@ -40,6 +40,7 @@ import numpy as np
 import pandas as pd
 
 from simulator.errors import DivergenceError, DivergenceWarning, ManeuverError
+from simulator.families import FamilyManeuver
 from simulator.maneuvers import Maneuver, Replay, open_loop_steering
 from simulator.vehicle import ENCODER_CPR, MAX_SPEED, Vehicle
 
@@ -186,7 +187,7 @@ class _Buffers:
 
 
 def _check_args(
-    maneuvers: Sequence[Maneuver | Replay] | Maneuver | Replay,
+    maneuvers: Sequence[Maneuver | Replay | FamilyManeuver] | Maneuver | Replay | FamilyManeuver,
     rate_hz: float,
     seed: int,
     noise: NoiseConfig | None,
@@ -194,13 +195,13 @@ def _check_args(
     on_divergence: str,
     physics_rate: float,
 ) -> list[Maneuver]:
-    if isinstance(maneuvers, Maneuver | Replay):
+    if isinstance(maneuvers, Maneuver | Replay | FamilyManeuver):
         maneuvers = [maneuvers]
     if isinstance(maneuvers, str | bytes) or not isinstance(maneuvers, Sequence):
         raise ManeuverError("maneuvers", maneuvers, "must be a sequence of Maneuver")
     for m in maneuvers:
-        if not isinstance(m, Maneuver | Replay):
-            raise ManeuverError("maneuvers", m, "every item must be a Maneuver (or a Replay)")
+        if not isinstance(m, Maneuver | Replay | FamilyManeuver):
+            raise ManeuverError("maneuvers", m, "every item must be a Maneuver (a Replay, a FamilyManeuver)")
     if not _is_real(rate_hz) or not math.isfinite(rate_hz):
         raise ManeuverError("rate_hz", rate_hz, "must be a finite number")
     if not 0.0 < rate_hz <= physics_rate + 1e-9:
@@ -230,7 +231,7 @@ def _default_vehicle() -> Vehicle:
 
 
 def collect(
-    maneuvers: Sequence[Maneuver | Replay] | Maneuver | Replay,
+    maneuvers: Sequence[Maneuver | Replay | FamilyManeuver] | Maneuver | Replay | FamilyManeuver,
     *,
     rate_hz: float = 30.0,
     seed: int = 0,
@@ -253,7 +254,10 @@ def collect(
     the healthy runs and decides itself what to drop; with "raise" a DivergenceError names them and
     carries the table in `.data`.
 
-    A `Replay` (recorded commands, at `rate_hz`) runs like a maneuver of kind "replay".
+    A `Replay` (recorded commands, at `rate_hz`) runs like a maneuver of kind "replay"; a
+    `FamilyManeuver` (simulator.families) runs its open-loop schedule, logged with `maneuver` = its
+    family, `run_id` = its name (the parameters), `op_throttle` its median throttle and `op_steering`
+    its largest |steering|.
     """
     vehicle = vehicle if vehicle is not None else _default_vehicle()
     dt = vehicle.timestep
@@ -372,6 +376,10 @@ def _make_runs(maneuvers: list[Maneuver], rate_hz: float, vehicle: Vehicle) -> l
         if isinstance(maneuver, Replay):
             run.throttle = maneuver.throttles.copy()
             run.steering = maneuver.steerings.copy()
+            run.ctrl = vehicle.controls(run.throttle, run.steering)
+        elif isinstance(maneuver, FamilyManeuver):
+            schedule = maneuver.controls(rate_hz)
+            run.throttle, run.steering = schedule[:, 0].copy(), schedule[:, 1].copy()
             run.ctrl = vehicle.controls(run.throttle, run.steering)
         elif maneuver.kind != "eight":
             run.steering = open_loop_steering(maneuver, np.arange(n) / rate_hz)

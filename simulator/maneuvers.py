@@ -229,13 +229,16 @@ def nominal_turn(throttle: float, steering: float) -> tuple[float, float]:
 def nominal_controls(maneuver: Maneuver, rate_hz: float = 30.0) -> np.ndarray:
     """(T, 2) array of (throttle, signed steering) the maneuver applies at each log step, without simulating.
 
-    Rows match the rows `collect` logs for the same maneuver and rate. For the eight, whose real
+    Rows match the rows `collect` logs for the same maneuver and rate. A family member
+    (`simulator.families.FamilyManeuver`) returns its own schedule. For the eight, whose real
     schedule flips on measured heading, the flips are placed every 2 pi / w, with w the yaw rate
     of `nominal_turn` (kinematic turn corrected for the simulator's scrub and understeer).
     """
     rate = _check_real("rate_hz", rate_hz)
     if rate <= 0.0:
         raise ManeuverError("rate_hz", rate_hz, "must be > 0")
+    if not isinstance(maneuver, Maneuver) and callable(getattr(maneuver, "controls", None)):
+        return maneuver.controls(rate)  # an open-loop family member (simulator.families)
     t = sample_times(maneuver.duration, rate)
     steering = open_loop_steering(maneuver, t)
     if maneuver.kind == "eight":

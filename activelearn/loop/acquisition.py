@@ -37,7 +37,8 @@ class Pool:
     """Candidate maneuvers and what strategies need to compare and score them.
 
     features: (n, d) coordinates of each candidate in [0, 1]^d (operating point: throttle, signed
-        steering) used for distances and quasi-random designs.
+        steering; for a family pool the normalised family parameters and direction,
+        `activelearn.loop.family_pool`) used for distances and quasi-random designs.
     kinds: (n,) integer maneuver kind of each candidate (a different kind adds `kind_distance`).
     points / owner / weights: stacked model inputs along each candidate's control sequence, the
         candidate each point belongs to, and how many training rows each point stands for.

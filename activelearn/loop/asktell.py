@@ -4,9 +4,11 @@ A person (or a script feeding the AutoDRIVE open-loop controller) drives the row
 `proposals/round-NNN.csv` and hands back one log per maneuver, in any order and any number of
 `ingest` calls. Each log is matched to an open proposal by the controls recorded in it: median
 throttle, steering amplitude and direction, and the shape of the steering signal (none, constant,
-ramp, oscillating), within the `[oracle]` tolerances. Everything is checked before anything is
-written: a malformed or cut-off log, a log already ingested (same content) or one that answers no open
-proposal is one error naming the file and the reason, and the campaign directory stays as it was.
+ramp, oscillating), within the `[oracle]` tolerances; among the proposals of a family pool that
+fit, the one whose schedule (proposals/round-NNN/*.csv) is closest to the log's commands. Everything
+is checked before anything is written: a malformed or cut-off log, a log already ingested (same
+content) or one that answers no open proposal is one error naming the file and the reason, and the
+campaign directory stays as it was.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from activelearn.loop import lock
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.pool import maneuver_controls
 from activelearn.loop.state import CONFIG_FILE, STAGED_DIR, STATE_FILE, CampaignState
+from simulator import FamilyManeuver
 
 
 @dataclass(frozen=True)
@@ -107,9 +110,8 @@ def match_logs(campaign: Campaign, state: CampaignState, logs: Sequence[LogFile]
                 "LOG", str(log.path), "was ingested already (the same content as an earlier log)"
             )
         seen.add(log.digest)
-        got = signature(
-            log.table[["throttle", "steering"]].to_numpy(dtype=np.float64), rate, cfg.steering_tolerance
-        )
+        controls = log.table[["throttle", "steering"]].to_numpy(dtype=np.float64)
+        got = signature(controls, rate, cfg.steering_tolerance)
         candidates = [
             i
             for i in open_
@@ -128,13 +130,25 @@ def match_logs(campaign: Campaign, state: CampaignState, logs: Sequence[LogFile]
                 str(log.path),
                 f"matches no open proposal: it drove {_describe(got)}; open: {still or 'none'}",
             )
-        best = min(candidates, key=lambda i: abs(got.flips_per_minute - expected[i].flips_per_minute))
+        best = min(candidates, key=lambda i: _closeness(campaign.driven(i), controls, got, expected[i], rate))
         proposed = campaign.driven(best).duration
         span = float(log.table["time"].iloc[-1] - log.table["time"].iloc[0])
         if span < (1.0 - cfg.duration_tolerance) * proposed:
             raise InputError("LOG", str(log.path), f"is cut off: {span:.1f} s of the proposed {proposed:g} s")
         matched[best] = log
     return matched
+
+
+def _closeness(
+    maneuver: Any, controls: np.ndarray, got: Signature, expected: Signature, rate: float
+) -> float:
+    """How far a log's controls are from a proposal's: the RMS difference of the whole schedules for a
+    family member (many look alike by signature), the difference in steering flips per minute otherwise."""
+    if isinstance(maneuver, FamilyManeuver):
+        schedule = maneuver_controls(maneuver, rate)
+        n = min(len(schedule), len(controls))
+        return float(np.sqrt(np.mean((schedule[:n] - controls[:n]) ** 2)))
+    return abs(got.flips_per_minute - expected.flips_per_minute)
 
 
 def open_campaign(directory: str | Path, *, tracker: Any | None = None) -> Campaign:

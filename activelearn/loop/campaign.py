@@ -56,6 +56,7 @@ from activelearn.loop.collection import (
     training_rows,
     training_windows,
 )
+from activelearn.loop.family_pool import proposal_table, schedule_table
 from activelearn.loop.oracles import Oracle, make_oracle
 from activelearn.loop.pool import (
     build_pool,
@@ -82,6 +83,7 @@ from activelearn.numerics.paths import path_inputs
 from activelearn.numerics.surrogate import fan_scale_needed, free_run_metrics, model_inputs
 from activelearn.numerics.training import fit
 from activelearn.numerics.uncertainty import recalibrate_epistemic
+from simulator import FamilyManeuver
 
 __all__ = [
     "MODEL_FILE",
@@ -1004,20 +1006,39 @@ class Campaign:
 
     def _write_proposals(self, state: CampaignState) -> Path:
         assert state.pending is not None
+        path = self.proposal_path(state)
+        driven = [self.driven(i) for i in state.pending]
+        if any(isinstance(m, FamilyManeuver) for m in driven):
+            table = self._family_proposals(path, driven)
+        else:
+            table = self._reference_proposals(state)
+        if self.cfg.safety is not None:  # the risk of each proposal, and the duration it was cut from
+            table["risk"] = [state.risks.get(str(i), float("nan")) for i in state.pending]
+            table["cut_from"] = [
+                self.maneuvers[i].duration if str(i) in state.cuts else None for i in state.pending
+            ]
+        atomic_write_bytes(path, table.to_csv(index=False).encode())
+        return path
+
+    def _family_proposals(self, path: Path, driven: list[Any]) -> pd.DataFrame:
+        """Family proposals: parameters per row, and beside the file each one's schedule (written first)."""
+        rate = self.cfg.simulation.rate_hz
+        folder = path.with_suffix("")  # proposals/round-NNN/
+        schedules = []
+        for n, m in enumerate(driven):
+            name = f"{n + 1:02d}-{m.name}.csv"
+            atomic_write_bytes(folder / name, schedule_table(m, rate).to_csv(index=False).encode())
+            schedules.append(f"{folder.name}/{name}")
+        return proposal_table(driven, schedules)
+
+    def _reference_proposals(self, state: CampaignState) -> pd.DataFrame:
+        assert state.pending is not None
         rows = [
             {"maneuver": m.kind, "direction": m.direction, "throttle": m.throttle, "steering": m.steering,
              "duration": m.duration}
             for m in (self.driven(i) for i in state.pending)
         ]  # fmt: skip
-        columns = list(PROPOSAL_COLUMNS)
-        if self.cfg.safety is not None:  # the risk of each proposal, and the duration it was cut from
-            columns += ["risk", "cut_from"]
-            for row, i in zip(rows, state.pending, strict=True):
-                row["risk"] = state.risks.get(str(i), float("nan"))
-                row["cut_from"] = self.maneuvers[i].duration if str(i) in state.cuts else None
-        path = self.proposal_path(state)
-        atomic_write_bytes(path, pd.DataFrame(rows, columns=columns).to_csv(index=False).encode())
-        return path
+        return pd.DataFrame(rows, columns=list(PROPOSAL_COLUMNS))
 
     @lock.writer
     def tell(self, logs: Sequence[pd.DataFrame], *, figures: bool = True) -> list[Any]:

@@ -1,4 +1,7 @@
-"""Candidate pools, the evaluation grid, the target region and the fixed test set, from a campaign config."""
+"""Candidate pools, the evaluation grid, the target region and the fixed test set, from a campaign config.
+
+Family pools (`[pool] families`) are drawn by `activelearn.loop.family_pool`.
+"""
 
 from __future__ import annotations
 
@@ -12,6 +15,7 @@ from scipy.stats import qmc
 from activelearn.config import MAX_STEERING, CampaignConfig, PoolConfig, TestSetConfig
 from activelearn.loop.acquisition import Pool
 from activelearn.loop.collection import rows_per_maneuver
+from activelearn.loop.family_pool import family_codes, family_features, family_maneuvers, is_family_pool
 from simulator import Maneuver, nominal_controls
 
 KIND_ORDER: tuple[str, ...] = ("straight", "skidpad", "fishhook", "slalom", "eight")
@@ -63,8 +67,13 @@ def _expand(
     return maneuvers
 
 
-def pool_maneuvers(cfg: PoolConfig) -> list[Maneuver]:
-    """The candidate maneuvers of a pool config, in a stable order (kind, throttle, steering, direction)."""
+def pool_maneuvers(cfg: PoolConfig) -> list[Any]:
+    """The candidate maneuvers of a pool config, in a stable order (kind, throttle, steering, direction).
+
+    A family pool (`families`) gives family members instead (`activelearn.loop.family_pool`).
+    """
+    if cfg.families:
+        return list(family_maneuvers(cfg))
     return _expand(cfg.kinds, cfg.directions, _operating_points(cfg), cfg.duration_of)
 
 
@@ -213,6 +222,38 @@ def build_pool(
         points.append(p)
         weights.append(w)
         owner.append(np.full(len(p), i))
+    prior_features = prior_kinds = None
+    if is_family_pool(cfg.pool, maneuvers):  # distances in the normalised family-parameter space
+        features, kinds = family_features(maneuvers, cfg.pool), family_codes(maneuvers, cfg.pool)
+        if len(prior):
+            prior_features, prior_kinds = family_features(prior, cfg.pool), family_codes(prior, cfg.pool)
+    else:
+        features, kinds, prior_features, prior_kinds = _operating_design(maneuvers, prior)
+    target_x, target_w = target
+    return Pool(
+        maneuvers=tuple(maneuvers),
+        features=features,
+        kinds=kinds,
+        points=np.concatenate(points),
+        owner=np.concatenate(owner),
+        weights=np.concatenate(weights),
+        taken=np.asarray(taken, dtype=bool),
+        target=np.asarray(target_x, dtype=np.float64),
+        target_weights=np.asarray(target_w, dtype=np.float64),
+        output_scale=np.asarray(output_scale, dtype=np.float64),
+        design_seed=design_seed,
+        kind_distance=cfg.pool.kind_distance,
+        costs=maneuver_costs(cfg, maneuvers),
+        affordable=affordable,
+        prior_features=prior_features,
+        prior_kinds=prior_kinds,
+    )
+
+
+def _operating_design(
+    maneuvers: Sequence[Any], prior: Sequence[Any]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Features and kind codes of reference candidates and prior runs (operating points, kinds)."""
     bounds = operating_bounds(maneuvers)
     kind_names, kinds = kind_codes(maneuvers)
     prior_features = prior_kinds = None
@@ -229,22 +270,4 @@ def build_pool(
                 for m in prior
             ]
         )
-    target_x, target_w = target
-    return Pool(
-        maneuvers=tuple(maneuvers),
-        features=operating_features(maneuvers, bounds),
-        kinds=kinds,
-        points=np.concatenate(points),
-        owner=np.concatenate(owner),
-        weights=np.concatenate(weights),
-        taken=np.asarray(taken, dtype=bool),
-        target=np.asarray(target_x, dtype=np.float64),
-        target_weights=np.asarray(target_w, dtype=np.float64),
-        output_scale=np.asarray(output_scale, dtype=np.float64),
-        design_seed=design_seed,
-        kind_distance=cfg.pool.kind_distance,
-        costs=maneuver_costs(cfg, maneuvers),
-        affordable=affordable,
-        prior_features=prior_features,
-        prior_kinds=prior_kinds,
-    )
+    return operating_features(maneuvers, bounds), kinds, prior_features, prior_kinds

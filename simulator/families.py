@@ -1,0 +1,322 @@
+"""Parametrised maneuver families: open-loop control signals u(t) = (throttle, steering), named parameters.
+
+A family maps named parameters to a command schedule, drivable open loop by a script or a person
+(hold each command until the next sample). Steering is given towards the maneuver's `direction`
+(ccw = left, +); `FamilyManeuver` applies the sign. Times t are seconds since the start.
+
+  slalom         throttle, amplitude A, frequency f (Hz), delay (s):  A cos(2 pi f (t - delay)) after
+                 driving `delay` s straight. f = 0 is a skidpad, A = 0 a straight.
+  fishhook       throttle, rate (rad/s), amplitude A:  min(rate t, A).
+  throttle_step  throttle_start, throttle_end, switch_time (s), ramp_time (s), steering: the throttle
+                 goes from start to end at switch_time, linearly over ramp_time (0 = a step); end 0
+                 brakes, a negative end reverses. Steering is held constant.
+  chirp          throttle, amplitude A, f0, f1 (Hz):  A sin(2 pi (f0 t + (f1 - f0) t^2 / (2 T))), T the
+                 span (the duration), so the frequency moves linearly from f0 to f1.
+  multisine      throttle, amplitude A, f_low, f_high (Hz): MULTISINE_TONES tones evenly spread over
+                 [f_low, f_high] with Schroeder phases, scaled so the peak over the span is A.
+  prbs           throttle, amplitude A, switch_time h (s), seed: +A or -A held for h s, the level of
+                 every interval after the first (+A) drawn by numpy's Generator(seed); reproducible.
+
+The reference kinds straight, skidpad, slalom and fishhook are special cases (`as_family`); the
+eight is not a family member: it flips its steering on the heading measured in closed loop, which
+no open-loop schedule reproduces on every car and surface.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+
+from simulator.errors import ManeuverError
+from simulator.maneuvers import (
+    DIRECTIONS,
+    FISHHOOK_RATE,
+    SLALOM_DELAY,
+    SLALOM_FREQUENCY,
+    Maneuver,
+    _check_real,
+    sample_times,
+)
+from simulator.vehicle import STEERING_LIMIT, THROTTLE_LIMIT
+
+MULTISINE_TONES = 5
+REFERENCE_RATE = 30.0  # Hz: the rate at which op_throttle / op_steering are read off the schedule
+_FINE_RATE = 100.0  # Hz: grid on which the multisine's peak is normalised (independent of the log rate)
+
+Signal = Callable[[Mapping[str, float], np.ndarray, float], tuple[np.ndarray, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A family parameter: name, allowed [low, high], unit, the short tag in names, default pool range."""
+
+    name: str
+    low: float
+    high: float
+    unit: str
+    tag: str
+    pool: tuple[float, float]
+    integer: bool = False  # a seed: drawn as an integer, not a coordinate of the design space
+
+
+@dataclass(frozen=True)
+class Family:
+    """A family of open-loop maneuvers: its parameters and the signal they define."""
+
+    name: str
+    parameters: tuple[Parameter, ...]
+    signal: Signal
+    doc: str
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Parameter names in order."""
+        return tuple(p.name for p in self.parameters)
+
+    @property
+    def continuous(self) -> tuple[Parameter, ...]:
+        """The parameters that span the design space (seeds excluded)."""
+        return tuple(p for p in self.parameters if not p.integer)
+
+    def parameter(self, name: str) -> Parameter:
+        """The parameter called `name` (ManeuverError naming it if the family has none)."""
+        for p in self.parameters:
+            if p.name == name:
+                return p
+        choices = ", ".join(self.names)
+        raise ManeuverError(name, name, f"is not a parameter of {self.name}; choose from {choices}")
+
+
+_T = Parameter("throttle", -THROTTLE_LIMIT, THROTTLE_LIMIT, "", "t", (0.2, 1.0))
+_A = Parameter("amplitude", 0.0, STEERING_LIMIT, "rad", "a", (0.1, STEERING_LIMIT))
+
+
+def _const(value: float, t: np.ndarray) -> np.ndarray:
+    return np.full_like(t, value)
+
+
+def _slalom(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
+    wave = p["amplitude"] * np.cos(2.0 * math.pi * p["frequency"] * (t - p["delay"]))
+    return _const(p["throttle"], t), np.where(t < p["delay"], 0.0, wave)
+
+
+def _fishhook(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
+    return _const(p["throttle"], t), np.minimum(p["rate"] * t, p["amplitude"])
+
+
+def _throttle_step(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
+    ramp = p["ramp_time"]
+    if ramp > 0.0:
+        share = np.clip((t - p["switch_time"]) / ramp, 0.0, 1.0)
+    else:
+        share = (t >= p["switch_time"]).astype(float)
+    throttle = p["throttle_start"] + share * (p["throttle_end"] - p["throttle_start"])
+    return throttle, _const(p["steering"], t)
+
+
+def _chirp(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
+    f0, f1 = p["f0"], p["f1"]
+    phase = 2.0 * math.pi * (f0 * t + (f1 - f0) * t**2 / (2.0 * span))
+    return _const(p["throttle"], t), p["amplitude"] * np.sin(phase)
+
+
+def _multisine_wave(p: Mapping[str, float], t: np.ndarray) -> np.ndarray:
+    k = np.arange(1, MULTISINE_TONES + 1)
+    freqs = np.linspace(p["f_low"], p["f_high"], MULTISINE_TONES)
+    phases = -math.pi * k * (k - 1) / MULTISINE_TONES  # Schroeder: a low crest factor
+    return np.sin(2.0 * math.pi * freqs[:, None] * t[None, :] + phases[:, None]).sum(axis=0)
+
+
+def _multisine(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
+    fine = np.arange(math.floor(span * _FINE_RATE) + 1) / _FINE_RATE
+    peak = float(np.abs(_multisine_wave(p, fine)).max()) or 1.0
+    steering = np.clip(p["amplitude"] * _multisine_wave(p, t) / peak, -p["amplitude"], p["amplitude"])
+    return _const(p["throttle"], t), steering
+
+
+def _prbs(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
+    hold = p["switch_time"]
+    n = math.floor(span / hold + 1e-9) + 1
+    levels = np.where(np.random.default_rng(int(p["seed"])).integers(0, 2, n) == 1, 1.0, -1.0)
+    levels[0] = 1.0  # the first turn goes towards the direction
+    index = np.minimum(np.floor(t / hold + 1e-9).astype(int), n - 1)
+    return _const(p["throttle"], t), p["amplitude"] * levels[index]
+
+
+def _hz(name: str, tag: str, pool: tuple[float, float]) -> Parameter:
+    return Parameter(name, 0.0, 2.0, "Hz", tag, pool)
+
+
+def _seconds(name: str, tag: str, pool: tuple[float, float], low: float = 0.0) -> Parameter:
+    return Parameter(name, low, 600.0, "s", tag, pool)
+
+
+def _throttle(name: str, tag: str, pool: tuple[float, float]) -> Parameter:
+    return Parameter(name, -THROTTLE_LIMIT, THROTTLE_LIMIT, "", tag, pool)
+
+
+_STEP = (
+    _throttle("throttle_start", "t", (0.2, 1.0)),
+    _throttle("throttle_end", "e", (-0.5, 1.0)),
+    _seconds("switch_time", "at", (2.0, 10.0)),
+    _seconds("ramp_time", "r", (0.0, 5.0)),
+    Parameter("steering", 0.0, STEERING_LIMIT, "rad", "s", (0.0, STEERING_LIMIT)),
+)
+_SEED = Parameter("seed", 0, 2**31 - 1, "", "seed", (0, 9999), integer=True)
+FAMILIES: dict[str, Family] = {
+    f.name: f
+    for f in (
+        Family("slalom", (_T, _A, _hz("frequency", "f", (0.02, 0.5)), _seconds("delay", "w", (0.0, 5.0))),
+               _slalom, "cosine steering after a straight start (skidpad at f = 0)"),
+        Family("fishhook", (_T, Parameter("rate", 1e-4, 2.0, "rad/s", "r", (0.006, 0.3)), _A),
+               _fishhook, "steering ramp to a hold"),
+        Family("throttle_step", _STEP,
+               _throttle_step, "throttle step or ramp (accelerate, brake, reverse) at constant steering"),
+        Family("chirp", (_T, _A, _hz("f0", "fa", (0.02, 0.3)), _hz("f1", "fb", (0.02, 0.6))),
+               _chirp, "steering sine sweeping linearly from f0 to f1"),
+        Family("multisine", (_T, _A, _hz("f_low", "fl", (0.02, 0.2)), _hz("f_high", "fh", (0.2, 0.8))),
+               _multisine, "sum of tones with Schroeder phases"),
+        Family("prbs", (_T, _A, _seconds("switch_time", "h", (0.5, 5.0), low=0.05), _SEED),
+               _prbs, "pseudo-random binary steering sequence"),
+    )
+}  # fmt: skip
+
+
+def family(name: str) -> Family:
+    """The registered family `name` (ManeuverError naming `family` otherwise)."""
+    if not isinstance(name, str) or name not in FAMILIES:
+        raise ManeuverError("family", name, f"must be one of {', '.join(FAMILIES)}")
+    return FAMILIES[name]
+
+
+def _short(value: float, integer: bool) -> str:
+    """Shortest readable text that reads back as exactly `value` (keeps names unique)."""
+    if integer:
+        return str(int(value))
+    text = f"{value:.6g}"
+    return text if float(text) == value else repr(value)
+
+
+@dataclass(frozen=True)
+class FamilyManeuver:
+    """One member of a family: its parameter values, direction and duration (s). Quacks like `Maneuver`.
+
+    `params` may be given as a mapping; it is stored as (name, value) pairs in the family's order.
+    `controls(rate_hz)` is the schedule `simulator.collect` applies and logs. `span` (default: the
+    duration) is the time over which the signal is laid out (a chirp's sweep, a multisine's peak), so
+    `dataclasses.replace(m, duration=shorter)` drives the first seconds of the same signal.
+    """
+
+    family: str
+    params: Any
+    direction: str = "ccw"
+    duration: float = 30.0
+    span: float | None = None
+
+    def __post_init__(self) -> None:
+        fam = family(self.family)
+        given = dict(self.params) if not isinstance(self.params, Mapping) else dict(self.params.items())
+        for name in given:
+            fam.parameter(name)
+        values = []
+        for p in fam.parameters:
+            if p.name not in given:
+                raise ManeuverError(p.name, None, f"is missing ({self.family} needs {', '.join(fam.names)})")
+            value = _check_real(p.name, given[p.name])
+            if not p.low <= value <= p.high:
+                unit = f" {p.unit}" if p.unit else ""
+                raise ManeuverError(p.name, given[p.name], f"must lie in [{p.low:g}, {p.high:g}]{unit}")
+            if p.integer and value != int(value):
+                raise ManeuverError(p.name, given[p.name], "must be a whole number")
+            values.append((p.name, float(int(value)) if p.integer else value))
+        if not isinstance(self.direction, str) or self.direction not in DIRECTIONS:
+            raise ManeuverError("direction", self.direction, "must be 'cw' or 'ccw'")
+        duration = _check_real("duration", self.duration)
+        if duration <= 0.0:
+            raise ManeuverError("duration", self.duration, "must be > 0")
+        span = duration if self.span is None else _check_real("span", self.span)
+        if span <= 0.0:
+            raise ManeuverError("span", self.span, "must be > 0")
+        object.__setattr__(self, "params", tuple(values))
+        object.__setattr__(self, "duration", duration)
+        object.__setattr__(self, "span", span)
+
+    @property
+    def kind(self) -> str:
+        """The family name (logged in the `maneuver` column)."""
+        return self.family
+
+    @property
+    def values(self) -> dict[str, float]:
+        """Parameter values by name."""
+        return dict(self.params)
+
+    @property
+    def sign(self) -> int:
+        """Steering sign of the direction: +1 for ccw (left), -1 for cw."""
+        return 1 if self.direction == "ccw" else -1
+
+    @property
+    def name(self) -> str:
+        """Stable readable identifier, e.g. slalom_ccw_t0.6_a0.3_f0.2_w0_d20."""
+        fam = FAMILIES[self.family]
+        pairs = zip(fam.parameters, self.params, strict=True)
+        tags = "_".join(f"{p.tag}{_short(v, p.integer)}" for p, (_, v) in pairs)
+        cut = f"_of{self.span:g}" if self.span != self.duration else ""
+        return f"{self.family}_{self.direction}_{tags}_d{self.duration:g}{cut}"
+
+    def controls(self, rate_hz: float = REFERENCE_RATE) -> np.ndarray:
+        """(T, 2) throttle and signed steering at the log times k / rate_hz, as `collect` applies them."""
+        rate = _check_real("rate_hz", rate_hz)
+        if rate <= 0.0:
+            raise ManeuverError("rate_hz", rate_hz, "must be > 0")
+        t = sample_times(self.duration, rate)
+        throttle, steering = FAMILIES[self.family].signal(self.values, t, float(self.span or self.duration))
+        throttle = np.clip(throttle, -THROTTLE_LIMIT, THROTTLE_LIMIT)
+        steering = self.sign * np.clip(steering, -STEERING_LIMIT, STEERING_LIMIT) + 0.0  # no -0.0
+        return np.column_stack([throttle, steering]).astype(np.float64)
+
+    @cached_property
+    def _reference(self) -> np.ndarray:
+        return self.controls(REFERENCE_RATE)
+
+    @property
+    def throttle(self) -> float:
+        """Median throttle of the schedule (logged as `op_throttle`)."""
+        return float(np.median(self._reference[:, 0]))
+
+    @property
+    def op_steering(self) -> float:
+        """Largest |steering| of the schedule (logged as `op_steering`)."""
+        return float(np.abs(self._reference[:, 1]).max())
+
+    @property
+    def steering(self) -> float:
+        """Same as op_steering (Maneuver's field name)."""
+        return self.op_steering
+
+
+def as_family(maneuver: Maneuver) -> FamilyManeuver:
+    """The family member that drives a reference maneuver's schedule (straight, skidpad, slalom, fishhook).
+
+    The eight is not open loop (its flips follow the measured heading): ManeuverError naming `kind`.
+    """
+    u, s, kind = maneuver.throttle, maneuver.op_steering, maneuver.kind
+    if kind in ("straight", "skidpad"):
+        params = {"throttle": u, "amplitude": s, "frequency": 0.0, "delay": 0.0}
+        name = "slalom"
+    elif kind == "slalom":
+        params = {"throttle": u, "amplitude": s, "frequency": SLALOM_FREQUENCY / (2.0 * math.pi),
+                  "delay": SLALOM_DELAY}  # fmt: skip
+        name = "slalom"
+    elif kind == "fishhook":
+        params, name = {"throttle": u, "rate": FISHHOOK_RATE, "amplitude": s}, "fishhook"
+    else:
+        reason = "is closed loop (it flips on the measured heading): no open-loop family holds it"
+        raise ManeuverError("kind", kind, reason)
+    return FamilyManeuver(name, params, maneuver.direction, maneuver.duration)

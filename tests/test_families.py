@@ -1,0 +1,331 @@
+"""Maneuver families (issue 22, point 1): schedules, reference kinds as special cases, logs, Sobol
+pools, propose/ingest with schedules, and a campaign over a family pool.
+
+Real MuJoCo, real files, the real CLI; sizes are shrunk (seconds-long maneuvers, few epochs).
+"""
+
+from __future__ import annotations
+
+import typing
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy.stats import qmc
+
+import simulator
+from activelearn.cli import main
+from activelearn.config import FamilyName, load_config
+from activelearn.data import write_table
+from activelearn.loop.acquisition import STRATEGIES, greedy_maximin, make_strategy
+from activelearn.loop.campaign import CampaignState
+from activelearn.loop.collection import noise_config
+from activelearn.loop.pool import build_pool, pool_maneuvers
+from simulator import FAMILIES, FamilyManeuver, Maneuver, ManeuverError, as_family, nominal_controls
+
+ROOT = Path(__file__).resolve().parents[1]
+SMOKE = ROOT / "experiments" / "configs" / "families_smoke.toml"
+RATE = 30.0
+
+
+def _member(family: str, duration: float = 20.0, direction: str = "ccw", **params: float) -> FamilyManeuver:
+    return FamilyManeuver(family, params, direction, duration)
+
+
+def _crossings(x: np.ndarray) -> np.ndarray:
+    """Indices where a signal changes sign (zeros skipped)."""
+    signs = np.sign(x[x != 0])
+    return np.flatnonzero(signs[1:] != signs[:-1])
+
+
+# ------------------------------------------------------------------------------------------- schedules
+
+
+def test_the_registry_and_the_config_know_the_same_families():
+    assert set(typing.get_args(FamilyName)) == set(FAMILIES)
+    for spec in FAMILIES.values():
+        for p in spec.parameters:
+            assert p.low <= p.pool[0] <= p.pool[1] <= p.high, (spec.name, p.name)
+
+
+def test_slalom_crosses_zero_twice_per_period_with_the_given_amplitude_and_direction():
+    for frequency, expected in ((0.25, 10), (0.4, 16)):
+        m = _member("slalom", throttle=0.6, amplitude=0.3, frequency=frequency, delay=0.0)
+        steering = m.controls(RATE)[:, 1]
+        assert len(_crossings(steering)) == expected  # 2 f T crossings of a cosine over T = 20 s
+        assert np.isclose(np.abs(steering).max(), 0.3) and steering[0] == pytest.approx(0.3)
+    delayed = _member("slalom", direction="cw", throttle=0.6, amplitude=0.3, frequency=0.25, delay=3.0)
+    steering = delayed.controls(RATE)[:, 1]
+    assert np.all(steering[: int(3 * RATE)] == 0.0) and steering[int(3 * RATE)] == pytest.approx(-0.3)
+    assert np.all(delayed.controls(RATE)[:, 0] == 0.6)
+
+
+def test_chirp_frequency_rises_from_f0_to_f1():
+    m = _member("chirp", duration=40.0, throttle=0.5, amplitude=0.2, f0=0.05, f1=0.5)
+    gaps = np.diff(_crossings(m.controls(RATE)[:, 1])) / RATE  # half periods, s
+    assert gaps[0] > 3 * gaps[-1]
+    assert np.all(np.diff(gaps) <= 1.0 / RATE + 1e-9)  # never slower again (up to one sample)
+    # the last half period matches f1, the number of crossings the mean frequency
+    assert 1.0 / (2 * gaps[-1]) == pytest.approx(0.5, rel=0.1)
+    assert len(gaps) + 1 == pytest.approx(2 * 0.275 * 40.0, abs=2)
+
+
+def test_prbs_is_binary_switches_on_its_grid_and_is_reproducible_per_seed():
+    args = {"throttle": 0.7, "amplitude": 0.25, "switch_time": 0.5}
+    a = _member("prbs", seed=11, **args).controls(RATE)[:, 1]
+    assert np.array_equal(a, _member("prbs", seed=11, **args).controls(RATE)[:, 1])
+    assert not np.array_equal(a, _member("prbs", seed=12, **args).controls(RATE)[:, 1])
+    assert set(np.round(a, 12)) == {-0.25, 0.25} and a[0] == 0.25
+    switches = np.flatnonzero(np.diff(a)) + 1
+    assert len(switches) > 5 and np.all(switches % int(0.5 * RATE) == 0)
+    slower = _member("prbs", seed=11, **{**args, "switch_time": 2.0}).controls(RATE)[:, 1]
+    assert len(np.flatnonzero(np.diff(slower))) < len(switches)
+
+
+def test_multisine_peaks_at_its_amplitude_and_stays_in_its_band():
+    m = _member("multisine", duration=60.0, throttle=0.5, amplitude=0.3, f_low=0.1, f_high=0.3)
+    steering = m.controls(RATE)[:, 1]
+    assert 0.29 <= np.abs(steering).max() <= 0.3
+    power = np.abs(np.fft.rfft(steering)) ** 2
+    freqs = np.fft.rfftfreq(len(steering), 1.0 / RATE)
+    assert power[(freqs >= 0.08) & (freqs <= 0.32)].sum() > 0.95 * power.sum()
+
+
+def test_fishhook_ramps_at_its_rate_and_throttle_steps_and_ramps_brake_and_reverse():
+    hook = _member("fishhook", throttle=0.5, rate=0.1, amplitude=0.4).controls(RATE)
+    t = np.arange(len(hook)) / RATE
+    assert np.allclose(hook[:, 1], np.minimum(0.1 * t, 0.4))
+    step = _member("throttle_step", throttle_start=0.8, throttle_end=0.0, switch_time=5.0, ramp_time=0.0,
+                   steering=0.2).controls(RATE)  # fmt: skip
+    assert np.all(step[t < 5.0, 0] == 0.8) and np.all(step[t >= 5.0, 0] == 0.0)  # brake
+    assert np.all(step[:, 1] == 0.2)
+    ramp = _member("throttle_step", direction="cw", throttle_start=0.6, throttle_end=-0.4, switch_time=4.0,
+                   ramp_time=10.0, steering=0.2).controls(RATE)  # fmt: skip
+    assert ramp[t == 9.0, 0] == pytest.approx(0.1) and np.all(ramp[t >= 14.0, 0] == -0.4)  # reverse
+    assert np.all(ramp[:, 1] == -0.2)
+
+
+@pytest.mark.parametrize("kind", ["straight", "skidpad", "slalom", "fishhook"])
+@pytest.mark.parametrize("direction", ["ccw", "cw"])
+def test_open_loop_reference_kinds_are_family_members(kind: str, direction: str):
+    reference = Maneuver(kind, 0.7, 0.0 if kind == "straight" else 0.35, direction if kind != "straight"
+                         else "ccw", 60.0)  # fmt: skip
+    member = as_family(reference)
+    assert member.family in ("slalom", "fishhook")
+    assert np.allclose(member.controls(RATE), nominal_controls(reference, RATE), atol=1e-12)
+    assert np.allclose(nominal_controls(member, 10.0), member.controls(10.0))
+
+
+def test_the_eight_is_not_a_family_member():
+    with pytest.raises(ManeuverError) as info:
+        as_family(Maneuver("eight", 0.6, 0.3, "ccw", 30.0))
+    assert info.value.field == "kind" and "closed loop" in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("family", "params", "field"),
+    [
+        ("donut", {}, "family"),
+        ("slalom", {"throttle": 0.5, "amplitude": 0.2, "frequency": 3.0, "delay": 0.0}, "frequency"),
+        ("slalom", {"throttle": 0.5, "amplitude": 0.2, "frequency": 0.1}, "delay"),
+        ("slalom", {"throttle": 0.5, "amplitude": 0.2, "frequency": 0.1, "delay": 0, "freq": 1}, "freq"),
+        ("chirp", {"throttle": 1.5, "amplitude": 0.2, "f0": 0.1, "f1": 0.2}, "throttle"),
+        ("prbs", {"throttle": 0.5, "amplitude": 0.2, "switch_time": 1.0, "seed": 1.5}, "seed"),
+        ("fishhook", {"throttle": 0.5, "rate": float("nan"), "amplitude": 0.2}, "rate"),
+    ],
+)
+def test_bad_parameters_name_their_field(family: str, params: dict, field: str):
+    with pytest.raises(ManeuverError) as info:
+        FamilyManeuver(family, params, "ccw", 10.0)
+    assert info.value.field == field and str(info.value).startswith(f"{field}:")
+
+
+def test_collect_logs_family_members_in_the_autodrive_layout():
+    slalom = _member("slalom", duration=4.0, throttle=0.8, amplitude=0.4, frequency=0.0, delay=1.0)
+    prbs = _member("prbs", duration=4.0, direction="cw", throttle=0.6, amplitude=0.3, switch_time=1.0, seed=3)
+    table = simulator.collect([slalom, prbs], rate_hz=RATE, seed=1)
+    assert tuple(table.columns) == simulator.COLUMNS
+    for m in (slalom, prbs):
+        log = table[table["run_id"] == m.name]
+        assert len(log) == int(4.0 * RATE) + 1 and set(log["maneuver"]) == {m.family}
+        assert np.array_equal(log[["throttle", "steering"]].to_numpy(), m.controls(RATE))
+        assert log["op_throttle"].iloc[0] == np.median(m.controls(RATE)[:, 0])
+        assert log["op_steering"].iloc[0] == pytest.approx(np.abs(m.controls(RATE)[:, 1]).max())
+        assert set(log["direction"]) == {m.direction} and not log["diverged"].any()
+    # the car follows the schedule: it turns left once the slalom (a skidpad at f = 0) steers left
+    turning = table[(table["run_id"] == slalom.name) & (table["time"] > 2.0)]
+    assert turning["angZ"].mean() > 0.1 and turning["speed"].mean() > 0.1
+    assert slalom.name == "slalom_ccw_t0.8_a0.4_f0_w1_d4"
+
+
+# ------------------------------------------------------------------------------------------------ pools
+
+
+def _config(tmp_path: Path, extra: str = "", text: str | None = None) -> Path:
+    path = tmp_path / "families.toml"
+    path.write_text(f'output_dir = "{tmp_path / "runs"}"\n' + (text or SMOKE.read_text()) + extra)
+    return path
+
+
+def test_a_family_pool_is_a_seeded_sobol_set_over_four_parameters(tmp_path):
+    cfg = load_config(_config(tmp_path))
+    pool = pool_maneuvers(cfg.pool)
+    assert [m.name for m in pool] == [m.name for m in pool_maneuvers(cfg.pool)]
+    slaloms = [m for m in pool if m.family == "slalom" and m.direction == "ccw"]
+    assert len(slaloms) == cfg.pool.size and len(FAMILIES["slalom"].continuous) >= 4
+    ranges = cfg.pool.ranges["slalom"]
+    names = FAMILIES["slalom"].names
+    low, high = np.array([ranges[n][0] for n in names]), np.array([ranges[n][1] for n in names])
+    rng = np.random.default_rng([cfg.pool.seed, zlib.crc32(b"slalom")])
+    expected = np.round(qmc.scale(qmc.Sobol(4, scramble=True, rng=rng).random(cfg.pool.size), low, high), 4)
+    got = np.array([[m.values[n] for n in names] for m in slaloms])
+    assert np.allclose(got, expected, atol=1e-9)
+    other = load_config(
+        _config(tmp_path, text=SMOKE.read_text().replace("seed = 0\nduration", "seed = 1\nduration"))
+    )
+    assert {m.name for m in pool_maneuvers(other.pool)}.isdisjoint(m.name for m in pool)
+
+
+def test_existing_strategies_select_from_a_family_pool_and_maximin_spreads_in_parameter_space(tmp_path):
+    cfg = load_config(_config(tmp_path))
+    maneuvers = pool_maneuvers(cfg.pool)
+    target = (np.zeros((1, 2)), np.ones(1))
+    pool = build_pool(cfg, maneuvers, np.zeros(len(maneuvers), bool), np.ones(2), target, 0)
+    assert pool.features.shape == (len(maneuvers), 4 + 1)  # 4 parameters and the direction
+    assert pool.features.min() >= 0.0 and pool.features.max() <= 1.0
+    assert sorted(set(pool.kinds)) == [0, 1, 2]  # slalom, chirp, prbs
+    k = 6
+    picks = greedy_maximin(pool, k, np.random.default_rng(0))
+    gap = pool.distances(np.array(picks), np.array(picks))[~np.eye(k, dtype=bool)].min()
+    first = np.arange(k)
+    naive = pool.distances(first, first)[~np.eye(k, dtype=bool)].min()
+    assert len(set(picks)) == k and gap > naive and gap > 0.5
+    for name in ("random", "sobol", "lhs", "grid"):
+        chosen = make_strategy(name).select(None, pool, 4, np.random.default_rng(1))
+        assert len(set(chosen)) == 4 and all(0 <= i < len(maneuvers) for i in chosen), name
+    assert "uniform" in STRATEGIES
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "field"),
+    [
+        ('families = ["slalom", "chirp", "prbs"]', 'families = ["slalom", "donut"]', "pool.families"),
+        ("frequency = [0.0, 0.4]", "frequency = [0.0, 4.0]", "pool.ranges.slalom.frequency"),
+        ("f1 = [0.2, 0.6]", "f2 = [0.2, 0.6]", "pool.ranges.chirp.f2"),
+        ("size = 8\n", "", "pool.size"),
+    ],
+)
+def test_a_bad_family_config_is_one_line_naming_the_field_and_writes_nothing(
+    tmp_path, capsys, old, new, field
+):
+    text = SMOKE.read_text()
+    assert old in text
+    config = _config(tmp_path, text=text.replace(old, new))
+    assert main(["campaign", "run", str(config), "--no-tracking", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and field in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["families.toml"]
+
+
+# ------------------------------------------------------------------------------------ propose and ingest
+
+ASKTELL = """
+name = "fam_car"
+strategy = "uniform"
+[pool]
+families = ["slalom", "prbs"]
+directions = ["ccw"]
+size = 4
+duration = 8.0
+[pool.ranges.prbs]
+throttle = [0.6, 0.6]
+amplitude = [0.3, 0.3]
+switch_time = [1.0, 1.0]
+[design]
+initial = 7
+per_round = 1
+max_maneuvers = 8
+[acquisition]
+n_samples = 8
+grid_throttles = 3
+grid_steerings = 3
+[training]
+epochs = 10
+[test]
+throttles = [0.6]
+steerings = [0.3]
+duration = 8.0
+[oracle]
+kind = "external"
+"""
+
+
+def test_propose_writes_parameters_and_schedules_and_ingest_matches_simulated_logs(tmp_path, capsys):
+    config = _config(tmp_path, text=ASKTELL)
+    directory = tmp_path / "campaign"
+    assert main(["campaign", "propose", str(config), "--out", str(directory), "--no-tracking"]) == 0
+    assert "schedule file" in capsys.readouterr().out
+    proposals = pd.read_csv(directory / "proposals" / "round-000.csv")
+    params = ["throttle", "amplitude", "frequency", "delay", "switch_time", "seed"]
+    assert list(proposals.columns) == ["maneuver", "direction", "duration", *params, "schedule"]
+    assert len(proposals) == 7 and (proposals["maneuver"] == "prbs").sum() >= 2
+    cfg = load_config(config)
+    noise = noise_config(cfg.simulation.noise)
+    logs = []
+    for i, row in proposals.iterrows():
+        values = {k: row[k] for k in FAMILIES[row["maneuver"]].names}
+        m = FamilyManeuver(row["maneuver"], values, row["direction"], row["duration"])
+        schedule = pd.read_csv(directory / "proposals" / row["schedule"])
+        assert list(schedule.columns) == ["time", "throttle", "steering"]
+        assert np.allclose(schedule[["throttle", "steering"]].to_numpy(), m.controls(RATE))
+        assert schedule["time"].iloc[-1] == pytest.approx(8.0)
+        log = simulator.collect([m], rate_hz=RATE, seed=100 + i, noise=noise)
+        logs.append(write_table(log, tmp_path / f"log{i}.csv"))
+        expected_name = m.name
+        assert log["run_id"].iloc[0] == expected_name
+    # PRBS proposals differ only in their seed: the schedule tells their logs apart, in any order
+    order = list(reversed(range(len(logs))))
+    assert main(["campaign", "ingest", str(directory), *(str(logs[i]) for i in order), "--no-tracking"]) == 0
+    out = capsys.readouterr().out
+    for i, row in proposals.iterrows():
+        name = Path(row["schedule"]).stem.split("-", 1)[1]
+        assert f"{logs[i]} -> {name}" in out
+    state = CampaignState.load(directory)
+    assert len(state.batches) == 1 and len(state.rounds) == 1 and state.pending is not None
+    assert (directory / "proposals" / "round-001.csv").is_file()
+    assert len(list((directory / "proposals" / "round-001").glob("*.csv"))) == 1
+
+
+# --------------------------------------------------------------------------------------------- campaign
+
+
+def test_a_tiny_family_campaign_runs_with_uniform_and_max_epistemic(tmp_path, capsys):
+    config = _config(tmp_path, text=SMOKE.read_text().replace("max_maneuvers = 7", "max_maneuvers = 5"))
+    names = {m.name for m in pool_maneuvers(load_config(config).pool)}
+    batches = {}
+    for strategy in ("uniform", "max_epistemic"):
+        out = tmp_path / strategy
+        args = ["campaign", "run", str(config), "--strategy", strategy, "--no-tracking", "--out", str(out)]
+        assert main(args) == 0
+        state = CampaignState.load(out)
+        assert state.finished and state.stop_reason == "max_maneuvers" and len(set(state.taken)) == 5
+        assert all(np.isfinite(r["test_rmse"]) for r in state.rounds) and len(state.rounds) == 2
+        samples = pd.read_parquet(out / "samples.parquet")
+        assert set(samples["run_id"]) <= names and set(samples["maneuver"]) <= {"slalom", "chirp", "prbs"}
+        batches[strategy] = state.batches
+    assert batches["uniform"][0] == batches["max_epistemic"][0]  # the initial design is shared
+
+
+@pytest.mark.parametrize("family", ["chirp", "multisine", "prbs", "slalom"])
+def test_a_shortened_member_drives_the_first_seconds_of_the_same_signal(family: str):
+    # [safety] cuts a proposal short with dataclasses.replace(m, duration=...): the prefix must not change
+    import dataclasses
+
+    draws = {"chirp": {"f0": 0.05, "f1": 0.6}, "multisine": {"f_low": 0.05, "f_high": 0.6},
+             "prbs": {"switch_time": 0.7, "seed": 5}, "slalom": {"frequency": 0.3, "delay": 1.0}}  # fmt: skip
+    full = _member(family, duration=30.0, throttle=0.5, amplitude=0.3, **draws[family])
+    cut = dataclasses.replace(full, duration=12.0)
+    assert np.array_equal(cut.controls(RATE), full.controls(RATE)[: int(12 * RATE) + 1])
+    assert cut.name != full.name and cut.name.endswith("_d12_of30")
