@@ -3,8 +3,9 @@
 Runs `activelearn compare` on each pool (10 seeds by default; the same seed gives every strategy the
 same initial design, prior, test set and noise streams, so differences are paired) and prints, per
 pool and strategy:
-  * final test RMSE ± s.e.m. (standardised; v in m/s and ω in rad/s beside it);
-  * new maneuvers and track seconds to reach uniform's final RMSE: median and quartiles of the ratio
+  * the final value of the pool config's `[test] metric` ± s.e.m. (test RMSE, standardised, with v in
+    m/s and ω in rad/s beside it; or a free-run error such as `rollout_pos_err_30s` in metres);
+  * new maneuvers and track seconds to reach uniform's final value: median and quartiles of the ratio
     to uniform's budget (inf = not reached within the budget);
   * wins at the final budget (paired, out of seeds);
   * paired differences against uniform at every budget (mean ± s.e.m., wins), and for `auto` the
@@ -43,6 +44,8 @@ POOLS: dict[str, tuple[str, ...]] = {
     "odd_expansion": ("uniform", "grid", "random", "max_epistemic", "integrated_variance", "auto"),
     "odd_costs": ("uniform", "integrated_variance", "auto"),
     "sim_to_real": ("uniform", "max_epistemic", "integrated_variance", "auto"),
+    "dynamics": ("uniform", "random", "max_epistemic", "integrated_variance", "auto"),
+    "dynamics_warm": ("uniform", "random", "max_epistemic", "integrated_variance", "auto"),
 }
 
 
@@ -55,18 +58,18 @@ def finals(curves: pd.DataFrame) -> pd.DataFrame:
     return curves.sort_values("round").groupby(["strategy", "seed"]).last().reset_index()
 
 
-def reach_table(curves: pd.DataFrame, reference: str = "uniform") -> pd.DataFrame:
-    """Per strategy: maneuvers and track seconds to reach the reference's mean final RMSE, as ratios."""
+def reach_table(curves: pd.DataFrame, reference: str = "uniform", metric: str = "test_rmse") -> pd.DataFrame:
+    """Per strategy: maneuvers and track seconds to reach the reference's mean final `metric`, as ratios."""
     last = finals(curves)
     ref = last[last["strategy"] == reference]
-    target = ref["test_rmse"].mean()
+    target = ref[metric].mean()
     budget, seconds = ref["n_maneuvers"].mean(), ref["track_seconds"].mean()
     rows = []
     for strategy, part in curves.groupby("strategy", sort=False):
         need_n, need_s = [], []
         for _, run in part.groupby("seed"):
             run = run.sort_values("round")
-            hit = run[run["test_rmse"] <= target]
+            hit = run[run[metric] <= target]
             need_n.append(float(hit["n_maneuvers"].iloc[0]) if len(hit) else np.inf)
             need_s.append(float(hit["track_seconds"].iloc[0]) if len(hit) else np.inf)
         ratio_n, ratio_s = np.array(need_n) / budget, np.array(need_s) / seconds
@@ -94,20 +97,21 @@ def reach_table(curves: pd.DataFrame, reference: str = "uniform") -> pd.DataFram
     return table
 
 
-def final_table(curves: pd.DataFrame, reference: str = "uniform") -> pd.DataFrame:
-    """Per strategy: final RMSE ± s.e.m. and paired wins against the reference."""
+def final_table(curves: pd.DataFrame, reference: str = "uniform", metric: str = "test_rmse") -> pd.DataFrame:
+    """Per strategy: final `metric` ± s.e.m. (one-step RMSE beside it), paired wins against the reference."""
     last = finals(curves).set_index(["strategy", "seed"])
-    ref = last.loc[reference, "test_rmse"]
+    ref = last.loc[reference, metric]
     rows = []
     for strategy in dict.fromkeys(curves["strategy"]):
         part = last.loc[strategy]
-        paired = part["test_rmse"] - ref.reindex(part.index)
+        paired = part[metric] - ref.reindex(part.index)
         rows.append(
             {
                 "strategy": strategy,
                 "seeds": len(part),
-                "final_rmse": part["test_rmse"].mean(),
-                "sem": _sem(part["test_rmse"].to_numpy()),
+                f"final_{metric}": part[metric].mean(),
+                "sem": _sem(part[metric].to_numpy()),
+                **({} if metric == "test_rmse" else {"test_rmse": part["test_rmse"].mean()}),
                 "rmse_v_mps": part["test_rmse_v"].mean(),
                 "rmse_w_radps": part["test_rmse_w"].mean(),
                 "diff_vs_uniform": paired.mean(),
@@ -146,18 +150,20 @@ def paired_table(curves: pd.DataFrame, reference: str = "uniform", metric: str =
     return pd.DataFrame(rows)
 
 
-def room_table(curves: pd.DataFrame, reference: str = "uniform") -> pd.DataFrame | None:
+def room_table(
+    curves: pd.DataFrame, reference: str = "uniform", metric: str = "test_rmse"
+) -> pd.DataFrame | None:
     """Share of the room (reference minus lookahead oracle, final budget) each strategy captures."""
     if LOOKAHEAD not in set(curves["strategy"]):
         return None
-    last = finals(curves).set_index(["strategy", "seed"])["test_rmse"]
+    last = finals(curves).set_index(["strategy", "seed"])[metric]
     seeds = last.loc[LOOKAHEAD].index
     ref = last.loc[reference].reindex(seeds).mean()
     room = ref - last.loc[LOOKAHEAD].mean()
     rows = []
     for strategy in dict.fromkeys(curves["strategy"]):
         value = last.loc[strategy].reindex(seeds).mean()
-        rows.append({"strategy": strategy, "final_rmse_on_lookahead_seeds": value,
+        rows.append({"strategy": strategy, "final_on_lookahead_seeds": value,
                      "share_of_room": (ref - value) / room if room > 0 else np.nan})  # fmt: skip
     table = pd.DataFrame(rows)
     table.attrs["room"] = room
@@ -187,12 +193,13 @@ def pick_table(directories: list[Path], cfg: CampaignConfig) -> pd.DataFrame:
     if len(turning):
         edge |= (steerings > 0) & ((steerings == turning.min()) | (steerings == turning.max()))
     kinds = np.array([m.kind for m in pool])
+    kind_names = list(dict.fromkeys(kinds))  # a family pool's kinds are its families
 
     def shares(picks: np.ndarray) -> dict:
         row = {"picks": len(picks), "edge_share": float(edge[picks].mean()),
                "reverse_share": float((throttles[picks] < 0).mean())}  # fmt: skip
         if len(set(kinds)) > 1:
-            row.update({kind: int((kinds[picks] == kind).sum()) for kind in cfg.pool.kinds})
+            row.update({kind: int((kinds[picks] == kind).sum()) for kind in kind_names})
         return row
 
     rows = [{"strategy": "(pool)", **shares(np.arange(len(pool)))}]
@@ -229,6 +236,7 @@ def main() -> None:
     pd.set_option("display.max_columns", 30)
     for name in args.pools.split(","):
         cfg = load_config(CONFIGS / f"{name}.toml")
+        metric = cfg.test.metric  # what the config ranks by: test_rmse, or a free-run error
         strategies = args.strategies.split(",") if args.strategies else list(POOLS[name])
         started = time.perf_counter()
         runs = [(Path(args.out) / name, strategies, args.seeds)]
@@ -245,20 +253,20 @@ def main() -> None:
             f"\n=== {name}: {args.seeds} seeds ({args.lookahead_seeds} for the lookahead oracle), "
             f"{len(strategies)} strategies, {time.perf_counter() - started:.0f} s wall ==="
         )
-        print(final_table(curves).to_string(index=False, float_format="%.4g"))
-        reach = reach_table(curves)
+        print(final_table(curves, metric=metric).to_string(index=False, float_format="%.4g"))
+        reach = reach_table(curves, metric=metric)
         print(
-            f"\nto reach uniform's final RMSE {reach.attrs['target']:.4g}: new maneuvers and track seconds, "
-            "as ratios to uniform's budget (median, quartiles; inf = not reached):"
+            f"\nto reach uniform's final {metric} {reach.attrs['target']:.4g}: new maneuvers and track "
+            "seconds, as ratios to uniform's budget (median, quartiles; inf = not reached):"
         )
         print(reach.to_string(index=False, float_format="%.3g"))
-        room = room_table(curves)
+        room = room_table(curves, metric=metric)
         if room is not None:
             print(f"\nroom: uniform - lookahead = {room.attrs['room']:.4g} at the final budget "
                   f"({room.attrs['seeds']} seeds); share each strategy captures:")  # fmt: skip
             print(room.to_string(index=False, float_format="%.3g"))
-        paired = paired_table(curves)
-        print("\npaired test-RMSE differences against uniform per round (negative = better):")
+        paired = paired_table(curves, metric=metric)
+        print(f"\npaired {metric} differences against uniform per round (negative = better):")
         print(paired.to_string(index=False, float_format="%.4f"))
         auto = paired[(paired["strategy"] == "auto") & (paired["maneuvers"] >= 8)]
         if len(auto):
