@@ -88,16 +88,23 @@ def epistemic_map(
     picks: Sequence[Any],
     prior: Sequence[Any] = (),
     title: str = "",
+    plans: tuple[Sequence[str], Sequence[np.ndarray], Any] | None = None,
 ) -> Figure:
     """Heat map of epistemic std over throttle × signed steering, with known, collected and chosen maneuvers.
 
     `std` has shape (len(throttles), len(steerings)); maneuvers are marked at their operating point
     (throttle, signed steering), one marker shape per kind; `prior` (a warm start's maneuvers) in grey.
+    `plans` = (names, control signals (T, 2), their predicted rollout) of the chosen maneuvers adds,
+    beside the map, the throttle and steering each one applies and the path the model predicts.
     """
-    fig = _new_figure(6.4, 5.2)
-    ax = fig.add_subplot()
+    fig = _new_figure(6.4 if plans is None else 15.0, 5.2)
+    panel: Any = fig
+    if plans is not None:
+        panel, right = fig.subfigures(1, 2, width_ratios=(1.2, 1.6))
+        _plans(right, *plans)
+    ax = panel.add_subplot()
     mesh = ax.pcolormesh(steerings, throttles, std, shading="nearest", cmap="viridis")
-    fig.colorbar(mesh, ax=ax, label="epistemic std (standardised, mean of v and ω)")
+    panel.colorbar(mesh, ax=ax, label="epistemic std (standardised, mean of v and ω)")
     styles = (
         (prior, {"facecolor": "0.6", "edgecolor": "0.3", "s": 20}),
         (taken, {"facecolor": "white", "edgecolor": "black", "s": 36}),
@@ -112,21 +119,65 @@ def epistemic_map(
     shape = _KIND_MARKERS.get(kinds[0], "o") if len(kinds) == 1 else "o"
     only = f" ({kinds[0]})" if len(kinds) == 1 else ""
     for group, style, label in zip(
-        (prior, taken, picks), (st for _, st in styles), ("prior (known)", "collected", "chosen this round"),
+        (prior, taken, picks),
+        (st for _, st in styles),
+        ("prior (known)", "collected", "chosen this round"),
         strict=True,
     ):
         if len(group):
             ax.scatter([], [], marker=shape, label=label + only, **{**style, "s": 36})
     if len(kinds) > 1:
         for kind in kinds:
-            ax.scatter([], [], marker=_KIND_MARKERS.get(kind, "o"), facecolor="none", edgecolor="black",
-                       label=f"shape: {kind}")
+            ax.scatter(
+                [],
+                [],
+                marker=_KIND_MARKERS.get(kind, "o"),
+                facecolor="none",
+                edgecolor="black",
+                label=f"shape: {kind}",
+            )
     ax.set_xlabel("signed steering (rad, + = left, ccw)")
     ax.set_ylabel("throttle")
     ax.set_title(title)
-    fig.legend(loc="outside lower center", ncols=min(4, len(ax.get_legend_handles_labels()[0]) or 1),
-               fontsize=9, frameon=False)
+    panel.legend(
+        loc="outside lower center",
+        ncols=min(4, len(ax.get_legend_handles_labels()[0]) or 1),
+        fontsize=9,
+        frameon=False,
+    )
     return fig
+
+
+def _plans(panel: Any, names: Sequence[str], controls: Sequence[np.ndarray], rollout: Any) -> None:
+    """The chosen maneuvers' control signals (throttle, steering over time) and predicted paths with fans."""
+    axes = panel.subplot_mosaic([["throttle", "path"], ["steering", "path"]])
+    ax_t, ax_s, ax_p = axes["throttle"], axes["steering"], axes["path"]
+    ax_s.sharex(ax_t)
+    for k, (name, u) in enumerate(zip(names, controls, strict=True)):
+        colour = f"C{(k + 1) % 10}"
+        t = np.arange(len(u)) * rollout.dt
+        ax_t.plot(t, u[:, 0], color=colour, lw=1.2, label=name if len(name) <= 40 else name[:38] + "…")
+        ax_s.plot(t, u[:, 1], color=colour, lw=1.2)
+        n = int(rollout.lengths[k])
+        for s in range(rollout.x.shape[0]):
+            ax_p.plot(rollout.x[s, k, :n], rollout.y[s, k, :n], color=colour, alpha=0.08, lw=0.6)
+        mx, my = rollout.mean_path(k)
+        ax_p.plot(mx[:n], my[:n], color=colour, lw=1.6)
+        ax_p.plot(mx[n - 1], my[n - 1], "o", color=colour, ms=4)
+    ax_t.set_ylabel("throttle")
+    ax_s.set_ylabel("steering (rad)")
+    ax_s.set_xlabel("time (s)")
+    ax_p.plot(0.0, 0.0, "k^", ms=6)
+    ax_p.set_aspect("equal", adjustable="datalim")
+    ax_p.set_xlabel("x (m, start frame)")
+    ax_p.set_ylabel("y (m)")
+    ax_p.set_title("predicted paths (mean, fan)", fontsize=10)
+    for ax in (ax_t, ax_s, ax_p):
+        ax.grid(alpha=0.3)
+        ax.tick_params(labelsize=8)
+    ax_t.set_title("chosen control signals", fontsize=10)
+    panel.legend(*ax_t.get_legend_handles_labels(), loc="outside lower center", ncols=1, fontsize=8,
+                 frameon=False)  # fmt: skip
 
 
 _METRIC_LABELS = {
@@ -191,9 +242,14 @@ def comparison_figure(
                 ax.yaxis.set_minor_formatter(minor)
             ax.grid(alpha=0.3)
     # One legend for every panel, below them; the title says what the lines and bands are.
-    fig.legend(*grid[0][0].get_legend_handles_labels(), loc="outside lower center", ncols=len(strategies),
-               fontsize=11, frameon=False)
-    spread = (f"mean ± 1 s.e. over {n_seeds} seeds" if n_seeds > 1 else "1 seed (no band)")
+    fig.legend(
+        *grid[0][0].get_legend_handles_labels(),
+        loc="outside lower center",
+        ncols=len(strategies),
+        fontsize=11,
+        frameon=False,
+    )
+    spread = f"mean ± 1 s.e. over {n_seeds} seeds" if n_seeds > 1 else "1 seed (no band)"
     fig.suptitle(f"{title or 'strategy comparison'}: {spread}", fontsize=13)
     return fig
 
@@ -302,16 +358,25 @@ def fidelity_figure(points: pd.DataFrame, title: str = "") -> Figure:
             rows = part if name != "loss" else part[part["loss_sim"].notna()]
             if not len(rows):
                 continue
-            ax.plot(rows["steering"], rows[f"{name}_sim"], "-x", color=color, lw=1.2, ms=5,
-                    label=f"throttle {throttle:g}" if name == "v" else None)
+            ax.plot(
+                rows["steering"],
+                rows[f"{name}_sim"],
+                "-x",
+                color=color,
+                lw=1.2,
+                ms=5,
+                label=f"throttle {throttle:g}" if name == "v" else None,
+            )
             ax.plot(rows["steering"], rows[f"{name}_log"], "o", color=color, ms=5, mfc="none")
     for ax, (_, label) in zip(axes, panels, strict=True):
         ax.set(xlabel="steering (rad, + left)", ylabel=label)
         ax.grid(True, alpha=0.3)
     # Colour is the throttle; the marker says which side a point comes from.
     handles, labels = axes[0].get_legend_handles_labels()
-    handles += [axes[0].plot([], [], "-x", color="black", lw=1.2, ms=5)[0],
-                axes[0].plot([], [], "o", color="black", ms=5, mfc="none")[0]]
+    handles += [
+        axes[0].plot([], [], "-x", color="black", lw=1.2, ms=5)[0],
+        axes[0].plot([], [], "o", color="black", ms=5, mfc="none")[0],
+    ]
     labels += ["simulator (line, ×)", "recorded log (○)"]
     fig.legend(handles, labels, loc="outside right upper", fontsize="medium", frameon=False)
     if title:

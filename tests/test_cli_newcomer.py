@@ -280,6 +280,35 @@ def test_epistemic_map_legend_shows_only_what_is_drawn() -> None:
     assert labels == ["collected", "chosen this round", "shape: skidpad", "shape: straight"]
 
 
+def test_round_figure_shows_the_chosen_signals_and_their_predicted_paths(tmp_path) -> None:
+    from activelearn.config import ModelConfig
+    from activelearn.numerics.models import build_model
+    from activelearn.numerics.surrogate import simulate
+    from activelearn.plots import epistemic_map
+    from simulator import FamilyManeuver, Maneuver, nominal_controls
+
+    picks = [
+        FamilyManeuver("chirp", {"throttle": 0.6, "amplitude": 0.3, "f0": 0.05, "f1": 0.5}, "ccw", 6.0),
+        Maneuver("skidpad", 0.5, 0.4, "cw", 4.0),
+    ]
+    controls = [m.controls(30.0) if hasattr(m, "controls") else nominal_controls(m) for m in picks]
+    rollout = simulate(build_model(ModelConfig()), controls, n_samples=4)
+    grid = np.linspace(0.3, 0.9, 3)
+    plans = ([m.name for m in picks], controls, rollout)
+    fig = epistemic_map(grid, grid - 0.6, np.ones((3, 3)), taken=[], picks=picks[1:], plans=plans)
+    titles = {ax.get_title() for ax in fig.axes}
+    assert {"chosen control signals", "predicted paths (mean, fan)"} <= titles
+    labels = [t.get_text() for sub in fig.subfigs for legend in sub.legends for t in legend.get_texts()]
+    assert picks[0].name in labels and picks[1].name in labels  # one colour per chosen signal
+    signals = next(ax for ax in fig.axes if ax.get_title() == "chosen control signals")
+    np.testing.assert_array_equal(signals.lines[0].get_ydata(), controls[0][:, 0])
+    path = next(ax for ax in fig.axes if ax.get_title() == "predicted paths (mean, fan)")
+    assert len(path.lines) == 2 * (4 + 2) + 1  # per pick: 4 sampled paths, the mean, its end; the start
+    fig.savefig(tmp_path / "round.png", dpi=60)
+    assert (tmp_path / "round.png").stat().st_size > 0
+    assert len(epistemic_map(grid, grid - 0.6, np.ones((3, 3)), taken=[], picks=[]).axes) == 2  # map only
+
+
 @pytest.mark.parametrize(("seeds", "says"), [(1, "1 seed (no band)"), (3, "mean ± 1 s.e. over 3 seeds")])
 def test_comparison_figure_has_one_legend_and_says_what_the_band_is(seeds: int, says: str) -> None:
     from activelearn.plots import comparison_figure

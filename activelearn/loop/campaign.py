@@ -80,7 +80,7 @@ from activelearn.loop.state import (
 from activelearn.numerics import uncertainty
 from activelearn.numerics.models import Prediction, ResidualModel, build_model, load_model, save_model
 from activelearn.numerics.paths import path_inputs
-from activelearn.numerics.surrogate import fan_scale_needed, free_run_metrics, model_inputs
+from activelearn.numerics.surrogate import fan_scale_needed, free_run_metrics, model_inputs, simulate
 from activelearn.numerics.training import fit
 from activelearn.numerics.uncertainty import recalibrate_epistemic
 from simulator import FamilyManeuver
@@ -719,6 +719,17 @@ class Campaign:
         if figure_path.exists():
             self.tracker.log_artifact(state.run_id, figure_path, "figures")
 
+    def _plans(self, model: Any, picks: list[int]) -> tuple[list[str], list[np.ndarray], Any]:
+        """Names, control signals and the model's predicted free runs of the chosen maneuvers."""
+        rate = self.cfg.simulation.rate_hz
+        driven = [self.driven(i) for i in picks]
+        controls = [maneuver_controls(m, rate) for m in driven]
+        return (
+            [m.name for m in driven],
+            controls,
+            simulate(model, controls, rate_hz=rate, n_samples=16, seed=0),
+        )
+
     def _figure(self, model: Any, state: CampaignState, picks: list[int], round_index: int) -> None:
         from activelearn.plots import epistemic_map  # matplotlib only when figures are drawn
 
@@ -735,6 +746,7 @@ class Campaign:
             picks=[self.maneuvers[i] for i in picks],
             prior=list(self.prior.runs) if self.prior is not None else (),
             title=f"{self.cfg.strategy}, seed {self.cfg.seed}, round {round_index}",
+            plans=self._plans(model, picks) if picks else None,
         )
         path = self.directory / "figures" / f"epistemic_round{round_index:02d}.png"
         path.parent.mkdir(parents=True, exist_ok=True)
