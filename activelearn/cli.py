@@ -12,6 +12,7 @@ import argparse
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 from activelearn.errors import ActiveLearnError, CampaignStopped
 from simulator.errors import SimulatorError
@@ -233,6 +234,26 @@ _ROUND_COLUMNS = {
     "calib_std_to_rmse": "epi/err",
     "calib_z_spread": "z spread",
 }
+# Free-run metrics a config may rank by ([test] metric): shown after the samples when it does.
+_FREE_RUN_COLUMNS = {
+    "rollout_pos_err_10s": "pos 10s m",
+    "rollout_pos_err_30s": "pos 30s m",
+    "rollout_heading_err_30s": "yaw 30s",
+    "rollout_rmse_v": "free v",
+    "rollout_rmse_w": "free ω",
+    "rollout_coverage_95": "fan95",
+}
+
+
+def _round_columns(cfg: Any, history: Any) -> dict[str, str]:
+    """Columns of the per-round table that `history` has: the config's ranking metric and fan
+    coverage first when it ranks by a free run, then the one-step metrics."""
+    columns = dict(_ROUND_COLUMNS)
+    if cfg.test.metric in _FREE_RUN_COLUMNS:
+        first = {k: columns.pop(k) for k in ("round", "n_maneuvers", "n_samples")}
+        ranked = {k: _FREE_RUN_COLUMNS[k] for k in (cfg.test.metric, "rollout_coverage_95")}
+        columns = {**first, **ranked, **columns}
+    return {k: v for k, v in columns.items() if k in history}
 
 
 # Mirrors activelearn.loop.acquisition.STRATEGIES for the help texts: importing it (torch) here would
@@ -470,8 +491,8 @@ def _campaign_ingest(args: argparse.Namespace) -> int:
         return 0
     history = campaign.history()
     if not history.empty:
-        columns = [c for c in _ROUND_COLUMNS if c in history]
-        last = history[columns].tail(1).rename(columns=_ROUND_COLUMNS)
+        columns = _round_columns(campaign.cfg, history)
+        last = history[list(columns)].tail(1).rename(columns=columns)
         print(last.to_string(index=False, float_format="%.4g"))
     if report.finished:
         from activelearn.loop.state import CampaignState
@@ -518,8 +539,8 @@ def _campaign_run(args: argparse.Namespace) -> int:
         return 130
     bar.close()
     history = result.history
-    columns = [c for c in _ROUND_COLUMNS if c in history]
-    print(history[columns].rename(columns=_ROUND_COLUMNS).to_string(index=False, float_format="%.4g"))
+    columns = _round_columns(cfg, history)
+    print(history[list(columns)].rename(columns=columns).to_string(index=False, float_format="%.4g"))
     print(_finished_message(result.state, cfg, directory)
           or f"stopped by {result.state.stop_reason}; campaign directory: {directory}")  # fmt: skip
     if tracker is not None:
