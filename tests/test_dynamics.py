@@ -15,7 +15,7 @@ import torch
 
 import simulator
 from activelearn.config import RANKING_METRICS, DataConfig, ModelConfig, TrainingConfig, load_config
-from activelearn.loop.campaign import Campaign, CampaignState
+from activelearn.loop.campaign import Campaign, CampaignState, load_model_copy
 from activelearn.loop.collection import arrays, training_rows, training_windows
 from activelearn.numerics.lags import Lags, model_lags
 from activelearn.numerics.models import build_model, load_model, save_model
@@ -402,3 +402,13 @@ def test_a_campaign_scores_dynamic_candidates_along_their_paths(tmp_path):
     steady = cfg.model_copy(update=update)
     other = Campaign(steady, tmp_path / "s").pool(result.state.taken, model)
     assert other.points.shape[0] < pool.points.shape[0]  # steady state: distinct control points only
+
+
+def test_a_free_run_that_blows_up_scores_infinity_not_nan(history_models, slalom_log):
+    model = load_model_copy(history_models["hybrid"])
+    with torch.no_grad():  # an output scale no feedback loop survives: the run overflows to inf, then nan
+        model.y_std.mul_(1e30)
+    logs = [part.reset_index(drop=True) for _, part in slalom_log.groupby("run_id", sort=False)]
+    metrics = free_run_metrics(model, logs, n_samples=4)
+    for name in ("rollout_pos_err_10s", "rollout_pos_err_30s", "rollout_heading_err_30s", "rollout_rmse_v"):
+        assert metrics[name] == np.inf, (name, metrics[name])

@@ -596,11 +596,13 @@ def free_run_metrics(
         n = int(rollout.lengths[i])
         truth = {c: table[c].to_numpy(dtype=np.float64) for c in _TRUTH_COLUMNS}
         tx, ty, tyaw = relative_pose(truth, n)
-        errors = np.hypot(mean_x[i, :n] - tx, mean_y[i, :n] - ty)
+        # a run that blew up (inf, then nan) is as far off as can be: inf, so rankings put it last
+        errors = np.nan_to_num(np.hypot(mean_x[i, :n] - tx, mean_y[i, :n] - ty), nan=np.inf)
         for t in at:
             at[t].append(errors[min(round(t / rollout.dt), n - 1)])
         k30 = min(round(30.0 / rollout.dt), n - 1)
-        heading.append(abs(np.angle(np.exp(1j * (mean_yaw[i, k30] - tyaw[k30])))))  # wrapped to [0, π]
+        gap = mean_yaw[i, k30] - tyaw[k30]
+        heading.append(abs(np.angle(np.exp(1j * gap))) if np.isfinite(gap) else np.inf)  # wrapped to [0, π]
         sq_v += float(np.sum((rollout.mean_rates[i, :n, 0] - truth["speed"][:n]) ** 2))
         sq_w += float(np.sum((rollout.mean_rates[i, :n, 1] - truth["angZ"][:n]) ** 2))
         within = (band_x[0, i, :n] <= tx) & (tx <= band_x[1, i, :n])
@@ -611,8 +613,8 @@ def free_run_metrics(
         "rollout_pos_err_10s": float(np.mean(at[10.0])),
         "rollout_pos_err_30s": float(np.mean(at[30.0])),
         "rollout_heading_err_30s": float(np.mean(heading)),
-        "rollout_rmse_v": float(np.sqrt(sq_v / steps)),
-        "rollout_rmse_w": float(np.sqrt(sq_w / steps)),
+        "rollout_rmse_v": float(np.nan_to_num(np.sqrt(sq_v / steps), nan=np.inf)),
+        "rollout_rmse_w": float(np.nan_to_num(np.sqrt(sq_w / steps), nan=np.inf)),
         "rollout_coverage_95": float(inside / steps),
     }
 
