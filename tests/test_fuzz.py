@@ -284,7 +284,8 @@ def test_a_fuzzed_config_file_loads_or_the_cli_exits_2_writing_nothing(config, c
             return
         event("valid")
         # What the CLI builds before any long work (no simulation yet): its pool and budget.
-        pool = cfg.pool.size or 0
+        # A family pool draws `size` signals per family, each in every direction.
+        pool = (cfg.pool.size or 0) * max(1, len(cfg.pool.families)) * len(cfg.pool.directions)
         if pool <= 5_000:
             try:
                 campaign = Campaign(cfg, root / "out")
