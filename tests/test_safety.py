@@ -24,8 +24,10 @@ from activelearn.config import (
 from activelearn.errors import ConfigError
 from activelearn.loop.acquisition import make_strategy
 from activelearn.loop.campaign import Campaign, CampaignState
-from activelearn.loop.safety import REASONS, admissible_duration, log_violation, violating
+from activelearn.loop.pool import maneuver_controls
+from activelearn.loop.safety import REASONS, admissible_duration, fan, log_violation, violating
 from activelearn.numerics.models import build_model
+from activelearn.numerics.surrogate import simulate
 from activelearn.numerics.training import fit
 from activelearn.studies.tracking import Tracker
 
@@ -139,6 +141,27 @@ def test_a_diverged_fan_trajectory_is_a_violation():
     code = violating(x, zeros, zeros + 0.1, zeros, cfg, 30.0)
     assert not code[0].any()
     assert REASONS[code[1, 30] - 1] == "diverged" and not code[1, :30].any()
+
+
+def test_fans_place_the_path_where_the_car_logs_it(tmp_path):
+    # The fan's path is the logged point's (l_r ahead of a rear axle that does not slip, the model's
+    # pose_lever_arm), so the CG's side slip is in the fan and `path_tolerance` only keeps a few cm
+    # (true rates retrace the logged path to ~1 cm: tests/test_surrogate.py).
+    cfg = safe_config(tmp_path, {"start": [0.3, -0.2, 0.5], "fan_scale": 1.0}, tracking={"enabled": False})
+    assert cfg.safety.path_tolerance < 0.05 and cfg.model.pose_lever_arm == cfg.data.pose_lever_arm > 0
+    campaign = Campaign(cfg, tmp_path / "c")
+    model = build_model(cfg.model)
+    test = campaign.test_set
+    fit(model, test.x, test.y_noisy, cfg.training, groups=test.groups, seed=0)
+    skidpads = [m for m in campaign.maneuvers if m.kind == "skidpad"][:2]
+    rollout = fan(model, skidpads, cfg.safety, 30.0, seed=4)
+    controls = [maneuver_controls(m, 30.0) for m in skidpads]
+    call = dict(rate_hz=30.0, n_samples=cfg.safety.n_samples, seed=4, initial_yaw=0.5)
+    at_cg = simulate(model, controls, lever_arm=cfg.data.pose_lever_arm, **call)
+    np.testing.assert_allclose(rollout.x, at_cg.x + 0.3, atol=1e-6)
+    np.testing.assert_allclose(rollout.y, at_cg.y - 0.2, atol=1e-6)
+    at_axle = simulate(model, controls, lever_arm=0.0, **call)
+    assert np.nanmax(np.hypot(rollout.x - 0.3 - at_axle.x, rollout.y + 0.2 - at_axle.y)) > 0.1
 
 
 # ------------------------------------------------------------------------------------- campaigns

@@ -5,7 +5,8 @@ from `start`) with limits the car must not exceed (|v|, |ω|, the lateral accele
 each candidate the round's model rolls the maneuver out (`activelearn.numerics.surrogate.simulate`:
 S trajectories, each one posterior draw with aleatoric noise at every step) from the start pose.
 A trajectory *violates* at its first step whose position lies closer than `margin` (the car's
-body) plus `path_tolerance` (the rollout's point-mass kinematics against the side-slipping car) to a
+body) plus `path_tolerance` (what a free run's path may still miss of the car's: a few cm, now that
+the rollout integrates the non-slipping rear axle and places the logged CG ahead of it) to a
 wall or whose rates, averaged over `limit_window` seconds, exceed a limit. The candidate's
 risk over a duration T is the share of trajectories that violated before T:
 
