@@ -62,7 +62,7 @@ def drive(campaign: Campaign, clean: list[pd.DataFrame], index: int, duration: f
 
 
 def models(cfg, seeds: list[int], campaigns: str | None, work: Path):
-    """(seed, campaign, model, taken, round) per seed: the first round's model, or a benchmark campaign's last."""
+    """(seed, campaign, model, taken, round) per seed: the first round's model or a campaign's last."""
     for seed in seeds:
         seeded = cfg.model_copy(update={"seed": seed})
         campaign = Campaign(seeded, work / f"seed{seed}", cache_dir=Path("runs/cache"))
@@ -84,7 +84,7 @@ def main() -> None:
     parser.add_argument("--fan-scales", default="1,3")
     parser.add_argument("--tolerances", default="0,0.04,0.08,0.16")
     parser.add_argument("--trust", type=float, default=0.02, help="trust_std of the kinematic guard")
-    parser.add_argument("--campaigns", default=None, help="a benchmark directory: judge each seed's last model")
+    parser.add_argument("--campaigns", default=None, help="a benchmark directory: each seed's last model")
     parser.add_argument("--work", default="runs/safety_guards")
     args = parser.parse_args()
 
@@ -103,14 +103,16 @@ def main() -> None:
           f"{'arena':>5} {'limit':>5} {'track_s':>8} {'min_slack':>9}  violating candidates")  # fmt: skip
     totals: dict[tuple, list] = {v: [0, 0, 0, 0.0] for v in variants}
     started = time.perf_counter()
-    for seed, campaign, model, taken, round_index in models(cfg, list(range(args.seeds)), args.campaigns, Path(args.work)):
+    chosen = models(cfg, list(range(args.seeds)), args.campaigns, Path(args.work))
+    for seed, campaign, model, taken, round_index in chosen:
         open_ = np.ones(len(campaign.maneuvers), dtype=bool)
         open_[taken] = False
         clean = campaign.oracle.truth(campaign.maneuvers)
         for variant in variants:
             fan_scale, tolerance, kinematic = variant
             trust = args.trust if kinematic else NO_GUARD
-            safety = base.model_copy(update={"fan_scale": fan_scale, "path_tolerance": tolerance, "trust_std": trust})
+            update = {"fan_scale": fan_scale, "path_tolerance": tolerance, "trust_std": trust}
+            safety = base.model_copy(update=update)
             safe = assess(model, campaign.maneuvers, safety, rate_hz=rate,
                           seed=seed * 10_007 + round_index, which=open_)  # fmt: skip
             bad, reasons, slacks = [], [], []
@@ -123,17 +125,19 @@ def main() -> None:
                     reasons.append(reason)
             arena = sum(r == "arena" for r in reasons)
             seconds = float(safe.duration[safe.admissible].sum())
-            print(f"{fan_scale:>9g} {tolerance:>5g} {'yes' if kinematic else 'no':>4} {seed:>4} {safe.size:>4} "
-                  f"{int(safe.cut.sum()):>4} {len(bad):>4} {arena:>5} {len(bad) - arena:>5} {seconds:>8.0f} "
-                  f"{min(slacks) if slacks else float('nan'):>9.3f}  {' '.join(bad)}", flush=True)  # fmt: skip
+            nearest = min(slacks) if slacks else float("nan")
+            print(f"{fan_scale:>9g} {tolerance:>5g} {'yes' if kinematic else 'no':>4} {seed:>4} "
+                  f"{safe.size:>4} {int(safe.cut.sum()):>4} {len(bad):>4} {arena:>5} {len(bad) - arena:>5} "
+                  f"{seconds:>8.0f} {nearest:>9.3f}  {' '.join(bad)}", flush=True)  # fmt: skip
             total = totals[variant]
             total[0] += safe.size
             total[1] += len(bad)
             total[2] += arena
             total[3] += seconds
-    print("# totals over seeds: fan_scale, path_tolerance, kinematic guard: violating / admissible (arena), track s")
+    print("# totals over seeds (fan_scale, path_tolerance, kinematic guard): violating / admissible")
     for (fan_scale, tolerance, kinematic), (size, bad, arena, seconds) in totals.items():
-        print(f"  fan_scale {fan_scale:g}  path_tolerance {tolerance:<5g} kinematic {'yes' if kinematic else 'no ':<3}  "
+        guard = "yes" if kinematic else "no"
+        print(f"  fan_scale {fan_scale:g}  path_tolerance {tolerance:<5g} kinematic {guard:<3}  "
               f"{bad:>3} / {size:<4} ({arena} arena)  {seconds:7.0f} s admitted")  # fmt: skip
     print(f"wall time {time.perf_counter() - started:.0f} s")
 

@@ -95,7 +95,7 @@ def main() -> None:
     parser.add_argument("--resume", action="store_true")
     parser.add_argument("--no-tracking", action="store_true")
     parser.add_argument("--only", choices=("safe", "unconstrained"), default=None,
-                        help="run one variant only (the other later into the same --out, then both with --resume)")
+                        help="one variant only (both later with --resume into the same --out)")
     args = parser.parse_args()
 
     overrides: dict = {} if args.delta is None else {"safety": {"delta": args.delta}}
