@@ -5,6 +5,7 @@ Real MuJoCo, real models and a real SQLite MLflow store, on a tiny skidpad-and-s
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 from pathlib import Path
@@ -25,11 +26,20 @@ from activelearn.errors import ConfigError
 from activelearn.loop.acquisition import make_strategy
 from activelearn.loop.campaign import Campaign, CampaignState
 from activelearn.loop.pool import maneuver_controls
-from activelearn.loop.safety import REASONS, admissible_duration, fan, log_violation, violating
+from activelearn.loop.safety import (
+    REASONS,
+    admissible_duration,
+    circles_fit,
+    fan,
+    kinematic_bound,
+    log_violation,
+    violating,
+)
 from activelearn.numerics.models import build_model
 from activelearn.numerics.surrogate import simulate
 from activelearn.numerics.training import fit
 from activelearn.studies.tracking import Tracker
+from simulator import Maneuver
 
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
 SQUARE = [[-1.5, -1.5], [1.5, -1.5], [1.5, 1.5], [-1.5, 1.5]]
@@ -119,6 +129,26 @@ def test_admissible_duration_keeps_cuts_or_drops():
     early = never.copy()
     early[:5] = [1.0, 2.0, 3.0, 4.0, 5.0]
     assert admissible_duration(early, 30.0, cfg)[1] == 0.0
+
+
+def test_a_skidpad_whose_every_circle_fits_is_driven_whole_before_the_model_knows_it():
+    # Start 0.8 m from the left wall (y = 1.5), facing +x, in a 3 x 3 m arena: a straight or a
+    # wide skidpad may reach a wall within seconds at any heading, a tight one goes round a circle
+    # (radius L / tan(0.5236) = 0.25 m to twice that) whatever its speed, forward or in reverse.
+    cfg = SafetyConfig(arena=SQUARE, start=(0.0, 0.7, 0.0), margin=0.16, path_tolerance=0.04, delta=0.05,
+                       max_lateral_acceleration=0.2)  # fmt: skip
+    tight = Maneuver("skidpad", 0.4, 0.5236, "cw", 30.0)  # centre 0.25-0.5 m to the right: fits
+    assert circles_fit(tight, cfg) and kinematic_bound(tight, cfg) == (0.0, 30.0, 0.0)
+    reverse = dataclasses.replace(tight, throttle=-0.4)
+    assert kinematic_bound(reverse, cfg) == (0.0, 30.0, 0.0)
+    left = dataclasses.replace(tight, direction="ccw")  # the circle reaches y = 0.7 + 1.0: the wall
+    assert not circles_fit(left, cfg) and kinematic_bound(left, cfg)[1] < 30.0
+    wide = dataclasses.replace(tight, steering=0.1047)  # radius 1.35-2.7 m
+    straight = Maneuver("straight", 0.4, 0.0, "ccw", 30.0)
+    for other in (wide, straight, dataclasses.replace(tight, kind="fishhook")):
+        assert not circles_fit(other, cfg) and kinematic_bound(other, cfg)[1] < 30.0, other
+    fast = dataclasses.replace(tight, throttle=1.0)  # fits, but its worst-case rates break a limit
+    assert circles_fit(fast, cfg) and kinematic_bound(fast, cfg)[1] == 0.0
 
 
 def test_log_violation_reads_the_path_in_the_arena_frame():
