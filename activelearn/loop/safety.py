@@ -52,10 +52,10 @@ from activelearn.numerics.surrogate import Rollout, simulate
 
 SPEED_PER_THROTTLE = 0.287  # m/s: above every point of the reference throttle -> speed table
 WHEELBASE = 0.1415  # m, Nigel (reference/nigel.md)
-# A skidpad's radius at most this many times the kinematic one: the simulator's understeer is 1.02-1.04
-# (`simulator.maneuvers.nominal_turn`), the fidelity twin's and the nominal logs' 1.02-1.05
-# (README, `activelearn fidelity`); within the lateral-acceleration limit (0.12 m/s², far below
-# grip) the car does not slide. Twice is the margin for a car that is not the model.
+# A skidpad's radius at most this many times the kinematic one: MuJoCo's steady skidpads lie at
+# 1.02-1.07 (safe_track.toml's pool, forward and reverse), the twin of the README's fidelity table at
+# 1.01-1.03; within the lateral-acceleration limit (0.12 m/s², far below grip) the car does not
+# slide. Twice is the margin for a car that is not the model.
 UNDERSTEER_MAX = 2.0
 CHUNK = 16  # maneuvers per rollout: S x 16 x 2 700 steps x 5 arrays of float32 stay near 60 MB
 REASONS = ("arena", "speed", "yaw_rate", "lateral", "diverged")  # diverged: a fan's NaN or inf
