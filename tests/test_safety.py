@@ -5,6 +5,7 @@ Real MuJoCo, real models and a real SQLite MLflow store, on a tiny skidpad-and-s
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 from pathlib import Path
@@ -24,10 +25,21 @@ from activelearn.config import (
 from activelearn.errors import ConfigError
 from activelearn.loop.acquisition import make_strategy
 from activelearn.loop.campaign import Campaign, CampaignState
-from activelearn.loop.safety import REASONS, admissible_duration, log_violation, violating
+from activelearn.loop.pool import maneuver_controls
+from activelearn.loop.safety import (
+    REASONS,
+    admissible_duration,
+    circles_fit,
+    fan,
+    kinematic_bound,
+    log_violation,
+    violating,
+)
 from activelearn.numerics.models import build_model
+from activelearn.numerics.surrogate import simulate
 from activelearn.numerics.training import fit
 from activelearn.studies.tracking import Tracker
+from simulator import Maneuver
 
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
 SQUARE = [[-1.5, -1.5], [1.5, -1.5], [1.5, 1.5], [-1.5, 1.5]]
@@ -119,6 +131,26 @@ def test_admissible_duration_keeps_cuts_or_drops():
     assert admissible_duration(early, 30.0, cfg)[1] == 0.0
 
 
+def test_a_skidpad_whose_every_circle_fits_is_driven_whole_before_the_model_knows_it():
+    # Start 0.8 m from the left wall (y = 1.5), facing +x, in a 3 x 3 m arena: a straight or a
+    # wide skidpad may reach a wall within seconds at any heading, a tight one goes round a circle
+    # (radius L / tan(0.5236) = 0.25 m to twice that) whatever its speed, forward or in reverse.
+    cfg = SafetyConfig(arena=SQUARE, start=(0.0, 0.7, 0.0), margin=0.16, path_tolerance=0.04, delta=0.05,
+                       max_lateral_acceleration=0.2)  # fmt: skip
+    tight = Maneuver("skidpad", 0.4, 0.5236, "cw", 30.0)  # centre 0.25-0.5 m to the right: fits
+    assert circles_fit(tight, cfg) and kinematic_bound(tight, cfg) == (0.0, 30.0, 0.0)
+    reverse = dataclasses.replace(tight, throttle=-0.4)
+    assert kinematic_bound(reverse, cfg) == (0.0, 30.0, 0.0)
+    left = dataclasses.replace(tight, direction="ccw")  # the circle reaches y = 0.7 + 1.0: the wall
+    assert not circles_fit(left, cfg) and kinematic_bound(left, cfg)[1] < 30.0
+    wide = dataclasses.replace(tight, steering=0.1047)  # radius 1.35-2.7 m
+    straight = Maneuver("straight", 0.4, 0.0, "ccw", 30.0)
+    for other in (wide, straight, dataclasses.replace(tight, kind="fishhook")):
+        assert not circles_fit(other, cfg) and kinematic_bound(other, cfg)[1] < 30.0, other
+    fast = dataclasses.replace(tight, throttle=1.0)  # fits, but its worst-case rates break a limit
+    assert circles_fit(fast, cfg) and kinematic_bound(fast, cfg)[1] == 0.0
+
+
 def test_log_violation_reads_the_path_in_the_arena_frame():
     cfg = SafetyConfig(arena=SQUARE, start=(1.0, 0.0, 0.0), margin=0.1)
     t = np.arange(0, 10, 1 / 30)
@@ -139,6 +171,27 @@ def test_a_diverged_fan_trajectory_is_a_violation():
     code = violating(x, zeros, zeros + 0.1, zeros, cfg, 30.0)
     assert not code[0].any()
     assert REASONS[code[1, 30] - 1] == "diverged" and not code[1, :30].any()
+
+
+def test_fans_place_the_path_where_the_car_logs_it(tmp_path):
+    # The fan's path is the logged point's (l_r ahead of a rear axle that does not slip, the model's
+    # pose_lever_arm), so the CG's side slip is in the fan and `path_tolerance` only keeps a few cm
+    # (true rates retrace the logged path to ~1 cm: tests/test_surrogate.py).
+    cfg = safe_config(tmp_path, {"start": [0.3, -0.2, 0.5], "fan_scale": 1.0}, tracking={"enabled": False})
+    assert cfg.safety.path_tolerance < 0.05 and cfg.model.pose_lever_arm == cfg.data.pose_lever_arm > 0
+    campaign = Campaign(cfg, tmp_path / "c")
+    model = build_model(cfg.model)
+    test = campaign.test_set
+    fit(model, test.x, test.y_noisy, cfg.training, groups=test.groups, seed=0)
+    skidpads = [m for m in campaign.maneuvers if m.kind == "skidpad"][:2]
+    rollout = fan(model, skidpads, cfg.safety, 30.0, seed=4)
+    controls = [maneuver_controls(m, 30.0) for m in skidpads]
+    call = dict(rate_hz=30.0, n_samples=cfg.safety.n_samples, seed=4, initial_yaw=0.5)
+    at_cg = simulate(model, controls, lever_arm=cfg.data.pose_lever_arm, **call)
+    np.testing.assert_allclose(rollout.x, at_cg.x + 0.3, atol=1e-6)
+    np.testing.assert_allclose(rollout.y, at_cg.y - 0.2, atol=1e-6)
+    at_axle = simulate(model, controls, lever_arm=0.0, **call)
+    assert np.nanmax(np.hypot(rollout.x - 0.3 - at_axle.x, rollout.y + 0.2 - at_axle.y)) > 0.1
 
 
 # ------------------------------------------------------------------------------------- campaigns
@@ -242,7 +295,12 @@ def test_a_cut_proposal_is_driven_short_and_ingested(tmp_path, capsys):
     assert main(["campaign", "propose", str(config), "--out", str(directory)]) == 0
     assert "cut from 20 s" in capsys.readouterr().out
     proposals = pd.read_csv(directory / "proposals" / "round-000.csv")
-    assert (proposals["duration"] < proposals["cut_from"]).all()  # before any model: all cut
+    # before any model the kinematic worst case cuts every proposal, except a skidpad whose every
+    # possible circle fits the arena: that one is driven whole
+    cut = proposals["cut_from"].notna()
+    assert cut.any() and (proposals.loc[cut, "duration"] < proposals.loc[cut, "cut_from"]).all()
+    whole = proposals[~cut]
+    assert (whole["maneuver"] == "skidpad").all() and (whole["duration"] == 20.0).all()
     logs = []
     for i, row in proposals.iterrows():
         out = tmp_path / f"log{i}.csv"

@@ -5,7 +5,8 @@ from `start`) with limits the car must not exceed (|v|, |ω|, the lateral accele
 each candidate the round's model rolls the maneuver out (`activelearn.numerics.surrogate.simulate`:
 S trajectories, each one posterior draw with aleatoric noise at every step) from the start pose.
 A trajectory *violates* at its first step whose position lies closer than `margin` (the car's
-body) plus `path_tolerance` (the rollout's point-mass kinematics against the side-slipping car) to a
+body) plus `path_tolerance` (what a free run's path may still miss of the car's: a few cm, now that
+the rollout integrates the non-slipping rear axle and places the logged CG ahead of it) to a
 wall or whose rates, averaged over `limit_window` seconds, exceed a limit. The candidate's
 risk over a duration T is the share of trajectories that violated before T:
 
@@ -21,7 +22,11 @@ kinematic worst case stands in for the fan, or must hold beside it: speed at mos
 SPEED_PER_THROTTLE x |throttle| (the reference throttle table lies below that line), yaw rate at
 most v tan(steering) / L (no-slip kinematics; Nigel understeers, so its true yaw rate is lower). A
 candidate is admissible when that worst case respects the limits, cut to the time the car cannot
-reach a wall at that speed, whatever its heading.
+reach a wall at that speed, whatever its heading. A skidpad (constant steering from the start)
+goes round a circle whatever its speed, forward or in reverse: the rear axle's radius lies between
+L / tan(steering) and UNDERSTEER_MAX times that, the logged point `pose_lever_arm` ahead of it,
+the centre on the steering side of the start pose. Where every such circle keeps `margin +
+path_tolerance` from the walls, the skidpad may be driven whole (the limits still apply).
 
 `violations` checks the logs that came back (simulated or driven) against the same arena and limits:
 what the benchmark counts. The fan is the rollout of the lead's dynamics issue too: one rollout
@@ -41,12 +46,17 @@ import numpy as np
 import pandas as pd
 import torch
 
-from activelearn.config import SafetyConfig, boundary_distance, polygon_clearance
+from activelearn.config import POSE_LEVER_ARM, SafetyConfig, boundary_distance, polygon_clearance
 from activelearn.loop.pool import maneuver_controls
 from activelearn.numerics.surrogate import Rollout, simulate
 
 SPEED_PER_THROTTLE = 0.287  # m/s: above every point of the reference throttle -> speed table
 WHEELBASE = 0.1415  # m, Nigel (reference/nigel.md)
+# A skidpad's radius at most this many times the kinematic one: MuJoCo's steady skidpads lie at
+# 1.02-1.07 (safe_track.toml's pool, forward and reverse), the twin of the README's fidelity table at
+# 1.01-1.03; within the lateral-acceleration limit (0.12 m/s², far below grip) the car does not
+# slide. Twice is the margin for a car that is not the model.
+UNDERSTEER_MAX = 2.0
 CHUNK = 16  # maneuvers per rollout: S x 16 x 2 700 steps x 5 arrays of float32 stay near 60 MB
 REASONS = ("arena", "speed", "yaw_rate", "lateral", "diverged")  # diverged: a fan's NaN or inf
 
@@ -176,9 +186,10 @@ def assess(
     full = np.array([float(m.duration) for m in maneuvers])
     risk, duration, cut_risk = np.full(n, np.nan), np.zeros(n), np.full(n, np.nan)
     todo = np.arange(n) if which is None else np.flatnonzero(which)
+    arm = float(getattr(getattr(model, "config", None), "pose_lever_arm", POSE_LEVER_ARM))
     if model is None:
         for i in todo:
-            risk[i], duration[i], cut_risk[i] = kinematic_bound(maneuvers[i], cfg)
+            risk[i], duration[i], cut_risk[i] = kinematic_bound(maneuvers[i], cfg, arm)
         return Assessment(risk, duration, cut_risk, full)
     for block in range(0, len(todo), CHUNK):
         rows = todo[block : block + CHUNK]
@@ -188,7 +199,7 @@ def assess(
         for j, i in enumerate(rows):
             risk[i], duration[i], cut_risk[i] = admissible_duration(times[:, j], full[i], cfg)
             if untrusted[j]:  # the model extrapolates: the kinematic worst case must hold as well
-                bound = kinematic_bound(maneuvers[i], cfg)
+                bound = kinematic_bound(maneuvers[i], cfg, arm)
                 risk[i] = max(risk[i], bound[0])
                 if bound[1] < duration[i]:
                     duration[i], cut_risk[i] = bound[1], bound[2] if bound[1] > 0 else float("nan")
@@ -203,11 +214,14 @@ def relative_speed_std(rollout: Rollout) -> np.ndarray:
     return relative.max(axis=1)
 
 
-def kinematic_bound(maneuver: Any, cfg: SafetyConfig) -> tuple[float, float, float]:
+def kinematic_bound(
+    maneuver: Any, cfg: SafetyConfig, lever_arm: float = POSE_LEVER_ARM
+) -> tuple[float, float, float]:
     """Risk, admissible duration and its risk by the kinematic worst case (see the module docstring).
 
     Speed at most SPEED_PER_THROTTLE |throttle|, yaw rate at most v tan(steering) / L, heading
-    anything: within the limits, the car cannot reach a wall before `room / v` seconds.
+    anything: within the limits, the car cannot reach a wall before `room / v` seconds; a skidpad
+    whose every possible circle fits the arena (`circles_fit`) not at all.
     """
     room = max(float(boundary_distance(cfg.arena, cfg.start[0], cfg.start[1])) - cfg.margin, 0.0)
     full = float(maneuver.duration)
@@ -215,10 +229,33 @@ def kinematic_bound(maneuver: Any, cfg: SafetyConfig) -> tuple[float, float, flo
     w = v * math.tan(maneuver.steering if maneuver.kind != "straight" else 0.0) / WHEELBASE
     within = v <= cfg.max_speed and w <= cfg.max_yaw_rate and v * w <= cfg.max_lateral_acceleration
     reach = min(full, math.floor(room / v) if v > 0 else full)
+    if within and reach < full and circles_fit(maneuver, cfg, lever_arm):
+        reach = full
     risk = 0.0 if within and reach >= full else 1.0
     if within and reach >= cfg.min_duration:
         return risk, float(reach), 0.0
     return risk, 0.0, float("nan")
+
+
+def circles_fit(maneuver: Any, cfg: SafetyConfig, lever_arm: float = POSE_LEVER_ARM) -> bool:
+    """True for a skidpad whose every possible circle keeps `margin + path_tolerance` from the walls.
+
+    The rear axle turns about a centre on the steering side, L / tan(steering) to UNDERSTEER_MAX
+    times that away (forward or in reverse); the logged point, `lever_arm` ahead of the axle, goes
+    round the same centre through the start pose. Sampled every 0.5 degree and 1/64 of the radii.
+    """
+    if maneuver.kind != "skidpad" or maneuver.steering <= 0:
+        return False
+    x0, y0, yaw0 = cfg.start
+    heading, left = np.array([math.cos(yaw0), math.sin(yaw0)]), np.array([-math.sin(yaw0), math.cos(yaw0)])
+    kinematic = WHEELBASE / math.tan(maneuver.steering)
+    radii = np.linspace(kinematic, UNDERSTEER_MAX * kinematic, 64)[:, None]
+    cx = x0 - lever_arm * heading[0] + maneuver.sign * radii * left[0]
+    cy = y0 - lever_arm * heading[1] + maneuver.sign * radii * left[1]
+    rho = np.hypot(radii, lever_arm)
+    angle = np.linspace(0.0, 2.0 * math.pi, 720, endpoint=False)[None, :]
+    clearance = polygon_clearance(cfg.arena, cx + rho * np.cos(angle), cy + rho * np.sin(angle))
+    return bool(np.min(clearance) >= cfg.margin + cfg.path_tolerance)
 
 
 def log_violation(log: pd.DataFrame, cfg: SafetyConfig, rate_hz: float) -> str:

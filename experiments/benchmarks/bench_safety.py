@@ -11,7 +11,7 @@ that were cut short.
 
 Usage: python experiments/benchmarks/bench_safety.py [--config FILE] [--strategy auto] [--seeds 10]
        [--workers 2] [--delta 0.05] [--max-sim-seconds S] [--per-round K] [--setup-seconds S]
-       [--out DIR] [--resume]
+       [--out DIR] [--resume] [--only safe|unconstrained]
 """
 
 from __future__ import annotations
@@ -94,6 +94,8 @@ def main() -> None:
     parser.add_argument("--out", default="runs/bench_safety")
     parser.add_argument("--resume", action="store_true")
     parser.add_argument("--no-tracking", action="store_true")
+    parser.add_argument("--only", choices=("safe", "unconstrained"), default=None,
+                        help="one variant only (both later with --resume into the same --out)")
     args = parser.parse_args()
 
     overrides: dict = {} if args.delta is None else {"safety": {"delta": args.delta}}
@@ -113,6 +115,8 @@ def main() -> None:
         f"safe (delta {cfg.safety.delta:g})": cfg,
         "unconstrained": cfg.model_copy(update={"safety": cfg.safety.model_copy(update={"enforce": False})}),
     }
+    if args.only is not None:
+        variants = {label: v for label, v in variants.items() if v.safety.enforce == (args.only == "safe")}
     rows, curves, started = [], [], time.perf_counter()
     for label, variant in variants.items():
         directory = Path(args.out) / ("safe" if variant.safety.enforce else "unconstrained")
@@ -122,7 +126,7 @@ def main() -> None:
         )  # fmt: skip
         rows.append(summary(result.curves, label, directory))
         curves.append(result.curves)
-    base = rows[-1]["final_rmse"]
+    base = rows[-1]["final_rmse"]  # the unconstrained variant's (with --only: the variant run)
     print(f"# {cfg.name}: strategy {cfg.strategy}, {len(seeds)} seeds, arena {cfg.safety.arena}, "
           f"start {list(cfg.safety.start)}, limits |v| <= {cfg.safety.max_speed} m/s, "
           f"|w| <= {cfg.safety.max_yaw_rate} rad/s, |v w| <= {cfg.safety.max_lateral_acceleration} m/s^2, "
@@ -136,12 +140,14 @@ def main() -> None:
             f"unconstrained); safe set {row['safe_set_mean']:.1f} candidates per round; risk "
             f"computation {row['safety_s_per_round']:.2f} s per round; picks cut short {row['cut_share']:.0%}"
         )
+    print(f"wall time {time.perf_counter() - started:.0f} s")
+    if len(curves) < 2:
+        return
     free_seconds = curves[-1].sort_values("round").groupby("seed").last()["track_seconds"].mean()
     seconds, safe_rmse, free_rmse = at_equal_seconds(*curves)
     print(f"track seconds spent: safe {seconds:.0f} s, unconstrained {free_seconds:.0f} s (mean); "
           f"at the safe campaigns' track seconds the unconstrained ones had test RMSE {free_rmse:.4f} "
           f"(safe {safe_rmse:.4f}, {safe_rmse / free_rmse:.2f}x)")  # fmt: skip
-    print(f"wall time {time.perf_counter() - started:.0f} s")
 
 
 if __name__ == "__main__":
