@@ -220,6 +220,9 @@ def pick_table(directories: list[Path], cfg: CampaignConfig) -> pd.DataFrame:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="run seeds first-seed .. first-seed + seeds - 1 (fresh seeds to check a "
+                             "rule chosen on others)")  # fmt: skip
     parser.add_argument(
         "--lookahead-seeds", type=int, default=5, help="seeds of the lookahead oracle (0: none)"
     )
@@ -244,7 +247,8 @@ def main() -> None:
             runs.append((Path(args.out) / f"{name}_lookahead", [LOOKAHEAD], args.lookahead_seeds))
         parts = []
         for directory, names, seeds in runs:
-            result = compare(cfg, names, list(range(seeds)), directory=directory, workers=args.workers,
+            seed_list = list(range(args.first_seed, args.first_seed + seeds))
+            result = compare(cfg, names, seed_list, directory=directory, workers=args.workers,
                              tracking=not args.no_tracking, resume=args.resume,
                              executor=args.executor, ray_address=args.ray_address)  # fmt: skip
             parts.append(result.curves)
