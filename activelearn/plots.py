@@ -139,12 +139,9 @@ def epistemic_map(
     ax.set_xlabel("signed steering (rad, + = left, ccw)")
     ax.set_ylabel("throttle")
     ax.set_title(title)
-    panel.legend(
-        loc="outside lower center",
-        ncols=min(4, len(ax.get_legend_handles_labels()[0]) or 1),
-        fontsize=9,
-        frameon=False,
-    )
+    handles = ax.get_legend_handles_labels()[0]
+    if handles:  # an empty map (nothing collected or chosen yet) has nothing to explain
+        panel.legend(loc="outside lower center", ncols=min(4, len(handles)), fontsize=9, frameon=False)
     return fig
 
 
