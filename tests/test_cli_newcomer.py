@@ -291,7 +291,7 @@ def test_round_figure_shows_the_chosen_signals_and_their_predicted_paths(tmp_pat
         FamilyManeuver("chirp", {"throttle": 0.6, "amplitude": 0.3, "f0": 0.05, "f1": 0.5}, "ccw", 6.0),
         Maneuver("skidpad", 0.5, 0.4, "cw", 4.0),
     ]
-    controls = [m.controls(30.0) if hasattr(m, "controls") else nominal_controls(m) for m in picks]
+    controls = [nominal_controls(m) for m in picks]
     rollout = simulate(build_model(ModelConfig()), controls, n_samples=4)
     grid = np.linspace(0.3, 0.9, 3)
     plans = ([m.name for m in picks], controls, rollout)

@@ -8,7 +8,7 @@ slip sideways (kinematic Ackermann), then places the logged point a lever arm `a
 
 The logged point (Nigel's IMU, at the CG, a = l_r = 0.0793 m) has a lateral velocity a·ω in a turn;
 integrating v along the heading alone leaves 0.10-0.13 m of error on skidpads, fishhooks and eights
-after 30 s even with the true rates (7 mm with the arm): a floor under every model's free run.
+after 30 s even with the true rates (3-9 mm with the arm): a floor under every model's free run.
 
 Uncertainty fans come from S sampled trajectories. Each trajectory keeps ONE posterior weight draw
 for its whole length (so a path is what one plausible model would do, not a zig-zag between
@@ -145,7 +145,7 @@ def _integrate(
     shifted_cumsum(scratch, x).mul_(dt)
     torch.sin(yaw, out=scratch).mul_(v)
     shifted_cumsum(scratch, y).mul_(dt)
-    if lever_arm:
+    if lever_arm:  # cos ψ and sin ψ again: keeping them costs a buffer and measured no faster
         start = torch.as_tensor(yaw0, dtype=v.dtype)
         x.add_(torch.cos(yaw, out=scratch).sub_(torch.cos(start)), alpha=lever_arm)
         y.add_(torch.sin(yaw, out=scratch).sub_(torch.sin(start)), alpha=lever_arm)
@@ -498,7 +498,13 @@ _TRUTH_COLUMNS = ("speed", "angZ", "posX", "posY", "yaw")
 
 
 def free_runs(
-    model, logs: Sequence, *, rate_hz: float = 30.0, n_samples: int = 32, seed: int = 0, fan_scale=None
+    model,
+    logs: Sequence,
+    *,
+    rate_hz: float = 30.0,
+    n_samples: int = 32,
+    seed: int = 0,
+    fan_scale: float | None = None,
 ) -> Rollout:
     """Each log's recorded controls run free through `model` from its first recorded rates."""
     controls = [np.asarray(t[["throttle", "steering"]].to_numpy(), dtype=np.float64) for t in logs]
