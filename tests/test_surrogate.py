@@ -23,6 +23,7 @@ from activelearn.numerics.surrogate import (
     calibrate_fan,
     estimate_lever_arm,
     free_run_metrics,
+    path_from_rates,
     relative_pose,
     simulate,
 )
@@ -287,11 +288,10 @@ def turning_truth() -> pd.DataFrame:
 
 def _end_error_of_true_rates(table: pd.DataFrame, lever_arm: float) -> float:
     """Distance after the whole log between the true path and the true rates integrated as a free run does."""
-    v, w = (torch.tensor(table[c].to_numpy(np.float64))[None] for c in ("speed", "angZ"))
-    x, y, _ = _integrate(v, w, 1.0 / 30.0, torch.zeros(1, 1, dtype=torch.float64), lever_arm=lever_arm)
+    x, y, _ = path_from_rates(table["speed"], table["angZ"], dt=1.0 / 30.0, lever_arm=lever_arm)
     columns = ("posX", "posY", "yaw")
     tx, ty, _ = relative_pose({c: table[c].to_numpy(np.float64) for c in columns}, len(table))
-    return float(np.max(np.hypot(x[0].numpy() - tx, y[0].numpy() - ty)))
+    return float(np.max(np.hypot(x - tx, y - ty)))
 
 
 def test_true_rates_integrated_at_the_rear_axle_retrace_the_logged_path(turning_truth):
@@ -303,6 +303,18 @@ def test_true_rates_integrated_at_the_rear_axle_retrace_the_logged_path(turning_
         at_cg, at_axle = _end_error_of_true_rates(table, 0.0), _end_error_of_true_rates(table, arm)
         assert at_axle < 0.02, (run_id, at_axle)
         assert at_cg > 3 * at_axle and at_cg > 0.04, (run_id, at_cg, at_axle)
+
+
+def test_path_from_rates_is_the_pose_a_free_run_integrates():
+    # The benchmark's error attribution swaps true rates into this integration: it must be simulate's own.
+    model = build_model(ModelConfig(n_inputs=2), seed=3)
+    controls = [np.column_stack([np.full(90, 0.6), np.linspace(-0.4, 0.4, 90)])]
+    rollout = simulate(model, controls, n_samples=2, initial_yaw=0.3, lever_arm=0.08, fan_scale=1.0)
+    x, y, yaw = path_from_rates(rollout.v[1, 0], rollout.w[1, 0], dt=rollout.dt, lever_arm=0.08, yaw0=0.3)
+    np.testing.assert_allclose(yaw, rollout.yaw[1, 0], atol=1e-6)  # the compiled kernel rounds differently
+    np.testing.assert_allclose(np.column_stack([x, y]), np.column_stack([rollout.x[1, 0], rollout.y[1, 0]]),
+                               atol=1e-6)  # fmt: skip
+    assert np.ptp(y) > 0.01  # the path turns: a lever-arm or heading slip would show
 
 
 def test_lever_arm_estimated_from_logs_is_the_models_geometry(turning_truth):

@@ -152,6 +152,20 @@ def _integrate(
     return x, y, yaw
 
 
+def path_from_rates(
+    v: np.ndarray, w: np.ndarray, *, dt: float, lever_arm: float = 0.0, yaw0: float = 0.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pose (x, y, ψ) a sequence of rates (T,) drives, relative to its start, as free runs place it.
+
+    The same integration as `simulate`'s (the logged point `lever_arm` metres ahead of the rear axle):
+    for paths from any rates, e.g. MuJoCo's true v with a model's ω, to see which rate an error is in.
+    """
+    v_, w_ = (torch.as_tensor(np.asarray(a, dtype=np.float64))[None] for a in (v, w))
+    start = torch.full((1, 1), float(yaw0), dtype=torch.float64)
+    x, y, yaw = _integrate(v_, w_, dt, start, lever_arm=lever_arm)
+    return x[0].numpy(), y[0].numpy(), yaw[0].numpy()
+
+
 def _distinct_rows(controls: np.ndarray) -> tuple[np.ndarray, torch.Tensor]:
     """Rows of (M, T, 2) controls where the control changed from the step before, and each step's index.
 

@@ -14,10 +14,15 @@
 4. With `--calibration-maneuvers N`, first fits each model's free-run fan scale on N more maneuvers
    (`surrogate.calibrate_fan`: split-conformal, held out from both sets); the table's coverage is
    then the calibrated fans', and `cover_raw` the uncalibrated ones' (scale 1).
+5. `--train-seeds N` trains every variant N times (initial weights and batches from seeds 0..N-1) and
+   reports means over them, the ratios as mean ± s.e.m. over seeds: one training run's 30-s errors
+   vary 2-3x between seeds, so a one-seed ratio is mostly that noise. `--ensemble K` adds a deep
+   ensemble of K members of each kind (`<kind>/ens`). `--attribution` splits each variant's 30-s
+   error: the path integrated from its mean rates, then with MuJoCo's true v or true ω in their place.
 
 Usage: python experiments/benchmarks/bench_surrogate.py [--maneuvers 256] [--samples 32] [--epochs 120]
        [--rounds 3] [--repeats 3] [--models static,markov,history,recurrent] [--horizons 10,30]
-       [--calibration-maneuvers 10]
+       [--calibration-maneuvers 10] [--train-seeds 3] [--ensemble 5] [--attribution]
 """
 
 from __future__ import annotations
@@ -34,7 +39,13 @@ import simulator
 from activelearn.config import DataConfig, ModelConfig, TrainingConfig
 from activelearn.loop.collection import arrays, training_rows, training_windows
 from activelearn.numerics.models import build_model
-from activelearn.numerics.surrogate import calibrate_fan, simulate, track_metrics
+from activelearn.numerics.surrogate import (
+    calibrate_fan,
+    path_from_rates,
+    relative_pose,
+    simulate,
+    track_metrics,
+)
 from activelearn.numerics.training import fit
 from simulator import Maneuver
 
@@ -65,16 +76,23 @@ def maneuver_set(n: int, seed: int, duration: float = 90.0) -> list[Maneuver]:
     return out
 
 
-def train(log: pd.DataFrame, name: str, epochs: int, seed: int, horizon: int = 0):
-    """Fit one model kind of `MODELS` on a log (dynamic models: with `horizon`-step windows if > 0)."""
+def train(log: pd.DataFrame, name: str, epochs: int, seed: int, horizon: int = 0, ensemble: int = 0):
+    """Fit one model kind of `MODELS` on a log (dynamic models: with `horizon`-step windows if > 0).
+
+    `seed` draws the initial weights and the batches; `ensemble` > 0 makes it a deep ensemble of that
+    many members (the kind's inputs, the default member network).
+    """
     data_knobs, model_knobs = MODELS[name]
+    if ensemble:
+        model_knobs = {**model_knobs, "kind": "ensemble", "ensemble_size": ensemble}
     # keep the transients: dynamic models need them
     data = DataConfig(stride=3, skip_seconds=0.0, **data_knobs)
     rows = pd.concat([training_rows(part, data) for _, part in log.groupby("run_id", sort=False)])
     x, y = arrays(rows, data)
     model = build_model(
         ModelConfig(n_inputs=x.shape[1], history_step=data.history_step if data.inputs == "history" else 1,
-                    **model_knobs)
+                    **model_knobs),
+        seed=seed,
     )  # fmt: skip
     frames = [part for _, part in log.groupby("run_id", sort=False)]
     windows = training_windows(frames, data, horizon) if horizon else None
@@ -91,6 +109,20 @@ def train(log: pd.DataFrame, name: str, epochs: int, seed: int, horizon: int = 0
     return model, time.perf_counter() - started, len(x)
 
 
+def attribution(rollout, index: int, truth: pd.DataFrame, lever_arm: float, at: float = 30.0) -> list[float]:
+    """30-s position error of the path from the mean rates, then with the true v, then with the true ω."""
+    n = int(rollout.lengths[index])
+    k = min(round(at / rollout.dt), n - 1)
+    mean_v, mean_w = rollout.mean_rates[index, :n, 0], rollout.mean_rates[index, :n, 1]
+    true_v, true_w = truth["speed"].to_numpy()[:n], truth["angZ"].to_numpy()[:n]
+    tx, ty, _ = relative_pose({c: truth[c].to_numpy() for c in ("posX", "posY", "yaw")}, n)
+    out = []
+    for v, w in ((mean_v, mean_w), (true_v, mean_w), (mean_v, true_w)):
+        x, y, _ = path_from_rates(v, w, dt=rollout.dt, lever_arm=lever_arm)
+        out.append(float(np.hypot(x[k] - tx[k], y[k] - ty[k])))
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--maneuvers", type=int, default=256)
@@ -104,39 +136,57 @@ def main() -> None:
                         help="draw one maneuver of each kind, every model side by side, here")
     parser.add_argument("--horizons", default="", metavar="H,H,...",
                         help="also train each dynamic model with multi-step windows of these lengths "
-                             "(log steps), named <kind>+h<H>")  # fmt: skip
+                             "(log steps), named <kind>+h<H>")
     parser.add_argument("--calibration-maneuvers", type=int, default=0, metavar="N",
-                        help="fit each model's free-run fan scale on N more maneuvers (0: off)")  # fmt: skip
-    args = parser.parse_args()
+                        help="fit each model's free-run fan scale on N more maneuvers (0: off)")
+    parser.add_argument("--train-seeds", type=int, default=1, metavar="N",
+                        help="train every variant from seeds 0..N-1 and average the accuracy over them")
+    parser.add_argument("--ensemble", type=int, default=0, metavar="K",
+                        help="also train each MLP kind as a deep ensemble of K members, named <kind>/ens")
+    parser.add_argument("--attribution", action="store_true",
+                        help="split the 30-s error: mean-rate path, with the true v, with the true ω")
+    args = parser.parse_args()  # fmt: skip
     kinds = [m for m in args.models.split(",") if m]
     unknown = set(kinds) - set(MODELS)
     if unknown or "static" not in kinds:
         parser.error(f"--models: choose from {', '.join(MODELS)} (static, the baseline, included)")
+    if args.train_seeds < 1:
+        parser.error("--train-seeds: at least 1")
+    if args.ensemble == 1 or args.ensemble < 0:
+        parser.error("--ensemble: 0 (off) or at least 2 members")
     horizons = [int(h) for h in args.horizons.split(",") if h]
-    # (label, kind, horizon): every kind as is, and each dynamic kind once per multi-step horizon
-    variants = [(k, k, 0) for k in kinds] + [
-        (f"{k}+h{h}", k, h) for h in horizons for k in kinds if k != "static"
+    # (label, kind, horizon, ensemble): every kind as is, each dynamic kind once per multi-step
+    # horizon, and each MLP kind as a deep ensemble (the GRU trunk has no ensemble form)
+    variants = [(k, k, 0, 0) for k in kinds] + [
+        (f"{k}+h{h}", k, h, 0) for h in horizons for k in kinds if k != "static"
     ]
-    names = [label for label, _, _ in variants]
+    if args.ensemble:
+        variants += [(f"{k}/ens", k, 0, args.ensemble) for k in kinds if k != "recurrent"]
+    names = [label for label, _, _, _ in variants]
+    seeds = range(args.train_seeds)
     threads = os.cpu_count() or 1
 
     train_log = simulator.collect(maneuver_set(args.train_maneuvers, seed=1), seed=1)
-    models = {}
-    for name, kind, horizon in variants:
-        model, seconds, rows = train(train_log, kind, args.epochs, seed=0, horizon=horizon)
-        models[name] = model
-        print(f"trained {name} model on {rows} rows of {args.train_maneuvers} maneuvers in {seconds:.1f} s")
+    models: dict[tuple[str, int], object] = {}
+    for seed in seeds:
+        for name, kind, horizon, ensemble in variants:
+            model, seconds, rows = train(train_log, kind, args.epochs, seed=seed, horizon=horizon,
+                                         ensemble=ensemble)  # fmt: skip
+            models[name, seed] = model
+            print(f"trained {name} model (seed {seed}) on {rows} rows of {args.train_maneuvers} maneuvers "
+                  f"in {seconds:.1f} s")  # fmt: skip
 
     if args.calibration_maneuvers > 0:
         held_out = simulator.collect(maneuver_set(args.calibration_maneuvers, seed=4), seed=4)
         held_out = [part.reset_index(drop=True) for _, part in held_out.groupby("run_id", sort=False)]
-        for name in names:
-            scale = calibrate_fan(models[name], held_out, n_samples=args.samples)
-            print(f"free-run fan scale of {name}: {scale:.2f} (on {len(held_out)} held-out maneuvers)")
+        for (name, seed), model in models.items():
+            scale = calibrate_fan(model, held_out, n_samples=args.samples)
+            print(f"free-run fan scale of {name} (seed {seed}): {scale:.2f} "
+                  f"(on {len(held_out)} held-out maneuvers)")  # fmt: skip
 
     test = maneuver_set(args.maneuvers, seed=2)
     # Rounds of (MuJoCo, then every surrogate variant): this machine's speed drifts by a quarter
-    # within minutes, so each round's ratio pairs times taken back to back.
+    # within minutes, so each round's ratio pairs times taken back to back. Timed: the seed-0 models.
     runs = (("static", "auto"), ("static", "reference"), *((n, "auto") for n in names if n != "static"))
     labels = [name if backend == "auto" else f"{name}/{backend}" for name, backend in runs]
     sim_seconds: list[float] = []
@@ -155,12 +205,12 @@ def main() -> None:
         for (name, backend), label in zip(runs, labels, strict=True):
             call = dict(n_samples=args.samples, backend=backend)
             if round_ == 0:
-                simulate(models[name], controls[:4], initial_rates=initial[:4], **call)  # warm-up
+                simulate(models[name, 0], controls[:4], initial_rates=initial[:4], **call)  # warm-up
             times = []
             for _ in range(args.repeats):
                 rollouts.pop(label, None)  # free the last result first: the timed call allocates afresh
                 started = time.perf_counter()
-                rollouts[label] = simulate(models[name], controls, initial_rates=initial, **call)
+                rollouts[label] = simulate(models[name, 0], controls, initial_rates=initial, **call)
                 times.append(time.perf_counter() - started)
             timings[label].append(times)
     del rollouts["static/reference"]  # same numbers as "static": one accuracy row is enough
@@ -185,47 +235,73 @@ def main() -> None:
     first = {label: timings[label][0][0] for label in labels}
     print("  first call:" + "".join(f"  {k} {v:.2f} s (x{sim_seconds[0] / v:.1f})" for k, v in first.items()))
 
-    raw = {}  # the same rollouts with the uncalibrated fans, where calibration moved them
-    if args.calibration_maneuvers > 0:
-        raw = {name: simulate(models[name], controls, initial_rates=initial, n_samples=args.samples,
-                              fan_scale=1.0) for name in rollouts}  # fmt: skip
-    rows = []
-    for name, rollout in rollouts.items():
-        for i, (m, t) in enumerate(zip(test, truth, strict=True)):
-            columns = {c: t[c].to_numpy() for c in ("speed", "angZ", "posX", "posY", "yaw")}
-            tm = track_metrics(rollout, i, columns)
-            extra = {"cover_raw": track_metrics(raw[name], i, columns).coverage_position} if raw else {}
-            marks = list(tm.position_error.values())
-            rows.append(
-                {
-                    "variant": name,
-                    "kind": m.kind,
-                    "rmse_v": tm.rmse_v,
-                    "rmse_w": tm.rmse_w,
-                    "pos_10s": marks[0],
-                    "pos_30s": marks[1],
-                    "pos_end": marks[-1],
-                    "cover_v": tm.coverage_v,
-                    "cover_w": tm.coverage_w,
-                    "cover_pos": tm.coverage_position,
-                    **extra,
-                }
-            )
     if args.figure is not None:
         from activelearn.plots import paths_figure
 
         cases = [(f"{test[i].kind} {test[i].direction}", i) for i in range(len(KINDS))]
         paths_figure(rollouts, cases, truth).savefig(args.figure, dpi=100)
         print(f"figure: {args.figure}")
-    table = pd.DataFrame(rows).groupby(["kind", "variant"]).mean().reindex(KINDS, level=0)
-    pd.set_option("display.width", 160)
-    print("\naccuracy against MuJoCo (means over maneuvers of each kind; positions in m, rates in SI):")
+    rows = []
+    for seed in seeds:
+        for name in names:
+            model = models[name, seed]
+            call = dict(initial_rates=initial, n_samples=args.samples)
+            rollout = rollouts[name] if seed == 0 else simulate(model, controls, **call)
+            # the same rollout with the uncalibrated fan, where calibration moved it
+            raw = simulate(model, controls, fan_scale=1.0, **call) if args.calibration_maneuvers > 0 else None
+            lever_arm = float(model.config.pose_lever_arm)
+            for i, (m, t) in enumerate(zip(test, truth, strict=True)):
+                columns = {c: t[c].to_numpy() for c in ("speed", "angZ", "posX", "posY", "yaw")}
+                tm = track_metrics(rollout, i, columns)
+                extra = {"cover_raw": track_metrics(raw, i, columns).coverage_position} if raw else {}
+                if args.attribution:
+                    extra.update(zip(("rates_30s", "true_v_30s", "true_w_30s"),
+                                     attribution(rollout, i, t, lever_arm), strict=True))  # fmt: skip
+                marks = list(tm.position_error.values())
+                rows.append(
+                    {
+                        "seed": seed,
+                        "variant": name,
+                        "kind": m.kind,
+                        "rmse_v": tm.rmse_v,
+                        "rmse_w": tm.rmse_w,
+                        "pos_10s": marks[0],
+                        "pos_30s": marks[1],
+                        "pos_end": marks[-1],
+                        "cover_v": tm.coverage_v,
+                        "cover_w": tm.coverage_w,
+                        "cover_pos": tm.coverage_position,
+                        **extra,
+                    }
+                )
+        if seed == 0:
+            rollouts.clear()  # the timed rollouts are scored: free them before the next seed's
+    frame = pd.DataFrame(rows)
+    table = frame.drop(columns="seed").groupby(["kind", "variant"]).mean().reindex(KINDS, level=0)
+    pd.set_option("display.width", 180)
+    over = f" and {args.train_seeds} training seeds" if args.train_seeds > 1 else ""
+    print(f"\naccuracy against MuJoCo (means over maneuvers of each kind{over}; positions in m, rates in SI):"
+          )  # fmt: skip
     print(table.to_string(float_format="%.4f"))
-    ratio = table["pos_30s"].unstack("variant")
-    ratio = ratio.div(ratio["static"], axis=0).drop(columns="static")
-    print("\n30-s position error as a ratio of the static map's (target for the best dynamic model:")
-    print("<= 0.5 on slalom and eight, <= 1 elsewhere):")
-    print(ratio.reindex(KINDS).to_string(float_format="%.3f"))
+    if args.attribution:
+        print("\nwhere the 30-s error comes from (m; paths integrated from the mean rates): rates_30s as the")
+        print("model gives them, true_v_30s with MuJoCo's v in place of the model's, true_w_30s with its ω:")
+        split = table[["rates_30s", "true_v_30s", "true_w_30s"]].unstack("variant")
+        print(split.to_string(float_format="%.4f"))
+    per_seed = frame.groupby(["seed", "kind", "variant"])["pos_30s"].mean().unstack("variant")
+    baselines = ["static"] + (["static/ens"] if "static/ens" in names else [])
+    for baseline in baselines:
+        ratio = per_seed.div(per_seed[baseline], axis=0).drop(columns=[b for b in baselines])
+        mean = ratio.groupby("kind").mean().reindex(KINDS)
+        print(f"\n30-s position error as a ratio of the {baseline} map's (target for the best dynamic model:")
+        over = f"; mean ± s.e.m. of the per-seed ratios over {len(seeds)} seeds" if len(seeds) > 1 else ""
+        print(f"<= 0.5 on slalom and eight, <= 1 elsewhere){over}:")
+        if args.train_seeds > 1:
+            sem = ratio.groupby("kind").sem().reindex(KINDS)
+            cells = mean.map(lambda v: f"{v:.3f}") + " ± " + sem.map(lambda v: f"{v:.3f}")
+            print(cells.to_string())
+        else:
+            print(mean.to_string(float_format="%.3f"))
     speed = {k: float(np.median(v)) for k, v in ratios.items()}
     print("\nspeed against MuJoCo (median over rounds):")
     for label, value in speed.items():
