@@ -156,10 +156,11 @@ def _maneuver_from_args(args: argparse.Namespace):
 _SCHEDULE_COLUMNS = ("time", "throttle", "steering")
 
 
-def _schedule_from_args(args: argparse.Namespace, rate_hz: float, rate_option: str = "--rate"):
+def _schedule_from_args(args: argparse.Namespace, rate_hz: float, fixed_rate: bool = False):
     """What --schedule FILE drives at `rate_hz`: the proposal it is (a family member) or a Replay of its rows.
 
-    Every problem is an InputError naming the option and the file, and the column where one is at fault.
+    Every problem is an InputError naming the option and the file, and the column where one is at fault;
+    a file at another rate names --rate, or the file itself where the rate is `fixed_rate` (predict).
     """
     import numpy as np
     import pandas as pd
@@ -207,14 +208,20 @@ def _schedule_from_args(args: argparse.Namespace, rate_hz: float, rate_option: s
         return schedule_maneuver(path.stem, values["time"], values["throttle"], values["steering"], rate_hz)
     except ManeuverError as exc:
         if exc.field == "rate_hz":
-            raise InputError(rate_option, exc.value, f"{exc.reason} in {path}") from None
+            step = float(values["time"][-1] - values["time"][0]) / (len(values["time"]) - 1)
+            rows = f"{step:.6g} s apart ({1.0 / step:.6g} Hz)"
+            if fixed_rate:
+                reason = f"its rows are {rows}; predict steps at {rate_hz:g} Hz: resample it to that"
+                raise InputError(f"--schedule {path}", f"{1.0 / step:.6g} Hz", reason) from None
+            raise InputError("--rate", exc.value, f"the rows of {path} are {rows}, not 1/{rate_hz:g} s: "
+                                                  f"pass --rate {1.0 / step:.6g}") from None
         raise InputError(f"--schedule {path}: column {exc.field}", exc.value, exc.reason) from None
 
 
-def _driven_from_args(args: argparse.Namespace, rate_hz: float, rate_option: str = "--rate"):
+def _driven_from_args(args: argparse.Namespace, rate_hz: float, fixed_rate: bool = False):
     """The maneuver of --maneuver (and its options) or of --schedule FILE, validated."""
     if args.schedule is not None:
-        return _schedule_from_args(args, rate_hz, rate_option)
+        return _schedule_from_args(args, rate_hz, fixed_rate)
     return _maneuver_from_args(args)
 
 
@@ -947,7 +954,7 @@ def _predict(args: argparse.Namespace) -> int:
 
     from activelearn.errors import InputError
 
-    maneuver = _driven_from_args(args, _PREDICT_RATE, f"--schedule (predict steps at {_PREDICT_RATE:g} Hz)")
+    maneuver = _driven_from_args(args, _PREDICT_RATE, fixed_rate=True)
     if args.samples < 2:
         raise InputError("--samples", args.samples, "must be at least 2")
     if not 0 <= args.seed < 2**32:  # torch's manual_seed overflows past 2**64
