@@ -113,15 +113,20 @@ _MANEUVER_OPTIONS = {
 
 
 def _add_maneuver_options(p: argparse.ArgumentParser) -> None:
-    """The options that define one maneuver (simulate, predict)."""
-    p.add_argument("--maneuver", required=True, metavar="KIND",
-                   help="straight, skidpad, fishhook, slalom or eight")
-    p.add_argument("--throttle", required=True, type=float, metavar="T", help="throttle in [-1, 1]")
+    """The options that define one maneuver (simulate, predict): a reference kind, or a schedule file."""
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("--maneuver", metavar="KIND", help="straight, skidpad, fishhook, slalom or eight")
+    which.add_argument("--schedule", metavar="CSV",
+                       help="drive this schedule open loop instead: columns time (s, from 0, one row per "
+                            "log sample), throttle, steering (rad, + left), each command held until the next "
+                            "row; e.g. a proposal's schedule file written by `campaign propose`")
+    p.add_argument("--throttle", type=float, default=None, metavar="T",
+                   help="throttle in [-1, 1] (required with --maneuver)")
     p.add_argument("--steering", type=float, default=None, metavar="S",
                    help="steering amplitude in (0, 0.5236] rad: required for skidpad, slalom and eight; "
                         "fishhook's default 0.5236; a straight takes none")
-    p.add_argument("--direction", default="ccw", metavar="cw|ccw", help="ccw turns left first (default)")
-    p.add_argument("--duration", type=float, default=90.0, metavar="SEC", help="seconds (default 90)")
+    p.add_argument("--direction", default=None, metavar="cw|ccw", help="ccw turns left first (default)")
+    p.add_argument("--duration", type=float, default=None, metavar="SEC", help="seconds (default 90)")
 
 
 def _maneuver_from_args(args: argparse.Namespace):
@@ -129,6 +134,9 @@ def _maneuver_from_args(args: argparse.Namespace):
     from activelearn.errors import InputError
     from simulator import STEERING_LIMIT, Maneuver, ManeuverError
 
+    if args.throttle is None:
+        raise InputError("--throttle", None,
+                         f"a {args.maneuver} needs its throttle in [-1, 1], e.g. --throttle 0.6")
     steering = args.steering
     if args.maneuver == "straight" and steering:
         raise InputError("--steering", steering, "a straight does not steer; drop --steering")
@@ -137,17 +145,93 @@ def _maneuver_from_args(args: argparse.Namespace):
                          f"a {args.maneuver} needs its steering amplitude in rad, e.g. --steering 0.3142")
     if steering is None:
         steering = STEERING_LIMIT if args.maneuver == "fishhook" else 0.0
+    direction = "ccw" if args.direction is None else args.direction
+    duration = 90.0 if args.duration is None else args.duration
     try:
-        return Maneuver(args.maneuver, args.throttle, steering, args.direction, args.duration)
+        return Maneuver(args.maneuver, args.throttle, steering, direction, duration)
     except ManeuverError as exc:
         raise InputError(_MANEUVER_OPTIONS.get(exc.field, exc.field), exc.value, exc.reason) from None
+
+
+_SCHEDULE_COLUMNS = ("time", "throttle", "steering")
+
+
+def _schedule_from_args(args: argparse.Namespace, rate_hz: float, fixed_rate: bool = False):
+    """What --schedule FILE drives at `rate_hz`: the proposal it is (a family member) or a Replay of its rows.
+
+    Every problem is an InputError naming the option and the file, and the column where one is at fault;
+    a file at another rate names --rate, or the file itself where the rate is `fixed_rate` (predict).
+    """
+    import numpy as np
+    import pandas as pd
+
+    from activelearn.errors import InputError
+    from simulator import ManeuverError
+    from simulator.schedules import schedule_maneuver
+
+    for option in ("throttle", "steering", "direction", "duration"):
+        if getattr(args, option) is not None:
+            raise InputError(f"--{option}", getattr(args, option),
+                             f"the schedule sets the {option}: drop --{option} (or drop --schedule)")
+    path = Path(args.schedule)
+    if not path.exists():
+        raise InputError("--schedule", str(path), "no such file")
+    if not path.is_file():
+        raise InputError("--schedule", str(path), "is not a file")
+    try:
+        table = pd.read_csv(path, dtype=str, skipinitialspace=True)
+    except pd.errors.EmptyDataError:
+        raise InputError("--schedule", str(path), "is empty: a schedule needs the header "
+                                                  "time,throttle,steering and one row per command") from None
+    except (pd.errors.ParserError, UnicodeDecodeError, OSError) as exc:
+        reason = f"is not a readable CSV table ({_one_line(str(exc))})"
+        raise InputError("--schedule", str(path), reason) from None
+    table.columns = [str(c).strip() for c in table.columns]
+    missing = [c for c in _SCHEDULE_COLUMNS if c not in table.columns]
+    if missing:
+        raise InputError(f"--schedule {path}", list(table.columns),
+                         f"lacks the column(s) {', '.join(missing)} (a schedule has time, throttle, "
+                         "steering)")
+    if table.empty:
+        raise InputError(f"--schedule {path}", 0, "holds no rows below its header")
+    values = {}
+    for column in _SCHEDULE_COLUMNS:
+        text = table[column]
+        numbers = pd.to_numeric(text, errors="coerce")
+        junk = numbers.isna() & text.notna() & ~text.str.strip().str.lower().isin(("nan", "inf", "-inf"))
+        if junk.any():
+            row = int(np.argmax(junk.to_numpy()))
+            raise InputError(f"--schedule {path}: column {column}", text.iloc[row],
+                             f"row {row + 1} is not a number")
+        values[column] = numbers.to_numpy(dtype=np.float64)
+    try:
+        return schedule_maneuver(path.stem, values["time"], values["throttle"], values["steering"], rate_hz)
+    except ManeuverError as exc:
+        if exc.field == "rate_hz":
+            step = float(values["time"][-1] - values["time"][0]) / (len(values["time"]) - 1)
+            rows = f"{step:.6g} s apart ({1.0 / step:.6g} Hz)"
+            if fixed_rate:
+                reason = f"its rows are {rows}; predict steps at {rate_hz:g} Hz: resample it to that"
+                raise InputError(f"--schedule {path}", f"{1.0 / step:.6g} Hz", reason) from None
+            raise InputError("--rate", exc.value, f"the rows of {path} are {rows}, not 1/{rate_hz:g} s: "
+                                                  f"pass --rate {1.0 / step:.6g}") from None
+        raise InputError(f"--schedule {path}: column {exc.field}", exc.value, exc.reason) from None
+
+
+def _driven_from_args(args: argparse.Namespace, rate_hz: float, fixed_rate: bool = False):
+    """The maneuver of --maneuver (and its options) or of --schedule FILE, validated."""
+    if args.schedule is not None:
+        return _schedule_from_args(args, rate_hz, fixed_rate)
+    return _maneuver_from_args(args)
 
 
 def _register_simulate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "simulate",
         help="simulate one maneuver of Nigel and write its log (CSV or Parquet)",
-        description="Simulate one maneuver of Nigel in MuJoCo and write its log in the AutoDRIVE layout.",
+        description="Simulate one maneuver of Nigel in MuJoCo and write its log in the AutoDRIVE layout: a "
+                    "reference kind (--maneuver), or a schedule file driven open loop (--schedule), such as "
+                    "a proposal of `campaign propose`, to rehearse it.",
     )
     _add_maneuver_options(p)
     p.add_argument("--rate", type=float, default=30.0, metavar="HZ", help="log rate in Hz (default 30)")
@@ -169,9 +253,9 @@ def _simulate(args: argparse.Namespace) -> int:
     from simulator import DivergenceWarning, NoiseConfig, collect
 
     # Validate everything before simulating, so a bad value never leaves a file behind.
-    maneuver = _maneuver_from_args(args)
     if not math.isfinite(args.rate) or not 0.0 < args.rate <= 300.0:
         raise InputError("--rate", args.rate, "must lie in (0, 300] Hz")
+    maneuver = _driven_from_args(args, args.rate)
     if args.seed < 0:
         raise InputError("--seed", args.seed, "must be >= 0")
     out = _output_path("--out", args.out, suffixes=(".csv", ".parquet"))
@@ -811,9 +895,13 @@ _REGISTRARS.append(_register_tune)
 # --- predict --------------------------------------------------------------------------------------
 
 
+_PREDICT_RATE = 30.0  # Hz: the rate predict simulates at (MuJoCo's log and the surrogate's steps)
+
+
 def _register_predict(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("predict", help="forward-simulate a trained surrogate against MuJoCo on one maneuver",
-                       description="Run the surrogate (with uncertainty fans) and MuJoCo on one maneuver.")
+                       description="Run the surrogate (with uncertainty fans) and MuJoCo on one maneuver: a "
+                                   "reference kind (--maneuver) or a schedule file at 30 Hz (--schedule).")
     p.add_argument("--model", required=True, metavar="URI|PATH",
                    help="model file (model.pt), campaign directory, or MLflow model URI (runs:/<id>/model)")
     _add_maneuver_options(p)
@@ -866,7 +954,7 @@ def _predict(args: argparse.Namespace) -> int:
 
     from activelearn.errors import InputError
 
-    maneuver = _maneuver_from_args(args)
+    maneuver = _driven_from_args(args, _PREDICT_RATE, fixed_rate=True)
     if args.samples < 2:
         raise InputError("--samples", args.samples, "must be at least 2")
     if not 0 <= args.seed < 2**32:  # torch's manual_seed overflows past 2**64
@@ -884,7 +972,8 @@ def _predict(args: argparse.Namespace) -> int:
 
     from activelearn.numerics.surrogate import against_simulator
 
-    result = against_simulator(model, [maneuver], n_samples=args.samples, seed=args.seed)
+    result = against_simulator(model, [maneuver], rate_hz=_PREDICT_RATE, n_samples=args.samples,
+                               seed=args.seed)
     m = result.metrics[0]
     rows = [("RMSE v (m/s)", m.rmse_v), ("RMSE ω (rad/s)", m.rmse_w)]
     rows += [(f"position error at {t:g} s (m)", e) for t, e in m.position_error.items()]

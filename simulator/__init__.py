@@ -15,6 +15,7 @@ from simulator.maneuvers import (
     nominal_turn,
     sample_times,
 )
+from simulator.schedules import check_schedule, member_from_name, schedule_maneuver
 from simulator.twin import TWIN_PARAMETERS, TwinParameter, check_overrides, twin_vehicle
 from simulator.vehicle import (
     ENCODER_CPR,
@@ -60,12 +61,15 @@ __all__ = [
     "add_noise",
     "as_family",
     "check_overrides",
+    "check_schedule",
     "collect",
     "family",
+    "member_from_name",
     "model_xml",
     "nominal_controls",
     "nominal_turn",
     "reference_speed",
     "sample_times",
+    "schedule_maneuver",
     "twin_vehicle",
 ]
