@@ -160,7 +160,7 @@ def path_from_rates(
     The same integration as `simulate`'s (the logged point `lever_arm` metres ahead of the rear axle):
     for paths from any rates, e.g. MuJoCo's true v with a model's ω, to see which rate an error is in.
     """
-    v_, w_ = (torch.as_tensor(np.asarray(a, dtype=np.float64))[None] for a in (v, w))
+    v_, w_ = (torch.from_numpy(np.array(a, dtype=np.float64))[None] for a in (v, w))
     start = torch.full((1, 1), float(yaw0), dtype=torch.float64)
     x, y, yaw = _integrate(v_, w_, dt, start, lever_arm=lever_arm)
     return x[0].numpy(), y[0].numpy(), yaw[0].numpy()
