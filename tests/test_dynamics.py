@@ -238,6 +238,8 @@ def test_compare_ranks_by_the_chosen_metric(tmp_path):
         ("data", 'inputs = "history"\nhistory = 0', "data.history"),
         ("data", "history_step = 2", "data"),
         ("model", 'kind = "recurrent"', "config"),
+        ("model", 'kinematic_feature = "often"', "model.kinematic_feature"),
+        ("model", 'kind = "recurrent"\nkinematic_feature = true', "kinematic_feature"),
         ("training", "rollout_horizon = -1", "training.rollout_horizon"),
     ],
 )

@@ -76,7 +76,7 @@ def window_loss(model, windows: Windows, rows: Tensor) -> Tensor:
         now = len(rates)  # index of step h in the rates list
         inputs = [controls[:, back_u + h - d] for d in lags.control_lags]
         inputs += [rates[now - d] for d in lags.rate_lags]
-        x = (torch.cat(inputs, dim=-1) - model.x_mean) / model.x_std
+        x = model.standardise_inputs(torch.cat(inputs, dim=-1))
         mean, var = model.train_forward(x)
         err = target[:, h] - mean
         per = err.square() if var is None else 0.5 * (var.log() + err.square() / var)

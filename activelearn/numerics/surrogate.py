@@ -202,7 +202,9 @@ def _static_rollout(
     seed = int(torch.randint(2**31 - 1, (1,), generator=gen))
     keys = torch.randint(2**62, (n_samples,), generator=gen).tolist()
     sampled = model.draw(n_samples, seed=seed, backend=backend)
-    if sampled.kernel is None:
+    # The fused kernel reads the two controls; a model that derives inputs from them (the kinematic
+    # feature) takes the block path, whose network evaluation is still the compiled one.
+    if sampled.kernel is None or getattr(model, "n_derived", 0):
         return _reference_rollout(sampled, controls, keys, dt, yaw0, lever_arm)
     n_maneuvers, n_steps, _ = controls.shape
     # Reused memory where an earlier rollout's arrays have been dropped: first-touch page faults

@@ -356,7 +356,7 @@ def _fit(
             model.epistemic_scale.fill_(1.0)
     if not keep_scalers:
         model.set_scalers(x, y)
-    xs = ((torch.from_numpy(x) - model.x_mean) / model.x_std).contiguous()
+    xs = model.standardise_inputs(torch.from_numpy(x)).contiguous()
     ys = ((torch.from_numpy(y) - model.y_mean) / model.y_std).contiguous()
     stepper = _Stepper(model, config, kl_weight, batch, use_compile, windows, gen)
     best_score, best_state, bad_epochs = math.inf, None, 0

@@ -76,15 +76,21 @@ def maneuver_set(n: int, seed: int, duration: float = 90.0) -> list[Maneuver]:
     return out
 
 
-def train(log: pd.DataFrame, name: str, epochs: int, seed: int, horizon: int = 0, ensemble: int = 0):
+def train(
+    log: pd.DataFrame, name: str, epochs: int, seed: int, horizon: int = 0, ensemble: int = 0,
+    kinematic: bool = False,
+):  # fmt: skip
     """Fit one model kind of `MODELS` on a log (dynamic models: with `horizon`-step windows if > 0).
 
     `seed` draws the initial weights and the batches; `ensemble` > 0 makes it a deep ensemble of that
-    many members (the kind's inputs, the default member network).
+    many members (the kind's inputs, the default member network); `kinematic` adds the kinematic
+    feature (`ModelConfig.kinematic_feature`).
     """
     data_knobs, model_knobs = MODELS[name]
     if ensemble:
         model_knobs = {**model_knobs, "kind": "ensemble", "ensemble_size": ensemble}
+    if kinematic:
+        model_knobs = {**model_knobs, "kinematic_feature": True}
     # keep the transients: dynamic models need them
     data = DataConfig(stride=3, skip_seconds=0.0, **data_knobs)
     rows = pd.concat([training_rows(part, data) for _, part in log.groupby("run_id", sort=False)])
@@ -143,6 +149,8 @@ def main() -> None:
                         help="train every variant from seeds 0..N-1 and average the accuracy over them")
     parser.add_argument("--ensemble", type=int, default=0, metavar="K",
                         help="also train each MLP kind as a deep ensemble of K members, named <kind>/ens")
+    parser.add_argument("--kinematic", action="store_true",
+                        help="also train every MLP variant with the kinematic feature, named <label>+kin")
     parser.add_argument("--attribution", action="store_true",
                         help="split the 30-s error: mean-rate path, with the true v, with the true ω")
     args = parser.parse_args()  # fmt: skip
@@ -155,23 +163,26 @@ def main() -> None:
     if args.ensemble == 1 or args.ensemble < 0:
         parser.error("--ensemble: 0 (off) or at least 2 members")
     horizons = [int(h) for h in args.horizons.split(",") if h]
-    # (label, kind, horizon, ensemble): every kind as is, each dynamic kind once per multi-step
-    # horizon, and each MLP kind as a deep ensemble (the GRU trunk has no ensemble form)
-    variants = [(k, k, 0, 0) for k in kinds] + [
-        (f"{k}+h{h}", k, h, 0) for h in horizons for k in kinds if k != "static"
+    # (label, kind, horizon, ensemble, kinematic): every kind as is, each dynamic kind once per
+    # multi-step horizon, each MLP kind as a deep ensemble (the GRU trunk has no ensemble form), and
+    # every MLP variant with the kinematic feature (the GRU's tokens have no room for it)
+    variants = [(k, k, 0, 0, False) for k in kinds] + [
+        (f"{k}+h{h}", k, h, 0, False) for h in horizons for k in kinds if k != "static"
     ]
     if args.ensemble:
-        variants += [(f"{k}/ens", k, 0, args.ensemble) for k in kinds if k != "recurrent"]
-    names = [label for label, _, _, _ in variants]
+        variants += [(f"{k}/ens", k, 0, args.ensemble, False) for k in kinds if k != "recurrent"]
+    if args.kinematic:
+        variants += [(f"{label}+kin", k, h, e, True) for label, k, h, e, _ in variants if k != "recurrent"]
+    names = [label for label, *_ in variants]
     seeds = range(args.train_seeds)
     threads = os.cpu_count() or 1
 
     train_log = simulator.collect(maneuver_set(args.train_maneuvers, seed=1), seed=1)
     models: dict[tuple[str, int], object] = {}
     for seed in seeds:
-        for name, kind, horizon, ensemble in variants:
+        for name, kind, horizon, ensemble, kinematic in variants:
             model, seconds, rows = train(train_log, kind, args.epochs, seed=seed, horizon=horizon,
-                                         ensemble=ensemble)  # fmt: skip
+                                         ensemble=ensemble, kinematic=kinematic)  # fmt: skip
             models[name, seed] = model
             print(f"trained {name} model (seed {seed}) on {rows} rows of {args.train_maneuvers} maneuvers "
                   f"in {seconds:.1f} s")  # fmt: skip

@@ -13,6 +13,7 @@ from torch import Tensor, nn
 
 from activelearn.config import ModelConfig
 from activelearn.errors import InputError
+from activelearn.numerics.lags import N_CONTROLS, model_lags
 from activelearn.numerics.native import NetworkKernel
 from activelearn.numerics.threads import even_blocks, intra_op_threads
 
@@ -78,6 +79,11 @@ def _as_tensor(x: np.ndarray | Tensor, n_inputs: int) -> Tensor:
     return t
 
 
+def derived_inputs(config: ModelConfig) -> int:
+    """Inputs a model derives from its own (`ModelConfig.kinematic_feature`): its network reads these too."""
+    return 1 if config.kinematic_feature else 0
+
+
 def draw_moments(means: Tensor, var: Tensor, moments: tuple[Tensor, Tensor, Tensor]) -> None:
     """Write the mean, aleatoric and epistemic variance over S draws (S, n_outputs, n) into `moments`."""
     centre, aleatoric, epistemic = moments
@@ -121,8 +127,7 @@ class SampledModel:
         The epistemic scale is not applied. Always torch (the reference the kernel is tested against).
         """
         m = self.model
-        xs = (x - m.x_mean[:, None]) / m.x_std[:, None]
-        return m.columns_forward(xs, self._column_params, self.n_samples)
+        return m.columns_forward(m.standardise_inputs(x, dim=-2), self._column_params, self.n_samples)
 
     @functools.cached_property
     def _column_params(self) -> list:
@@ -146,7 +151,7 @@ class SampledModel:
         if self.kernel is not None:
             if out is None:
                 out = tuple(torch.empty((self.n_samples, m.n_outputs, x.shape[-1])) for _ in range(2))
-            self._kernel_forward(x, 1, draws=out, moments=moments)
+            self._kernel_forward(m.expand_inputs(x, dim=-2), 1, draws=out, moments=moments)
             return out
         means, var = self.standardised(x)
         if self.spread != 1.0:
@@ -194,7 +199,8 @@ class SampledModel:
             out = tuple(torch.empty((self.n_samples, self.model.n_outputs, x.shape[-1])) for _ in range(2))
         means, var = out
         if self.kernel is not None:
-            self._kernel_forward(x, torch.get_num_threads(), draws=(means, var))
+            network_inputs = self.model.expand_inputs(x, dim=-2)
+            self._kernel_forward(network_inputs, torch.get_num_threads(), draws=(means, var))
             return means, var
         for rows in even_blocks(x.shape[-1], CHUNK_ROWS):
             self.block(x[..., rows], out=(means[..., rows], var[..., rows]))
@@ -211,7 +217,7 @@ class SampledModel:
         centre, aleatoric, epistemic = (torch.empty((self.model.n_outputs, n_rows)) for _ in range(3))
         if self.kernel is not None:
             self.kernel.forward(
-                _kernel_input(x).numpy(),
+                _kernel_input(self.model.expand_inputs(x, dim=-2)).numpy(),
                 moments=tuple(t.numpy() for t in (centre, aleatoric, epistemic)),
                 threads=torch.get_num_threads(),
             )
@@ -257,8 +263,10 @@ class Model(nn.Module, ABC):
         self.config = config
         self.n_inputs = config.n_inputs
         self.n_outputs = config.n_outputs
-        self.register_buffer("x_mean", torch.zeros(config.n_inputs))
-        self.register_buffer("x_std", torch.ones(config.n_inputs))
+        # The scalers (and the network) span the derived inputs too: `expand_inputs` appends them.
+        self.n_derived = derived_inputs(config)
+        self.register_buffer("x_mean", torch.zeros(config.n_inputs + self.n_derived))
+        self.register_buffer("x_std", torch.ones(config.n_inputs + self.n_derived))
         self.register_buffer("y_mean", torch.zeros(config.n_outputs))
         self.register_buffer("y_std", torch.ones(config.n_outputs))
         self.register_buffer("epistemic_scale", torch.tensor(1.0))
@@ -299,10 +307,30 @@ class Model(nn.Module, ABC):
         """Re-initialise every learnable parameter from `generator`."""
 
     # ----- shared behaviour -------------------------------------------------------------------
+    def expand_inputs(self, x: Tensor, dim: int = -1) -> Tensor:
+        """Physical inputs with the derived ones appended along `dim` (-1: rows (N, d); -2: columns).
+
+        The kinematic feature is a speed times tan(steering): the throttle for a static map, the newest
+        past speed for a dynamic one (`activelearn.numerics.lags`). Without derived inputs, x itself.
+        """
+        if not self.n_derived:
+            return x
+        lags = model_lags(self)
+        speed = x.select(dim, 0 if lags is None else N_CONTROLS * lags.history)
+        feature = speed * torch.tan(x.select(dim, 1))
+        return torch.cat([x, feature.unsqueeze(dim)], dim=dim)
+
+    def standardise_inputs(self, x: Tensor, dim: int = -1) -> Tensor:
+        """Physical inputs (rows or columns, see `expand_inputs`) as the network reads them."""
+        x = self.expand_inputs(x, dim)
+        if dim == -1:
+            return (x - self.x_mean) / self.x_std
+        return (x - self.x_mean[:, None]) / self.x_std[:, None]
+
     @torch.no_grad()
     def set_scalers(self, x: np.ndarray | Tensor, y: np.ndarray | Tensor) -> None:
         """Fit the input and output standardisation to data (constant columns get std 1)."""
-        xt = torch.as_tensor(x, dtype=torch.float32)
+        xt = self.expand_inputs(torch.as_tensor(x, dtype=torch.float32))
         yt = torch.as_tensor(y, dtype=torch.float32)
         for mean_buf, std_buf, t in ((self.x_mean, self.x_std, xt), (self.y_mean, self.y_std, yt)):
             mean_buf.copy_(t.mean(dim=0))
@@ -375,7 +403,7 @@ class Model(nn.Module, ABC):
     def forward(self, x: Tensor) -> Tensor:
         """Deterministic export path: posterior-mean network on physical x → [mean, aleatoric std]."""
         params, s = self.mean_params()
-        means, var = self.sampled_forward((x - self.x_mean) / self.x_std, params, s)
+        means, var = self.sampled_forward(self.standardise_inputs(x), params, s)
         mean = means.mean(dim=0) * self.y_std + self.y_mean
         std = var.mean(dim=0).sqrt() * self.y_std
         return torch.cat([mean, std], dim=-1)

@@ -13,7 +13,7 @@ from torch import Tensor, nn
 from activelearn.config import ModelConfig
 from activelearn.numerics import native
 from activelearn.numerics.arch import LayerSpec, parse_arch
-from activelearn.numerics.models.base import Model
+from activelearn.numerics.models.base import Model, derived_inputs
 from activelearn.numerics.models.layers import BayesianLinear, DenseLinear
 
 
@@ -103,8 +103,8 @@ class StackModel(Model):
             self.has_epistemic = False  # type: ignore[misc]
 
     def _stack_inputs(self, config: ModelConfig) -> int:
-        """Width the layer stack reads: the inputs themselves, or a trunk's features (recurrent)."""
-        return config.n_inputs
+        """Width the layer stack reads: the inputs and those derived from them, or a trunk's features."""
+        return config.n_inputs + derived_inputs(config)
 
     def _convert(self, spec: LayerSpec) -> LayerSpec:
         if self.layer_mode == "variational":
