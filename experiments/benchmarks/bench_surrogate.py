@@ -140,6 +140,8 @@ def main() -> None:
     parser.add_argument("--models", default=",".join(MODELS), help="comma-separated model kinds to compare")
     parser.add_argument("--figure", type=Path, default=None, metavar="PNG",
                         help="draw one maneuver of each kind, every model side by side, here")
+    parser.add_argument("--figure-variants", default="", metavar="LABEL,...",
+                        help="only these variants in the figure (default: all)")
     parser.add_argument("--horizons", default="", metavar="H,H,...",
                         help="also train each dynamic model with multi-step windows of these lengths "
                              "(log steps), named <kind>+h<H>")
@@ -174,6 +176,9 @@ def main() -> None:
     if args.kinematic:
         variants += [(f"{label}+kin", k, h, e, True) for label, k, h, e, _ in variants if k != "recurrent"]
     names = [label for label, *_ in variants]
+    shown = [v for v in args.figure_variants.split(",") if v] or names
+    if set(shown) - set(names):
+        parser.error(f"--figure-variants: not in this run: {", ".join(sorted(set(shown) - set(names)))}")
     seeds = range(args.train_seeds)
     threads = os.cpu_count() or 1
 
@@ -250,7 +255,7 @@ def main() -> None:
         from activelearn.plots import paths_figure
 
         cases = [(f"{test[i].kind} {test[i].direction}", i) for i in range(len(KINDS))]
-        paths_figure(rollouts, cases, truth).savefig(args.figure, dpi=100)
+        paths_figure({v: rollouts[v] for v in shown}, cases, truth).savefig(args.figure, dpi=100)
         print(f"figure: {args.figure}")
     rows = []
     for seed in seeds:
