@@ -178,7 +178,7 @@ def main() -> None:
     names = [label for label, *_ in variants]
     shown = [v for v in args.figure_variants.split(",") if v] or names
     if set(shown) - set(names):
-        parser.error(f"--figure-variants: not in this run: {", ".join(sorted(set(shown) - set(names)))}")
+        parser.error(f"--figure-variants: not in this run: {', '.join(sorted(set(shown) - set(names)))}")
     seeds = range(args.train_seeds)
     threads = os.cpu_count() or 1
 
