@@ -237,7 +237,7 @@ def kinematic_bound(
     first = int(np.argmax(bad)) if bad.any() else len(bad)
     if first >= len(bad):
         return 0.0, full, 0.0
-    allowed = min(full, math.floor(first / rate_hz + 1e-9))
+    allowed = min(full, math.floor((first - 1) / rate_hz + 1e-9))  # every step up to it is within bounds
     if allowed >= cfg.min_duration:
         return 1.0, float(allowed), 0.0
     return 1.0, 0.0, float("nan")
