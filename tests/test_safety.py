@@ -25,6 +25,7 @@ from activelearn.config import (
 from activelearn.errors import ConfigError
 from activelearn.loop.acquisition import make_strategy
 from activelearn.loop.campaign import Campaign, CampaignState
+from activelearn.loop.collection import rows_per_maneuver
 from activelearn.loop.pool import maneuver_controls
 from activelearn.loop.safety import (
     REASONS,
@@ -257,6 +258,32 @@ def test_safe_campaign_drives_admissible_cuts_and_logs_safety(tmp_path):
     for name in ("safe_set_size", "violations", "violations_total", "safety_seconds"):
         assert len(tracker.metric_history(state.run_id, name)) >= 1, name
     assert history["violations_total"].iloc[-1] == sum(1 for r in state.violated.values() if r)
+
+
+def test_a_cut_candidate_is_scored_as_it_would_be_driven(tmp_path):
+    # Strategies score a candidate by the controls and rows it would give: a cut one by its first
+    # seconds only (a fishhook cut before its ramp ends never reaches its full steering).
+    pool = {"kinds": ["straight", "skidpad", "fishhook"]}
+    cfg = safe_config(tmp_path, pool=pool, tracking={"enabled": False})
+    campaign = Campaign(cfg, tmp_path / "c")
+    whole = campaign.pool([])
+    pool, safe = campaign._safe_pool(whole, None, 0)  # before any model: the kinematic worst case
+    cut = np.flatnonzero(safe.cut)
+    assert len(cut) and np.array_equal(pool.affordable, safe.admissible)
+    for i in cut:
+        rows = rows_per_maneuver(safe.duration[i], cfg.simulation, cfg.data)
+        assert pool.weights[pool.owner == i].sum() == pytest.approx(rows)
+        assert whole.weights[whole.owner == i].sum() > rows + 1
+        m = campaign.maneuvers[i]
+        reached = np.abs(maneuver_controls(dataclasses.replace(m, duration=safe.duration[i]))[:, 1]).max()
+        assert np.abs(pool.points[pool.owner == i, 1]).max() == pytest.approx(reached, abs=1e-6)
+    hook = [i for i in cut if campaign.maneuvers[i].kind == "fishhook"]
+    assert hook
+    steering = [np.abs(p.points[p.owner == hook[0], 1]).max() for p in (pool, whole)]
+    assert steering[0] < steering[1] - 0.005  # the ramp, cut, stops short of where it would have gone
+    kept = np.flatnonzero(~safe.cut)
+    same = pool.points[np.isin(pool.owner, kept)], whole.points[np.isin(whole.owner, kept)]
+    np.testing.assert_array_equal(*same)
 
 
 def test_every_strategy_picks_among_admissible_candidates_only(tmp_path):
