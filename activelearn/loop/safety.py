@@ -18,15 +18,21 @@ risk over a duration T is the share of trajectories that violated before T:
 Before the first model (a cold start's initial design without a prior model), and wherever the
 model extrapolates (its epistemic std of the speed along the maneuver exceeds `trust_std` of the
 speed: there its fan missed the true speed, measured in reverse after a forward-only prior), a
-kinematic worst case stands in for the fan, or must hold beside it: speed at most
-SPEED_PER_THROTTLE x |throttle| (the reference throttle table lies below that line), yaw rate at
-most v tan(steering) / L (no-slip kinematics; Nigel understeers, so its true yaw rate is lower). A
-candidate is admissible when that worst case respects the limits, cut to the time the car cannot
-reach a wall at that speed, whatever its heading. A skidpad (constant steering from the start)
-goes round a circle whatever its speed, forward or in reverse: the rear axle's radius lies between
-L / tan(steering) and UNDERSTEER_MAX times that, the logged point `pose_lever_arm` ahead of it,
-the centre on the steering side of the start pose. Where every such circle keeps `margin +
-path_tolerance` from the walls, the skidpad may be driven whole (the limits still apply).
+kinematic worst case stands in for the fan, or must hold beside it. It reads the candidate's control
+schedule step by step (a reference kind or any family member): speed at most SPEED_PER_THROTTLE x
+the largest |throttle| so far (the reference throttle table lies below that line), yaw rate at most
+v tan|steering| / L (no-slip kinematics; Nigel understeers, so its true yaw rate is lower), any
+heading. The candidate may be driven up to the last whole second before the first step whose worst
+case breaks a limit or whose reach (the path it may have covered) meets a wall, unless a circle
+holds the path. While the throttle stays constant and the steering keeps its side and never eases
+(a skidpad, a fishhook's ramp, a staircase), the path's curvature only grows, so each osculating
+circle holds the rest of it (Tait-Kneser); the rear axle's radius at steering s lies between
+L / tan(s) and UNDERSTEER_MAX times that, the logged point `pose_lever_arm` ahead of it. From the
+start the first circle's place is known (centre on the steering side of the start pose, forward or
+in reverse): where every such circle keeps `margin + path_tolerance` from the walls, the schedule's
+monotone part may be driven whole. From a later step t0 the car is somewhere within reach(t0) of the
+start and the rest of its path within 2 (r + lever arm) of it: held where that stays off the walls
+(a fishhook whose ramp is quick).
 
 `violations` checks the logs that came back (simulated or driven) against the same arena and limits:
 what the benchmark counts. The fan is the rollout of the lead's dynamics issue too: one rollout
