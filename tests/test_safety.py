@@ -166,6 +166,7 @@ def test_the_worst_case_reads_a_family_schedule_step_by_step():
     # where a skidpad at the first level fits; a staircase that eases its steering is no spiral.
     box = SafetyConfig(arena=SQUARE, start=(0.0, 0.0, 0.0), margin=0.16, path_tolerance=0.04,
                        max_lateral_acceleration=0.2)  # fmt: skip
+
     def stairs(start: float, amplitude: float) -> FamilyManeuver:
         params = {"throttle": -0.6, "start": start, "amplitude": amplitude, "hold": 4.0}
         return FamilyManeuver("staircase", params, "cw", 30.0)

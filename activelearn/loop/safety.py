@@ -238,7 +238,7 @@ def kinematic_bound(
     over = (speed > cfg.max_speed) | (yaw > cfg.max_yaw_rate) | (speed * yaw > cfg.max_lateral_acceleration)
     room = max(float(boundary_distance(cfg.arena, cfg.start[0], cfg.start[1])) - cfg.margin, 0.0)
     reach = np.cumsum(speed) / rate_hz  # the most path covered by the end of each step
-    held = contained(controls, maneuver, cfg, lever_arm, reach, rate_hz)
+    held = contained(controls, maneuver, cfg, lever_arm, reach)
     bad = over | ((reach > room) & ~held)
     first = int(np.argmax(bad)) if bad.any() else len(bad)
     if first >= len(bad):
@@ -264,9 +264,8 @@ def monotone_steps(controls: np.ndarray) -> int:
 
 
 def contained(
-    controls: np.ndarray, maneuver: Any, cfg: SafetyConfig, lever_arm: float, reach: np.ndarray,
-    rate_hz: float,
-) -> np.ndarray:  # fmt: skip
+    controls: np.ndarray, maneuver: Any, cfg: SafetyConfig, lever_arm: float, reach: np.ndarray
+) -> np.ndarray:
     """(T,) True at the steps where the kinematic worst case keeps the car `margin + path_tolerance` off
     the walls whatever its speed: the schedule's monotone part (`monotone_steps`) after a step whose
     circle holds the rest of it. From the start, that circle's place is known (`circles_fit`: a
@@ -282,7 +281,8 @@ def contained(
     first = float(controls[0, 1])
     if first != 0.0:
         constant = bool(np.all(controls[:steps, 1] == first))
-        if circles_fit(maneuver, cfg, lever_arm, steering=abs(first), nested=not constant):
+        side = float(np.sign(first))
+        if circles_fit(maneuver, cfg, lever_arm, steering=abs(first), nested=not constant, side=side):
             held[:steps] = True
             return held
     magnitude = np.abs(controls[:steps, 1])
@@ -295,7 +295,7 @@ def contained(
 
 def circles_fit(
     maneuver: Any, cfg: SafetyConfig, lever_arm: float = POSE_LEVER_ARM, *, steering: float | None = None,
-    nested: bool = False,
+    nested: bool = False, side: float | None = None,
 ) -> bool:  # fmt: skip
     """True where every possible circle of a constant steering from the start keeps `margin +
     path_tolerance` from the walls (a skidpad; `steering` a staircase's first level).
@@ -303,8 +303,8 @@ def circles_fit(
     The rear axle turns about a centre on the steering side, L / tan(steering) to UNDERSTEER_MAX
     times that away (forward or in reverse); the logged point, `lever_arm` ahead of the axle, goes
     round the same centre through the start pose (`nested`: anywhere within the circle grown by
-    `lever_arm`, as for a path of growing curvature inside it). Sampled every 0.5 degree and 1/64
-    of the radii.
+    `lever_arm`, as for a path of growing curvature inside it). `side`: +1 left, -1 right (default:
+    the maneuver's direction). Sampled every 0.5 degree and 1/64 of the radii.
     """
     if steering is None:
         if maneuver.kind != "skidpad":
@@ -316,8 +316,9 @@ def circles_fit(
     heading, left = np.array([math.cos(yaw0), math.sin(yaw0)]), np.array([-math.sin(yaw0), math.cos(yaw0)])
     kinematic = WHEELBASE / math.tan(steering)
     radii = np.linspace(kinematic, UNDERSTEER_MAX * kinematic, 64)[:, None]
-    cx = x0 - lever_arm * heading[0] + maneuver.sign * radii * left[0]
-    cy = y0 - lever_arm * heading[1] + maneuver.sign * radii * left[1]
+    sign = maneuver.sign if side is None else float(side)
+    cx = x0 - lever_arm * heading[0] + sign * radii * left[0]
+    cy = y0 - lever_arm * heading[1] + sign * radii * left[1]
     rho = radii + lever_arm if nested else np.hypot(radii, lever_arm)
     angle = np.linspace(0.0, 2.0 * math.pi, 720, endpoint=False)[None, :]
     clearance = polygon_clearance(cfg.arena, cx + rho * np.cos(angle), cy + rho * np.sin(angle))
