@@ -7,7 +7,8 @@ limits), their squared test error (standardised, as `test_rmse`) split by
 test maneuver kind and sign of throttle (forward / reverse), the share of the total each part
 carries, and the picks (kind and sign, median driven seconds, share cut). Then, per seed, which
 test maneuvers the safe model misses most, and whether the safe campaign drove anything at that
-operating point (same kind, sign and throttle within 0.2).
+operating point (same kind, or a family member for a skidpad; sign and throttle within 0.2), with the
+largest steering it reached as driven.
 
 Usage: python experiments/safety_gap.py [--bench runs/bench_safety] [--config FILE] [--top 3]
 """
@@ -23,9 +24,11 @@ import numpy as np
 
 from activelearn.config import load_config
 from activelearn.loop.campaign import Campaign
+from activelearn.loop.pool import maneuver_controls
 from activelearn.loop.safety import violating
 from activelearn.loop.state import MODEL_FILE, CampaignState
 from activelearn.numerics.models import load_model
+from simulator.families import FAMILIES
 
 CONFIGS = Path(__file__).resolve().parent / "configs"
 EVAL_SAMPLES = 64
@@ -40,6 +43,19 @@ def driven_as(campaign: Campaign, index: int, state: CampaignState):
 def part(m) -> str:
     """A maneuver's kind and driving direction (fwd / rev by the throttle's sign)."""
     return f"{m.kind}/{'rev' if m.throttle < 0 else 'fwd'}"
+
+
+def nearby(driven, test) -> bool:
+    """A pick at the test maneuver's operating point: same kind (a skidpad also from a slalom at f = 0 or a
+    staircase, any family member that steers), sign and throttle within 0.2."""
+    same = driven.kind == test.kind or (test.kind == "skidpad" and driven.kind in FAMILIES)
+    side = (driven.throttle < 0) == (test.throttle < 0)
+    return same and side and abs(driven.throttle - test.throttle) <= 0.2
+
+
+def reached(m, rate: float) -> float:
+    """The largest |steering| a pick applied as driven (a cut ramp stops short of its amplitude)."""
+    return float(np.abs(maneuver_controls(m, rate)[:, 1]).max())
 
 
 def main() -> None:
@@ -110,8 +126,9 @@ def main() -> None:
         line = []
         for g in np.argsort(by_test)[::-1][: args.top]:
             m = tests[g]
-            near = [d for d in driven if part(d) == part(m) and abs(d.throttle - m.throttle) <= 0.2]
-            got = ",".join(f"{d.throttle:+.1f}/{d.steering:.2f}@{d.duration:g}s" for d in near) or "none"
+            near = [d for d in driven if nearby(d, m)]
+            got = ",".join(f"{d.kind} {d.throttle:+.2f}/{reached(d, rate):.2f}@{d.duration:g}s" for d in near)
+            got = got or "none"
             line.append(f"{m.name} {np.sqrt(by_test[g]):.3f} ({np.sqrt(free[g]):.3f}) [{got}]")
         print(f"  seed {seed}: " + "; ".join(line))
 

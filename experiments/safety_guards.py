@@ -14,8 +14,11 @@ Prints per variant and seed: admissible candidates, of them cut short, violation
 the track seconds admitted (sum of admissible durations: what conservatism costs), and the smallest
 slack to a wall of an admitted true path (clearance - margin, m; negative = violation).
 
+With `--worst-case`, rows with fan_scale "none" judge by the kinematic worst case alone (no model:
+what a cold start's initial design gets, and the bound every untrusted candidate must meet too).
+
 Usage: python experiments/safety_guards.py [--config FILE] [--seeds 3] [--fan-scales 1,3]
-       [--tolerances 0,0.04,0.08,0.16] [--trust 0.02] [--campaigns DIR]
+       [--tolerances 0,0.04,0.08,0.16] [--trust 0.02] [--campaigns DIR] [--worst-case]
 """
 
 from __future__ import annotations
@@ -86,6 +89,7 @@ def main() -> None:
     parser.add_argument("--trust", type=float, default=0.02, help="trust_std of the kinematic guard")
     parser.add_argument("--campaigns", default=None, help="a benchmark directory: each seed's last model")
     parser.add_argument("--work", default="runs/safety_guards")
+    parser.add_argument("--worst-case", action="store_true", help="also the kinematic worst case alone")
     args = parser.parse_args()
 
     cfg = load_config(args.config)
@@ -95,7 +99,9 @@ def main() -> None:
     rate = cfg.simulation.rate_hz
     scales = [float(s) for s in args.fan_scales.split(",")]
     tolerances = [float(t) for t in args.tolerances.split(",")]
-    variants = [(f, t, k) for f in scales for k in (False, True) for t in tolerances]
+    variants: list[tuple] = [(f, t, k) for f in scales for k in (False, True) for t in tolerances]
+    if args.worst_case:
+        variants += [("none", t, True) for t in tolerances]
     print(f"# {cfg.name}: {'first-round (prior-only) models' if args.campaigns is None else args.campaigns}, "
           f"seeds 0-{args.seeds - 1}, margin {base.margin} m, delta {base.delta}, "
           f"{base.n_samples} trajectories, pose_lever_arm {cfg.data.pose_lever_arm} m")  # fmt: skip
@@ -111,9 +117,11 @@ def main() -> None:
         for variant in variants:
             fan_scale, tolerance, kinematic = variant
             trust = args.trust if kinematic else NO_GUARD
-            update = {"fan_scale": fan_scale, "path_tolerance": tolerance, "trust_std": trust}
+            update = {"path_tolerance": tolerance, "trust_std": trust}
+            if fan_scale != "none":
+                update["fan_scale"] = fan_scale
             safety = base.model_copy(update=update)
-            safe = assess(model, campaign.maneuvers, safety, rate_hz=rate,
+            safe = assess(None if fan_scale == "none" else model, campaign.maneuvers, safety, rate_hz=rate,
                           seed=seed * 10_007 + round_index, which=open_)  # fmt: skip
             bad, reasons, slacks = [], [], []
             for i in np.flatnonzero(safe.admissible):
@@ -126,7 +134,7 @@ def main() -> None:
             arena = sum(r == "arena" for r in reasons)
             seconds = float(safe.duration[safe.admissible].sum())
             nearest = min(slacks) if slacks else float("nan")
-            print(f"{fan_scale:>9g} {tolerance:>5g} {'yes' if kinematic else 'no':>4} {seed:>4} "
+            print(f"{fan_scale:>9} {tolerance:>5g} {'yes' if kinematic else 'no':>4} {seed:>4} "
                   f"{safe.size:>4} {int(safe.cut.sum()):>4} {len(bad):>4} {arena:>5} {len(bad) - arena:>5} "
                   f"{seconds:>8.0f} {nearest:>9.3f}  {' '.join(bad)}", flush=True)  # fmt: skip
             total = totals[variant]
@@ -137,7 +145,7 @@ def main() -> None:
     print("# totals over seeds (fan_scale, path_tolerance, kinematic guard): violating / admissible")
     for (fan_scale, tolerance, kinematic), (size, bad, arena, seconds) in totals.items():
         guard = "yes" if kinematic else "no"
-        print(f"  fan_scale {fan_scale:g}  path_tolerance {tolerance:<5g} kinematic {guard:<3}  "
+        print(f"  fan_scale {fan_scale}  path_tolerance {tolerance:<5g} kinematic {guard:<3}  "
               f"{bad:>3} / {size:<4} ({arena} arena)  {seconds:7.0f} s admitted")  # fmt: skip
     print(f"wall time {time.perf_counter() - started:.0f} s")
 

@@ -16,6 +16,10 @@ A family maps named parameters to a command schedule, drivable open loop by a sc
                  [f_low, f_high] with Schroeder phases, scaled so the peak over the span is A.
   prbs           throttle, amplitude A, switch_time h (s), seed: +A or -A held for h s, the level of
                  every interval after the first (+A) drawn by numpy's Generator(seed); reproducible.
+  staircase      throttle, start A0, amplitude A, hold h (s): a skidpad whose steering steps from A0 to A
+                 in STAIRCASE_LEVELS equal levels, each held h s, the last (A) to the end. A0 < A: the
+                 car goes round ever smaller circles, each inside the last (several operating points
+                 of high steering in the room of one skidpad); A0 = A is a skidpad.
 
 The reference kinds straight, skidpad, slalom and fishhook are special cases (`as_family`); the
 eight is not a family member: it flips its steering on the heading measured in closed loop, which
@@ -45,6 +49,7 @@ from simulator.maneuvers import (
 from simulator.vehicle import STEERING_LIMIT, THROTTLE_LIMIT
 
 MULTISINE_TONES = 5
+STAIRCASE_LEVELS = 4  # steering levels of a staircase, A0 first and A last
 REFERENCE_RATE = 30.0  # Hz: the rate at which op_throttle / op_steering are read off the schedule
 _FINE_RATE = 100.0  # Hz: grid on which the multisine's peak is normalised (independent of the log rate)
 
@@ -148,6 +153,12 @@ def _prbs(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarra
     return _const(p["throttle"], t), p["amplitude"] * levels[index]
 
 
+def _staircase(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
+    level = np.minimum(np.floor(t / p["hold"] + 1e-9), STAIRCASE_LEVELS - 1)
+    steering = p["start"] + (p["amplitude"] - p["start"]) * level / (STAIRCASE_LEVELS - 1)
+    return _const(p["throttle"], t), steering
+
+
 def _hz(name: str, tag: str, pool: tuple[float, float]) -> Parameter:
     return Parameter(name, 0.0, 2.0, "Hz", tag, pool)
 
@@ -183,6 +194,9 @@ FAMILIES: dict[str, Family] = {
                _multisine, "sum of tones with Schroeder phases"),
         Family("prbs", (_T, _A, _seconds("switch_time", "h", (0.5, 5.0), low=0.05), _SEED),
                _prbs, "pseudo-random binary steering sequence"),
+        Family("staircase", (_T, Parameter("start", 0.0, STEERING_LIMIT, "rad", "s", (0.1, 0.3)), _A,
+                             _seconds("hold", "h", (3.0, 10.0), low=0.05)),
+               _staircase, "skidpad whose steering steps from start to amplitude"),
     )
 }  # fmt: skip
 

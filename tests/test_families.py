@@ -107,6 +107,38 @@ def test_fishhook_ramps_at_its_rate_and_throttle_steps_and_ramps_brake_and_rever
     assert np.all(ramp[:, 1] == -0.2)
 
 
+def test_staircase_steps_its_steering_up_in_levels_held_for_hold_seconds():
+    from simulator.families import STAIRCASE_LEVELS
+
+    m = _member("staircase", direction="cw", throttle=-0.6, start=0.2, amplitude=0.5, hold=4.0)
+    u = m.controls(RATE)
+    t = np.arange(len(u)) / RATE
+    levels = np.linspace(0.2, 0.5, STAIRCASE_LEVELS)
+    for k, level in enumerate(levels[:-1]):
+        assert np.allclose(u[(t >= 4.0 * k) & (t < 4.0 * (k + 1)), 1], -level)
+    assert np.allclose(u[t >= 4.0 * (STAIRCASE_LEVELS - 1), 1], -0.5) and np.all(u[:, 0] == -0.6)
+    assert m.steering == pytest.approx(0.5) and m.throttle == -0.6
+    assert m.name == "staircase_cw_t-0.6_s0.2_a0.5_h4_d20"
+    flat = _member("staircase", throttle=0.5, start=0.3, amplitude=0.3, hold=2.0)  # a skidpad
+    skidpad = as_family(Maneuver("skidpad", 0.5, 0.3, "ccw", 20.0))
+    assert np.array_equal(flat.controls(RATE), skidpad.controls(RATE))
+
+
+def test_a_staircase_driven_in_mujoco_turns_ever_tighter_inside_its_first_circle():
+    # Reverse, steering 0.25 -> 0.5 in 4 levels of 3 s: the yaw rate grows level by level and the
+    # path stays within the first level's circle (what the kinematic worst case of [safety] relies on).
+    m = _member("staircase", duration=12.0, throttle=-0.6, start=0.25, amplitude=0.5, hold=3.0)
+    log = simulator.collect([m], rate_hz=RATE, seed=0)
+    t = log["time"].to_numpy()
+    curvature = [np.median(np.abs(log["angZ"] / log["speed"])[(t > 3.0 * k + 1.5) & (t < 3.0 * (k + 1))])
+                 for k in range(4)]  # fmt: skip
+    assert np.all(np.diff(curvature) > 0), curvature
+    assert (log["speed"].iloc[-30:] < -0.05).all() and (log["angZ"].iloc[-30:] < -0.2).all()  # reverse, ccw
+    first = 0.1415 / np.tan(0.25)  # the kinematic radius of the first level (rear axle)
+    x, y = log["posX"].to_numpy() - log["posX"].iloc[0], log["posY"].to_numpy() - log["posY"].iloc[0]
+    assert np.hypot(x, y).max() < 2 * (1.1 * first + 0.08)  # MuJoCo understeers by 2-7 %
+
+
 @pytest.mark.parametrize("kind", ["straight", "skidpad", "slalom", "fishhook"])
 @pytest.mark.parametrize("direction", ["ccw", "cw"])
 def test_open_loop_reference_kinds_are_family_members(kind: str, direction: str):

@@ -25,6 +25,7 @@ from activelearn.config import (
 from activelearn.errors import ConfigError
 from activelearn.loop.acquisition import make_strategy
 from activelearn.loop.campaign import Campaign, CampaignState
+from activelearn.loop.collection import rows_per_maneuver
 from activelearn.loop.pool import maneuver_controls
 from activelearn.loop.safety import (
     REASONS,
@@ -33,13 +34,14 @@ from activelearn.loop.safety import (
     fan,
     kinematic_bound,
     log_violation,
+    monotone_steps,
     violating,
 )
 from activelearn.numerics.models import build_model
 from activelearn.numerics.surrogate import simulate
 from activelearn.numerics.training import fit
 from activelearn.studies.tracking import Tracker
-from simulator import Maneuver
+from simulator import FamilyManeuver, Maneuver
 
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
 SQUARE = [[-1.5, -1.5], [1.5, -1.5], [1.5, 1.5], [-1.5, 1.5]]
@@ -151,6 +153,43 @@ def test_a_skidpad_whose_every_circle_fits_is_driven_whole_before_the_model_know
     assert circles_fit(fast, cfg) and kinematic_bound(fast, cfg)[1] == 0.0
 
 
+def test_the_worst_case_reads_a_family_schedule_step_by_step():
+    # A throttle step from 0.2 to 1.0 after 20 of 30 s: its median throttle is 0.2, but the worst case
+    # takes the fastest throttle so far, so the car may not drive past the limit (speed 0.287 > 0.25).
+    cfg = SafetyConfig(arena=[[-5, -5], [5, -5], [5, 5], [-5, 5]], start=(0.0, 0.0, 0.0), max_speed=0.25,
+                       min_duration=5.0)  # fmt: skip
+    step = FamilyManeuver("throttle_step", {"throttle_start": 0.2, "throttle_end": 1.0, "switch_time": 20.0,
+                                            "ramp_time": 0.0, "steering": 0.0}, "ccw", 30.0)  # fmt: skip
+    assert step.throttle == pytest.approx(0.2)
+    assert kinematic_bound(step, cfg) == (1.0, 19.0, 0.0)  # the old bound (median throttle) said 30 s
+    # Staircases whose steering only grows stay inside their first circle: whole, forward or in reverse,
+    # where a skidpad at the first level fits; a staircase that eases its steering is no spiral.
+    box = SafetyConfig(arena=SQUARE, start=(0.0, 0.0, 0.0), margin=0.16, path_tolerance=0.04,
+                       max_lateral_acceleration=0.2)  # fmt: skip
+
+    def stairs(start: float, amplitude: float) -> FamilyManeuver:
+        params = {"throttle": -0.6, "start": start, "amplitude": amplitude, "hold": 4.0}
+        return FamilyManeuver("staircase", params, "cw", 30.0)
+
+    up = stairs(0.45, 0.52)
+    assert monotone_steps(up.controls(30.0)) == len(up.controls(30.0))
+    assert circles_fit(up, box, steering=0.45, nested=True) and kinematic_bound(up, box) == (0.0, 30.0, 0.0)
+    wider = stairs(0.3, 0.52)  # its first circle (centre 0.46-0.91 m aside, radius up to 1 m) does not fit
+    assert not circles_fit(wider, box, steering=0.3, nested=True) and kinematic_bound(wider, box)[1] < 30.0
+    down = stairs(0.52, 0.45)
+    assert monotone_steps(down.controls(30.0)) == 4 * 30 and kinematic_bound(down, box)[1] < 30.0
+    # A fishhook: its ramp reaches 0.5 rad within 2.5 s at 0.2 rad/s (the rest is a tight circle within
+    # reach of the start: whole); at the reference 0.006 rad/s it is a long spiral, cut by its reach.
+    fast = FamilyManeuver("fishhook", {"throttle": 0.4, "rate": 0.2, "amplitude": 0.5}, "ccw", 60.0)
+    slow = FamilyManeuver("fishhook", {"throttle": 0.4, "rate": 0.006, "amplitude": 0.5}, "ccw", 60.0)
+    roomy = box.model_copy(update={"arena": [(-2.0, -2.0), (2.0, -2.0), (2.0, 2.0), (-2.0, 2.0)]})
+    assert kinematic_bound(fast, roomy) == (0.0, 60.0, 0.0)  # within 0.29 m + 2 (0.52 + 0.08) m of the start
+    assert kinematic_bound(fast, box)[1] < 60.0  # 1.48 m: more than the 1.3 m of room in the small box
+    room = 2.0 - box.margin
+    reach = float(np.floor(room / (0.287 * 0.4) - 1 / 30))  # the last whole second before it, a step short
+    assert kinematic_bound(slow, roomy) == (1.0, reach, 0.0)
+
+
 def test_log_violation_reads_the_path_in_the_arena_frame():
     cfg = SafetyConfig(arena=SQUARE, start=(1.0, 0.0, 0.0), margin=0.1)
     t = np.arange(0, 10, 1 / 30)
@@ -220,6 +259,32 @@ def test_safe_campaign_drives_admissible_cuts_and_logs_safety(tmp_path):
     for name in ("safe_set_size", "violations", "violations_total", "safety_seconds"):
         assert len(tracker.metric_history(state.run_id, name)) >= 1, name
     assert history["violations_total"].iloc[-1] == sum(1 for r in state.violated.values() if r)
+
+
+def test_a_cut_candidate_is_scored_as_it_would_be_driven(tmp_path):
+    # Strategies score a candidate by the controls and rows it would give: a cut one by its first
+    # seconds only (a fishhook cut before its ramp ends never reaches its full steering).
+    pool = {"kinds": ["straight", "skidpad", "fishhook"]}
+    cfg = safe_config(tmp_path, pool=pool, tracking={"enabled": False})
+    campaign = Campaign(cfg, tmp_path / "c")
+    whole = campaign.pool([])
+    pool, safe = campaign._safe_pool(whole, None, 0)  # before any model: the kinematic worst case
+    cut = np.flatnonzero(safe.cut)
+    assert len(cut) and np.array_equal(pool.affordable, safe.admissible)
+    for i in cut:
+        rows = rows_per_maneuver(safe.duration[i], cfg.simulation, cfg.data)
+        assert pool.weights[pool.owner == i].sum() == pytest.approx(rows)
+        assert whole.weights[whole.owner == i].sum() > rows + 1
+        m = campaign.maneuvers[i]
+        reached = np.abs(maneuver_controls(dataclasses.replace(m, duration=safe.duration[i]))[:, 1]).max()
+        assert np.abs(pool.points[pool.owner == i, 1]).max() == pytest.approx(reached, abs=1e-6)
+    hook = [i for i in cut if campaign.maneuvers[i].kind == "fishhook"]
+    assert hook
+    steering = [np.abs(p.points[p.owner == hook[0], 1]).max() for p in (pool, whole)]
+    assert steering[0] < steering[1] - 0.005  # the ramp, cut, stops short of where it would have gone
+    kept = np.flatnonzero(~safe.cut)
+    same = pool.points[np.isin(pool.owner, kept)], whole.points[np.isin(whole.owner, kept)]
+    np.testing.assert_array_equal(*same)
 
 
 def test_every_strategy_picks_among_admissible_candidates_only(tmp_path):

@@ -274,13 +274,20 @@ class Campaign:
             self._target = target_points(self.cfg, self.maneuvers, self.oracle.test_maneuvers())
         return self._target
 
-    def pool(self, taken: list[int], model: Any | None = None, affordable: np.ndarray | None = None) -> Pool:
-        """The candidate pool with `taken` marked as collected, its points as `model` inputs."""
-        mask = np.zeros(len(self.maneuvers), dtype=bool)
+    def pool(
+        self, taken: list[int], model: Any | None = None, affordable: np.ndarray | None = None,
+        maneuvers: Sequence[Any] | None = None,
+    ) -> Pool:  # fmt: skip
+        """The candidate pool with `taken` marked as collected, its points as `model` inputs.
+
+        `maneuvers`: the candidates as they would be driven (default: the pool's, whole).
+        """
+        maneuvers = self.maneuvers if maneuvers is None else maneuvers
+        mask = np.zeros(len(maneuvers), dtype=bool)
         mask[taken] = True
         pool = build_pool(
             self.cfg,
-            self.maneuvers,
+            maneuvers,
             mask,
             self.test_set.scale,
             self.target(),
@@ -295,18 +302,17 @@ class Campaign:
         if model is None or model.n_inputs == pool.points.shape[1]:
             return pool
         if self.cfg.acquisition.dynamic_points == "path":
-            return dataclasses.replace(pool, **self._path_points(model))
+            return dataclasses.replace(pool, **self._path_points(model, maneuvers))
         return dataclasses.replace(
             pool, points=model_inputs(model, pool.points), target=model_inputs(model, pool.target)
         )
 
-    def _path_points(self, model: Any) -> dict[str, Any]:
+    def _path_points(self, model: Any, maneuvers: Sequence[Any] | None = None) -> dict[str, Any]:
         """Pool points of a dynamic model along each candidate's predicted path (and the target's)."""
         rate, n_points = self.cfg.simulation.rate_hz, self.cfg.acquisition.score_points
-        inputs = path_inputs(
-            model, [maneuver_controls(m, rate) for m in self.maneuvers], n_points, rate_hz=rate
-        )
-        rows = [rows_per_maneuver(m.duration, self.cfg.simulation, self.cfg.data) for m in self.maneuvers]
+        maneuvers = self.maneuvers if maneuvers is None else maneuvers
+        inputs = path_inputs(model, [maneuver_controls(m, rate) for m in maneuvers], n_points, rate_hz=rate)
+        rows = [rows_per_maneuver(m.duration, self.cfg.simulation, self.cfg.data) for m in maneuvers]
         fields: dict[str, Any] = {
             "points": np.concatenate(inputs),
             "owner": np.repeat(np.arange(len(inputs)), n_points),
@@ -842,6 +848,14 @@ class Campaign:
                       seed=self.cfg.seed * 10_007 + round_index, which=~pool.taken)  # fmt: skip
         if not safety.enforce:
             return pool, safe
+        if safe.cut.any():  # score each candidate as it would be driven: a cut one by its first seconds
+            driven = [
+                dataclasses.replace(m, duration=float(safe.duration[i])) if safe.cut[i] else m
+                for i, m in enumerate(self.maneuvers)
+            ]
+            rebuilt = self.pool(list(np.flatnonzero(pool.taken)), model, maneuvers=driven)
+            fields = {name: getattr(rebuilt, name) for name in ("points", "owner", "weights")}
+            pool = dataclasses.replace(pool, **fields)
         # what each candidate costs as it would be driven (cut short or whole), for the seconds budget
         self._pick_costs = np.where(safe.admissible, safe.duration, safe.full) + self.cfg.design.setup_seconds
         affordable = safe.admissible

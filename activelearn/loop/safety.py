@@ -18,15 +18,21 @@ risk over a duration T is the share of trajectories that violated before T:
 Before the first model (a cold start's initial design without a prior model), and wherever the
 model extrapolates (its epistemic std of the speed along the maneuver exceeds `trust_std` of the
 speed: there its fan missed the true speed, measured in reverse after a forward-only prior), a
-kinematic worst case stands in for the fan, or must hold beside it: speed at most
-SPEED_PER_THROTTLE x |throttle| (the reference throttle table lies below that line), yaw rate at
-most v tan(steering) / L (no-slip kinematics; Nigel understeers, so its true yaw rate is lower). A
-candidate is admissible when that worst case respects the limits, cut to the time the car cannot
-reach a wall at that speed, whatever its heading. A skidpad (constant steering from the start)
-goes round a circle whatever its speed, forward or in reverse: the rear axle's radius lies between
-L / tan(steering) and UNDERSTEER_MAX times that, the logged point `pose_lever_arm` ahead of it,
-the centre on the steering side of the start pose. Where every such circle keeps `margin +
-path_tolerance` from the walls, the skidpad may be driven whole (the limits still apply).
+kinematic worst case stands in for the fan, or must hold beside it. It reads the candidate's control
+schedule step by step (a reference kind or any family member): speed at most SPEED_PER_THROTTLE x
+the largest |throttle| so far (the reference throttle table lies below that line), yaw rate at most
+v tan|steering| / L (no-slip kinematics; Nigel understeers, so its true yaw rate is lower), any
+heading. The candidate may be driven up to the last whole second before the first step whose worst
+case breaks a limit or whose reach (the path it may have covered) meets a wall, unless a circle
+holds the path. While the throttle stays constant and the steering keeps its side and never eases
+(a skidpad, a fishhook's ramp, a staircase), the path's curvature only grows, so each osculating
+circle holds the rest of it (Tait-Kneser); the rear axle's radius at steering s lies between
+L / tan(s) and UNDERSTEER_MAX times that, the logged point `pose_lever_arm` ahead of it. From the
+start the first circle's place is known (centre on the steering side of the start pose, forward or
+in reverse): where every such circle keeps `margin + path_tolerance` from the walls, the schedule's
+monotone part may be driven whole. From a later step t0 the car is somewhere within reach(t0) of the
+start and the rest of its path within 2 (r + lever arm) of it: held where that stays off the walls
+(a fishhook whose ramp is quick).
 
 `violations` checks the logs that came back (simulated or driven) against the same arena and limits:
 what the benchmark counts. The fan is the rollout of the lead's dynamics issue too: one rollout
@@ -189,7 +195,7 @@ def assess(
     arm = float(getattr(getattr(model, "config", None), "pose_lever_arm", POSE_LEVER_ARM))
     if model is None:
         for i in todo:
-            risk[i], duration[i], cut_risk[i] = kinematic_bound(maneuvers[i], cfg, arm)
+            risk[i], duration[i], cut_risk[i] = kinematic_bound(maneuvers[i], cfg, arm, rate_hz)
         return Assessment(risk, duration, cut_risk, full)
     for block in range(0, len(todo), CHUNK):
         rows = todo[block : block + CHUNK]
@@ -199,7 +205,7 @@ def assess(
         for j, i in enumerate(rows):
             risk[i], duration[i], cut_risk[i] = admissible_duration(times[:, j], full[i], cfg)
             if untrusted[j]:  # the model extrapolates: the kinematic worst case must hold as well
-                bound = kinematic_bound(maneuvers[i], cfg, arm)
+                bound = kinematic_bound(maneuvers[i], cfg, arm, rate_hz)
                 risk[i] = max(risk[i], bound[0])
                 if bound[1] < duration[i]:
                     duration[i], cut_risk[i] = bound[1], bound[2] if bound[1] > 0 else float("nan")
@@ -215,44 +221,105 @@ def relative_speed_std(rollout: Rollout) -> np.ndarray:
 
 
 def kinematic_bound(
-    maneuver: Any, cfg: SafetyConfig, lever_arm: float = POSE_LEVER_ARM
+    maneuver: Any, cfg: SafetyConfig, lever_arm: float = POSE_LEVER_ARM, rate_hz: float = 30.0
 ) -> tuple[float, float, float]:
-    """Risk, admissible duration and its risk by the kinematic worst case (see the module docstring).
+    """Risk, admissible duration and its risk by the kinematic worst case of the maneuver's schedule.
 
-    Speed at most SPEED_PER_THROTTLE |throttle|, yaw rate at most v tan(steering) / L, heading
-    anything: within the limits, the car cannot reach a wall before `room / v` seconds; a skidpad
-    whose every possible circle fits the arena (`circles_fit`) not at all.
+    Read off the control schedule (any family or reference kind), step by step: speed at most
+    SPEED_PER_THROTTLE x the largest |throttle| so far, yaw rate at most v tan|steering| / L, heading
+    anything. The car may drive until the first step whose worst-case rates break a limit, and until
+    the distance it may have covered reaches a wall, unless the path is held in a circle
+    (`contained`): then the whole schedule, or its part that is held.
     """
-    room = max(float(boundary_distance(cfg.arena, cfg.start[0], cfg.start[1])) - cfg.margin, 0.0)
+    controls = maneuver_controls(maneuver, rate_hz)
     full = float(maneuver.duration)
-    v = SPEED_PER_THROTTLE * abs(maneuver.throttle)
-    w = v * math.tan(maneuver.steering if maneuver.kind != "straight" else 0.0) / WHEELBASE
-    within = v <= cfg.max_speed and w <= cfg.max_yaw_rate and v * w <= cfg.max_lateral_acceleration
-    reach = min(full, math.floor(room / v) if v > 0 else full)
-    if within and reach < full and circles_fit(maneuver, cfg, lever_arm):
-        reach = full
-    risk = 0.0 if within and reach >= full else 1.0
-    if within and reach >= cfg.min_duration:
-        return risk, float(reach), 0.0
-    return risk, 0.0, float("nan")
+    speed = SPEED_PER_THROTTLE * np.maximum.accumulate(np.abs(controls[:, 0]))
+    yaw = speed * np.tan(np.abs(controls[:, 1])) / WHEELBASE
+    over = (speed > cfg.max_speed) | (yaw > cfg.max_yaw_rate) | (speed * yaw > cfg.max_lateral_acceleration)
+    room = max(float(boundary_distance(cfg.arena, cfg.start[0], cfg.start[1])) - cfg.margin, 0.0)
+    reach = np.cumsum(speed) / rate_hz  # the most path covered by the end of each step
+    held = contained(controls, maneuver, cfg, lever_arm, reach)
+    bad = over | ((reach > room) & ~held)
+    first = int(np.argmax(bad)) if bad.any() else len(bad)
+    if first >= len(bad):
+        return 0.0, full, 0.0
+    allowed = min(full, math.floor((first - 1) / rate_hz + 1e-9))  # every step up to it is within bounds
+    if allowed >= cfg.min_duration:
+        return 1.0, float(allowed), 0.0
+    return 1.0, 0.0, float("nan")
 
 
-def circles_fit(maneuver: Any, cfg: SafetyConfig, lever_arm: float = POSE_LEVER_ARM) -> bool:
-    """True for a skidpad whose every possible circle keeps `margin + path_tolerance` from the walls.
+def monotone_steps(controls: np.ndarray) -> int:
+    """Leading steps of a schedule at constant throttle whose steering keeps one side and never eases.
+
+    Over them the kinematic path's curvature only grows: each osculating circle holds the rest of the
+    path (Tait-Kneser), as a skidpad's circle or a fishhook's spiral does.
+    """
+    throttle, steering = controls[:, 0], controls[:, 1]
+    side = np.sign(steering[np.flatnonzero(steering)[0]]) if steering.any() else 0.0
+    magnitude = side * steering
+    ok = (throttle == throttle[0]) & (magnitude >= 0.0)
+    ok[1:] &= magnitude[1:] >= magnitude[:-1] - 1e-12
+    return int(np.argmin(ok)) if not ok.all() else len(ok)
+
+
+def contained(
+    controls: np.ndarray, maneuver: Any, cfg: SafetyConfig, lever_arm: float, reach: np.ndarray
+) -> np.ndarray:
+    """(T,) True at the steps where the kinematic worst case keeps the car `margin + path_tolerance` off
+    the walls whatever its speed: the schedule's monotone part (`monotone_steps`) after a step whose
+    circle holds the rest of it. From the start, that circle's place is known (`circles_fit`: a
+    skidpad, or a staircase from its first level); from a later step t0 (a fishhook's ramp) the car is
+    somewhere within reach(t0) of the start, and the circle within 2 (r + lever_arm) of it, r up to
+    UNDERSTEER_MAX L / tan|steering(t0)|.
+    """
+    held = np.zeros(len(controls), dtype=bool)
+    steps = monotone_steps(controls)
+    if steps == 0 or not controls[:steps, 1].any():
+        return held
+    room = float(boundary_distance(cfg.arena, cfg.start[0], cfg.start[1])) - cfg.margin - cfg.path_tolerance
+    first = float(controls[0, 1])
+    if first != 0.0:
+        constant = bool(np.all(controls[:steps, 1] == first))
+        side = float(np.sign(first))
+        if circles_fit(maneuver, cfg, lever_arm, steering=abs(first), nested=not constant, side=side):
+            held[:steps] = True
+            return held
+    magnitude = np.abs(controls[:steps, 1])
+    with np.errstate(divide="ignore"):
+        radius = np.where(magnitude > 0, UNDERSTEER_MAX * WHEELBASE / np.tan(magnitude), np.inf)
+    extent = np.minimum.accumulate(reach[:steps] + 2.0 * (radius + lever_arm))
+    held[:steps] = extent <= room
+    return held
+
+
+def circles_fit(
+    maneuver: Any, cfg: SafetyConfig, lever_arm: float = POSE_LEVER_ARM, *, steering: float | None = None,
+    nested: bool = False, side: float | None = None,
+) -> bool:  # fmt: skip
+    """True where every possible circle of a constant steering from the start keeps `margin +
+    path_tolerance` from the walls (a skidpad; `steering` a staircase's first level).
 
     The rear axle turns about a centre on the steering side, L / tan(steering) to UNDERSTEER_MAX
     times that away (forward or in reverse); the logged point, `lever_arm` ahead of the axle, goes
-    round the same centre through the start pose. Sampled every 0.5 degree and 1/64 of the radii.
+    round the same centre through the start pose (`nested`: anywhere within the circle grown by
+    `lever_arm`, as for a path of growing curvature inside it). `side`: +1 left, -1 right (default:
+    the maneuver's direction). Sampled every 0.5 degree and 1/64 of the radii.
     """
-    if maneuver.kind != "skidpad" or maneuver.steering <= 0:
+    if steering is None:
+        if maneuver.kind != "skidpad":
+            return False
+        steering = maneuver.steering
+    if steering <= 0:
         return False
     x0, y0, yaw0 = cfg.start
     heading, left = np.array([math.cos(yaw0), math.sin(yaw0)]), np.array([-math.sin(yaw0), math.cos(yaw0)])
-    kinematic = WHEELBASE / math.tan(maneuver.steering)
+    kinematic = WHEELBASE / math.tan(steering)
     radii = np.linspace(kinematic, UNDERSTEER_MAX * kinematic, 64)[:, None]
-    cx = x0 - lever_arm * heading[0] + maneuver.sign * radii * left[0]
-    cy = y0 - lever_arm * heading[1] + maneuver.sign * radii * left[1]
-    rho = np.hypot(radii, lever_arm)
+    sign = maneuver.sign if side is None else float(side)
+    cx = x0 - lever_arm * heading[0] + sign * radii * left[0]
+    cy = y0 - lever_arm * heading[1] + sign * radii * left[1]
+    rho = radii + lever_arm if nested else np.hypot(radii, lever_arm)
     angle = np.linspace(0.0, 2.0 * math.pi, 720, endpoint=False)[None, :]
     clearance = polygon_clearance(cfg.arena, cx + rho * np.cos(angle), cy + rho * np.sin(angle))
     return bool(np.min(clearance) >= cfg.margin + cfg.path_tolerance)
