@@ -307,10 +307,9 @@ class Campaign:
             pool, points=model_inputs(model, pool.points), target=model_inputs(model, pool.target)
         )
 
-    def _path_points(self, model: Any, maneuvers: Sequence[Any] | None = None) -> dict[str, Any]:
+    def _path_points(self, model: Any, maneuvers: Sequence[Any]) -> dict[str, Any]:
         """Pool points of a dynamic model along each candidate's predicted path (and the target's)."""
         rate, n_points = self.cfg.simulation.rate_hz, self.cfg.acquisition.score_points
-        maneuvers = self.maneuvers if maneuvers is None else maneuvers
         inputs = path_inputs(model, [maneuver_controls(m, rate) for m in maneuvers], n_points, rate_hz=rate)
         rows = [rows_per_maneuver(m.duration, self.cfg.simulation, self.cfg.data) for m in maneuvers]
         fields: dict[str, Any] = {

@@ -151,7 +151,7 @@ class SampledModel:
         if self.kernel is not None:
             if out is None:
                 out = tuple(torch.empty((self.n_samples, m.n_outputs, x.shape[-1])) for _ in range(2))
-            self._kernel_forward(m.expand_inputs(x, dim=-2), 1, draws=out, moments=moments)
+            self._kernel_forward(x, 1, draws=out, moments=moments)
             return out
         means, var = self.standardised(x)
         if self.spread != 1.0:
@@ -164,6 +164,10 @@ class SampledModel:
             draw_moments(means, var, moments)
         return means, var
 
+    def _kernel_input(self, x: Tensor) -> Tensor:
+        """Physical column inputs as the kernel reads them: with the derived inputs, in its layout."""
+        return _kernel_input(self.model.expand_inputs(x, dim=-2))
+
     def _kernel_forward(
         self,
         x: Tensor,
@@ -174,7 +178,7 @@ class SampledModel:
         """Physical draws (and their moments) from the compiled kernel, written into the given tensors."""
         m = self.model
         self.kernel.forward(
-            _kernel_input(x).numpy(),
+            self._kernel_input(x).numpy(),
             draws=(draws[0].numpy(), draws[1].numpy()),
             moments=None if moments is None else tuple(t.numpy() for t in moments),
             out_mean=m.y_mean.numpy(),
@@ -199,8 +203,7 @@ class SampledModel:
             out = tuple(torch.empty((self.n_samples, self.model.n_outputs, x.shape[-1])) for _ in range(2))
         means, var = out
         if self.kernel is not None:
-            network_inputs = self.model.expand_inputs(x, dim=-2)
-            self._kernel_forward(network_inputs, torch.get_num_threads(), draws=(means, var))
+            self._kernel_forward(x, torch.get_num_threads(), draws=(means, var))
             return means, var
         for rows in even_blocks(x.shape[-1], CHUNK_ROWS):
             self.block(x[..., rows], out=(means[..., rows], var[..., rows]))
@@ -217,7 +220,7 @@ class SampledModel:
         centre, aleatoric, epistemic = (torch.empty((self.model.n_outputs, n_rows)) for _ in range(3))
         if self.kernel is not None:
             self.kernel.forward(
-                _kernel_input(self.model.expand_inputs(x, dim=-2)).numpy(),
+                self._kernel_input(x).numpy(),
                 moments=tuple(t.numpy() for t in (centre, aleatoric, epistemic)),
                 threads=torch.get_num_threads(),
             )
@@ -265,6 +268,9 @@ class Model(nn.Module, ABC):
         self.n_outputs = config.n_outputs
         # The scalers (and the network) span the derived inputs too: `expand_inputs` appends them.
         self.n_derived = derived_inputs(config)
+        # the kinematic feature's speed input: the throttle, or the newest past speed (read per step)
+        lags = model_lags(self) if self.n_derived else None
+        self._speed_input = 0 if lags is None else N_CONTROLS * lags.history
         self.register_buffer("x_mean", torch.zeros(config.n_inputs + self.n_derived))
         self.register_buffer("x_std", torch.ones(config.n_inputs + self.n_derived))
         self.register_buffer("y_mean", torch.zeros(config.n_outputs))
@@ -315,8 +321,7 @@ class Model(nn.Module, ABC):
         """
         if not self.n_derived:
             return x
-        lags = model_lags(self)
-        speed = x.select(dim, 0 if lags is None else N_CONTROLS * lags.history)
+        speed = x.select(dim, self._speed_input)
         feature = speed * torch.tan(x.select(dim, 1))
         return torch.cat([x, feature.unsqueeze(dim)], dim=dim)
 
