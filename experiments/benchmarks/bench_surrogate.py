@@ -153,6 +153,9 @@ def main() -> None:
                         help="also train each MLP kind as a deep ensemble of K members, named <kind>/ens")
     parser.add_argument("--kinematic", action="store_true",
                         help="also train every MLP variant with the kinematic feature, named <label>+kin")
+    parser.add_argument("--variants", default="", metavar="LABEL,...",
+                        help="train and compare only these variants (labels as printed, e.g. markov/ens+kin; "
+                             "the static baseline always)")
     parser.add_argument("--attribution", action="store_true",
                         help="split the 30-s error: mean-rate path, with the true v, with the true ω")
     args = parser.parse_args()  # fmt: skip
@@ -175,6 +178,12 @@ def main() -> None:
         variants += [(f"{k}/ens", k, 0, args.ensemble, False) for k in kinds if k != "recurrent"]
     if args.kinematic:
         variants += [(f"{label}+kin", k, h, e, True) for label, k, h, e, _ in variants if k != "recurrent"]
+    if args.variants:
+        wanted = {v for v in args.variants.split(",") if v} | {"static"}
+        missing = wanted - {label for label, *_ in variants}
+        if missing:
+            parser.error(f"--variants: not built by these options: {', '.join(sorted(missing))}")
+        variants = [v for v in variants if v[0] in wanted]
     names = [label for label, *_ in variants]
     shown = [v for v in args.figure_variants.split(",") if v] or names
     if set(shown) - set(names):
