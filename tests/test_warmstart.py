@@ -302,6 +302,15 @@ def test_auto_decides_from_the_warm_start_and_is_deterministic(pool_cfg, forward
     # the guard: a model whose std ranked its recent errors the wrong way round is not asked
     distrusted = dataclasses.replace(warm, context={"warm_start": 1.0, "prequential_spearman": -0.4})
     assert auto.decide(distrusted) == "uniform"
+    # a dynamic model scoring candidates along its free runs seeks its largest uncertainty, guard kept
+    paths = dataclasses.replace(warm, context={"warm_start": 1.0, "dynamic_paths": 1.0})
+    assert auto.decide(paths) == "max_epistemic"
+    assert auto.select(forward_model, paths, 3, np.random.default_rng(5)) == make_strategy(
+        "max_epistemic", n_samples=32
+    ).select(forward_model, paths, 3, np.random.default_rng(5))
+    distrusted_paths = dataclasses.replace(paths, context={**paths.context, "prequential_spearman": -0.4})
+    assert auto.decide(distrusted_paths) == "uniform"
+    assert auto.decide(dataclasses.replace(cold, context={"dynamic_paths": 1.0})) == "uniform"
 
 
 def test_auto_campaigns_are_deterministic_for_a_seed(tmp_path):

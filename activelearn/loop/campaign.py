@@ -476,7 +476,8 @@ class Campaign:
         return {"prequential_spearman": float(diag["spearman"]), "prequential_points": float(len(counts))}
 
     def _context(self, state: CampaignState) -> dict[str, float]:
-        """What strategies may read: recent prequential checks (mean of 3), warm start, kind of budget."""
+        """What strategies may read: recent prequential checks (mean of 3), warm start, kind of budget,
+        whether a dynamic model scores candidates along its free runs."""
         recent = [
             r["prequential_spearman"]
             for r in state.rounds
@@ -487,6 +488,8 @@ class Campaign:
             context["seconds_budget"] = 1.0
         if self.cfg.design.prior is not None:  # the model starts from what was known before
             context["warm_start"] = 1.0
+        if self.cfg.data.inputs != "controls" and self.cfg.acquisition.dynamic_points == "path":
+            context["dynamic_paths"] = 1.0  # candidates are scored along the model's own free runs
         return context
 
     def _trial(
