@@ -117,12 +117,17 @@ def test_rollout_keeps_one_weight_draw_per_trajectory(skidpad_model):
     draw_seed = int(torch.randint(2**31 - 1, (1,), generator=torch.Generator().manual_seed(0)))
     means, variances = skidpad_model.draw(8, seed=draw_seed)(np.array([control], dtype=np.float32))
     # the sampled speeds of trajectory s scatter around draw s's mean (within 4 s.e. of their mean
-    # over the steps), not around the ensemble mean or another draw's: those lie further apart
+    # over the steps), not around the ensemble mean or another draw's
     per_traj = rollout.v[:, 0].mean(axis=1)
     tolerance = 4 * np.sqrt(variances[:, 0, 0] / n_steps)
     assert (np.abs(per_traj - means[:, 0, 0]) < tolerance).all(), (per_traj, means[:, 0, 0], tolerance)
-    gaps = np.abs(means[:, None, 0, 0] - means[None, :, 0, 0])[np.triu_indices(8, 1)]
-    assert gaps.min() > 2 * tolerance.max(), (gaps.min(), tolerance)
+    # Two of 8 random draws may by chance lie closer than the tolerance (then either could be "its
+    # own"): judge the pairs that are told apart, and require nearly all pairs to be.
+    gaps = np.abs(means[:, None, 0, 0] - means[None, :, 0, 0])
+    apart = gaps > 2 * tolerance.max()
+    assert apart[np.triu_indices(8, 1)].sum() >= 25, gaps  # of 28 pairs
+    to_other = np.abs(per_traj[:, None] - means[None, :, 0, 0])
+    assert (to_other[apart] > tolerance.max()).all(), (to_other, apart)
     assert np.abs(means[:, 0, 0] - means[:, 0, 0].mean()).max() > 2 * tolerance.max()
 
 
