@@ -301,11 +301,16 @@ class Campaign:
             pool = dataclasses.replace(pool, **self._pool_truth())
         if model is None or model.n_inputs == pool.points.shape[1]:
             return pool
-        if self.cfg.acquisition.dynamic_points == "path":
+        if self._scores_paths:
             return dataclasses.replace(pool, **self._path_points(model, maneuvers))
         return dataclasses.replace(
             pool, points=model_inputs(model, pool.points), target=model_inputs(model, pool.target)
         )
+
+    @property
+    def _scores_paths(self) -> bool:
+        """Whether candidates are scored along the dynamic model's own free runs of them."""
+        return self.cfg.data.inputs != "controls" and self.cfg.acquisition.dynamic_points == "path"
 
     def _path_points(self, model: Any, maneuvers: Sequence[Any]) -> dict[str, Any]:
         """Pool points of a dynamic model along each candidate's predicted path (and the target's)."""
@@ -488,8 +493,8 @@ class Campaign:
             context["seconds_budget"] = 1.0
         if self.cfg.design.prior is not None:  # the model starts from what was known before
             context["warm_start"] = 1.0
-        if self.cfg.data.inputs != "controls" and self.cfg.acquisition.dynamic_points == "path":
-            context["dynamic_paths"] = 1.0  # candidates are scored along the model's own free runs
+        if self._scores_paths:
+            context["dynamic_paths"] = 1.0
         return context
 
     def _trial(
