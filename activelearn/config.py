@@ -234,7 +234,9 @@ Throttle = Annotated[float, Field(ge=-1.0, le=1.0)]
 Steering = Annotated[float, Field(ge=0.0, le=MAX_STEERING)]
 Kind = Literal["straight", "skidpad", "fishhook", "slalom", "eight"]
 # The families of simulator.families.FAMILIES (tests/test_families.py keeps the two lists equal).
-FamilyName = Literal["slalom", "fishhook", "throttle_step", "chirp", "multisine", "prbs", "staircase"]
+FamilyName = Literal[
+    "slalom", "fishhook", "throttle_step", "chirp", "multisine", "prbs", "staircase", "figure_eight"
+]
 Direction = Literal["ccw", "cw"]
 
 

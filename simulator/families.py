@@ -20,10 +20,15 @@ A family maps named parameters to a command schedule, drivable open loop by a sc
                  in STAIRCASE_LEVELS equal levels, each held h s, the last (A) to the end. A0 < A: the
                  car goes round ever smaller circles, each inside the last (several operating points
                  of high steering in the room of one skidpad); A0 = A is a skidpad.
+  figure_eight   throttle, amplitude A, loop_time T (s): steering +A for T s, then -A for T s, and so on:
+                 an eight driven on a stopwatch. T = the time of one full turn is the reference eight.
 
-The reference kinds straight, skidpad, slalom and fishhook are special cases (`as_family`); the
-eight is not a family member: it flips its steering on the heading measured in closed loop, which
-no open-loop schedule reproduces on every car and surface.
+All five reference kinds are special cases (`as_family`). The reference eight flips its steering when
+the measured heading has turned a full circle (closed loop); its family member flips every
+`loop_time` s, taken from the nominal turn (`simulator.maneuvers.nominal_turn`, the schedule campaigns
+already plan eights with) or measured on the car (`eight_loop_time` of a logged eight). The two drive
+apart where the turn's time differs from T, first of all in the first loop, which starts from rest
+(measured in MuJoCo: `tests/test_families.py`, `experiments/results/families.txt`).
 """
 
 from __future__ import annotations
@@ -35,15 +40,19 @@ from functools import cached_property
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from simulator.errors import ManeuverError
 from simulator.maneuvers import (
     DIRECTIONS,
     FISHHOOK_RATE,
+    LOOP_TIME_LIMIT,
     SLALOM_DELAY,
     SLALOM_FREQUENCY,
     Maneuver,
     _check_real,
+    alternating,
+    eight_loop_time,
     sample_times,
 )
 from simulator.vehicle import STEERING_LIMIT, THROTTLE_LIMIT
@@ -159,6 +168,10 @@ def _staircase(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.n
     return _const(p["throttle"], t), steering
 
 
+def _figure_eight(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
+    return _const(p["throttle"], t), p["amplitude"] * alternating(t, p["loop_time"])
+
+
 def _hz(name: str, tag: str, pool: tuple[float, float]) -> Parameter:
     return Parameter(name, 0.0, 2.0, "Hz", tag, pool)
 
@@ -197,6 +210,8 @@ FAMILIES: dict[str, Family] = {
         Family("staircase", (_T, Parameter("start", 0.0, STEERING_LIMIT, "rad", "s", (0.1, 0.3)), _A,
                              _seconds("hold", "h", (3.0, 10.0), low=0.05)),
                _staircase, "skidpad whose steering steps from start to amplitude"),
+        Family("figure_eight", (_T, _A, Parameter("loop_time", 0.5, LOOP_TIME_LIMIT, "s", "T", (4.0, 20.0))),
+               _figure_eight, "steering +A and -A alternating every loop_time s (open-loop eight)"),
     )
 }  # fmt: skip
 
@@ -318,12 +333,37 @@ class FamilyManeuver:
         return self.op_steering
 
 
-def as_family(maneuver: Maneuver) -> FamilyManeuver:
-    """The family member that drives a reference maneuver's schedule (straight, skidpad, slalom, fishhook).
+def measured_loop_time(log: pd.DataFrame) -> float:
+    """Flip period (s) of a logged eight: the median time between its steering sign flips after the first.
 
-    The eight is not open loop (its flips follow the measured heading): ManeuverError naming `kind`.
+    The first flip comes late (the first loop starts from rest), so it is left out where later ones
+    exist; with one flip only, its time is returned. ManeuverError naming `log` if the steering never
+    flips. `as_family(eight, loop_time=measured_loop_time(log))` is the open-loop eight of that car.
+    """
+    steering = np.sign(log["steering"].to_numpy(dtype=float))
+    times = log["time"].to_numpy(dtype=float) if "time" in log else log["timestamp"].to_numpy(dtype=float)
+    turning = steering != 0.0
+    steering, times = steering[turning], times[turning]
+    flips = np.flatnonzero(steering[1:] != steering[:-1]) + 1
+    if len(flips) == 0:
+        raise ManeuverError("log", "eight", "has no steering flip: no loop time to measure")
+    flip_times = times[flips] - times[0]
+    gaps = np.diff(flip_times)
+    return float(np.median(gaps)) if len(gaps) else float(flip_times[0])
+
+
+def as_family(maneuver: Maneuver, loop_time: float | None = None) -> FamilyManeuver:
+    """The family member that drives a reference maneuver's schedule.
+
+    Straight, skidpad and slalom are slalom members, the fishhook a fishhook member, all with the same
+    schedule. The eight is the figure_eight member that flips every `loop_time` s: by default
+    `eight_loop_time` (the schedule `nominal_controls` plans eights with), or a time measured on the
+    car (`measured_loop_time`). The reference eight flips on the measured heading instead, so the two
+    agree only as far as the turn's time does. `loop_time` is refused for the other kinds.
     """
     u, s, kind = maneuver.throttle, maneuver.op_steering, maneuver.kind
+    if loop_time is not None and kind != "eight":
+        raise ManeuverError("loop_time", loop_time, f"is only for the eight, not the {kind}")
     if kind in ("straight", "skidpad"):
         params = {"throttle": u, "amplitude": s, "frequency": 0.0, "delay": 0.0}
         name = "slalom"
@@ -333,7 +373,9 @@ def as_family(maneuver: Maneuver) -> FamilyManeuver:
         name = "slalom"
     elif kind == "fishhook":
         params, name = {"throttle": u, "rate": FISHHOOK_RATE, "amplitude": s}, "fishhook"
+    elif kind == "eight":
+        period = eight_loop_time(u, s) if loop_time is None else loop_time
+        params, name = {"throttle": u, "amplitude": s, "loop_time": period}, "figure_eight"
     else:
-        reason = "is closed loop (it flips on the measured heading): no open-loop family holds it"
-        raise ManeuverError("kind", kind, reason)
+        raise ManeuverError("kind", kind, "is no reference kind")
     return FamilyManeuver(name, params, maneuver.direction, maneuver.duration)

@@ -37,6 +37,7 @@ SLALOM_FREQUENCY = 0.9  # rad/s, angular frequency of the slalom steering
 #   radius  R = L / tan(delta) * (UNDERSTEER_BASE + UNDERSTEER_SPEED * v / 0.267)
 # Refitted after the turn-speed calibration of issue 15 (max yaw-rate error 4.7 % over the grid; the
 # understeer of the calibrated model hardly changes with speed, hence the small negative slope).
+LOOP_TIME_LIMIT = 3600.0  # s: the longest loop of an eight; one that never turns never flips
 SCRUB_SPEED_LOSS = 0.293
 UNDERSTEER_BASE = 1.036
 UNDERSTEER_SPEED = -0.015
@@ -226,13 +227,32 @@ def nominal_turn(throttle: float, steering: float) -> tuple[float, float]:
     return speed, abs(speed) / radius
 
 
+def eight_loop_time(throttle: float, steering: float) -> float:
+    """Nominal time (s) of one full turn of a constant (throttle, steering) turn: the eight's flip period.
+
+    2 pi / w with w the yaw rate of `nominal_turn`; LOOP_TIME_LIMIT where the car does not turn (no
+    flip in any maneuver of sensible length).
+    """
+    _, yaw_rate = nominal_turn(throttle, steering)
+    if yaw_rate <= 0.0:
+        return LOOP_TIME_LIMIT
+    return float(min(max(2.0 * math.pi / yaw_rate, 0.5), LOOP_TIME_LIMIT))
+
+
+def alternating(t: np.ndarray, loop_time: float) -> np.ndarray:
+    """+1 during the first `loop_time` s, -1 during the next, and so on: an eight's steering sign."""
+    loop = np.floor(np.asarray(t, dtype=float) / loop_time + 1e-9)
+    return np.where(loop % 2 == 0, 1.0, -1.0)
+
+
 def nominal_controls(maneuver: Maneuver, rate_hz: float = 30.0) -> np.ndarray:
     """(T, 2) array of (throttle, signed steering) the maneuver applies at each log step, without simulating.
 
     Rows match the rows `collect` logs for the same maneuver and rate. A family member
     (`simulator.families.FamilyManeuver`) returns its own schedule. For the eight, whose real
     schedule flips on measured heading, the flips are placed every 2 pi / w, with w the yaw rate
-    of `nominal_turn` (kinematic turn corrected for the simulator's scrub and understeer).
+    of `nominal_turn` (kinematic turn corrected for the simulator's scrub and understeer): the
+    schedule of its figure_eight member (`simulator.families.as_family`).
     """
     rate = _check_real("rate_hz", rate_hz)
     if rate <= 0.0:
@@ -242,9 +262,6 @@ def nominal_controls(maneuver: Maneuver, rate_hz: float = 30.0) -> np.ndarray:
     t = sample_times(maneuver.duration, rate)
     steering = open_loop_steering(maneuver, t)
     if maneuver.kind == "eight":
-        _, yaw_rate = nominal_turn(maneuver.throttle, maneuver.op_steering)
-        if yaw_rate > 0.0:
-            loop = np.floor(t * yaw_rate / (2.0 * math.pi))
-            steering = steering * np.where(loop % 2 == 0, 1.0, -1.0)
+        steering = steering * alternating(t, eight_loop_time(maneuver.throttle, maneuver.op_steering))
     throttle = np.full_like(t, maneuver.throttle)
     return np.column_stack([throttle, steering])

@@ -6,6 +6,7 @@ Real MuJoCo, real files, the real CLI; sizes are shrunk (seconds-long maneuvers,
 
 from __future__ import annotations
 
+import math
 import typing
 import zlib
 from pathlib import Path
@@ -23,7 +24,8 @@ from activelearn.loop.acquisition import STRATEGIES, greedy_maximin, make_strate
 from activelearn.loop.campaign import CampaignState
 from activelearn.loop.collection import noise_config
 from activelearn.loop.pool import build_pool, pool_maneuvers
-from simulator import FAMILIES, FamilyManeuver, Maneuver, ManeuverError, as_family, nominal_controls
+from simulator import FAMILIES, FamilyManeuver, Maneuver, ManeuverError, as_family, collect, nominal_controls
+from simulator.families import LOOP_TIME_LIMIT, measured_loop_time
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "experiments" / "configs" / "families_smoke.toml"
@@ -150,10 +152,44 @@ def test_open_loop_reference_kinds_are_family_members(kind: str, direction: str)
     assert np.allclose(nominal_controls(member, 10.0), member.controls(10.0))
 
 
-def test_the_eight_is_not_a_family_member():
+def test_the_eight_is_a_figure_eight_member_with_the_planned_schedule():
+    for direction in ("ccw", "cw"):
+        eight = Maneuver("eight", 0.6, 0.3, direction, 60.0)
+        member = as_family(eight)
+        assert member.family == "figure_eight" and member.direction == direction
+        assert np.array_equal(member.controls(RATE), nominal_controls(eight, RATE))
+        steering = member.controls(RATE)[:, 1]
+        flips = _crossings(steering)
+        assert len(flips) == math.floor(60.0 / member.values["loop_time"])  # one flip per loop
+        assert set(np.round(steering, 12)) == {-0.3, 0.3} and np.sign(steering[0]) == eight.sign
+    assert as_family(eight, loop_time=7.5).values["loop_time"] == 7.5
     with pytest.raises(ManeuverError) as info:
-        as_family(Maneuver("eight", 0.6, 0.3, "ccw", 30.0))
-    assert info.value.field == "kind" and "closed loop" in str(info.value)
+        as_family(Maneuver("skidpad", 0.6, 0.3, "ccw", 30.0), loop_time=7.5)
+    assert info.value.field == "loop_time"
+    # a car that does not turn never flips
+    assert as_family(Maneuver("eight", 0.0, 0.3, "ccw", 30.0)).values["loop_time"] == LOOP_TIME_LIMIT
+
+
+def test_the_figure_eight_with_the_measured_loop_time_retraces_the_closed_loop_eight_in_mujoco():
+    # The reference eight flips on the measured heading; its open-loop member flips on a stopwatch.
+    # With the loop time measured from the eight's own log the two drive the same path
+    # (experiments/figure_eight.py: within 2.1 cm over 90 s at 15 operating points); with the
+    # nominal one they part (up to 1 m).
+    eights = [Maneuver("eight", 1.0, 0.35, "ccw", 30.0), Maneuver("eight", -0.6, 0.5236, "cw", 30.0)]
+    closed = collect(eights, rate_hz=RATE, noise=None)
+    for eight in eights:
+        log = closed[closed.run_id == eight.name]
+        loop_time = measured_loop_time(log)
+        assert loop_time != pytest.approx(as_family(eight).values["loop_time"], rel=0.01)
+        member = as_family(eight, loop_time=loop_time)
+        open_loop = collect([member], rate_hz=RATE, noise=None)
+        assert len(_crossings(open_loop.steering.to_numpy())) == len(_crossings(log.steering.to_numpy())) >= 2
+        dx, dy = (log[c].to_numpy() - open_loop[c].to_numpy() for c in ("posX", "posY"))
+        gap = np.hypot(dx, dy)
+        assert gap.max() < 0.05
+    with pytest.raises(ManeuverError) as info:
+        measured_loop_time(closed[closed.run_id == eights[0].name].iloc[:30])  # one second: no flip yet
+    assert info.value.field == "log"
 
 
 @pytest.mark.parametrize(
@@ -267,7 +303,7 @@ ASKTELL = """
 name = "fam_car"
 strategy = "uniform"
 [pool]
-families = ["slalom", "prbs"]
+families = ["slalom", "prbs", "figure_eight"]
 directions = ["ccw"]
 size = 4
 duration = 8.0
@@ -275,10 +311,12 @@ duration = 8.0
 throttle = [0.6, 0.6]
 amplitude = [0.3, 0.3]
 switch_time = [1.0, 1.0]
+[pool.ranges.figure_eight]
+loop_time = [2.0, 3.0]
 [design]
-initial = 7
+initial = 10
 per_round = 1
-max_maneuvers = 8
+max_maneuvers = 11
 [acquisition]
 n_samples = 8
 grid_throttles = 3
@@ -300,9 +338,10 @@ def test_propose_writes_parameters_and_schedules_and_ingest_matches_simulated_lo
     assert main(["campaign", "propose", str(config), "--out", str(directory), "--no-tracking"]) == 0
     assert "schedule file" in capsys.readouterr().out
     proposals = pd.read_csv(directory / "proposals" / "round-000.csv")
-    params = ["throttle", "amplitude", "frequency", "delay", "switch_time", "seed"]
+    params = ["throttle", "amplitude", "frequency", "delay", "switch_time", "seed", "loop_time"]
     assert list(proposals.columns) == ["maneuver", "direction", "duration", *params, "schedule"]
-    assert len(proposals) == 7 and (proposals["maneuver"] == "prbs").sum() >= 2
+    assert len(proposals) == 10 and (proposals["maneuver"] == "prbs").sum() >= 2
+    assert (proposals["maneuver"] == "figure_eight").sum() >= 1
     cfg = load_config(config)
     noise = noise_config(cfg.simulation.noise)
     logs = []
@@ -313,6 +352,9 @@ def test_propose_writes_parameters_and_schedules_and_ingest_matches_simulated_lo
         assert list(schedule.columns) == ["time", "throttle", "steering"]
         assert np.allclose(schedule[["throttle", "steering"]].to_numpy(), m.controls(RATE))
         assert schedule["time"].iloc[-1] == pytest.approx(8.0)
+        if m.family == "figure_eight":  # flips every loop_time s, as a person with a stopwatch would
+            flips = schedule["time"].to_numpy()[_crossings(schedule["steering"].to_numpy()) + 1]
+            assert np.allclose(np.diff(flips, prepend=0.0), row["loop_time"], atol=1.0 / RATE)
         log = simulator.collect([m], rate_hz=RATE, seed=100 + i, noise=noise)
         logs.append(write_table(log, tmp_path / f"log{i}.csv"))
         expected_name = m.name

@@ -51,6 +51,7 @@ MEMBERS = [
     FamilyManeuver("multisine", {"throttle": 0.7, "amplitude": 0.31, "f_low": 0.05, "f_high": 0.5}, "cw", 6),
     FamilyManeuver("prbs", {"throttle": 0.6, "amplitude": 0.3, "switch_time": 0.7, "seed": 12}, "ccw", 8),
     FamilyManeuver("staircase", {"throttle": -0.7, "start": 0.15, "amplitude": 0.45, "hold": 2.5}, "cw", 10),
+    FamilyManeuver("figure_eight", {"throttle": 0.6, "amplitude": 0.35, "loop_time": 2.5}, "cw", 6),
 ]
 
 

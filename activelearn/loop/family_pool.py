@@ -82,7 +82,7 @@ def _as_member(maneuver: Any) -> FamilyManeuver | None:
     try:
         reference = Maneuver(maneuver.kind, maneuver.throttle, maneuver.steering, maneuver.direction, 1.0)
         return as_family(reference)
-    except ManeuverError:  # the eight, or an operating point out of range
+    except ManeuverError:  # an operating point out of range
         return None
 
 
@@ -109,7 +109,8 @@ def family_codes(maneuvers: Sequence[Any], cfg: PoolConfig) -> np.ndarray:
     """Integer kind code of each candidate or prior run: its family's index in the pool.
 
     A family outside the pool gets a code of its own (always "another kind"); a run that is no family
-    member (an eight, an unknown kind) gets -1 (no kind distance).
+    member (an unknown kind, an operating point out of range) gets -1 (no kind distance). A reference
+    eight is the figure_eight member of its nominal loop time.
     """
     families = pool_families(cfg)
     codes = []
