@@ -1087,6 +1087,10 @@ class SafetyConfig(_Section):
     # prior's forward operating points, 0.03-0.08 in reverse, where the fan missed the true speed.
     trust_std: Positive = 0.02
     limit_window: NonNegative = 0.5  # s: rates are averaged over this window before the limits apply
+    # The kinematic worst case takes the speed the car kept in its own logged steady turns (the
+    # prior's and the campaign's skidpads and straights, `activelearn.loop.safety.turn_speed`) instead
+    # of assuming none is lost in turns; false: none is.
+    measured_turn_speed: bool = True
     enforce: bool = True  # false: measure risk and violations only, pick from every candidate
 
     @field_validator("arena", mode="after")

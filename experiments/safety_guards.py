@@ -19,6 +19,7 @@ what a cold start's initial design gets, and the bound every untrusted candidate
 
 Usage: python experiments/safety_guards.py [--config FILE] [--seeds 3] [--fan-scales 1,3]
        [--tolerances 0,0.04,0.08,0.16] [--trust 0.02] [--campaigns DIR] [--worst-case]
+       [--turn-speed measured|none]
 """
 
 from __future__ import annotations
@@ -35,8 +36,8 @@ from activelearn.config import load_config, polygon_clearance
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import noisy_logs
 from activelearn.loop.prior import load_prior
-from activelearn.loop.safety import assess, log_violation
-from activelearn.loop.state import MODEL_FILE, CampaignState
+from activelearn.loop.safety import assess, log_violation, turn_speed
+from activelearn.loop.state import MODEL_FILE, SAMPLES_FILE, CampaignState
 from activelearn.numerics.models import load_model
 from simulator.maneuvers import sample_times
 
@@ -65,19 +66,22 @@ def drive(campaign: Campaign, clean: list[pd.DataFrame], index: int, duration: f
 
 
 def models(cfg, seeds: list[int], campaigns: str | None, work: Path):
-    """(seed, campaign, model, taken, round) per seed: the first round's model or a campaign's last."""
+    """(seed, campaign, model, taken, round, logs) per seed: the first round's model or a campaign's last,
+    and the logs the campaign held then (the prior's, and its collected maneuvers')."""
     for seed in seeds:
         seeded = cfg.model_copy(update={"seed": seed})
         campaign = Campaign(seeded, work / f"seed{seed}", cache_dir=Path("runs/cache"))
+        campaign.prior = load_prior(seeded, campaign.nominal)
         if campaigns is None:
-            campaign.prior = load_prior(seeded, campaign.nominal)
-            yield seed, campaign, campaign.fit_model(pd.DataFrame(), 0), [], 0
+            yield seed, campaign, campaign.fit_model(pd.DataFrame(), 0), [], 0, campaign._logs(None)
             continue
         found = sorted(Path(campaigns).glob(f"*/seed{seed}/{MODEL_FILE}"))
         if not found:
             raise SystemExit(f"no {MODEL_FILE} for seed {seed} under {campaigns}")
         state = CampaignState.load(found[0].parent)
-        yield seed, campaign, load_model(found[0]), list(state.taken), len(state.rounds) - 1
+        samples = found[0].parent / SAMPLES_FILE
+        logs = campaign._logs(pd.read_parquet(samples) if samples.exists() else None)
+        yield seed, campaign, load_model(found[0]), list(state.taken), len(state.rounds) - 1, logs
 
 
 def main() -> None:
@@ -90,6 +94,8 @@ def main() -> None:
     parser.add_argument("--campaigns", default=None, help="a benchmark directory: each seed's last model")
     parser.add_argument("--work", default="runs/safety_guards")
     parser.add_argument("--worst-case", action="store_true", help="also the kinematic worst case alone")
+    parser.add_argument("--turn-speed", choices=("measured", "none"), default="measured",
+                        help="the worst case's speed in turns: measured on the logs (default) or none lost")
     args = parser.parse_args()
 
     cfg = load_config(args.config)
@@ -110,7 +116,8 @@ def main() -> None:
     totals: dict[tuple, list] = {v: [0, 0, 0, 0.0] for v in variants}
     started = time.perf_counter()
     chosen = models(cfg, list(range(args.seeds)), args.campaigns, Path(args.work))
-    for seed, campaign, model, taken, round_index in chosen:
+    for seed, campaign, model, taken, round_index, logs in chosen:
+        turn = turn_speed(logs, rate, base.limit_window) if args.turn_speed == "measured" else None
         open_ = np.ones(len(campaign.maneuvers), dtype=bool)
         open_[taken] = False
         clean = campaign.oracle.truth(campaign.maneuvers)
@@ -122,7 +129,7 @@ def main() -> None:
                 update["fan_scale"] = fan_scale
             safety = base.model_copy(update=update)
             safe = assess(None if fan_scale == "none" else model, campaign.maneuvers, safety, rate_hz=rate,
-                          seed=seed * 10_007 + round_index, which=open_)  # fmt: skip
+                          seed=seed * 10_007 + round_index, which=open_, turn=turn)  # fmt: skip
             bad, reasons, slacks = [], [], []
             for i in np.flatnonzero(safe.admissible):
                 log = drive(campaign, clean, int(i), float(safe.duration[i]))

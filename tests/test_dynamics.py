@@ -160,6 +160,47 @@ def test_multi_step_training_changes_the_fit_and_is_seeded(slalom_log):
     np.testing.assert_array_equal(fits[1], fits[2])  # and the same seed gives the same weights
 
 
+def test_multi_step_training_runs_each_ensemble_member_on_its_own_predictions(slalom_log):
+    data = DataConfig(stride=2, skip_seconds=0.0, **HISTORY)
+    x, y = _rows(slalom_log, data)
+    windows = training_windows([p for _, p in slalom_log.groupby("run_id", sort=False)], data, 10)
+    spec = ModelConfig(kind="ensemble", ensemble_size=3, n_inputs=12, history_step=2, kinematic_feature=True)
+    fits = []
+    for horizon in (0, 10, 10):
+        model = build_model(spec)
+        fit(model, x, y, TrainingConfig(epochs=3, patience=None, rollout_horizon=horizon, rollout_batch=8),
+            seed=3, windows=windows)  # fmt: skip
+        fits.append(model.predict(x[:20], n_samples=3).mean)
+    assert not np.allclose(fits[0], fits[1])  # the window loss took part
+    np.testing.assert_array_equal(fits[1], fits[2])  # seeded
+    # The ensemble's window loss is the sum of its members' own: member k alone, fed its own means.
+    rows = torch.arange(6)
+    with torch.no_grad():
+        total = float(window_loss(model, windows, rows))
+        alone = 0.0
+        for k in range(3):
+            member = _Member(model, k)
+            alone += float(window_loss(member, windows, rows))
+    assert total == pytest.approx(alone, rel=1e-5)
+
+
+class _Member(torch.nn.Module):
+    """Member k of an ensemble as a model of its own (for the window loss)."""
+
+    def __init__(self, ensemble, k: int) -> None:
+        super().__init__()
+        self.ensemble, self.k, self.n_members = ensemble, k, None
+        self.y_mean, self.y_std = ensemble.y_mean, ensemble.y_std
+
+    def standardise_inputs(self, x):
+        return self.ensemble.standardise_inputs(x)
+
+    def train_forward(self, x):
+        stacked = x.expand(self.ensemble.n_members, *x.shape)
+        mean, var = self.ensemble.train_forward(stacked)
+        return mean[self.k], var[self.k]
+
+
 def test_multi_step_training_clips_the_gradient_norm(slalom_log):
     data = DataConfig(stride=2, skip_seconds=0.0, **HISTORY)
     x, y = _rows(slalom_log, data)

@@ -29,19 +29,21 @@ from activelearn.loop.collection import rows_per_maneuver
 from activelearn.loop.pool import maneuver_controls
 from activelearn.loop.safety import (
     REASONS,
+    SPEED_PER_THROTTLE,
     admissible_duration,
     circles_fit,
     fan,
     kinematic_bound,
     log_violation,
     monotone_steps,
+    turn_speed,
     violating,
 )
 from activelearn.numerics.models import build_model
 from activelearn.numerics.surrogate import simulate
 from activelearn.numerics.training import fit
 from activelearn.studies.tracking import Tracker
-from simulator import FamilyManeuver, Maneuver
+from simulator import FamilyManeuver, Maneuver, collect
 
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
 SQUARE = [[-1.5, -1.5], [1.5, -1.5], [1.5, 1.5], [-1.5, 1.5]]
@@ -188,6 +190,36 @@ def test_the_worst_case_reads_a_family_schedule_step_by_step():
     room = 2.0 - box.margin
     reach = float(np.floor(room / (0.287 * 0.4) - 1 / 30))  # the last whole second before it, a step short
     assert kinematic_bound(slow, roomy) == (1.0, reach, 0.0)
+
+
+def test_the_speed_kept_in_turns_is_measured_on_the_logs_and_bounds_reverse_turns_in_mujoco():
+    # Forward straights and skidpads (a prior grid) give the share of the speed envelope the car keeps
+    # at each steering; the worst case then takes it for reverse turns too (an assumption, checked
+    # here in MuJoCo) and admits a reverse skidpad that the no-loss bound refuses.
+    forward = [Maneuver("straight", u, 0.0, "ccw", 10.0) for u in (0.2, 0.6, 1.0)]
+    forward += [Maneuver("skidpad", u, s, "ccw", 10.0) for u in (0.2, 0.6, 1.0) for s in (0.2094, 0.3142)]
+    logs = collect(forward, rate_hz=30.0, noise=None)
+    turn = turn_speed(logs, 30.0, 0.5)
+    assert turn is not None and turn.runs == 9 and list(turn.steerings) == [0.0, 0.2094, 0.3142]
+    assert turn.keep[2] < turn.keep[1] < turn.keep[0] <= 1.0 and turn.keep[2] < 0.95
+    assert list(turn.factor(np.array([0.0, 0.25, 0.5]))) == list(turn.keep)
+    # runs whose commands change, or too short to settle, do not count; without any: None
+    changing, short = Maneuver("slalom", 0.6, 0.3, "ccw", 10.0), Maneuver("skidpad", 0.6, 0.5236, "ccw", 3.0)
+    others = collect([changing, short], rate_hz=30.0, noise=None)
+    assert turn_speed(pd.concat([logs, others]), 30.0, 0.5).runs == 9
+    assert turn_speed(others, 30.0, 0.5) is None and turn_speed(None, 30.0, 0.5) is None
+    reverse = [Maneuver("skidpad", u, s, d, 20.0) for u in (-0.4, -0.7, -1.0) for s in (0.3142, 0.43, 0.5236)
+               for d in ("ccw", "cw")]  # fmt: skip
+    driven = collect(reverse, rate_hz=30.0, noise=None)
+    for m in reverse:
+        speed = driven[driven["run_id"] == m.name]["speed"].abs().rolling(15, min_periods=1).mean().max()
+        bound = SPEED_PER_THROTTLE * abs(m.throttle) * turn.factor(np.array([m.steering]))[0]
+        assert speed <= bound, m.name
+    cfg = SafetyConfig(arena=[[-5, -5], [5, -5], [5, 5], [-5, 5]], start=(0.0, 0.0, 0.0),
+                       max_lateral_acceleration=0.12)  # fmt: skip
+    tight = Maneuver("skidpad", -0.7, 0.43, "cw", 30.0)  # no loss: 0.201 m/s x 0.65 rad/s = 0.131 m/s^2
+    assert kinematic_bound(tight, cfg)[1] == 0.0
+    assert kinematic_bound(tight, cfg, turn=turn) == (0.0, 30.0, 0.0)
 
 
 def test_log_violation_reads_the_path_in_the_arena_frame():

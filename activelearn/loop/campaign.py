@@ -66,7 +66,7 @@ from activelearn.loop.pool import (
     target_points,
 )
 from activelearn.loop.prior import PRIOR_FILE, Prior, load_prior, prior_from_rows
-from activelearn.loop.safety import Assessment, assess, violations
+from activelearn.loop.safety import Assessment, assess, turn_speed, violations
 from activelearn.loop.state import (
     CONFIG_FILE,
     MODEL_FILE,
@@ -772,7 +772,7 @@ class Campaign:
     def _propose(self, state: CampaignState, samples: pd.DataFrame, figures: bool) -> None:
         """Fit and evaluate the round's model (or take the initial design), then propose the next batch."""
         if not state.batches and self.cfg.design.initial > 0:
-            pool, safe = self._safe_pool(self.pool([]), self.prior_model(), 0)
+            pool, safe = self._safe_pool(self.pool([]), self.prior_model(), 0, samples=samples)
             k = min(self.cfg.design.initial, len(pool.available))  # [safety] may admit fewer
             if k == 0:
                 state.finished, state.stop_reason = True, "nothing_admissible"
@@ -808,7 +808,7 @@ class Campaign:
         safe: Assessment | None = None
         if reason is None:
             started = time.perf_counter()
-            pool, safe = self._safe_pool(pool, model, round_index, state.taken)
+            pool, safe = self._safe_pool(pool, model, round_index, state.taken, samples)
             if safe is not None:
                 metrics.update(self._safety_metrics(state, safe, time.perf_counter() - started))
                 k = min(k, len(pool.available))
@@ -845,14 +845,19 @@ class Campaign:
         self.progress({"event": "round", **metrics, "picks": [self.maneuvers[i].name for i in picks]})
 
     def _safe_pool(
-        self, pool: Pool, model: Any | None, round_index: int, taken: Sequence[int] = ()
-    ) -> tuple[Pool, Assessment | None]:
+        self, pool: Pool, model: Any | None, round_index: int, taken: Sequence[int] = (),
+        samples: pd.DataFrame | None = None,
+    ) -> tuple[Pool, Assessment | None]:  # fmt: skip
         """The pool restricted to the candidates [safety] admits, and their assessment (None: no [safety])."""
         safety = self.cfg.safety
         if safety is None:
             return pool, None
-        safe = assess(model, self.maneuvers, safety, rate_hz=self.cfg.simulation.rate_hz,
-                      seed=self.cfg.seed * 10_007 + round_index, which=~pool.taken)  # fmt: skip
+        rate = self.cfg.simulation.rate_hz
+        turn = None
+        if safety.measured_turn_speed:
+            turn = turn_speed(self._logs(samples), rate, safety.limit_window)
+        safe = assess(model, self.maneuvers, safety, rate_hz=rate, seed=self.cfg.seed * 10_007 + round_index,
+                      which=~pool.taken, turn=turn)  # fmt: skip
         if not safety.enforce:
             return pool, safe
         if safe.cut.any():  # score each candidate as it would be driven: a cut one by its first seconds
@@ -870,6 +875,11 @@ class Campaign:
         if budget is not None:
             affordable = affordable & (self._pick_costs <= budget - self._track_seconds(taken) + 1e-9)
         return dataclasses.replace(pool, affordable=affordable, costs=self._pick_costs), safe
+
+    def _logs(self, samples: pd.DataFrame | None) -> pd.DataFrame | None:
+        """Every log row the campaign holds of the car: the prior's runs and the collected maneuvers."""
+        frames = [f for f in (getattr(self.prior, "rows", None), samples) if f is not None and not f.empty]
+        return pd.concat(frames, ignore_index=True) if frames else None
 
     def _safety_metrics(
         self, state: CampaignState, safe: Assessment | None, seconds: float

@@ -20,7 +20,9 @@ model extrapolates (its epistemic std of the speed along the maneuver exceeds `t
 speed: there its fan missed the true speed, measured in reverse after a forward-only prior), a
 kinematic worst case stands in for the fan, or must hold beside it. It reads the candidate's control
 schedule step by step (a reference kind or any family member): speed at most SPEED_PER_THROTTLE x
-the largest |throttle| so far (the reference throttle table lies below that line), yaw rate at most
+the largest |throttle| so far (the reference throttle table lies below that line) x the share of it
+the car kept in its own logged steady turns at the smallest |steering| so far (`turn_speed`: the
+prior's and the campaign's skidpads and straights; speed falls as the steering grows), yaw rate at most
 v tan|steering| / L (no-slip kinematics; Nigel understeers, so its true yaw rate is lower), any
 heading. The candidate may be driven up to the last whole second before the first step whose worst
 case breaks a limit or whose reach (the path it may have covered) meets a wall, unless a circle
@@ -63,6 +65,10 @@ WHEELBASE = 0.1415  # m, Nigel (reference/nigel.md)
 # 1.01-1.03; within the lateral-acceleration limit (0.12 m/s², far below grip) the car does not
 # slide. Twice is the margin for a car that is not the model.
 UNDERSTEER_MAX = 2.0
+# The measured turn speed (`TurnSpeed`) is raised by this share of the envelope for throttles and
+# directions the logs did not hold (the envelope lies 0-7 % above the reference speed table).
+TURN_SPEED_MARGIN = 0.02
+TURN_SPEED_MIN_SECONDS = 5.0  # s: a run shorter than this may not have settled to its turn speed
 CHUNK = 16  # maneuvers per rollout: S x 16 x 2 700 steps x 5 arrays of float32 stay near 60 MB
 REASONS = ("arena", "speed", "yaw_rate", "lateral", "diverged")  # diverged: a fan's NaN or inf
 
@@ -182,11 +188,12 @@ def assess(
     rate_hz: float = 30.0,
     seed: int = 0,
     which: np.ndarray | None = None,
+    turn: TurnSpeed | None = None,
 ) -> Assessment:
     """Admissibility of every candidate in `maneuvers` (only those in `which`; the rest are not admissible).
 
-    With a model: from its rollout fans, in chunks of CHUNK maneuvers. Without one: the reach of
-    `max_speed` from the start (see the module docstring).
+    With a model: from its rollout fans, in chunks of CHUNK maneuvers. Without one: the kinematic
+    worst case alone (see the module docstring), with the speed kept in turns `turn` where given.
     """
     n = len(maneuvers)
     full = np.array([float(m.duration) for m in maneuvers])
@@ -195,7 +202,7 @@ def assess(
     arm = float(getattr(getattr(model, "config", None), "pose_lever_arm", POSE_LEVER_ARM))
     if model is None:
         for i in todo:
-            risk[i], duration[i], cut_risk[i] = kinematic_bound(maneuvers[i], cfg, arm, rate_hz)
+            risk[i], duration[i], cut_risk[i] = kinematic_bound(maneuvers[i], cfg, arm, rate_hz, turn)
         return Assessment(risk, duration, cut_risk, full)
     for block in range(0, len(todo), CHUNK):
         rows = todo[block : block + CHUNK]
@@ -205,7 +212,7 @@ def assess(
         for j, i in enumerate(rows):
             risk[i], duration[i], cut_risk[i] = admissible_duration(times[:, j], full[i], cfg)
             if untrusted[j]:  # the model extrapolates: the kinematic worst case must hold as well
-                bound = kinematic_bound(maneuvers[i], cfg, arm, rate_hz)
+                bound = kinematic_bound(maneuvers[i], cfg, arm, rate_hz, turn)
                 risk[i] = max(risk[i], bound[0])
                 if bound[1] < duration[i]:
                     duration[i], cut_risk[i] = bound[1], bound[2] if bound[1] > 0 else float("nan")
@@ -220,20 +227,81 @@ def relative_speed_std(rollout: Rollout) -> np.ndarray:
     return relative.max(axis=1)
 
 
+@dataclass(frozen=True)
+class TurnSpeed:
+    """The share of the speed envelope (SPEED_PER_THROTTLE x |throttle|) the car keeps in a steady turn,
+    measured on its own logs (`turn_speed`).
+
+    steerings: ascending |steering| levels of the runs held at one throttle and one steering (0 for
+    straights). keep: at each level, the largest share any such run reached (its 0.5-s mean |speed|
+    over the envelope of its throttle) plus TURN_SPEED_MARGIN, made non-increasing with the level.
+    """
+
+    steerings: np.ndarray
+    keep: np.ndarray
+    runs: int
+
+    def factor(self, steering: np.ndarray) -> np.ndarray:
+        """(T,) share kept at |steering|: that of the largest level measured at or below it (1 below all).
+
+        Valid where the speed falls as the steering grows (the reference car's tyre scrub,
+        shared/reference/nigel.md), at any throttle and in reverse as in the logged runs: both are
+        assumptions, which TURN_SPEED_MARGIN softens and `[safety] measured_turn_speed = false` drops.
+        """
+        level = np.searchsorted(self.steerings, np.abs(steering) + 1e-9, side="right") - 1
+        return np.where(level >= 0, self.keep[np.maximum(level, 0)], 1.0)
+
+
+def turn_speed(logs: pd.DataFrame | None, rate_hz: float, window: float) -> TurnSpeed | None:
+    """The speed the car kept in its logged steady turns (None: no qualifying run).
+
+    A run (one `pool_index`, else one `run_id`) qualifies when it holds one throttle (|throttle| >=
+    0.05) and one signed steering for at least TURN_SPEED_MIN_SECONDS, so its speed has settled: the
+    reference car settles within a few steps of a throttle change. Its share is the largest
+    `window`-s mean |speed| over SPEED_PER_THROTTLE x |throttle| (sensor noise only raises it).
+    """
+    if logs is None or logs.empty or not {"throttle", "steering", "speed"} <= set(logs.columns):
+        return None
+    key = "pool_index" if "pool_index" in logs.columns else "run_id"
+    steps = max(1, round(window * rate_hz))
+    best: dict[float, float] = {}
+    runs = 0
+    for _, run in logs.groupby(key, sort=False):
+        throttle, steering = run["throttle"].to_numpy(np.float64), run["steering"].to_numpy(np.float64)
+        if len(run) < TURN_SPEED_MIN_SECONDS * rate_hz or abs(throttle[0]) < 0.05:
+            continue
+        if np.ptp(throttle) > 1e-9 or np.ptp(steering) > 1e-9:
+            continue
+        speed = _smooth(np.abs(run["speed"].to_numpy(np.float64)), steps)
+        share = float(speed.max()) / (SPEED_PER_THROTTLE * abs(throttle[0]))
+        level = round(abs(float(steering[0])), 4)
+        best[level] = max(best.get(level, 0.0), share)
+        runs += 1
+    if not best:
+        return None
+    levels = np.array(sorted(best))
+    keep = np.minimum(np.array([best[lv] for lv in levels]) + TURN_SPEED_MARGIN, 1.0)
+    return TurnSpeed(levels, np.minimum.accumulate(keep), runs)
+
+
 def kinematic_bound(
-    maneuver: Any, cfg: SafetyConfig, lever_arm: float = POSE_LEVER_ARM, rate_hz: float = 30.0
-) -> tuple[float, float, float]:
+    maneuver: Any, cfg: SafetyConfig, lever_arm: float = POSE_LEVER_ARM, rate_hz: float = 30.0,
+    turn: TurnSpeed | None = None,
+) -> tuple[float, float, float]:  # fmt: skip
     """Risk, admissible duration and its risk by the kinematic worst case of the maneuver's schedule.
 
     Read off the control schedule (any family or reference kind), step by step: speed at most
-    SPEED_PER_THROTTLE x the largest |throttle| so far, yaw rate at most v tan|steering| / L, heading
-    anything. The car may drive until the first step whose worst-case rates break a limit, and until
-    the distance it may have covered reaches a wall, unless the path is held in a circle
-    (`contained`): then the whole schedule, or its part that is held.
+    SPEED_PER_THROTTLE x the largest |throttle| so far (times, with `turn`, the share the car keeps at
+    the smallest |steering| so far: speed only falls as the steering grows), yaw rate at most
+    v tan|steering| / L, heading anything. The car may drive until the first step whose worst-case
+    rates break a limit, and until the distance it may have covered reaches a wall, unless the path is
+    held in a circle (`contained`): then the whole schedule, or its part that is held.
     """
     controls = maneuver_controls(maneuver, rate_hz)
     full = float(maneuver.duration)
     speed = SPEED_PER_THROTTLE * np.maximum.accumulate(np.abs(controls[:, 0]))
+    if turn is not None:
+        speed = speed * turn.factor(np.minimum.accumulate(np.abs(controls[:, 1])))
     yaw = speed * np.tan(np.abs(controls[:, 1])) / WHEELBASE
     over = (speed > cfg.max_speed) | (yaw > cfg.max_yaw_rate) | (speed * yaw > cfg.max_lateral_acceleration)
     room = max(float(boundary_distance(cfg.arena, cfg.start[0], cfg.start[1])) - cfg.margin, 0.0)

@@ -65,21 +65,29 @@ def windows_from_logs(
 
 
 def window_loss(model, windows: Windows, rows: Tensor) -> Tensor:
-    """Mean per-step Gaussian NLL (standardised units, summed over outputs) of free runs of `rows`."""
+    """Mean per-step Gaussian NLL (standardised units, summed over outputs) of free runs of `rows`.
+
+    An ensemble runs every window once per member, each member fed its own predictions, and sums
+    the members' losses as its one-step loss does (each member gets the gradient it would alone).
+    """
     lags = windows.lags
     controls = torch.from_numpy(windows.controls)[rows]
-    rates: list[Tensor] = list(torch.from_numpy(windows.past)[rows].unbind(1))  # grows by predictions
+    past = torch.from_numpy(windows.past)[rows]
     target = (torch.from_numpy(windows.target)[rows] - model.y_mean) / model.y_std
+    members = getattr(model, "n_members", None)
+    if members is not None:  # (K, W, ...): one batch of windows per member
+        controls, past, target = (t.expand(members, *t.shape) for t in (controls, past, target))
+    rates: list[Tensor] = list(past.unbind(-2))  # grows by predictions
     back_u = (lags.history - 1) * lags.step
     total = torch.zeros(())
     for h in range(windows.horizon):
         now = len(rates)  # index of step h in the rates list
-        inputs = [controls[:, back_u + h - d] for d in lags.control_lags]
+        inputs = [controls[..., back_u + h - d, :] for d in lags.control_lags]
         inputs += [rates[now - d] for d in lags.rate_lags]
         x = model.standardise_inputs(torch.cat(inputs, dim=-1))
         mean, var = model.train_forward(x)
-        err = target[:, h] - mean
+        err = target[..., h, :] - mean
         per = err.square() if var is None else 0.5 * (var.log() + err.square() / var)
-        total = total + per.sum(dim=-1).mean()
+        total = total + per.sum(dim=-1).mean(dim=-1).sum()
         rates.append(mean * model.y_std + model.y_mean)
     return total / windows.horizon

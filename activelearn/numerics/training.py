@@ -297,9 +297,6 @@ def fit(
     """
     x, y = _check_xy(model, x, y, "")
     if config.rollout_horizon and windows is not None:
-        if model.n_members is not None:
-            raise InputError("training.rollout_horizon", config.rollout_horizon,
-                             "multi-step training does not apply to ensembles")  # fmt: skip
         if windows.lags.n_inputs != model.n_inputs:
             raise InputError("windows", windows.lags.n_inputs, f"the model reads {model.n_inputs} inputs")
     else:

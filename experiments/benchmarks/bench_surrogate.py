@@ -176,6 +176,10 @@ def main() -> None:
     ]
     if args.ensemble:
         variants += [(f"{k}/ens", k, 0, args.ensemble, False) for k in kinds if k != "recurrent"]
+        variants += [  # multi-step ensembles: every member runs the windows on its own predictions
+            (f"{k}/ens+h{h}", k, h, args.ensemble, False) for h in horizons for k in kinds
+            if k not in ("static", "recurrent")
+        ]
     if args.kinematic:
         variants += [(f"{label}+kin", k, h, e, True) for label, k, h, e, _ in variants if k != "recurrent"]
     if args.variants:
