@@ -14,7 +14,8 @@
 4. With `--calibration-maneuvers N`, first fits each model's free-run fan scale on N more maneuvers
    (`surrogate.calibrate_fan`: split-conformal, held out from both sets); the table's coverage is
    then the calibrated fans', and `cover_raw` the uncalibrated ones' (scale 1).
-5. `--train-seeds N` trains every variant N times (initial weights and batches from seeds 0..N-1) and
+5. `--train-seeds N` trains every variant N times (initial weights and batches from seeds 0..N-1, or
+   S..S+N-1 with `--first-train-seed S`) and
    reports means over them, the ratios as mean ± s.e.m. over seeds: one training run's 30-s errors
    vary 2-3x between seeds, so a one-seed ratio is mostly that noise. `--ensemble K` adds a deep
    ensemble of K members of each kind (`<kind>/ens`). `--attribution` splits each variant's 30-s
@@ -149,6 +150,8 @@ def main() -> None:
                         help="fit each model's free-run fan scale on N more maneuvers (0: off)")
     parser.add_argument("--train-seeds", type=int, default=1, metavar="N",
                         help="train every variant from seeds 0..N-1 and average the accuracy over them")
+    parser.add_argument("--first-train-seed", type=int, default=0, metavar="S",
+                        help="training seeds S..S+N-1 (fresh seeds to confirm a choice made on others)")
     parser.add_argument("--ensemble", type=int, default=0, metavar="K",
                         help="also train each MLP kind as a deep ensemble of K members, named <kind>/ens")
     parser.add_argument("--kinematic", action="store_true",
@@ -192,7 +195,9 @@ def main() -> None:
     shown = [v for v in args.figure_variants.split(",") if v] or names
     if set(shown) - set(names):
         parser.error(f"--figure-variants: not in this run: {', '.join(sorted(set(shown) - set(names)))}")
-    seeds = range(args.train_seeds)
+    if args.first_train_seed < 0:
+        parser.error("--first-train-seed: at least 0")
+    seeds = range(args.first_train_seed, args.first_train_seed + args.train_seeds)
     threads = os.cpu_count() or 1
 
     train_log = simulator.collect(maneuver_set(args.train_maneuvers, seed=1), seed=1)
@@ -234,12 +239,12 @@ def main() -> None:
         for (name, backend), label in zip(runs, labels, strict=True):
             call = dict(n_samples=args.samples, backend=backend)
             if round_ == 0:
-                simulate(models[name, 0], controls[:4], initial_rates=initial[:4], **call)  # warm-up
+                simulate(models[name, seeds[0]], controls[:4], initial_rates=initial[:4], **call)  # warm-up
             times = []
             for _ in range(args.repeats):
                 rollouts.pop(label, None)  # free the last result first: the timed call allocates afresh
                 started = time.perf_counter()
-                rollouts[label] = simulate(models[name, 0], controls, initial_rates=initial, **call)
+                rollouts[label] = simulate(models[name, seeds[0]], controls, initial_rates=initial, **call)
                 times.append(time.perf_counter() - started)
             timings[label].append(times)
     del rollouts["static/reference"]  # same numbers as "static": one accuracy row is enough
@@ -275,7 +280,7 @@ def main() -> None:
         for name in names:
             model = models[name, seed]
             call = dict(initial_rates=initial, n_samples=args.samples)
-            rollout = rollouts[name] if seed == 0 else simulate(model, controls, **call)
+            rollout = rollouts[name] if seed == seeds[0] else simulate(model, controls, **call)
             # the same rollout with the uncalibrated fan, where calibration moved it
             raw = simulate(model, controls, fan_scale=1.0, **call) if args.calibration_maneuvers > 0 else None
             lever_arm = float(model.config.pose_lever_arm)
@@ -303,7 +308,7 @@ def main() -> None:
                         **extra,
                     }
                 )
-        if seed == 0:
+        if seed == seeds[0]:
             rollouts.clear()  # the timed rollouts are scored: free them before the next seed's
     frame = pd.DataFrame(rows)
     table = frame.drop(columns="seed").groupby(["kind", "variant"]).mean().reindex(KINDS, level=0)
