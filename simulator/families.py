@@ -25,10 +25,10 @@ A family maps named parameters to a command schedule, drivable open loop by a sc
 
 All five reference kinds are special cases (`as_family`). The reference eight flips its steering when
 the measured heading has turned a full circle (closed loop); its family member flips every
-`loop_time` s, taken from the nominal turn (`simulator.maneuvers.nominal_turn`, the schedule campaigns
-already plan eights with) or measured on the car (`eight_loop_time` of a logged eight). The two drive
-apart where the turn's time differs from T, first of all in the first loop, which starts from rest
-(measured in MuJoCo: `tests/test_families.py`, `experiments/results/families.txt`).
+`loop_time` s, taken from the nominal turn (`simulator.maneuvers.eight_loop_time`, the schedule
+campaigns already plan eights with) or measured on the car (`measured_loop_time` of a logged eight).
+The two drive apart where the car's turn takes longer or shorter than T (measured in MuJoCo:
+`tests/test_families.py`, `experiments/results/families.txt`).
 """
 
 from __future__ import annotations
@@ -336,7 +336,7 @@ class FamilyManeuver:
 def measured_loop_time(log: pd.DataFrame) -> float:
     """Flip period (s) of a logged eight: the median time between its steering sign flips after the first.
 
-    The first flip comes late (the first loop starts from rest), so it is left out where later ones
+    The first loop starts from rest, so its flip may come late: it is left out where later flips
     exist; with one flip only, its time is returned. ManeuverError naming `log` if the steering never
     flips. `as_family(eight, loop_time=measured_loop_time(log))` is the open-loop eight of that car.
     """

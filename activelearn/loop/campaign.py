@@ -878,7 +878,8 @@ class Campaign:
 
     def _logs(self, samples: pd.DataFrame | None) -> pd.DataFrame | None:
         """Every log row the campaign holds of the car: the prior's runs and the collected maneuvers."""
-        frames = [f for f in (getattr(self.prior, "rows", None), samples) if f is not None and not f.empty]
+        prior = self.prior.rows if self.prior is not None else None
+        frames = [f for f in (prior, samples) if f is not None and not f.empty]
         return pd.concat(frames, ignore_index=True) if frames else None
 
     def _safety_metrics(

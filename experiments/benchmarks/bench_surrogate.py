@@ -177,12 +177,9 @@ def main() -> None:
     variants = [(k, k, 0, 0, False) for k in kinds] + [
         (f"{k}+h{h}", k, h, 0, False) for h in horizons for k in kinds if k != "static"
     ]
-    if args.ensemble:
-        variants += [(f"{k}/ens", k, 0, args.ensemble, False) for k in kinds if k != "recurrent"]
-        variants += [  # multi-step ensembles: every member runs the windows on its own predictions
-            (f"{k}/ens+h{h}", k, h, args.ensemble, False) for h in horizons for k in kinds
-            if k not in ("static", "recurrent")
-        ]
+    if args.ensemble:  # each MLP variant, multi-step ones included, also as an ensemble (<kind>/ens...)
+        variants += [(label.replace(k, f"{k}/ens", 1), k, h, args.ensemble, False)
+                     for label, k, h, _, _ in variants if k != "recurrent"]  # fmt: skip
     if args.kinematic:
         variants += [(f"{label}+kin", k, h, e, True) for label, k, h, e, _ in variants if k != "recurrent"]
     if args.variants:
