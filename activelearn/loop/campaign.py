@@ -852,12 +852,7 @@ class Campaign:
         safety = self.cfg.safety
         if safety is None:
             return pool, None
-        rate = self.cfg.simulation.rate_hz
-        turn = None
-        if safety.measured_turn_speed:
-            turn = turn_speed(self._logs(samples), rate, safety.limit_window)
-        safe = assess(model, self.maneuvers, safety, rate_hz=rate, seed=self.cfg.seed * 10_007 + round_index,
-                      which=~pool.taken, turn=turn)  # fmt: skip
+        safe = self._assess(model, round_index, ~pool.taken, samples)
         if not safety.enforce:
             return pool, safe
         if safe.cut.any():  # score each candidate as it would be driven: a cut one by its first seconds
@@ -875,6 +870,19 @@ class Campaign:
         if budget is not None:
             affordable = affordable & (self._pick_costs <= budget - self._track_seconds(taken) + 1e-9)
         return dataclasses.replace(pool, affordable=affordable, costs=self._pick_costs), safe
+
+    def _assess(
+        self, model: Any | None, round_index: int, open_: np.ndarray, samples: pd.DataFrame | None
+    ) -> Assessment:
+        """[safety]'s assessment of the open candidates (a benchmark's clairvoyant safe set overrides it)."""
+        safety = self.cfg.safety
+        assert safety is not None
+        rate = self.cfg.simulation.rate_hz
+        turn = None
+        if safety.measured_turn_speed:
+            turn = turn_speed(self._logs(samples), rate, safety.limit_window)
+        return assess(model, self.maneuvers, safety, rate_hz=rate, seed=self.cfg.seed * 10_007 + round_index,
+                      which=open_, turn=turn)  # fmt: skip
 
     def _logs(self, samples: pd.DataFrame | None) -> pd.DataFrame | None:
         """Every log row the campaign holds of the car: the prior's runs and the collected maneuvers."""
