@@ -34,6 +34,7 @@ from activelearn.loop.safety import (
     circles_fit,
     fan,
     kinematic_bound,
+    live_stop,
     log_violation,
     monotone_steps,
     turn_speed,
@@ -82,6 +83,8 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
         ({"arena": SQUARE, "start": [1.45, 0.0, 0.0]}, "safety.start", "margin"),
         ({"arena": SQUARE, "delta": 0.0}, "safety.delta", "(0, 1)"),
         ({"arena": SQUARE, "delta": 1.0}, "safety.delta", "(0, 1)"),
+        ({"arena": SQUARE, "stop": "never"}, "safety.stop", "'planned' or 'live'"),
+        ({"arena": SQUARE, "stop_buffer": -0.1}, "safety.stop_buffer", "greater than or equal to 0"),
     ],
 )
 def test_bad_safety_values_name_their_field(safety, field, words):
@@ -234,6 +237,28 @@ def test_log_violation_reads_the_path_in_the_arena_frame():
     assert log_violation(fast, cfg, 30.0) == "speed"
 
 
+def test_a_live_stop_keeps_the_walls_at_run_time_and_leaves_the_limits_to_the_plan():
+    # A straight at full throttle leaves the 3 x 3 m arena after ~5 s: planned, it is cut there; with a
+    # live stop it may be driven whole (the car brakes at the wall), unless a limit binds.
+    straight = Maneuver("straight", 1.0, 0.0, "ccw", 20.0)
+    planned = SafetyConfig(arena=SQUARE, min_duration=3.0)
+    live = planned.model_copy(update={"stop": "live"})
+    assert 0.0 < kinematic_bound(straight, planned)[1] < 10.0
+    assert kinematic_bound(straight, live) == (0.0, 20.0, 0.0)
+    slow = live.model_copy(update={"max_speed": 0.2})  # 0.287 m/s at full throttle breaks it at once
+    assert kinematic_bound(straight, slow)[1] == 0.0
+    # In MuJoCo: the log ends before the wall (margin + stop_buffer), and what is left violates nothing.
+    log = collect(straight, rate_hz=30.0, noise=None)
+    assert log_violation(log, live, 30.0) == "arena"
+    stopped = live_stop(log, live)
+    assert 30 < len(stopped) < len(log)
+    assert log_violation(stopped, live, 30.0) == ""
+    x_end = stopped["posX"].iloc[-1] - stopped["posX"].iloc[0]
+    wall = 1.5 - live.margin - live.stop_buffer  # from the start at the centre, facing +x
+    assert wall - 0.02 < x_end < wall  # the last sample before the trigger: one step (< 1 cm) short
+    assert live_stop(log.iloc[:30], live) is not None and len(live_stop(log.iloc[:30], live)) == 30
+
+
 def test_a_diverged_fan_trajectory_is_a_violation():
     cfg = SafetyConfig(arena=SQUARE)
     zeros = np.zeros((2, 60))
@@ -291,6 +316,20 @@ def test_safe_campaign_drives_admissible_cuts_and_logs_safety(tmp_path):
     for name in ("safe_set_size", "violations", "violations_total", "safety_seconds"):
         assert len(tracker.metric_history(state.run_id, name)) >= 1, name
     assert history["violations_total"].iloc[-1] == sum(1 for r in state.violated.values() if r)
+
+
+def test_a_live_stop_campaign_drives_to_the_walls_without_a_violation(tmp_path):
+    cfg = safe_config(tmp_path, {"stop": "live"}, tracking={"enabled": False})
+    result = Campaign(cfg, tmp_path / "c").run(figures=False)
+    state = result.state
+    assert len(state.taken) == 5
+    assert all(reason == "" for reason in state.violated.values()) and len(state.violated) == 5
+    samples = pd.read_parquet(tmp_path / "c" / "samples.parquet")
+    seconds = samples.groupby("pool_index")["time"].max()
+    # the straights and fast skidpads that the planned stop cuts in advance are driven until the wall
+    stopped = [i for i in state.taken if str(i) not in state.cuts and seconds[i] < 19.0]
+    assert stopped, "some maneuver ended at the wall"
+    assert len(state.cuts) < len(state.taken)
 
 
 def test_a_cut_candidate_is_scored_as_it_would_be_driven(tmp_path):
@@ -409,4 +448,38 @@ def test_a_cut_proposal_is_driven_short_and_ingested(tmp_path, capsys):
     assert "[safety]" in capsys.readouterr().out
     state = CampaignState.load(directory)
     assert len(state.batches) == 1 and len(state.rounds) == 1 and state.violated
+    assert all(reason == "" for reason in state.violated.values())
+
+
+def test_a_log_ended_by_a_live_stop_is_ingested(tmp_path, capsys):
+    # At the track the driver brakes near a wall: the log is shorter than the proposal and still matches.
+    from activelearn.cli import main
+    from activelearn.loop.asktell import read_log
+
+    config = tmp_path / "car.toml"
+    config.write_text(SMOKE.read_text().replace('strategy = "max_epistemic"', 'strategy = "uniform"')
+                      + '\n[oracle]\nkind = "external"\n[tracking]\nenabled = false\n'
+                      + f"[safety]\narena = {SQUARE}\nmin_duration = 3.0\nn_samples = 16\n"
+                      + 'stop = "live"\n')  # fmt: skip
+    directory = tmp_path / "campaign"
+    assert main(["campaign", "propose", str(config), "--out", str(directory)]) == 0
+    capsys.readouterr()
+    proposals = pd.read_csv(directory / "proposals" / "round-000.csv")
+    assert (proposals["brake_within_m"] > 0.16).all()
+    safety = load_config(config).safety
+    logs, short = [], 0
+    for i, row in proposals.iterrows():
+        out = tmp_path / f"log{i}.csv"
+        assert main(["simulate", "--maneuver", row["maneuver"], "--direction", row["direction"],
+                     "--throttle", str(row["throttle"]), "--steering", str(row["steering"]),
+                     "--duration", str(row["duration"]), "--autodrive", "--out", str(out)]) == 0  # fmt: skip
+        full = read_log(out).table  # the AutoDRIVE CSV in the simulator's columns
+        stopped = live_stop(full, safety)
+        short += len(stopped) < len(full)
+        stopped.to_parquet(out.with_suffix(".parquet"), index=False)
+        logs.append(str(out.with_suffix(".parquet")))
+    assert short, "some proposal meets a wall of the 3 x 3 m arena"
+    assert main(["campaign", "ingest", str(directory), *logs]) == 0
+    state = CampaignState.load(directory)
+    assert len(state.batches) == 1 and len(state.rounds) == 1
     assert all(reason == "" for reason in state.violated.values())

@@ -98,6 +98,8 @@ def match_logs(campaign: Campaign, state: CampaignState, logs: Sequence[LogFile]
     cfg = campaign.cfg.oracle
     rate = campaign.cfg.simulation.rate_hz
     seen = set(state.ingested) | set(state.staged.values())
+    safety = campaign.cfg.safety
+    live = safety is not None and safety.stop == "live" and safety.enforce
     open_ = [i for i in state.pending if str(i) not in state.staged]
     expected = {
         i: signature(maneuver_controls(campaign.driven(i), rate), rate, cfg.steering_tolerance)
@@ -112,6 +114,9 @@ def match_logs(campaign: Campaign, state: CampaignState, logs: Sequence[LogFile]
         seen.add(log.digest)
         controls = log.table[["throttle", "steering"]].to_numpy(dtype=np.float64)
         got = signature(controls, rate, cfg.steering_tolerance)
+        if live:  # a stop at a wall ends a log early: judge it against the proposals' first seconds
+            first = {i: maneuver_controls(campaign.driven(i), rate)[: len(controls)] for i in open_}
+            expected = {i: signature(first[i], rate, cfg.steering_tolerance) for i in open_}
         candidates = [
             i
             for i in open_
@@ -133,7 +138,7 @@ def match_logs(campaign: Campaign, state: CampaignState, logs: Sequence[LogFile]
         best = min(candidates, key=lambda i: _closeness(campaign.driven(i), controls, got, expected[i], rate))
         proposed = campaign.driven(best).duration
         span = float(log.table["time"].iloc[-1] - log.table["time"].iloc[0])
-        if span < (1.0 - cfg.duration_tolerance) * proposed:
+        if span < (1.0 - cfg.duration_tolerance) * proposed and not live:
             raise InputError("LOG", str(log.path), f"is cut off: {span:.1f} s of the proposed {proposed:g} s")
         matched[best] = log
     return matched

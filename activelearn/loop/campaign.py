@@ -66,7 +66,7 @@ from activelearn.loop.pool import (
     target_points,
 )
 from activelearn.loop.prior import PRIOR_FILE, Prior, load_prior, prior_from_rows
-from activelearn.loop.safety import Assessment, assess, turn_speed, violations
+from activelearn.loop.safety import Assessment, assess, live_stop, turn_speed, violations
 from activelearn.loop.state import (
     CONFIG_FILE,
     MODEL_FILE,
@@ -217,14 +217,22 @@ class Campaign:
     def _collect(self, indices: list[int], batch: int) -> pd.DataFrame:
         """Ask the oracle for the chosen maneuvers (simulated, noised with this campaign's seed)."""
         chosen = [self.driven(i) for i in indices]
-        return self._label(self.oracle.answer(chosen, self.cfg.seed), indices, batch)
+        return self._label(self._stopped(self.oracle.answer(chosen, self.cfg.seed)), indices, batch)
+
+    def _stopped(self, logs: list[pd.DataFrame]) -> list[pd.DataFrame]:
+        """The oracle's logs as a live stop at the walls leaves them ([safety] stop = "live")."""
+        safety = self.cfg.safety
+        if safety is None or safety.stop != "live" or not safety.enforce:
+            return logs
+        return [live_stop(log, safety) for log in logs]
 
     def _answer(self, state: CampaignState) -> pd.DataFrame:
         """The pending batch's logs: those `ingest` took in already (staged), the oracle answers the rest."""
         assert state.pending is not None
         asked = [i for i in state.pending if str(i) not in state.staged]
-        answers = dict(zip(asked, self.oracle.answer([self.driven(i) for i in asked], self.cfg.seed),
-                           strict=True)) if asked else {}  # fmt: skip
+        answered = self.oracle.answer([self.driven(i) for i in asked], self.cfg.seed) if asked else []
+        answered = self._stopped(answered)
+        answers = dict(zip(asked, answered, strict=True))
         frames = [
             answers[i] if i in answers else read_table(self.directory / STAGED_DIR / f"{i}.parquet")
             for i in state.pending
@@ -1069,6 +1077,8 @@ class Campaign:
             table["cut_from"] = [
                 self.maneuvers[i].duration if str(i) in state.cuts else None for i in state.pending
             ]
+            if self.cfg.safety.stop == "live":  # the driver brakes this close to a wall (m, the car's centre)
+                table["brake_within_m"] = self.cfg.safety.margin + self.cfg.safety.stop_buffer
         atomic_write_bytes(path, table.to_csv(index=False).encode())
         return path
 

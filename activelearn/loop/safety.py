@@ -36,6 +36,11 @@ monotone part may be driven whole. From a later step t0 the car is somewhere wit
 start and the rest of its path within 2 (r + lever arm) of it: held where that stays off the walls
 (a fishhook whose ramp is quick).
 
+With `stop = "live"` the walls are kept at run time instead: the car brakes as soon as its measured
+pose comes within `margin + stop_buffer` of a wall (`live_stop` cuts a simulated log there, and a
+person's log ends there), so the fan and the worst case judge the limits only and a candidate is no
+longer cut in advance for the walls.
+
 `violations` checks the logs that came back (simulated or driven) against the same arena and limits:
 what the benchmark counts. The fan is the rollout of the lead's dynamics issue too: one rollout
 serves evaluation, acquisition and safety.
@@ -114,18 +119,22 @@ def _smooth(values: np.ndarray, steps: int) -> np.ndarray:
 
 
 def violating(x: np.ndarray, y: np.ndarray, v: np.ndarray, w: np.ndarray, cfg: SafetyConfig,
-              rate_hz: float, tolerance: float = 0.0) -> np.ndarray:  # fmt: skip
+              rate_hz: float, tolerance: float = 0.0, walls: bool = True) -> np.ndarray:  # fmt: skip
     """(..., T) code of what each step violates: 0 none, else 1 + index in REASONS (first one wins).
 
     Positions in the arena frame (m), rates sampled at `rate_hz` (m/s, rad/s); the rates are
     averaged over `cfg.limit_window` seconds first, so one noisy sample is not a limit violation.
-    A position closer than `cfg.margin + tolerance` to a wall violates.
+    A position closer than `cfg.margin + tolerance` to a wall violates (unless `walls` is False: a
+    live stop keeps them).
     """
     window = max(1, round(cfg.limit_window * rate_hz))
     with np.errstate(invalid="ignore", over="ignore"):  # a diverged trajectory is caught below
         v_avg, w_avg = _smooth(v, window), _smooth(w, window)
+        near_wall = np.zeros(np.shape(x), dtype=bool)
+        if walls:
+            near_wall = polygon_clearance(cfg.arena, x, y) < cfg.margin + tolerance
         checks = (
-            polygon_clearance(cfg.arena, x, y) < cfg.margin + tolerance,
+            near_wall,
             np.abs(v_avg) > cfg.max_speed,
             np.abs(w_avg) > cfg.max_yaw_rate,
             np.abs(v_avg * w_avg) > cfg.max_lateral_acceleration,
@@ -159,7 +168,8 @@ def fan(model: Any, maneuvers: Sequence[Any], cfg: SafetyConfig, rate_hz: float,
 
 def first_violations(rollout: Rollout, cfg: SafetyConfig, rate_hz: float) -> np.ndarray:
     """(S, M) seconds at which each trajectory first violates (inf: never within its maneuver)."""
-    code = violating(rollout.x, rollout.y, rollout.v, rollout.w, cfg, rate_hz, cfg.path_tolerance)
+    code = violating(rollout.x, rollout.y, rollout.v, rollout.w, cfg, rate_hz, cfg.path_tolerance,
+                     walls=cfg.stop != "live")  # fmt: skip
     steps = np.arange(code.shape[-1])
     code[:, steps[None, :] >= rollout.lengths[:, None]] = 0  # padding past a maneuver's end
     bad = code > 0
@@ -306,7 +316,10 @@ def kinematic_bound(
     over = (speed > cfg.max_speed) | (yaw > cfg.max_yaw_rate) | (speed * yaw > cfg.max_lateral_acceleration)
     room = max(float(boundary_distance(cfg.arena, cfg.start[0], cfg.start[1])) - cfg.margin, 0.0)
     reach = np.cumsum(speed) / rate_hz  # the most path covered by the end of each step
-    held = contained(controls, maneuver, cfg, lever_arm, reach)
+    if cfg.stop == "live":  # the walls are kept at run time: the limits alone bound the schedule
+        room, held = math.inf, np.zeros(len(controls), dtype=bool)
+    else:
+        held = contained(controls, maneuver, cfg, lever_arm, reach)
     bad = over | ((reach > room) & ~held)
     first = int(np.argmax(bad)) if bad.any() else len(bad)
     if first >= len(bad):
@@ -393,18 +406,34 @@ def circles_fit(
     return bool(np.min(clearance) >= cfg.margin + cfg.path_tolerance)
 
 
+def _placed(log: pd.DataFrame, cfg: SafetyConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The log's path relative to its first pose, placed at the arena's start pose (m)."""
+    x0, y0, yaw0 = cfg.start
+    px, py, yaw = (log[c].to_numpy(dtype=np.float64) for c in ("posX", "posY", "yaw"))
+    dx, dy = px - px[0], py - py[0]
+    turn = yaw0 - yaw[0]
+    c, s = math.cos(turn), math.sin(turn)
+    return x0 + c * dx - s * dy, y0 + s * dx + c * dy
+
+
+def live_stop(log: pd.DataFrame, cfg: SafetyConfig) -> pd.DataFrame:
+    """The log as a live stop leaves it: up to the sample before the first whose measured pose comes
+    within `margin + stop_buffer` of a wall (the car brakes there; its braking rows are not logged).
+    A log that never comes that close is returned whole."""
+    x, y = _placed(log, cfg)
+    near = polygon_clearance(cfg.arena, x, y) < cfg.margin + cfg.stop_buffer
+    if not near.any():
+        return log
+    return log.iloc[: max(int(np.argmax(near)), 1)].reset_index(drop=True)
+
+
 def log_violation(log: pd.DataFrame, cfg: SafetyConfig, rate_hz: float) -> str:
     """What a driven maneuver's log violated first ("" if nothing): arena, speed, yaw_rate or lateral.
 
     The log's path is taken relative to its first pose and placed at the arena's start pose, so a
     simulator log (starting at the origin) and a car's log (in its own frame) are judged alike.
     """
-    x0, y0, yaw0 = cfg.start
-    px, py, yaw = (log[c].to_numpy(dtype=np.float64) for c in ("posX", "posY", "yaw"))
-    dx, dy = px - px[0], py - py[0]
-    turn = yaw0 - yaw[0]
-    c, s = math.cos(turn), math.sin(turn)
-    x, y = x0 + c * dx - s * dy, y0 + s * dx + c * dy
+    x, y = _placed(log, cfg)
     code = violating(x, y, log["speed"].to_numpy(np.float64), log["angZ"].to_numpy(np.float64), cfg, rate_hz)
     bad = np.flatnonzero(code)
     return REASONS[int(code[bad[0]]) - 1] if len(bad) else ""
