@@ -36,7 +36,7 @@ from activelearn.config import load_config, polygon_clearance
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import noisy_logs
 from activelearn.loop.prior import load_prior
-from activelearn.loop.safety import assess, log_violation, turn_speed
+from activelearn.loop.safety import assess, log_violation, placed_path, turn_speed
 from activelearn.loop.state import MODEL_FILE, SAMPLES_FILE, CampaignState
 from activelearn.numerics.models import load_model
 from simulator.maneuvers import sample_times
@@ -47,11 +47,7 @@ NO_GUARD = 1e9  # trust_std so large that the kinematic worst case never applies
 
 def slack(log: pd.DataFrame, cfg) -> float:
     """Smallest clearance to a wall minus the margin along a log placed at the start pose (m)."""
-    x0, y0, yaw0 = cfg.start
-    px, py, yaw = (log[c].to_numpy(np.float64) for c in ("posX", "posY", "yaw"))
-    dx, dy, turn = px - px[0], py - py[0], yaw0 - yaw[0]
-    c, s = np.cos(turn), np.sin(turn)
-    clearance = polygon_clearance(cfg.arena, x0 + c * dx - s * dy, y0 + s * dx + c * dy)
+    clearance = polygon_clearance(cfg.arena, *placed_path(log, cfg))
     return float(np.min(clearance) - cfg.margin)
 
 

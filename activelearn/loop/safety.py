@@ -406,7 +406,7 @@ def circles_fit(
     return bool(np.min(clearance) >= cfg.margin + cfg.path_tolerance)
 
 
-def _placed(log: pd.DataFrame, cfg: SafetyConfig) -> tuple[np.ndarray, np.ndarray]:
+def placed_path(log: pd.DataFrame, cfg: SafetyConfig) -> tuple[np.ndarray, np.ndarray]:
     """The log's path relative to its first pose, placed at the arena's start pose (m)."""
     x0, y0, yaw0 = cfg.start
     px, py, yaw = (log[c].to_numpy(dtype=np.float64) for c in ("posX", "posY", "yaw"))
@@ -420,7 +420,7 @@ def live_stop(log: pd.DataFrame, cfg: SafetyConfig) -> pd.DataFrame:
     """The log as a live stop leaves it: up to the sample before the first whose measured pose comes
     within `margin + stop_buffer` of a wall (the car brakes there; its braking rows are not logged).
     A log that never comes that close is returned whole."""
-    x, y = _placed(log, cfg)
+    x, y = placed_path(log, cfg)
     near = polygon_clearance(cfg.arena, x, y) < cfg.margin + cfg.stop_buffer
     if not near.any():
         return log
@@ -433,7 +433,7 @@ def log_violation(log: pd.DataFrame, cfg: SafetyConfig, rate_hz: float) -> str:
     The log's path is taken relative to its first pose and placed at the arena's start pose, so a
     simulator log (starting at the origin) and a car's log (in its own frame) are judged alike.
     """
-    x, y = _placed(log, cfg)
+    x, y = placed_path(log, cfg)
     code = violating(x, y, log["speed"].to_numpy(np.float64), log["angZ"].to_numpy(np.float64), cfg, rate_hz)
     bad = np.flatnonzero(code)
     return REASONS[int(code[bad[0]]) - 1] if len(bad) else ""
