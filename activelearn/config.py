@@ -25,7 +25,7 @@ from pydantic import (
 from activelearn.errors import ConfigError
 from activelearn.numerics.arch import ACTIVATIONS, parse_arch
 
-ModelKind = Literal["hybrid", "pbnn", "pnn", "bnn", "dnn", "ensemble", "recurrent"]
+ModelKind = Literal["hybrid", "pbnn", "pnn", "bnn", "dnn", "ensemble", "recurrent", "physics"]
 Activation = Literal[ACTIVATIONS]  # type: ignore[valid-type]
 MAX_STEERING = 0.5236  # rad, Nigel's steering limit
 POSE_LEVER_ARM = 0.07929  # m, Nigel's CG (where its pose is logged) ahead of the rear axle
@@ -73,11 +73,25 @@ class ModelConfig(_Section):
     # from few operating points (measured: half the static map's free-run error on eights, see the
     # README's "Dynamics"). Derived inside the model, so data, rollouts and kernels are unchanged.
     kinematic_feature: bool = False
+    # kind = "physics" (`activelearn.numerics.models.physics`): Nigel's single track from its datasheet,
+    # its physical parameters identified from the training rows, plus a Bayesian correction of this kind
+    # (same arch, activation and ensemble_size) that learns only what the physics misses.
+    correction: Literal["ensemble", "hybrid"] = Field(
+        "ensemble", description="kind = 'physics': the Bayesian correction's kind"
+    )
+    identify: bool = Field(
+        True, description="kind = 'physics': fit the physical parameters to the training rows before training"
+    )
+    residual_bound: Annotated[float, Field(ge=0.0, le=0.5)] = Field(
+        0.2,
+        description="kind = 'physics': largest learnt change of a steady rate, times its limit",
+    )
 
     @model_validator(mode="after")
     def _check_kinematic_feature(self) -> ModelConfig:
-        if self.kinematic_feature and self.kind == "recurrent":
-            raise ValueError("kinematic_feature: not for kind = 'recurrent' (its trunk reads tokens)")
+        if self.kinematic_feature and self.kind in ("recurrent", "physics"):
+            why = "its trunk reads tokens" if self.kind == "recurrent" else "its physics knows the kinematics"
+            raise ValueError(f"kinematic_feature: not for kind = {self.kind!r} ({why})")
         return self
 
     @field_validator("arch")
@@ -731,8 +745,9 @@ class CampaignConfig(_Section):
         expected = 4 if self.data.inputs == "controls+rates" else 2
         if self.model.n_inputs != expected:
             raise ValueError(f"model.n_inputs must be {expected} for data.inputs = {self.data.inputs!r}")
-        if self.model.kind == "recurrent" and self.data.inputs == "controls":
-            raise ValueError("model.kind = 'recurrent' needs data.inputs = 'history' or 'controls+rates'")
+        if self.model.kind in ("recurrent", "physics") and self.data.inputs == "controls":
+            kind = self.model.kind
+            raise ValueError(f"model.kind = {kind!r} needs data.inputs = 'history' or 'controls+rates'")
         return self
 
 

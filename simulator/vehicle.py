@@ -10,21 +10,20 @@ import numpy as np
 
 MODEL_PATH = Path(__file__).resolve().parent / "assets" / "nigel.xml"
 
-# Limits and facts from shared/reference/nigel.md.
-THROTTLE_LIMIT = 1.0
-STEERING_LIMIT = 0.5236  # rad
-ENCODER_CPR = 1920  # wheel encoder counts per revolution
-WHEELBASE = 0.14155  # m, lf + lr of the model (reference table: 0.1415)
-TRACK = 0.153  # m
-WHEEL_RADIUS = 0.0325  # m
-MAX_SPEED = 0.2670  # m/s, reference linear velocity limit
-MAX_YAW_RATE = 0.8051  # rad/s, reference angular velocity limit
-
-# Reference calibration target: steady straight-line speed for each throttle.
-REFERENCE_THROTTLE = np.round(np.arange(0.0, 1.01, 0.1), 1)
-REFERENCE_SPEED = np.array(
-    [0.0, 0.02867, 0.05685, 0.08457, 0.11185, 0.13871, 0.16516, 0.19122, 0.21688, 0.24215, 0.26703]
+# Limits and facts from shared/reference/nigel.md (simulator.datasheet holds them; re-exported here).
+from simulator.datasheet import (  # noqa: E402, F401
+    MAX_SPEED,
+    MAX_YAW_RATE,
+    REFERENCE_SPEED,
+    REFERENCE_THROTTLE,
+    STEERING_LIMIT,
+    THROTTLE_LIMIT,
+    TRACK,
+    WHEEL_RADIUS,
+    WHEELBASE,
 )
+
+ENCODER_CPR = 1920  # wheel encoder counts per revolution
 
 # Calibration target of issue 15: steady turn speeds (steering rad, speed m/s) of the real car at
 # throttle 1.0, read from the public AutoDRIVE Nigel parking log. The model is fitted to within 0.01 m/s.

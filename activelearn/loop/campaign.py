@@ -78,6 +78,7 @@ from activelearn.loop.state import (
     CampaignState,
 )
 from activelearn.numerics import uncertainty
+from activelearn.numerics.lags import CONTROL_COLUMNS, RATE_COLUMNS
 from activelearn.numerics.models import Prediction, ResidualModel, build_model, load_model, save_model
 from activelearn.numerics.paths import path_inputs
 from activelearn.numerics.surrogate import fan_scale_needed, free_run_metrics, model_inputs, simulate
@@ -276,6 +277,16 @@ class Campaign:
         frames = [part for _, part in samples.groupby("pool_index", sort=False)]
         return training_windows(frames, self.cfg.data, horizon)
 
+    def _identification_logs(self, samples: pd.DataFrame) -> list[tuple[np.ndarray, np.ndarray]] | None:
+        """Each training log's (controls, rates) for a physics-structured model to identify itself on."""
+        if self.cfg.model.kind != "physics":
+            return None
+        samples = self._with_prior(samples)
+        return [
+            (part[list(CONTROL_COLUMNS)].to_numpy(), part[list(RATE_COLUMNS)].to_numpy())
+            for _, part in samples.groupby("pool_index", sort=False)
+        ]
+
     def target(self) -> tuple[np.ndarray, np.ndarray]:
         """Controls (and weights) of the target region (`[target]`, default: the test maneuvers')."""
         if self._target is None:
@@ -403,6 +414,7 @@ class Campaign:
         """
         x, y, groups = self._training_data(samples)
         windows = self._training_windows(samples)
+        logs = self._identification_logs(samples)
         seed = self.cfg.seed * 10_007 + round_index
         base = self.prior_model()
         use = self.cfg.design.prior.use if self.cfg.design.prior is not None else "data"
@@ -415,16 +427,17 @@ class Campaign:
             model = load_model_copy(base)
             if len(x):
                 training = self.cfg.training.model_copy(update={"reinit": False})
-                fit(model, x, y, training, groups=groups, seed=seed, keep_scalers=True, windows=windows)
+                fit(model, x, y, training, groups=groups, seed=seed, keep_scalers=True, windows=windows,
+                    logs=logs)  # fmt: skip
         elif previous is not None and self.cfg.training.warm_start:
             model = load_model_copy(previous)
             training = self.cfg.training
             epochs = training.warm_epochs or max(1, training.epochs // 4)
             fit(model, x, y, training.model_copy(update={"reinit": False, "epochs": epochs}),
-                groups=groups, seed=seed, keep_scalers=True, windows=windows)  # fmt: skip
+                groups=groups, seed=seed, keep_scalers=True, windows=windows, logs=logs)  # fmt: skip
         else:
             model = build_model(self.cfg.model)
-            fit(model, x, y, self.cfg.training, groups=groups, seed=seed, windows=windows)
+            fit(model, x, y, self.cfg.training, groups=groups, seed=seed, windows=windows, logs=logs)
         with torch.no_grad():
             model.epistemic_scale.fill_(epistemic_scale)
         return model

@@ -277,6 +277,7 @@ def fit(
     callback: Callback | None = None,
     keep_scalers: bool = False,
     windows: Windows | None = None,
+    logs: list[tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> History:
     """Train `model` on (x, y) in physical units; return the per-epoch History.
 
@@ -294,6 +295,9 @@ def fit(
     With `config.rollout_horizon` > 0, `windows` (free runs of a dynamic model,
     `activelearn.numerics.multistep`) add their loss to every `rollout_every`-th step,
     `rollout_batch` windows at a time (eager steps: the compiled path trains one-step losses only).
+    A physics-structured model (`[model] kind = "physics"`) first identifies its physical parameters:
+    by free runs along `logs` (each (controls (T, 2), rates (T, 2)) at the log rate) where given, else
+    from the rows.
     """
     x, y = _check_xy(model, x, y, "")
     if config.rollout_horizon and windows is not None:
@@ -314,14 +318,18 @@ def fit(
         raise InputError("recalibrate", config.recalibrate, "needs x_val and y_val")
 
     steps_per_epoch = math.ceil(n / batch)
-    use_compile = windows is None and (
-        config.compile is True
-        or (config.compile == "auto" and steps_per_epoch * config.epochs >= AUTO_COMPILE_STEPS)
+    use_compile = (
+        windows is None
+        and getattr(model, "compilable", True)
+        and (
+            config.compile is True
+            or (config.compile == "auto" and steps_per_epoch * config.epochs >= AUTO_COMPILE_STEPS)
+        )
     )
     with intra_op_threads(config.num_threads), torch.random.fork_rng(devices=[]):
         return _fit(
             model, x, y, config, x_val, y_val, groups_val, seed, callback,
-            history, kl_weight, batch, use_compile, keep_scalers, windows,
+            history, kl_weight, batch, use_compile, keep_scalers, windows, logs,
         )  # fmt: skip
 
 
@@ -341,6 +349,7 @@ def _fit(
     use_compile: bool,
     keep_scalers: bool,
     windows: Windows | None = None,
+    logs: list[tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> History:
     """The training loop of `fit` (arguments validated, RNG forked, threads set)."""
     has_val = x_val is not None and y_val is not None
@@ -353,6 +362,8 @@ def _fit(
             model.epistemic_scale.fill_(1.0)
     if not keep_scalers:
         model.set_scalers(x, y)
+    if hasattr(model, "identify"):  # a physics-structured model fits its physical parameters first
+        model.identify(x, y, logs)
     xs = model.standardise_inputs(torch.from_numpy(x)).contiguous()
     ys = ((torch.from_numpy(y) - model.y_mean) / model.y_std).contiguous()
     stepper = _Stepper(model, config, kl_weight, batch, use_compile, windows, gen)

@@ -12,14 +12,16 @@ from activelearn.numerics.models.networks import (
     HybridPBNN,
     RecurrentPBNN,
     StackModel,
-    build_model,
 )
 from activelearn.numerics.models.persistence import load_model, save_model
+from activelearn.numerics.models.physics import PhysicsModel
+from activelearn.numerics.models.registry import MODEL_CLASSES, build_model
 from activelearn.numerics.models.residual import ResidualModel
 
 __all__ = [
     "BNN",
     "DNN",
+    "MODEL_CLASSES",
     "PBNN",
     "PNN",
     "BayesianLinear",
@@ -28,6 +30,7 @@ __all__ = [
     "HybridPBNN",
     "LayerSpec",
     "Model",
+    "PhysicsModel",
     "Prediction",
     "RecurrentPBNN",
     "ResidualModel",

@@ -381,12 +381,7 @@ class RecurrentPBNN(StackModel):
         return None
 
 
-MODEL_CLASSES: dict[str, type[StackModel]] = {
+# The network kinds; `activelearn.numerics.models.registry` adds the physics-structured one.
+NETWORK_CLASSES: dict[str, type[StackModel]] = {
     cls.kind: cls for cls in (HybridPBNN, PBNN, PNN, BNN, DNN, DeepEnsemble, RecurrentPBNN)
 }
-
-
-def build_model(cfg: ModelConfig, *, seed: int | None = 0) -> Model:
-    """Build the model `cfg.kind` describes, its weights initialised from `seed` (None: global RNG)."""
-    gen = torch.Generator().manual_seed(seed) if seed is not None else None
-    return MODEL_CLASSES[cfg.kind](cfg, generator=gen)

@@ -12,7 +12,7 @@ import torch
 from activelearn.config import ModelConfig
 from activelearn.errors import DataFormatError
 from activelearn.numerics.models.base import Model
-from activelearn.numerics.models.networks import build_model
+from activelearn.numerics.models.registry import build_model
 from activelearn.numerics.models.residual import ResidualModel
 
 FORMAT_VERSION = 1

@@ -1,0 +1,359 @@
+"""A surrogate that knows the car: Nigel's single track from its datasheet plus a bounded Bayesian correction.
+
+The physics core steps the rates y = (v, ω) over the Δ = `history_step` / 30 Hz between a dynamic
+model's newest past rate and its target, from the newest control u = (τ, δ):
+
+    v_ss = g(τ) · table(|τ|) · sign(τ) / (1 + scrub · tan² δ)    g: speed_gain (τ > 0), reverse_gain (τ < 0)
+    v'   = v_ss + (v − v_ss) · exp(−Δ / speed_lag)                (τ = 0 brakes: |v| falls by brake_decel · Δ)
+    ω_ss = v' · tan δ / (L · understeer),  |ω_ss| ≤ 1.25 × the datasheet's yaw-rate limit
+    ω'   = ω_ss + (ω − ω_ss) · exp(−Δ / yaw_lag)
+
+`table` is the datasheet's throttle → speed table (mirrored in reverse). The seven physical
+parameters start at the datasheet (`PARAMETERS`) and are identified from the training rows by
+least squares with the datasheet as a weak prior (`identify`), so a parameter the data do not
+touch (say the reverse gain, trained forward only) stays at the datasheet's value.
+
+The Bayesian part (a deep ensemble or hybrid PBNN of `config.correction`, on the same inputs)
+learns only what the physics misses, every output squashed into a physical range:
+  * a residual on each steady state, |Δv_ss| ≤ b · v_max, |Δω_ss| ≤ b · ω_max (b = `residual_bound`);
+  * a factor on each lag in [1/3, 3];
+  * the aleatoric variance of each rate, at most one standard deviation of the training rates.
+Each step's rate is then a convex combination of the previous rate and a bounded target, so a free
+run cannot leave the bounded targets' range (plus the noise the rollout adds), whatever the inputs.
+Its last layer starts at a tenth of the usual scale, so before training the model is the datasheet
+with the correction's prior spread; where the data end, each member (or posterior draw) keeps its own
+bounded correction, which is the epistemic band there.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from scipy.optimize import least_squares
+from torch import Tensor
+
+from activelearn.config import ModelConfig
+from activelearn.errors import InputError
+from activelearn.numerics.lags import N_CONTROLS, N_RATES, model_lags
+from activelearn.numerics.models.base import Model
+from activelearn.numerics.models.networks import NETWORK_CLASSES
+from simulator import datasheet
+
+N_CORRECTIONS = 4  # steady-state residuals (v, ω) and lag factors (v, ω)
+LAG_FACTOR = 3.0  # the correction scales each lag within [1/3, 3]
+YAW_CAP = 1.25 * datasheet.MAX_YAW_RATE  # rad/s: a steady yaw rate beyond the datasheet's limit + 25 %
+LAST_LAYER_SCALE = 0.1  # the correction starts near zero: an untrained model is the datasheet's physics
+PRIOR_ROWS = 1e4  # the first pass of `_map_fit` weighs the datasheet prior this much less
+
+
+@dataclass(frozen=True)
+class PhysicalParameter:
+    """One physical parameter of the single track: its datasheet value, physical range and prior width."""
+
+    name: str
+    nominal: float
+    low: float
+    high: float
+    width: float
+    unit: str
+    meaning: str
+
+
+def _nominal_understeer() -> float:
+    """The datasheet's linear single track at its top speed: L·f = L + K·v_max²."""
+    return 1.0 + datasheet.understeer_gradient() * datasheet.MAX_SPEED**2 / datasheet.WHEELBASE
+
+
+PARAMETERS: tuple[PhysicalParameter, ...] = (
+    PhysicalParameter("speed_gain", 1.0, 0.25, 1.25, 0.5, "-", "scale of the table's forward steady speed"),
+    PhysicalParameter("reverse_gain", 1.0, 0.25, 1.25, 0.5, "-", "scale of the mirrored table in reverse"),
+    PhysicalParameter("speed_lag", 0.1, 0.01, 1.0, 0.2, "s", "time constant of the speed's response"),
+    PhysicalParameter("scrub", 0.0, 0.0, 3.0, 1.0, "-", "steady speed / (1 + scrub tan² δ): tyre scrub"),
+    PhysicalParameter(
+        "understeer", _nominal_understeer(), 0.7, 2.0, 0.5, "-", "turning radius over the kinematic L / tan δ"
+    ),
+    PhysicalParameter("yaw_lag", 0.05, 0.005, 1.0, 0.2, "s", "time constant of the yaw rate's response"),
+    PhysicalParameter(
+        "brake_decel",
+        datasheet.FRICTION * datasheet.GRAVITY,
+        0.5,
+        20.0,
+        3.0,
+        "m/s²",
+        "deceleration at throttle 0 (the brake); datasheet: μ g",
+    ),
+)
+PARAMETER_NAMES = tuple(p.name for p in PARAMETERS)
+NOMINAL = np.array([p.nominal for p in PARAMETERS])
+LOW = np.array([p.low for p in PARAMETERS])
+HIGH = np.array([p.high for p in PARAMETERS])
+WIDTH = np.array([p.width for p in PARAMETERS])
+
+
+def _table_speed(throttle: Tensor) -> Tensor:
+    """The datasheet's steady forward speed at |throttle| (m/s), interpolated linearly (τ in [0, 1])."""
+    x = throttle.abs().clamp(max=datasheet.THROTTLE_LIMIT) * 10.0
+    i = x.floor().clamp(max=9.0)
+    table = torch.as_tensor(datasheet.REFERENCE_SPEED, dtype=throttle.dtype)
+    lo = table[i.long()]
+    hi = table[(i + 1).long()]
+    return lo + (x - i) * (hi - lo)
+
+
+def single_track_step(
+    throttle: Tensor,
+    steering: Tensor,
+    v: Tensor,
+    w: Tensor,
+    theta: Tensor,
+    dt: float,
+    corrections: tuple[Tensor, Tensor, Tensor, Tensor] | None = None,
+    residual_bound: float = 0.0,
+) -> tuple[Tensor, Tensor]:
+    """Next (v, ω) after `dt` s of the control (throttle, steering) from rates (v, ω), broadcast.
+
+    `theta` holds the seven `PARAMETERS` in order; `corrections` the network's raw outputs (steady
+    speed, steady yaw rate, speed lag, yaw lag), each squashed into its range (None: pure physics).
+    """
+    gain_f, gain_r, t_v, scrub, understeer, t_w, brake = theta.unbind(-1)
+    tan_d = torch.tan(steering)
+    gain = torch.where(throttle >= 0, gain_f, gain_r)
+    v_ss = torch.sign(throttle) * gain * _table_speed(throttle) / (1.0 + scrub * tan_d.square())
+    if corrections is not None:
+        z_v, z_w, z_tv, z_tw = corrections
+        v_ss = v_ss + residual_bound * datasheet.MAX_SPEED * torch.tanh(z_v)
+        t_v = t_v * torch.exp(math.log(LAG_FACTOR) * torch.tanh(z_tv))
+        t_w = t_w * torch.exp(math.log(LAG_FACTOR) * torch.tanh(z_tw))
+    v_next = v_ss + (v - v_ss) * torch.exp(-dt / t_v)
+    braked = v - torch.sign(v) * torch.minimum(v.abs(), brake * dt)
+    v_next = torch.where(throttle == 0, braked, v_next)
+    w_ss = v_next * tan_d / (datasheet.WHEELBASE * understeer)
+    if corrections is not None:
+        w_ss = w_ss + residual_bound * datasheet.MAX_YAW_RATE * torch.tanh(z_w)
+    w_ss = w_ss.clamp(-YAW_CAP, YAW_CAP)
+    w_next = w_ss + (w - w_ss) * torch.exp(-dt / t_w)
+    return v_next, w_next
+
+
+def _split(x: Tensor, dim: int, rate_at: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """The newest control (τ, δ) and the newest past rate (v, ω) of physical inputs along `dim`."""
+    return x.select(dim, 0), x.select(dim, 1), x.select(dim, rate_at), x.select(dim, rate_at + 1)
+
+
+def identify(x: np.ndarray, y: np.ndarray, dt: float, rate_at: int) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares physical parameters for rows x (N, 4k) → y (N, 2): their values and standard errors.
+
+    MAP under the datasheet prior (`_map_fit`): a parameter the rows do not excite stays near the
+    datasheet. Standard errors come from the Gauss-Newton covariance at the solution (prior included).
+    """
+    x = torch.as_tensor(np.asarray(x, dtype=np.float64))
+    y = np.asarray(y, dtype=np.float64)
+    if len(x) == 0:
+        return NOMINAL.copy(), WIDTH.copy()
+    tau, delta, v, w = _split(x, -1, rate_at)
+
+    def errors_of(sets: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            v1, w1 = single_track_step(tau, delta, v, w, torch.as_tensor(sets)[:, None], dt)
+        return np.stack([v1.numpy(), w1.numpy()], axis=-1) - y
+
+    return _map_fit(errors_of, y.std(axis=0))
+
+
+def _table_speed_np(throttle: np.ndarray) -> np.ndarray:
+    return np.interp(np.abs(throttle), datasheet.REFERENCE_THROTTLE, datasheet.REFERENCE_SPEED)
+
+
+def run_single_track(controls: np.ndarray, start: np.ndarray, theta: np.ndarray, dt: float) -> np.ndarray:
+    """Free runs of the bare single track: controls (M, T, 2), start rates (M, 2), parameter sets (P, 7)
+    → rates (P, M, T, 2), the first step being `start`. NumPy, every parameter set at once."""
+    theta = np.atleast_2d(theta)[:, :, None]  # (P, 7, 1) against (M,)
+    gain_f, gain_r, t_v, scrub, understeer, t_w, brake = (theta[:, i] for i in range(len(PARAMETERS)))
+    tau, delta = controls[..., 0], controls[..., 1]
+    tan_d = np.tan(delta)
+    table = np.sign(tau) * _table_speed_np(tau)
+    a_v, a_w = np.exp(-dt / t_v), np.exp(-dt / t_w)
+    n_sets, (n_runs, n_steps) = theta.shape[0], tau.shape
+    out = np.empty((n_sets, n_runs, n_steps, 2))
+    v = np.broadcast_to(start[:, 0], (n_sets, n_runs)).copy()
+    w = np.broadcast_to(start[:, 1], (n_sets, n_runs)).copy()
+    out[:, :, 0, 0], out[:, :, 0, 1] = v, w
+    for k in range(1, n_steps):
+        u, td = tau[:, k], tan_d[:, k]
+        v_ss = np.where(u >= 0, gain_f, gain_r) * table[:, k] / (1.0 + scrub * td * td)
+        v_new = v_ss + (v - v_ss) * a_v
+        v = np.where(u == 0, v - np.sign(v) * np.minimum(np.abs(v), brake * dt), v_new)
+        w_ss = np.clip(v * td / (datasheet.WHEELBASE * understeer), -YAW_CAP, YAW_CAP)
+        w = w_ss + (w - w_ss) * a_w
+        out[:, :, k, 0], out[:, :, k, 1] = v, w
+    return out
+
+
+def identify_from_logs(
+    logs: list[tuple[np.ndarray, np.ndarray]],
+    *,
+    dt: float = 1.0 / datasheet.LOG_RATE_HZ,
+    every: int = 1,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Output-error least squares: the parameters whose free runs along each log's controls, from its
+    first recorded rates, come closest to its recorded rates. Logs are (controls (T, 2), rates (T, 2))
+    at `dt`; `every` > 1 fits every n-th step of the runs (they are still simulated at `dt`).
+
+    MAP under the datasheet prior (`_map_fit`). Returns the values and their standard errors.
+    Free runs weigh the steady states and lags as a free run of the model uses them; one-step
+    errors over noisy past rates bias the lags.
+    """
+    logs = [(np.asarray(u, np.float64), np.asarray(y, np.float64)) for u, y in logs if len(u) > 1]
+    if not logs:
+        return NOMINAL.copy(), WIDTH.copy()
+    length = max(len(u) for u, _ in logs)
+    controls = np.zeros((len(logs), length, 2))
+    rates = np.zeros((len(logs), length, 2))
+    valid = np.zeros((len(logs), length), dtype=bool)
+    for i, (u, y) in enumerate(logs):
+        controls[i, : len(u)], rates[i, : len(u)], valid[i, : len(u)] = u, y, True
+        controls[i, len(u) :] = u[-1]
+    keep = np.zeros_like(valid)
+    keep[:, ::every] = valid[:, ::every]
+    start = rates[:, 0]
+
+    def errors_of(sets: np.ndarray) -> np.ndarray:  # (P, n, 2) errors of each parameter set's runs
+        return (run_single_track(controls, start, sets, dt) - rates)[:, keep]
+
+    return _map_fit(errors_of, rates[valid].std(axis=0))
+
+
+def _map_fit(errors_of, spread: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """MAP parameters under the datasheet prior: Gaussian errors of unknown size per rate, found in two
+    passes (the first, with the prior at 1/`PRIOR_ROWS` of its weight, measures the error size), and
+    their Gauss-Newton standard errors. `errors_of` maps parameter sets (P, 7) to errors (P, n, 2)."""
+    x0 = np.clip(NOMINAL, LOW + 1e-9, HIGH - 1e-9)
+    noise = np.maximum(spread, 1e-3)
+    for prior_weight in (1.0 / PRIOR_ROWS, 1.0):
+
+        def residuals_of(sets: np.ndarray, noise=noise, prior_weight=prior_weight) -> np.ndarray:
+            err = errors_of(sets) / noise
+            prior = (sets - NOMINAL) / WIDTH * math.sqrt(prior_weight)
+            return np.concatenate([err.reshape(len(sets), -1), prior], axis=1)
+
+        def fun(p: np.ndarray, residuals_of=residuals_of) -> np.ndarray:
+            return residuals_of(p[None])[0]
+
+        def jac(p: np.ndarray, residuals_of=residuals_of) -> np.ndarray:
+            # one batched run for every forward difference, stepping inwards at an upper bound
+            step = 1e-5 * WIDTH
+            step = np.where(p + step > HIGH, -step, step)
+            res = residuals_of(np.vstack([p, p + np.diag(step)]))
+            return ((res[1:] - res[0]) / step[:, None]).T
+
+        sol = least_squares(fun, x0, jac=jac, bounds=(LOW, HIGH), x_scale=WIDTH, method="trf", max_nfev=100)
+        x0 = sol.x
+        err = errors_of(sol.x[None])[0]
+        noise = np.maximum(np.sqrt(np.mean(err**2, axis=0)), 1e-6 * np.maximum(spread, 1e-3))
+    stderr = np.sqrt(np.clip(np.diag(np.linalg.pinv(sol.jac.T @ sol.jac)), 0.0, None))
+    return sol.x, stderr
+
+
+class PhysicsModel(Model):
+    """Nigel's single track (identified) plus a bounded Bayesian correction: see the module docstring."""
+
+    kind = "physics"
+    compilable = False  # the step reads the model's own scalers and parameters, which compiled templates lack
+
+    def __init__(self, config: ModelConfig, *, generator: torch.Generator | None = None) -> None:
+        if config.n_inputs == N_CONTROLS or config.n_inputs % (N_CONTROLS + N_RATES):
+            raise InputError("model.kind", "physics", "needs [data] inputs = 'controls+rates' or 'history'")
+        super().__init__(config)
+        inner = config.model_copy(
+            update={"kind": config.correction, "n_outputs": N_CORRECTIONS, "kinematic_feature": False}
+        )
+        self.correction = NETWORK_CLASSES[config.correction](inner, generator=generator)
+        self.n_members = self.correction.n_members
+        self.has_epistemic = self.correction.has_epistemic
+        lags = model_lags(self)
+        self.rate_at = N_CONTROLS * lags.history
+        self.dt = lags.step / datasheet.LOG_RATE_HZ
+        self.register_buffer("theta", torch.as_tensor(NOMINAL, dtype=torch.float32).clone())
+        self.register_buffer("theta_stderr", torch.as_tensor(WIDTH, dtype=torch.float32).clone())
+        self._shrink_last_layer()
+
+    # ----- the physical parameters ------------------------------------------------------------
+    def physical_parameters(self) -> dict[str, float]:
+        """The identified parameters by name (physical units)."""
+        return dict(zip(PARAMETER_NAMES, self.theta.tolist(), strict=True))
+
+    @torch.no_grad()
+    def identify(
+        self, x: np.ndarray, y: np.ndarray, logs: list[tuple[np.ndarray, np.ndarray]] | None = None
+    ) -> None:
+        """Fit the physical parameters: to whole logs by their free runs (`identify_from_logs`) where
+        given, else to one-step rows (`identify`). A no-op with `identify = false`."""
+        if not self.config.identify:
+            return
+        if logs:
+            values, stderr = identify_from_logs(logs)
+        else:
+            values, stderr = identify(x, y, self.dt, self.rate_at)
+        self.theta.copy_(torch.as_tensor(values, dtype=torch.float32))
+        self.theta_stderr.copy_(torch.as_tensor(stderr, dtype=torch.float32))
+
+    # ----- the step ---------------------------------------------------------------------------
+    def _physical_step(self, x: Tensor, dim: int, z_mean: Tensor, z_var: Tensor) -> tuple[Tensor, Tensor]:
+        """Standardised (mean, variance) of the next rates, stacked along `dim`, from standardised x."""
+        shape = [1] * x.dim()
+        shape[dim] = -1
+        phys = x * self.x_std.view(shape) + self.x_mean.view(shape)
+        tau, delta, v, w = _split(phys, dim, self.rate_at)
+        zs = z_mean.unbind(dim)
+        v1, w1 = single_track_step(tau, delta, v, w, self.theta, self.dt, zs, self.config.residual_bound)
+        mean = torch.stack([v1, w1], dim=dim)
+        y_shape = [1] * mean.dim()
+        y_shape[dim] = -1
+        mean = (mean - self.y_mean.view(y_shape)) / self.y_std.view(y_shape)
+        var = z_var.narrow(dim, 0, N_RATES).clamp(max=1.0)
+        return mean, var
+
+    def train_forward(self, x: Tensor) -> tuple[Tensor, Tensor | None]:
+        """Stochastic pass on standardised x (N, d) or (K, N, d): the correction, then the physics."""
+        z_mean, z_var = self.correction.train_forward(x)
+        if z_var is None:
+            z_var = torch.ones_like(z_mean)
+        return self._physical_step(x, -1, z_mean, z_var)
+
+    def kl(self) -> Tensor:
+        """The correction's KL divergence."""
+        return self.correction.kl()
+
+    def sample_params(self, n_samples: int, seed: int) -> list:
+        """The correction's posterior draws."""
+        return self.correction.sample_params(n_samples, seed)
+
+    def mean_params(self) -> tuple[list, int]:
+        """The correction's posterior-mean weights."""
+        return self.correction.mean_params()
+
+    def columns_params(self, params: list) -> list:
+        """The correction's column-layout weights."""
+        return self.correction.columns_params(params)
+
+    def columns_forward(self, x: Tensor, params: list, n_samples: int) -> tuple[Tensor, Tensor]:
+        """Standardised (S, 2, N) means and variances for standardised x (d, N) or (S, d, N)."""
+        z_mean, z_var = self.correction.columns_forward(x, params, n_samples)
+        if x.dim() == 2:
+            x = x.expand(n_samples, *x.shape)
+        return self._physical_step(x, -2, z_mean, z_var)
+
+    def reset_parameters(self, generator: torch.Generator | None = None) -> None:
+        """Re-initialise the correction (last layer shrunk); physical parameters are identified, not drawn."""
+        self.correction.reset_parameters(generator)
+        self._shrink_last_layer()
+
+    @torch.no_grad()
+    def _shrink_last_layer(self) -> None:
+        last = self.correction.layers[-1]
+        for name in ("weight", "bias", "weight_mu", "bias_mu"):
+            if hasattr(last, name):
+                getattr(last, name).mul_(LAST_LAYER_SCALE)

@@ -1,0 +1,18 @@
+"""Every model kind by its `[model] kind` name, and `build_model`."""
+
+from __future__ import annotations
+
+import torch
+
+from activelearn.config import ModelConfig
+from activelearn.numerics.models.base import Model
+from activelearn.numerics.models.networks import NETWORK_CLASSES
+from activelearn.numerics.models.physics import PhysicsModel
+
+MODEL_CLASSES: dict[str, type[Model]] = {**NETWORK_CLASSES, PhysicsModel.kind: PhysicsModel}
+
+
+def build_model(cfg: ModelConfig, *, seed: int | None = 0) -> Model:
+    """Build the model `cfg.kind` describes, its weights initialised from `seed` (None: global RNG)."""
+    gen = torch.Generator().manual_seed(seed) if seed is not None else None
+    return MODEL_CLASSES[cfg.kind](cfg, generator=gen)  # type: ignore[call-arg]

@@ -1,0 +1,65 @@
+"""The physics-structured model's core on `dynamics.toml`'s test set: the datasheet, then identified.
+
+Reads a campaign's samples (e.g. `activelearn campaign run experiments/configs/dynamics.toml --params
+PHYSICS.toml --strategy uniform --seed 0 --out DIR`, where PHYSICS.toml sets `[model] kind = "physics"`
+and `kinematic_feature = false`) and, for the first N signals it collected, prints the 30-s position
+error of the free runs of the 72 test maneuvers (noise-free truth) with:
+  * the datasheet's single track (no data at all);
+  * the single track identified on those signals' logs (`identify_from_logs`), no learnt correction.
+The campaign's own `rollout_pos_err_30s` per round (state.json) is the model with its correction.
+
+Usage: python experiments/investigations/physics_identification.py DIR [--signals 4,8,16]
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import pandas as pd
+import torch
+
+from activelearn.config import load_config
+from activelearn.loop.campaign import Campaign
+from activelearn.numerics.models import build_model
+from activelearn.numerics.models.physics import identify_from_logs
+from activelearn.numerics.surrogate import free_run_metrics
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run", type=Path, help="a physics campaign directory")
+    parser.add_argument("--signals", default="4,8,16")
+    args = parser.parse_args()
+    params = args.run / "physics_params.toml"
+    params.write_text('[model]\nkind = "physics"\nkinematic_feature = false\n')
+    cfg = load_config("experiments/configs/dynamics.toml", params=str(params))
+    campaign = Campaign(cfg, args.run / "identification", cache_dir=Path("runs/cache"))
+    test = campaign.test_set
+    samples = pd.read_parquet(args.run / "samples.parquet")
+    order = list(dict.fromkeys(samples["pool_index"]))
+    model = build_model(cfg.model)
+    model.set_scalers(*campaign._training_data(samples)[:2])
+    # the bare single track: the correction's outputs held at zero
+    step = model._physical_step
+    model._physical_step = lambda x, dim, z, var: step(x, dim, torch.zeros_like(z), var)
+
+    def error() -> float:
+        return free_run_metrics(model, test.logs, test.truth_logs)["rollout_pos_err_30s"]
+
+    print(f"datasheet (no data): {error():.4f} m")
+    for n in (int(s) for s in args.signals.split(",")):
+        taken = samples[samples["pool_index"].isin(order[:n])]
+        logs = [
+            (g[["throttle", "steering"]].to_numpy(), g[["speed", "angZ"]].to_numpy())
+            for _, g in taken.groupby("pool_index", sort=False)
+        ]
+        values, _ = identify_from_logs(logs)
+        with torch.no_grad():
+            model.theta.copy_(torch.as_tensor(values, dtype=torch.float32))
+        fitted = ", ".join(f"{k} {v:.3f}" for k, v in model.physical_parameters().items())
+        print(f"identified on {n} signals: {error():.4f} m  ({fitted})")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,198 @@
+"""The physics-structured model kind: Nigel's single track plus a bounded Bayesian correction (MuJoCo)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+import simulator
+from activelearn.config import DataConfig, ModelConfig, TrainingConfig, load_config
+from activelearn.errors import ConfigError, InputError
+from activelearn.loop.collection import arrays, training_rows
+from activelearn.numerics.models import PhysicsModel, build_model, load_model, physics, save_model
+from activelearn.numerics.surrogate import simulate
+from activelearn.numerics.training import fit
+from simulator import Maneuver, datasheet
+
+DATA = DataConfig(stride=10, skip_seconds=0.0, inputs="history", history=4, history_step=3)
+SPEED_BOUND = 1.5 * datasheet.MAX_SPEED
+YAW_BOUND = 1.5 * datasheet.MAX_YAW_RATE
+
+
+def _logs(frame: pd.DataFrame) -> list[tuple[np.ndarray, np.ndarray]]:
+    return [
+        (g[["throttle", "steering"]].to_numpy(), g[["speed", "angZ"]].to_numpy())
+        for _, g in frame.groupby("run_id", sort=False)
+    ]
+
+
+def _config(**knobs) -> ModelConfig:
+    base = {
+        "kind": "physics",
+        "arch": "D16-D16-V",
+        "activation": "softplus",
+        "n_inputs": 16,
+        "history_step": 3,
+    }
+    return ModelConfig(**{**base, **knobs})
+
+
+@pytest.fixture(scope="module")
+def forward_grid() -> pd.DataFrame:
+    """A shrunk forward reference grid: straights and skidpads both ways, forward throttles only."""
+    maneuvers = [Maneuver("straight", t, 0.0, "ccw", 12.0) for t in (0.2, 0.6, 1.0)]
+    maneuvers += [
+        Maneuver("skidpad", t, d, direction, 12.0)
+        for t in (0.2, 0.6, 1.0)
+        for d in (0.3142, 0.5236)
+        for direction in ("ccw", "cw")
+    ]
+    return simulator.collect(maneuvers, seed=0)
+
+
+@pytest.fixture(scope="module", params=["ensemble", "hybrid"])
+def forward_model(request, forward_grid: pd.DataFrame) -> PhysicsModel:
+    """The physics model of each correction kind, trained on the forward grid alone."""
+    rows = pd.concat([training_rows(g, DATA) for _, g in forward_grid.groupby("run_id", sort=False)])
+    x, y = arrays(rows, DATA)
+    model = build_model(_config(correction=request.param, ensemble_size=3), seed=0)
+    fit(
+        model, x, y, TrainingConfig(epochs=30, batch_size=64, patience=None), seed=0, logs=_logs(forward_grid)
+    )
+    return model
+
+
+def _sweep() -> list[np.ndarray]:
+    """The control box in 60 s: constants at its corners, edges and centre (throttle 0 too), and steps."""
+    n = 1800
+    half = n // 2
+    out = [np.tile([t, d], (n, 1)) for t in (-1.0, -0.5, 0.0, 0.5, 1.0) for d in (-0.5236, 0.0, 0.5236)]
+    for (t0, d0), (t1, d1) in (
+        ((1.0, 0.5236), (-1.0, -0.5236)),
+        ((-1.0, 0.5236), (0.0, 0.0)),
+        ((0.0, -0.5236), (1.0, 0.5236)),
+        ((0.3, 0.0), (-1.0, 0.5236)),
+    ):
+        out.append(np.vstack([np.tile([t0, d0], (half, 1)), np.tile([t1, d1], (n - half, 1))]))
+    return out
+
+
+def test_the_bare_single_track_drives_the_datasheet_table():
+    theta = torch.as_tensor(physics.NOMINAL)
+    v, w = torch.zeros(()), torch.zeros(())
+    for _ in range(100):  # 10 s at 0.1 s
+        v, w = physics.single_track_step(torch.tensor(0.6), torch.tensor(0.0), v, w, theta, 0.1)
+    assert float(v) == pytest.approx(0.16516, rel=1e-4)
+    assert float(w) == pytest.approx(0.0, abs=1e-9)
+    for _ in range(100):  # reverse mirrors the table
+        v, w = physics.single_track_step(torch.tensor(-0.6), torch.tensor(0.2), v, w, theta, 0.1)
+    assert float(v) == pytest.approx(-0.16516, rel=1e-4)
+    assert float(w) == pytest.approx(
+        float(v) * np.tan(0.2) / (datasheet.WHEELBASE * physics.NOMINAL[4]), rel=1e-4
+    )
+    v, _ = physics.single_track_step(torch.tensor(0.0), torch.tensor(0.0), v, w, theta, 0.01)
+    assert float(v) == pytest.approx(-0.16516 + 0.01 * datasheet.FRICTION * datasheet.GRAVITY, rel=1e-4)
+
+
+def test_identification_recovers_the_parameters_of_its_own_structure():
+    rng = np.random.default_rng(0)
+    truth = np.array([0.8, 1.1, 0.2, 1.2, 1.15, 0.08, 3.0])
+    controls = []
+    for _ in range(6):  # piecewise-constant controls over the box, brake phases included
+        levels = rng.uniform([-1.0, -0.5236], [1.0, 0.5236], size=(6, 2))
+        levels[rng.integers(6), 0] = 0.0
+        controls.append(np.repeat(levels, 90, axis=0))
+    runs = physics.run_single_track(np.stack(controls), np.zeros((6, 2)), truth, 1 / 30)[0]
+    found, stderr = physics.identify_from_logs([(u, y) for u, y in zip(controls, runs, strict=True)])
+    np.testing.assert_allclose(found, truth, rtol=0.02)
+    assert np.all(stderr < 0.05 * np.maximum(truth, 0.1))
+
+
+def test_identification_on_the_twin_recovers_its_weaker_motor_and_grip():
+    """The twin's change (weaker motor, less grip) is found within 10 % of the change MuJoCo shows."""
+    maneuvers = [Maneuver("straight", t, 0.0, "ccw", 10.0) for t in (0.3, 0.6, 0.9, -0.5)]
+    maneuvers += [Maneuver("skidpad", t, d, "ccw", 10.0) for t in (0.4, 0.8) for d in (0.2094, 0.5236)]
+    nominal = simulator.collect(maneuvers, seed=0)
+    car = simulator.twin_vehicle({"motor_gain": 0.9, "tire_friction": 0.55})
+    twin = simulator.collect(maneuvers, seed=0, vehicle=car)
+    found_nominal, _ = physics.identify_from_logs(_logs(nominal))
+    found_twin, _ = physics.identify_from_logs(_logs(twin))
+
+    def steady(frame: pd.DataFrame) -> np.ndarray:
+        return np.array([g["speed"].to_numpy()[-60:].mean() for _, g in frame.groupby("run_id", sort=False)])
+
+    true_ratio = steady(twin) / steady(nominal)
+    # the straights: the motor's change, forward and reverse
+    for index, gain in ((slice(0, 3), 0), (slice(3, 4), 1)):
+        change = true_ratio[index].mean() - 1.0
+        assert abs(change) > 0.05  # the twin is measurably slower
+        found = found_twin[gain] / found_nominal[gain] - 1.0
+        assert abs(found - change) <= 0.1 * abs(change), (physics.PARAMETER_NAMES[gain], found, change)
+
+    # full lock: grip gives back part of the speed; the identified scrub and gain predict how much
+    def full_lock(theta: np.ndarray) -> float:
+        return theta[0] / (1.0 + theta[3] * np.tan(0.5236) ** 2)
+
+    change = true_ratio[[5, 7]].mean() - 1.0
+    found = full_lock(found_twin) / full_lock(found_nominal) - 1.0
+    assert abs(found - change) <= 0.1 * abs(change), (found, change)
+
+
+def test_trained_forward_only_it_never_leaves_physics(forward_model: PhysicsModel):
+    """Every draw of every 60-s free run over the control box stays finite and within 1.5x Nigel's limits."""
+    draws = forward_model.n_members or 32  # an ensemble's S = K draws are all its members
+    rollout = simulate(forward_model, _sweep(), n_samples=max(draws, 2), seed=0)
+    assert np.isfinite(rollout.v).all() and np.isfinite(rollout.w).all()
+    assert np.abs(rollout.v).max() <= SPEED_BOUND
+    assert np.abs(rollout.w).max() <= YAW_BOUND
+    # and throttle 0 brakes to a stand whatever the draw: the last second of the brake runs
+    brake = [i for i, c in enumerate(_sweep()) if (c[-30:, 0] == 0.0).all()]
+    assert np.abs(rollout.mean_rates[brake, -30:, 0]).max() < 0.01
+
+
+def test_far_from_its_data_it_falls_back_to_the_datasheet(forward_model: PhysicsModel):
+    """Trained forward only, a reverse straight runs at the datasheet's mirrored speed, not a guess."""
+    rollout = simulate(forward_model, [np.tile([-0.6, 0.0], (600, 1))], n_samples=32, seed=0)
+    assert forward_model.physical_parameters()["reverse_gain"] == pytest.approx(1.0, abs=0.05)  # untouched
+    mean_v = rollout.mean_rates[0, -150:, 0].mean()
+    assert abs(mean_v - (-0.16516)) <= forward_model.config.residual_bound * datasheet.MAX_SPEED
+    assert abs(rollout.mean_rates[0, -150:, 1]).max() < 0.05  # a straight line stays straight
+
+
+def test_it_saves_loads_and_replays_identically(forward_model: PhysicsModel, tmp_path):
+    save_model(forward_model, tmp_path / "physics.pt")
+    again = load_model(tmp_path / "physics.pt")
+    assert again.physical_parameters() == forward_model.physical_parameters()
+    controls = [np.tile([0.5, 0.3], (300, 1))]
+    first, second = simulate(forward_model, controls, seed=3), simulate(again, controls, seed=3)
+    np.testing.assert_array_equal(first.x, second.x)
+
+
+def test_bad_settings_name_their_field(tmp_path):
+    with pytest.raises(ValueError, match="kinematic_feature"):
+        _config(kinematic_feature=True)
+    with pytest.raises(ValueError, match="residual_bound"):
+        _config(residual_bound=0.9)
+    with pytest.raises(InputError, match=r"model\.kind"):
+        PhysicsModel(_config(n_inputs=2))
+    path = tmp_path / "static.toml"
+    path.write_text('name = "x"\n[model]\nkind = "physics"\n')
+    with pytest.raises(ConfigError, match=r"model\.kind = 'physics' needs data\.inputs"):
+        load_config(path)
+
+
+def test_identify_command_prints_the_fit_beside_the_datasheet(tmp_path, capsys):
+    from activelearn.cli import main
+
+    car = simulator.twin_vehicle({"motor_gain": 0.9})
+    frame = simulator.collect([Maneuver("straight", 0.6, 0.0, "ccw", 8.0)], seed=0, vehicle=car)
+    frame.to_parquet(tmp_path / "twin.parquet")
+    assert main(["identify", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    row = next(line.split() for line in out.splitlines() if line.strip().startswith("speed_gain"))
+    datasheet_value, fitted = float(row[1]), float(row[2])
+    assert datasheet_value == 1.0 and 0.85 < fitted < 0.95  # the weaker motor, found in its own log
+    assert main(["identify", str(tmp_path / "missing.csv")]) == 2
+    assert "LOG" in capsys.readouterr().err
