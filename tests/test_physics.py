@@ -64,21 +64,6 @@ def forward_model(request, forward_grid: pd.DataFrame) -> PhysicsModel:
     return model
 
 
-def _sweep() -> list[np.ndarray]:
-    """The control box in 60 s: constants at its corners, edges and centre (throttle 0 too), and steps."""
-    n = 1800
-    half = n // 2
-    out = [np.tile([t, d], (n, 1)) for t in (-1.0, -0.5, 0.0, 0.5, 1.0) for d in (-0.5236, 0.0, 0.5236)]
-    for (t0, d0), (t1, d1) in (
-        ((1.0, 0.5236), (-1.0, -0.5236)),
-        ((-1.0, 0.5236), (0.0, 0.0)),
-        ((0.0, -0.5236), (1.0, 0.5236)),
-        ((0.3, 0.0), (-1.0, 0.5236)),
-    ):
-        out.append(np.vstack([np.tile([t0, d0], (half, 1)), np.tile([t1, d1], (n - half, 1))]))
-    return out
-
-
 def test_the_bare_single_track_drives_the_datasheet_table():
     theta = torch.as_tensor(physics.NOMINAL)
     v, w = torch.zeros(()), torch.zeros(())
@@ -143,12 +128,16 @@ def test_identification_on_the_twin_recovers_its_weaker_motor_and_grip():
 def test_trained_forward_only_it_never_leaves_physics(forward_model: PhysicsModel):
     """Every draw of every 60-s free run over the control box stays finite and within 1.5x Nigel's limits."""
     draws = forward_model.n_members or 32  # an ensemble's S = K draws are all its members
-    rollout = simulate(forward_model, _sweep(), n_samples=max(draws, 2), seed=0)
+    sweep = physics.control_box_sweep(60.0)
+    rollout = simulate(forward_model, sweep, n_samples=max(draws, 2), seed=0)
     assert np.isfinite(rollout.v).all() and np.isfinite(rollout.w).all()
     assert np.abs(rollout.v).max() <= SPEED_BOUND
     assert np.abs(rollout.w).max() <= YAW_BOUND
+    assert physics.runs_out_of_bounds(rollout.v, rollout.w) == 0
+    # the counter counts: the same runs pushed past the bound are all found
+    assert physics.runs_out_of_bounds(rollout.v * 10.0, rollout.w) > 0
     # and throttle 0 brakes to a stand whatever the draw: the last second of the brake runs
-    brake = [i for i, c in enumerate(_sweep()) if (c[-30:, 0] == 0.0).all()]
+    brake = [i for i, c in enumerate(sweep) if (c[-30:, 0] == 0.0).all()]
     assert np.abs(rollout.mean_rates[brake, -30:, 0]).max() < 0.01
 
 

@@ -21,6 +21,11 @@
    ensemble of K members of each kind (`<kind>/ens`). `--attribution` splits each variant's 30-s
    error: the path integrated from its mean rates, then with MuJoCo's true v or true ω in their place.
 
+6. Drives every model over Nigel's whole control box for 60 s (`physics.control_box_sweep`: constants
+   and steps, throttle 0 and reverse included, though training saw forward driving only) and prints
+   how many sampled runs leave 1.5x the datasheet's speed or yaw-rate limit or are not finite.
+   `physics` is the physics-structured model (`[model] kind = "physics"`).
+
 Usage: python experiments/benchmarks/bench_surrogate.py [--maneuvers 256] [--samples 32] [--epochs 120]
        [--rounds 3] [--repeats 3] [--models static,markov,history,recurrent] [--horizons 10,30]
        [--calibration-maneuvers 10] [--train-seeds 3] [--ensemble 5] [--attribution]
@@ -40,6 +45,7 @@ import simulator
 from activelearn.config import DataConfig, ModelConfig, TrainingConfig
 from activelearn.loop.collection import arrays, training_rows, training_windows
 from activelearn.numerics.models import build_model
+from activelearn.numerics.models.physics import control_box_sweep, runs_out_of_bounds
 from activelearn.numerics.surrogate import (
     calibrate_fan,
     path_from_rates,
@@ -59,6 +65,11 @@ MODELS: dict[str, tuple[dict, dict]] = {
     "recurrent": (
         {"inputs": "history", "history": 4, "history_step": 3},
         {"kind": "recurrent", "arch": "D32-V16-V", "hidden_size": 32},
+    ),
+    # Nigel's single track (identified on the training logs) + a bounded ensemble correction
+    "physics": (
+        {"inputs": "history", "history": 4, "history_step": 3},
+        {"kind": "physics", "correction": "ensemble", "arch": "D32-D32-V16-V", "activation": "softplus"},
     ),
 }
 
@@ -103,6 +114,7 @@ def train(
     )  # fmt: skip
     frames = [part for _, part in log.groupby("run_id", sort=False)]
     windows = training_windows(frames, data, horizon) if horizon else None
+    logs = [(f[["throttle", "steering"]].to_numpy(), f[["speed", "angZ"]].to_numpy()) for f in frames]
     started = time.perf_counter()
     fit(
         model,
@@ -112,6 +124,7 @@ def train(
                        rollout_horizon=horizon),
         seed=seed,
         windows=windows,
+        logs=logs,  # a physics-structured model identifies itself on them; the others ignore them
     )  # fmt: skip
     return model, time.perf_counter() - started, len(x)
 
@@ -179,9 +192,10 @@ def main() -> None:
     ]
     if args.ensemble:  # each MLP variant, multi-step ones included, also as an ensemble (<kind>/ens...)
         variants += [(label.replace(k, f"{k}/ens", 1), k, h, args.ensemble, False)
-                     for label, k, h, _, _ in variants if k != "recurrent"]  # fmt: skip
+                     for label, k, h, _, _ in variants if k not in ("recurrent", "physics")]  # fmt: skip
     if args.kinematic:
-        variants += [(f"{label}+kin", k, h, e, True) for label, k, h, e, _ in variants if k != "recurrent"]
+        variants += [(f"{label}+kin", k, h, e, True)
+                     for label, k, h, e, _ in variants if k not in ("recurrent", "physics")]  # fmt: skip
     if args.variants:
         wanted = {v for v in args.variants.split(",") if v} | {"static"}
         missing = wanted - {label for label, *_ in variants}
@@ -333,6 +347,17 @@ def main() -> None:
             print(cells.to_string())
         else:
             print(mean.to_string(float_format="%.3f"))
+    # Trained on forward driving (the training set's throttles are 0.2-1.0), every model is driven over
+    # the whole control box for 60 s: how many sampled runs are not finite or leave 1.5x the limits
+    sweep = control_box_sweep(60.0)
+    print(f"\nruns leaving 1.5x Nigel's speed or yaw-rate limit (or not finite) over the control box: "
+          f"{len(sweep)} sweeps x S = {args.samples}, 60 s, per training seed")  # fmt: skip
+    for name in names:
+        counts = []
+        for seed in seeds:
+            sweep_run = simulate(models[name, seed], sweep, n_samples=args.samples, seed=0)
+            counts.append(runs_out_of_bounds(sweep_run.v, sweep_run.w))
+        print(f"  {name:24s} {' '.join(str(c) for c in counts)} of {len(sweep) * args.samples}")
     speed = {k: float(np.median(v)) for k, v in ratios.items()}
     print("\nspeed against MuJoCo (median over rounds):")
     for label, value in speed.items():

@@ -9,9 +9,10 @@ model's newest past rate and its target, from the newest control u = (τ, δ):
     ω'   = ω_ss + (ω − ω_ss) · exp(−Δ / yaw_lag)
 
 `table` is the datasheet's throttle → speed table (mirrored in reverse). The seven physical
-parameters start at the datasheet (`PARAMETERS`) and are identified from the training rows by
-least squares with the datasheet as a weak prior (`identify`), so a parameter the data do not
-touch (say the reverse gain, trained forward only) stays at the datasheet's value.
+parameters start at the datasheet (`PARAMETERS`) and are identified before every fit: by the free
+runs of the training logs where the caller gives them (`identify_from_logs`, what campaigns do),
+else from one-step rows (`identify`), MAP with the datasheet as the prior, so a parameter the data
+do not touch (say the reverse gain, trained forward only) stays at the datasheet's value.
 
 The Bayesian part (a deep ensemble or hybrid PBNN of `config.correction`, on the same inputs)
 learns only what the physics misses, every output squashed into a physical range:
@@ -357,3 +358,30 @@ class PhysicsModel(Model):
         for name in ("weight", "bias", "weight_mu", "bias_mu"):
             if hasattr(last, name):
                 getattr(last, name).mul_(LAST_LAYER_SCALE)
+
+
+def control_box_sweep(duration: float = 60.0, rate_hz: float = datasheet.LOG_RATE_HZ) -> list[np.ndarray]:
+    """Control sequences (T, 2) over Nigel's whole control box: constants at its corners, edges and
+    centre (throttle 0, the brake, included) and steps across it halfway through."""
+    n = round(duration * rate_hz)
+    half = n // 2
+    lock = datasheet.STEERING_LIMIT
+    out = [np.tile([t, d], (n, 1)) for t in (-1.0, -0.5, 0.0, 0.5, 1.0) for d in (-lock, 0.0, lock)]
+    for (t0, d0), (t1, d1) in (
+        ((1.0, lock), (-1.0, -lock)),
+        ((-1.0, lock), (0.0, 0.0)),
+        ((0.0, -lock), (1.0, lock)),
+        ((0.3, 0.0), (-1.0, lock)),
+    ):
+        out.append(np.vstack([np.tile([t0, d0], (half, 1)), np.tile([t1, d1], (n - half, 1))]))
+    return out
+
+
+def runs_out_of_bounds(v: np.ndarray, w: np.ndarray, factor: float = 1.5) -> int:
+    """How many sampled free runs (rates (S, M, T)) are not finite or leave `factor` x Nigel's speed or
+    yaw-rate limit at some step."""
+    bad = ~(np.isfinite(v) & np.isfinite(w))
+    bad |= np.abs(np.nan_to_num(v)) > factor * datasheet.MAX_SPEED
+    bad |= np.abs(np.nan_to_num(w)) > factor * datasheet.MAX_YAW_RATE
+    return int(bad.any(axis=-1).sum())
+
