@@ -185,3 +185,47 @@ def test_identify_command_prints_the_fit_beside_the_datasheet(tmp_path, capsys):
     assert datasheet_value == 1.0 and 0.85 < fitted < 0.95  # the weaker motor, found in its own log
     assert main(["identify", str(tmp_path / "missing.csv")]) == 2
     assert "LOG" in capsys.readouterr().err
+
+
+def test_a_campaign_scores_along_paths_with_it_and_predict_draws_its_fans(tmp_path):
+    """Wherever a model kind works: a campaign (max_epistemic along the free runs), its saved model in
+    `predict`, and the identified parameters carried along."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from activelearn.loop.campaign import Campaign
+
+    smoke = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
+    cfg = load_config(
+        smoke,
+        overrides={
+            "output_dir": str(tmp_path / "runs"),
+            "tracking": {"enabled": False},
+            "strategy": "max_epistemic",
+            "pool": {"kinds": ["skidpad", "slalom"], "duration": 8.0},
+            "data": {"stride": 5, "skip_seconds": 0.0, "inputs": "history", "history": 3, "history_step": 2},
+            "model": {"kind": "physics", "arch": "D16-V8-V"},
+            "training": {"epochs": 15},
+            "design": {"initial": 2, "per_round": 1, "max_maneuvers": 3},
+            "acquisition": {"dynamic_points": "path", "score_points": 6},
+            "test": {"kinds": ["slalom"], "throttles": [0.6], "steerings": [0.3], "duration": 8.0,
+                     "metric": "rollout_pos_err_30s", "rollout_samples": 8},
+        },
+    )  # fmt: skip
+    result = Campaign(cfg, tmp_path / "c").run(figures=False)
+    assert len(result.state.rounds) == 2
+    for record in result.state.rounds:
+        assert np.isfinite(record["rollout_pos_err_30s"]) and record["rollout_pos_err_30s"] < 1.0
+    model = load_model(tmp_path / "c" / "model.pt")
+    assert isinstance(model, PhysicsModel)
+    # identified on the campaign's skidpads and slaloms: they excite the scrub, which moves off 0
+    assert model.physical_parameters()["scrub"] > 0.3
+    done = subprocess.run(
+        [sys.executable, "-m", "activelearn.cli", "predict", "--model", str(tmp_path / "c"), "--maneuver",
+         "slalom", "--throttle", "0.6", "--steering", "0.3", "--duration", "6", "--samples", "8",
+         "--out", str(tmp_path / "fan.png")],
+        capture_output=True, text=True, timeout=300, cwd=tmp_path,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "fan.png").stat().st_size > 10_000
