@@ -420,7 +420,8 @@ def _sequential_rollout(
         # Torch: blocks of a fixed size (so the numbers do not depend on the thread count) on the
         # thread pool, one intra-op thread each. Torch's own intra-op threads sync at every one of
         # the thousands of small ops: 13x slower on a busy 2-core machine (recurrent model, measured).
-        parallel_map(run, even_blocks(n_maneuvers, TORCH_BLOCK))
+        # A model whose step is many small ops (the physics kind) amortises them over wider blocks.
+        parallel_map(run, even_blocks(n_maneuvers, getattr(model, "rollout_block", TORCH_BLOCK)))
     else:
         parallel_map(run, even_blocks(n_maneuvers, -(-n_maneuvers // torch.get_num_threads())))
     # (T, 2, M) → (M, T, 2); v and ω are (S, M, T) views of the rates.

@@ -263,6 +263,11 @@ class PhysicsModel(Model):
 
     kind = "physics"
     compilable = False  # the step reads the model's own scalers and parameters, which compiled templates lack
+    # Maneuvers per task of a torch free run (fixed, so the numbers do not depend on the thread count):
+    # its step is ~30 small ops, which wider blocks amortise (64 maneuvers x 30 s, S = 32, on a busy
+    # 2-core machine: 16 per block 6.0 s, 32 per block 3.7 s; one lone block runs on the calling
+    # thread, whose torch ops then spin their intra-op threads: 19 s).
+    rollout_block = 32
 
     def __init__(self, config: ModelConfig, *, generator: torch.Generator | None = None) -> None:
         if config.n_inputs == N_CONTROLS or config.n_inputs % (N_CONTROLS + N_RATES):
