@@ -1,0 +1,88 @@
+"""Trained on forward driving only, how far off is each model in reverse and at full lock?
+
+Fits, on `dynamics_warm.toml`'s prior alone (the forward reference grid: straights and skidpads), the
+configs' black box (history ensemble + kinematic feature + 30-step windows) and the physics-structured
+model (`[model] kind = "physics"`, its defaults), each from training seeds 0..N-1, and prints the 30-s
+position error of the free runs of `dynamics.toml`'s 72 test maneuvers (noise-free truth): all, the
+reverse ones (throttle < 0) and the fishhooks (steering ramps to full lock), with the 95 % fans' share
+of true positions.
+
+Usage: python experiments/investigations/physics_forward_only.py [--seeds 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from activelearn.config import load_config
+from activelearn.loop.campaign import Campaign
+from activelearn.loop.prior import load_prior
+from activelearn.numerics.models import build_model
+from activelearn.numerics.surrogate import free_runs, relative_pose
+from activelearn.numerics.training import fit
+
+PHYSICS = '[model]\nkind = "physics"\nkinematic_feature = false\n'
+
+
+def errors(model, logs, truth) -> tuple[np.ndarray, np.ndarray]:
+    """Per test maneuver: the 30-s position error of the mean path and the fan's share of true positions."""
+    rollout = free_runs(model, logs)
+    mean_x, mean_y = rollout.mean_path()
+    band_x, band_y = (np.quantile(getattr(rollout, a), (0.025, 0.975), axis=0) for a in ("x", "y"))
+    err, cover = [], []
+    for i, table in enumerate(truth):
+        n = int(rollout.lengths[i])
+        columns = {c: table[c].to_numpy() for c in ("speed", "angZ", "posX", "posY", "yaw")}
+        tx, ty, _ = relative_pose(columns, n)
+        k = min(900, n - 1)
+        err.append(float(np.nan_to_num(np.hypot(mean_x[i, k] - tx[k], mean_y[i, k] - ty[k]), nan=np.inf)))
+        inside = (band_x[0, i, :n] <= tx) & (tx <= band_x[1, i, :n])
+        inside &= (band_y[0, i, :n] <= ty) & (ty <= band_y[1, i, :n])
+        cover.append(float(inside.mean()))
+    return np.array(err), np.array(cover)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=3)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        params = Path(tmp) / "physics.toml"
+        params.write_text(PHYSICS)
+        configs = {
+            "black box": load_config("experiments/configs/dynamics_warm.toml"),
+            "physics": load_config("experiments/configs/dynamics_warm.toml", params=str(params)),
+        }
+        test_cfg = load_config("experiments/configs/dynamics.toml")
+        tester = Campaign(test_cfg, Path(tmp) / "test", cache_dir=Path("runs/cache"))
+        test, maneuvers = tester.test_set, tester.oracle.test_maneuvers()
+        reverse = np.array([m.throttle < 0 for m in maneuvers])
+        fishhook = np.array([m.kind == "fishhook" for m in maneuvers])
+        rows = []
+        for name, cfg in configs.items():
+            campaign = Campaign(cfg, Path(tmp) / name.replace(" ", "_"), cache_dir=Path("runs/cache"))
+            campaign.prior = load_prior(cfg, campaign.nominal)  # the forward reference grid, simulated once
+            empty = campaign._with_prior(pd.DataFrame()).iloc[:0]
+            x, y, groups = campaign._training_data(empty)
+            windows = campaign._training_windows(empty)
+            logs = campaign._identification_logs(empty)
+            for seed in range(args.seeds):
+                model = build_model(cfg.model)
+                fit(model, x, y, cfg.training, groups=groups, seed=seed, windows=windows, logs=logs)
+                err, cover = errors(model, test.logs, test.truth_logs)
+                rows.append({"model": name, "seed": seed, "all": err.mean(), "reverse": err[reverse].mean(),
+                             "fishhook": err[fishhook].mean(), "fan_all": cover.mean()})  # fmt: skip
+                print(rows[-1], flush=True)
+        table = pd.DataFrame(rows).drop(columns="seed").groupby("model")
+        print("\n30-s position error (m), mean ± s.e.m. over training seeds; fan: share of true positions in")
+        cells = table.mean().round(4).astype(str) + " ± " + table.sem().round(4).astype(str)
+        print(cells.to_string())
+
+
+if __name__ == "__main__":
+    main()
