@@ -28,6 +28,7 @@ bounded correction, which is the epistemic band there.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -94,48 +95,70 @@ HIGH = np.array([p.high for p in PARAMETERS])
 WIDTH = np.array([p.width for p in PARAMETERS])
 
 
-def _table_speed(throttle: Tensor) -> Tensor:
+Array = Tensor | np.ndarray  # the step serves training and free runs (torch) and identification (NumPy)
+
+
+def _namespace(a: Array):
+    """torch for tensors, NumPy for arrays: the functions the step calls exist under one name in both."""
+    return torch if isinstance(a, Tensor) else np
+
+
+@functools.lru_cache(maxsize=4)
+def _table(dtype: torch.dtype) -> tuple[Tensor, Tensor]:
+    """The datasheet's speed table (m/s at throttle 0, 0.1, ..., 1) and its slope per 0.1 of throttle."""
+    speed = torch.as_tensor(datasheet.REFERENCE_SPEED, dtype=dtype)
+    return speed, torch.diff(speed)
+
+
+def _table_speed(throttle: Array) -> Array:
     """The datasheet's steady forward speed at |throttle| (m/s), interpolated linearly (τ in [0, 1])."""
-    x = throttle.abs().clamp(max=datasheet.THROTTLE_LIMIT) * 10.0
-    i = x.floor().clamp(max=9.0)
-    table = torch.as_tensor(datasheet.REFERENCE_SPEED, dtype=throttle.dtype)
-    lo = table[i.long()]
-    hi = table[(i + 1).long()]
-    return lo + (x - i) * (hi - lo)
+    xp = _namespace(throttle)
+    x = xp.clip(xp.abs(throttle), 0.0, datasheet.THROTTLE_LIMIT) * 10.0
+    i = xp.clip(xp.floor(x), 0.0, 9.0)
+    if xp is torch:
+        speed, slope = _table(throttle.dtype)
+        index = i.long()
+    else:
+        speed, slope = datasheet.REFERENCE_SPEED, np.diff(datasheet.REFERENCE_SPEED)
+        index = i.astype(np.intp)
+    return speed[index] + (x - i) * slope[index]
 
 
 def single_track_step(
-    throttle: Tensor,
-    steering: Tensor,
-    v: Tensor,
-    w: Tensor,
-    theta: Tensor,
+    throttle: Array,
+    steering: Array,
+    v: Array,
+    w: Array,
+    theta: Array,
     dt: float,
     corrections: tuple[Tensor, Tensor, Tensor, Tensor] | None = None,
     residual_bound: float = 0.0,
-) -> tuple[Tensor, Tensor]:
+) -> tuple[Array, Array]:
     """Next (v, ω) after `dt` s of the control (throttle, steering) from rates (v, ω), broadcast.
 
-    `theta` holds the seven `PARAMETERS` in order; `corrections` the network's raw outputs (steady
-    speed, steady yaw rate, speed lag, yaw lag), each squashed into its range (None: pure physics).
+    `theta` holds the seven `PARAMETERS` along its last axis; `corrections` the network's raw outputs
+    (steady speed, steady yaw rate, speed lag, yaw lag), each squashed into its range (None: pure
+    physics). Tensors (training, free runs) or NumPy arrays (identification, several times faster on
+    its small arrays), not mixed.
     """
-    gain_f, gain_r, t_v, scrub, understeer, t_w, brake = theta.unbind(-1)
-    tan_d = torch.tan(steering)
-    gain = torch.where(throttle >= 0, gain_f, gain_r)
-    v_ss = torch.sign(throttle) * gain * _table_speed(throttle) / (1.0 + scrub * tan_d.square())
+    xp = _namespace(throttle)
+    gain_f, gain_r, t_v, scrub, understeer, t_w, brake = (theta[..., i] for i in range(len(PARAMETERS)))
+    tan_d = xp.tan(steering)
+    gain = xp.where(throttle >= 0, gain_f, gain_r)
+    v_ss = xp.sign(throttle) * gain * _table_speed(throttle) / (1.0 + scrub * tan_d * tan_d)
     if corrections is not None:
         z_v, z_w, z_tv, z_tw = corrections
-        v_ss = v_ss + residual_bound * datasheet.MAX_SPEED * torch.tanh(z_v)
-        t_v = t_v * torch.exp(math.log(LAG_FACTOR) * torch.tanh(z_tv))
-        t_w = t_w * torch.exp(math.log(LAG_FACTOR) * torch.tanh(z_tw))
-    v_next = v_ss + (v - v_ss) * torch.exp(-dt / t_v)
-    braked = v - torch.sign(v) * torch.minimum(v.abs(), brake * dt)
-    v_next = torch.where(throttle == 0, braked, v_next)
+        v_ss = v_ss + residual_bound * datasheet.MAX_SPEED * xp.tanh(z_v)
+        t_v = t_v * xp.exp(math.log(LAG_FACTOR) * xp.tanh(z_tv))
+        t_w = t_w * xp.exp(math.log(LAG_FACTOR) * xp.tanh(z_tw))
+    v_next = v_ss + (v - v_ss) * xp.exp(-dt / t_v)
+    braked = v - xp.sign(v) * xp.minimum(xp.abs(v), brake * dt)
+    v_next = xp.where(throttle == 0, braked, v_next)
     w_ss = v_next * tan_d / (datasheet.WHEELBASE * understeer)
     if corrections is not None:
-        w_ss = w_ss + residual_bound * datasheet.MAX_YAW_RATE * torch.tanh(z_w)
-    w_ss = w_ss.clamp(-YAW_CAP, YAW_CAP)
-    w_next = w_ss + (w - w_ss) * torch.exp(-dt / t_w)
+        w_ss = w_ss + residual_bound * datasheet.MAX_YAW_RATE * xp.tanh(z_w)
+    w_ss = xp.clip(w_ss, -YAW_CAP, YAW_CAP)
+    w_next = w_ss + (w - w_ss) * xp.exp(-dt / t_w)
     return v_next, w_next
 
 
@@ -164,31 +187,17 @@ def identify(x: np.ndarray, y: np.ndarray, dt: float, rate_at: int) -> tuple[np.
     return _map_fit(errors_of, y.std(axis=0))
 
 
-def _table_speed_np(throttle: np.ndarray) -> np.ndarray:
-    return np.interp(np.abs(throttle), datasheet.REFERENCE_THROTTLE, datasheet.REFERENCE_SPEED)
-
-
 def run_single_track(controls: np.ndarray, start: np.ndarray, theta: np.ndarray, dt: float) -> np.ndarray:
-    """Free runs of the bare single track: controls (M, T, 2), start rates (M, 2), parameter sets (P, 7)
-    → rates (P, M, T, 2), the first step being `start`. NumPy, every parameter set at once."""
-    theta = np.atleast_2d(theta)[:, :, None]  # (P, 7, 1) against (M,)
-    gain_f, gain_r, t_v, scrub, understeer, t_w, brake = (theta[:, i] for i in range(len(PARAMETERS)))
-    tau, delta = controls[..., 0], controls[..., 1]
-    tan_d = np.tan(delta)
-    table = np.sign(tau) * _table_speed_np(tau)
-    a_v, a_w = np.exp(-dt / t_v), np.exp(-dt / t_w)
-    n_sets, (n_runs, n_steps) = theta.shape[0], tau.shape
-    out = np.empty((n_sets, n_runs, n_steps, 2))
-    v = np.broadcast_to(start[:, 0], (n_sets, n_runs)).copy()
-    w = np.broadcast_to(start[:, 1], (n_sets, n_runs)).copy()
+    """Free runs of the bare single track (`single_track_step`, no correction): controls (M, T, 2), start
+    rates (M, 2), parameter sets (P, 7) → rates (P, M, T, 2), the first step being `start`. NumPy,
+    every parameter set at once."""
+    sets = np.atleast_2d(theta)[:, None]  # (P, 1, 7) against (M,)
+    n_runs, n_steps = controls.shape[:2]
+    out = np.empty((len(sets), n_runs, n_steps, 2))
+    v, w = (np.broadcast_to(start[:, j], (len(sets), n_runs)) for j in range(2))
     out[:, :, 0, 0], out[:, :, 0, 1] = v, w
     for k in range(1, n_steps):
-        u, td = tau[:, k], tan_d[:, k]
-        v_ss = np.where(u >= 0, gain_f, gain_r) * table[:, k] / (1.0 + scrub * td * td)
-        v_new = v_ss + (v - v_ss) * a_v
-        v = np.where(u == 0, v - np.sign(v) * np.minimum(np.abs(v), brake * dt), v_new)
-        w_ss = np.clip(v * td / (datasheet.WHEELBASE * understeer), -YAW_CAP, YAW_CAP)
-        w = w_ss + (w - w_ss) * a_w
+        v, w = single_track_step(controls[:, k, 0], controls[:, k, 1], v, w, sets, dt)
         out[:, :, k, 0], out[:, :, k, 1] = v, w
     return out
 
@@ -283,7 +292,6 @@ class PhysicsModel(Model):
         self.rate_at = N_CONTROLS * lags.history
         self.dt = lags.step / datasheet.LOG_RATE_HZ
         self.register_buffer("theta", torch.as_tensor(NOMINAL, dtype=torch.float32).clone())
-        self.register_buffer("theta_stderr", torch.as_tensor(WIDTH, dtype=torch.float32).clone())
         self._shrink_last_layer()
 
     # ----- the physical parameters ------------------------------------------------------------
@@ -300,11 +308,10 @@ class PhysicsModel(Model):
         if not self.config.identify:
             return
         if logs:
-            values, stderr = identify_from_logs(logs)
+            values, _ = identify_from_logs(logs)
         else:
-            values, stderr = identify(x, y, self.dt, self.rate_at)
+            values, _ = identify(x, y, self.dt, self.rate_at)
         self.theta.copy_(torch.as_tensor(values, dtype=torch.float32))
-        self.theta_stderr.copy_(torch.as_tensor(stderr, dtype=torch.float32))
 
     # ----- the step ---------------------------------------------------------------------------
     def _physical_step(self, x: Tensor, dim: int, z_mean: Tensor, z_var: Tensor) -> tuple[Tensor, Tensor]:
