@@ -1136,12 +1136,12 @@ def _identify(args: argparse.Namespace) -> int:
 
     from activelearn.errors import InputError
     from activelearn.fidelity import read_log_file
+    from activelearn.loop.collection import control_rate_logs
     from activelearn.numerics.models.physics import PARAMETERS, identify_from_logs
 
     if not (math.isfinite(args.rate_hz) and args.rate_hz > 0):
         raise InputError("--rate-hz", args.rate_hz, "must be a positive number")
-    tables = [read_log_file(path) for path in _log_files(args.logs)]
-    logs = [(t[["throttle", "steering"]].to_numpy(), t[["speed", "angZ"]].to_numpy()) for t in tables]
+    logs = control_rate_logs([read_log_file(path) for path in _log_files(args.logs)])
     values, stderr = identify_from_logs(logs, dt=1.0 / args.rate_hz)
     print(f"physical parameters from {len(logs)} log(s), {sum(len(u) for u, _ in logs)} steps:")
     print(f"  {'parameter':<13}{'datasheet':>10}{'fitted':>10}{'± s.e.':>9}{'change':>9}  unit  meaning")

@@ -10,7 +10,7 @@ import torch
 import simulator
 from activelearn.config import DataConfig, ModelConfig, TrainingConfig, load_config
 from activelearn.errors import ConfigError, InputError
-from activelearn.loop.collection import arrays, training_rows
+from activelearn.loop.collection import arrays, control_rate_logs, training_rows
 from activelearn.numerics.models import PhysicsModel, build_model, load_model, physics, save_model
 from activelearn.numerics.surrogate import simulate
 from activelearn.numerics.training import fit
@@ -22,10 +22,7 @@ YAW_BOUND = 1.5 * datasheet.MAX_YAW_RATE
 
 
 def _logs(frame: pd.DataFrame) -> list[tuple[np.ndarray, np.ndarray]]:
-    return [
-        (g[["throttle", "steering"]].to_numpy(), g[["speed", "angZ"]].to_numpy())
-        for _, g in frame.groupby("run_id", sort=False)
-    ]
+    return control_rate_logs([g for _, g in frame.groupby("run_id", sort=False)])
 
 
 def _config(**knobs) -> ModelConfig:

@@ -51,6 +51,7 @@ from activelearn.loop.collection import (
     SimulationCache,
     TestSet,
     arrays,
+    control_rate_logs,
     feature_columns,
     rows_per_maneuver,
     training_rows,
@@ -78,7 +79,6 @@ from activelearn.loop.state import (
     CampaignState,
 )
 from activelearn.numerics import uncertainty
-from activelearn.numerics.lags import CONTROL_COLUMNS, RATE_COLUMNS
 from activelearn.numerics.models import Prediction, ResidualModel, build_model, load_model, save_model
 from activelearn.numerics.paths import path_inputs
 from activelearn.numerics.surrogate import fan_scale_needed, free_run_metrics, model_inputs, simulate
@@ -282,10 +282,7 @@ class Campaign:
         if self.cfg.model.kind != "physics":
             return None
         samples = self._with_prior(samples)
-        return [
-            (part[list(CONTROL_COLUMNS)].to_numpy(), part[list(RATE_COLUMNS)].to_numpy())
-            for _, part in samples.groupby("pool_index", sort=False)
-        ]
+        return control_rate_logs([part for _, part in samples.groupby("pool_index", sort=False)])
 
     def target(self) -> tuple[np.ndarray, np.ndarray]:
         """Controls (and weights) of the target region (`[target]`, default: the test maneuvers')."""

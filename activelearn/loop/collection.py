@@ -133,10 +133,12 @@ def training_windows(frames: Sequence[pd.DataFrame], cfg: DataConfig, horizon: i
     lags = data_lags(cfg) or (Lags(1, 1) if cfg.inputs == "controls+rates" else None)
     if lags is None or horizon == 0:
         return None
-    logs = [
-        (f[list(FEATURES)].to_numpy(np.float64), f[list(TARGETS)].to_numpy(np.float64)) for f in frames
-    ]
-    return windows_from_logs(logs, lags, horizon, every=cfg.stride)
+    return windows_from_logs(control_rate_logs(frames), lags, horizon, every=cfg.stride)
+
+
+def control_rate_logs(frames: Sequence[pd.DataFrame]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each log as (controls (T, 2), rates (T, 2)): what multi-step windows and identification read."""
+    return [(f[list(FEATURES)].to_numpy(np.float64), f[list(TARGETS)].to_numpy(np.float64)) for f in frames]
 
 
 def training_rows(frame: pd.DataFrame, cfg: DataConfig) -> pd.DataFrame:

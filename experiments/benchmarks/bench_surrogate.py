@@ -43,7 +43,7 @@ import pandas as pd
 
 import simulator
 from activelearn.config import DataConfig, ModelConfig, TrainingConfig
-from activelearn.loop.collection import arrays, training_rows, training_windows
+from activelearn.loop.collection import arrays, control_rate_logs, training_rows, training_windows
 from activelearn.numerics.models import build_model
 from activelearn.numerics.models.physics import control_box_sweep, runs_out_of_bounds
 from activelearn.numerics.surrogate import (
@@ -114,7 +114,6 @@ def train(
     )  # fmt: skip
     frames = [part for _, part in log.groupby("run_id", sort=False)]
     windows = training_windows(frames, data, horizon) if horizon else None
-    logs = [(f[["throttle", "steering"]].to_numpy(), f[["speed", "angZ"]].to_numpy()) for f in frames]
     started = time.perf_counter()
     fit(
         model,
@@ -124,7 +123,7 @@ def train(
                        rollout_horizon=horizon),
         seed=seed,
         windows=windows,
-        logs=logs,  # a physics-structured model identifies itself on them; the others ignore them
+        logs=control_rate_logs(frames),  # a physics-structured model identifies itself on them
     )  # fmt: skip
     return model, time.perf_counter() - started, len(x)
 

@@ -21,6 +21,7 @@ import torch
 
 from activelearn.config import load_config
 from activelearn.loop.campaign import Campaign
+from activelearn.loop.collection import control_rate_logs
 from activelearn.numerics.models import build_model
 from activelearn.numerics.models.physics import identify_from_logs
 from activelearn.numerics.surrogate import free_run_metrics
@@ -50,10 +51,7 @@ def main() -> None:
     print(f"datasheet (no data): {error():.4f} m")
     for n in (int(s) for s in args.signals.split(",")):
         taken = samples[samples["pool_index"].isin(order[:n])]
-        logs = [
-            (g[["throttle", "steering"]].to_numpy(), g[["speed", "angZ"]].to_numpy())
-            for _, g in taken.groupby("pool_index", sort=False)
-        ]
+        logs = control_rate_logs([g for _, g in taken.groupby("pool_index", sort=False)])
         values, _ = identify_from_logs(logs)
         with torch.no_grad():
             model.theta.copy_(torch.as_tensor(values, dtype=torch.float32))
