@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 import socket
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -30,6 +32,17 @@ def smoke_file(tmp_path: Path, max_maneuvers: int = 7) -> Path:
     path = tmp_path / "smoke.toml"
     path.write_text(f'output_dir = "{tmp_path / "runs"}"\n' + text)
     return path
+
+
+def predict_slalom_fan(model: Path, cwd: Path) -> subprocess.CompletedProcess:
+    """`activelearn predict` with a campaign's (or a saved) model on a 6-s slalom (0.6, 0.3 rad), 8
+    samples, its fan figure written to cwd/fan.png."""
+    return subprocess.run(
+        [sys.executable, "-m", "activelearn.cli", "predict", "--model", str(model), "--maneuver", "slalom",
+         "--throttle", "0.6", "--steering", "0.3", "--duration", "6", "--samples", "8",
+         "--out", str(cwd / "fan.png")],
+        capture_output=True, text=True, timeout=300, cwd=cwd,
+    )  # fmt: skip
 
 
 # What the README promises for an unreachable tracking server or storage: one error within 5 s. A

@@ -24,6 +24,7 @@ from activelearn.numerics.paths import evenly_spaced_steps, path_inputs
 from activelearn.numerics.surrogate import ROLLOUT_METRICS, free_run_metrics, simulate, steady_state_inputs
 from activelearn.numerics.training import fit
 from simulator import Maneuver
+from tests.conftest import predict_slalom_fan
 from tests.test_campaign import SMOKE, _run_cli, _run_cli_signalled
 
 HISTORY = {"inputs": "history", "history": 3, "history_step": 2}
@@ -243,12 +244,7 @@ def test_a_history_campaign_logs_free_run_metrics_every_round(tmp_path):
         for name in (*ROLLOUT_METRICS, "rollout_seconds"):
             assert np.isfinite(record[name]), name
     # The campaign's model drives `predict` (fan figure, metrics) like any other.
-    done = subprocess.run(
-        [sys.executable, "-m", "activelearn.cli", "predict", "--model", str(tmp_path / "c"), "--maneuver",
-         "slalom", "--throttle", "0.6", "--steering", "0.3", "--duration", "6", "--samples", "8",
-         "--out", str(tmp_path / "fan.png")],
-        capture_output=True, text=True, timeout=300, cwd=tmp_path,
-    )  # fmt: skip
+    done = predict_slalom_fan(tmp_path / "c", tmp_path)
     assert done.returncode == 0, done.stderr
     assert "position error" in done.stdout and (tmp_path / "fan.png").stat().st_size > 0
 

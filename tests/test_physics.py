@@ -10,11 +10,13 @@ import torch
 import simulator
 from activelearn.config import DataConfig, ModelConfig, TrainingConfig, load_config
 from activelearn.errors import ConfigError, InputError
+from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import arrays, control_rate_logs, training_rows
 from activelearn.numerics.models import PhysicsModel, build_model, load_model, physics, save_model
 from activelearn.numerics.surrogate import simulate
 from activelearn.numerics.training import fit
 from simulator import Maneuver, datasheet
+from tests.conftest import SMOKE, predict_slalom_fan
 
 DATA = DataConfig(stride=10, skip_seconds=0.0, inputs="history", history=4, history_step=3)
 SPEED_BOUND = 1.5 * datasheet.MAX_SPEED
@@ -187,15 +189,8 @@ def test_identify_command_prints_the_fit_beside_the_datasheet(tmp_path, capsys):
 def test_a_campaign_scores_along_paths_with_it_and_predict_draws_its_fans(tmp_path):
     """Wherever a model kind works: a campaign (max_epistemic along the free runs), its saved model in
     `predict`, and the identified parameters carried along."""
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    from activelearn.loop.campaign import Campaign
-
-    smoke = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
     cfg = load_config(
-        smoke,
+        SMOKE,
         overrides={
             "output_dir": str(tmp_path / "runs"),
             "tracking": {"enabled": False},
@@ -218,11 +213,6 @@ def test_a_campaign_scores_along_paths_with_it_and_predict_draws_its_fans(tmp_pa
     assert isinstance(model, PhysicsModel)
     # identified on the campaign's skidpads and slaloms: they excite the scrub, which moves off 0
     assert model.physical_parameters()["scrub"] > 0.3
-    done = subprocess.run(
-        [sys.executable, "-m", "activelearn.cli", "predict", "--model", str(tmp_path / "c"), "--maneuver",
-         "slalom", "--throttle", "0.6", "--steering", "0.3", "--duration", "6", "--samples", "8",
-         "--out", str(tmp_path / "fan.png")],
-        capture_output=True, text=True, timeout=300, cwd=tmp_path,
-    )  # fmt: skip
+    done = predict_slalom_fan(tmp_path / "c", tmp_path)
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "fan.png").stat().st_size > 10_000
