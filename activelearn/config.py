@@ -74,7 +74,7 @@ class ModelConfig(_Section):
     # README's "Dynamics"). Derived inside the model, so data, rollouts and kernels are unchanged.
     kinematic_feature: bool = False
     # kind = "physics" (`activelearn.numerics.models.physics`): Nigel's single track from its datasheet,
-    # its physical parameters identified from the training rows, plus a Bayesian correction of this kind
+    # its physical parameters identified from the training logs, plus a Bayesian correction of this kind
     # (same arch, activation and ensemble_size) that learns only what the physics misses.
     # The correction's defaults (hybrid, bound 0.05) beat the ensemble with bound 0.2 and the bare identified
     # single track on 4 of 4 fresh seeds after 4 cold-start signals (experiments/results/physics.txt).
@@ -82,7 +82,7 @@ class ModelConfig(_Section):
         "hybrid", description="kind = 'physics': the Bayesian correction's kind"
     )
     identify: bool = Field(
-        True, description="kind = 'physics': fit the physical parameters to the training rows before training"
+        True, description="kind = 'physics': fit the physical parameters to the training logs before training"
     )
     residual_bound: Annotated[float, Field(ge=0.0, le=0.5)] = Field(
         0.05,

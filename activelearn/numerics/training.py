@@ -320,7 +320,7 @@ def fit(
     steps_per_epoch = math.ceil(n / batch)
     use_compile = (
         windows is None
-        and getattr(model, "compilable", True)
+        and model.compilable
         and (
             config.compile is True
             or (config.compile == "auto" and steps_per_epoch * config.epochs >= AUTO_COMPILE_STEPS)
@@ -362,8 +362,7 @@ def _fit(
             model.epistemic_scale.fill_(1.0)
     if not keep_scalers:
         model.set_scalers(x, y)
-    if hasattr(model, "identify"):  # a physics-structured model fits its physical parameters first
-        model.identify(x, y, logs)
+    model.identify(x, y, logs)  # a physics-structured model fits its physical parameters first
     xs = model.standardise_inputs(torch.from_numpy(x)).contiguous()
     ys = ((torch.from_numpy(y) - model.y_mean) / model.y_std).contiguous()
     stepper = _Stepper(model, config, kl_weight, batch, use_compile, windows, gen)

@@ -66,10 +66,10 @@ MODELS: dict[str, tuple[dict, dict]] = {
         {"inputs": "history", "history": 4, "history_step": 3},
         {"kind": "recurrent", "arch": "D32-V16-V", "hidden_size": 32},
     ),
-    # Nigel's single track (identified on the training logs) + a bounded ensemble correction
+    # Nigel's single track (identified on the training logs) + its default bounded correction
     "physics": (
         {"inputs": "history", "history": 4, "history_step": 3},
-        {"kind": "physics", "correction": "ensemble", "arch": "D32-D32-V16-V", "activation": "softplus"},
+        {"kind": "physics", "arch": "D32-D32-V16-V", "activation": "softplus"},
     ),
 }
 

@@ -260,6 +260,9 @@ class Model(nn.Module, ABC):
     has_aleatoric: ClassVar[bool] = True
     # Number of independently trained members (deep ensemble), None for a single network.
     n_members: int | None = None
+    # Whether `training.fit` may compile its step: a compiled step runs a structural twin of the model
+    # with only the parameters swapped in, so a kind whose forward pass reads fitted buffers cannot.
+    compilable: ClassVar[bool] = True
 
     def __init__(self, config: ModelConfig) -> None:
         super().__init__()
@@ -311,6 +314,13 @@ class Model(nn.Module, ABC):
     @abstractmethod
     def reset_parameters(self, generator: torch.Generator | None = None) -> None:
         """Re-initialise every learnable parameter from `generator`."""
+
+    def identify(
+        self, x: np.ndarray, y: np.ndarray, logs: list[tuple[np.ndarray, np.ndarray]] | None = None
+    ) -> None:
+        """Fit what the kind knows of the car to the training data before its weights train (a hook of
+        `training.fit`; rows x, y in physical units, `logs` as (controls, rates) per maneuver). Networks
+        know nothing beforehand: a no-op."""
 
     # ----- shared behaviour -------------------------------------------------------------------
     def expand_inputs(self, x: Tensor, dim: int = -1) -> Tensor:
