@@ -88,6 +88,11 @@ class ModelConfig(_Section):
         0.05,
         description="kind = 'physics': largest learnt change of a steady rate, times its limit",
     )
+    correction_inputs: Literal["control", "history"] = Field(
+        "history",
+        description="kind = 'physics': what the correction reads: the newest control (the operating "
+        "point; free runs then evaluate it once per distinct control) or the whole input window",
+    )
 
     @model_validator(mode="after")
     def _check_kinematic_feature(self) -> ModelConfig:

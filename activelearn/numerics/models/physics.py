@@ -282,8 +282,15 @@ class PhysicsModel(Model):
         if config.n_inputs == N_CONTROLS or config.n_inputs % (N_CONTROLS + N_RATES):
             raise InputError("model.kind", "physics", "needs [data] inputs = 'controls+rates' or 'history'")
         super().__init__(config)
+        # The correction reads the newest control (τ, δ) alone, or every input of the window.
+        self.n_correction_inputs = N_CONTROLS if config.correction_inputs == "control" else config.n_inputs
         inner = config.model_copy(
-            update={"kind": config.correction, "n_outputs": N_CORRECTIONS, "kinematic_feature": False}
+            update={
+                "kind": config.correction,
+                "n_inputs": self.n_correction_inputs,
+                "n_outputs": N_CORRECTIONS,
+                "kinematic_feature": False,
+            }
         )
         self.correction = NETWORK_CLASSES[config.correction](inner, generator=generator)
         self.n_members = self.correction.n_members
@@ -331,7 +338,7 @@ class PhysicsModel(Model):
 
     def train_forward(self, x: Tensor) -> tuple[Tensor, Tensor | None]:
         """Stochastic pass on standardised x (N, d) or (K, N, d): the correction, then the physics."""
-        z_mean, z_var = self.correction.train_forward(x)
+        z_mean, z_var = self.correction.train_forward(x.narrow(-1, 0, self.n_correction_inputs))
         if z_var is None:
             z_var = torch.ones_like(z_mean)
         return self._physical_step(x, -1, z_mean, z_var)
@@ -354,7 +361,7 @@ class PhysicsModel(Model):
 
     def columns_forward(self, x: Tensor, params: list, n_samples: int) -> tuple[Tensor, Tensor]:
         """Standardised (S, 2, N) means and variances for standardised x (d, N) or (S, d, N)."""
-        z_mean, z_var = self.correction.columns_forward(x, params, n_samples)
+        z_mean, z_var = self.correction.columns_forward(x.narrow(-2, 0, self.n_correction_inputs), params, n_samples)
         if x.dim() == 2:
             x = x.expand(n_samples, *x.shape)
         return self._physical_step(x, -2, z_mean, z_var)
