@@ -12,7 +12,9 @@ from activelearn.config import DataConfig, ModelConfig, TrainingConfig, load_con
 from activelearn.errors import ConfigError, InputError
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import arrays, control_rate_logs, training_rows
+from activelearn.numerics import native
 from activelearn.numerics.models import PhysicsModel, build_model, load_model, physics, save_model
+from activelearn.numerics.models.base import Model
 from activelearn.numerics.surrogate import simulate
 from activelearn.numerics.training import fit
 from simulator import Maneuver, datasheet
@@ -51,12 +53,18 @@ def forward_grid() -> pd.DataFrame:
     return simulator.collect(maneuvers, seed=0)
 
 
-@pytest.fixture(scope="module", params=["ensemble", "hybrid"])
+@pytest.fixture(
+    scope="module",
+    params=[("ensemble", "history"), ("hybrid", "history"), ("hybrid", "control")],
+    ids=["ensemble", "hybrid", "hybrid-on-control"],
+)
 def forward_model(request, forward_grid: pd.DataFrame) -> PhysicsModel:
-    """The physics model of each correction kind, trained on the forward grid alone."""
+    """The physics model of each correction kind (and the correction on the control alone, whose free
+    runs are computed whole), trained on the forward grid alone."""
     rows = pd.concat([training_rows(g, DATA) for _, g in forward_grid.groupby("run_id", sort=False)])
     x, y = arrays(rows, DATA)
-    model = build_model(_config(correction=request.param, ensemble_size=3), seed=0)
+    kind, inputs = request.param
+    model = build_model(_config(correction=kind, correction_inputs=inputs, ensemble_size=3), seed=0)
     fit(
         model, x, y, TrainingConfig(epochs=30, batch_size=64, patience=None), seed=0, logs=_logs(forward_grid)
     )
@@ -216,3 +224,54 @@ def test_a_campaign_scores_along_paths_with_it_and_predict_draws_its_fans(tmp_pa
     done = predict_slalom_fan(tmp_path / "c", tmp_path)
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "fan.png").stat().st_size > 10_000
+
+
+def _perturbed_control_model() -> PhysicsModel:
+    """An untrained physics model whose correction reads the control alone, its weights shaken so the
+    correction and its spread over draws are far from zero."""
+    model = build_model(_config(correction_inputs="control"), seed=0)
+    rng = np.random.default_rng(0)
+    model.set_scalers(rng.normal(size=(400, 16)), 0.3 * rng.normal(size=(400, 2)))
+    generator = torch.Generator().manual_seed(1)
+    with torch.no_grad():
+        for weight in model.correction.parameters():
+            weight.add_(0.5 * torch.randn(weight.shape, generator=generator))
+    return model
+
+
+def _busy_controls() -> list[np.ndarray]:
+    """Held steps, a brake, a slow sine of the steering: constant and distinct rows, across tiles."""
+    rng = np.random.default_rng(2)
+    out = []
+    for i in range(6):
+        throttle = np.repeat(rng.uniform(-1.0, 1.0, 14), 50)[:700]
+        steering = np.repeat(rng.uniform(-0.5236, 0.5236, 28), 25)[:700]
+        out.append(np.column_stack([throttle, steering]))
+    out[0][100:300, 0] = 0.0
+    out[1][:, 1] = 0.5 * np.sin(np.arange(700) / 30.0)
+    return out
+
+
+def test_free_runs_of_a_control_correction_agree_between_the_kernel_and_torch():
+    """physics_rollout.c and its torch twin draw the same free runs (float rounding apart)."""
+    if native.library() is None:
+        pytest.skip("no C compiler: the torch path is the only one")
+    model, controls = _perturbed_control_model(), _busy_controls()
+    kernel = simulate(model, controls, n_samples=8, seed=3, backend="native")
+    torch_runs = simulate(model, controls, n_samples=8, seed=3, backend="reference")
+    assert kernel.epistemic_var.max() > 1e-4  # the draws do differ
+    for name in ("v", "w", "x", "y", "mean_rates", "aleatoric_var", "epistemic_var"):
+        np.testing.assert_allclose(getattr(kernel, name), getattr(torch_runs, name), atol=2e-5, err_msg=name)
+
+
+def test_free_runs_computed_whole_are_the_step_loops(monkeypatch):
+    """Without noise, the whole-run path and the generic step loop through `columns_forward` give the
+    same free runs: the shortcut is exact, not an approximation."""
+    monkeypatch.setattr(physics, "NOISE_CAP", 0.0)
+    model, controls = _perturbed_control_model(), _busy_controls()
+    whole = simulate(model, controls, n_samples=8, seed=3)
+    monkeypatch.setattr(PhysicsModel, "open_loop_free_runs", Model.open_loop_free_runs)
+    stepped = simulate(model, controls, n_samples=8, seed=3)
+    assert np.abs(whole.v).max() > 0.1 and whole.epistemic_var.max() > 1e-4
+    for name in ("v", "w", "mean_rates", "epistemic_var"):
+        np.testing.assert_allclose(getattr(whole, name), getattr(stepped, name), atol=2e-5, err_msg=name)

@@ -387,11 +387,19 @@ def _sequential_rollout(
     """
     n_maneuvers, n_steps, _ = controls.shape
     seed = int(torch.randint(2**31 - 1, (1,), generator=gen))
-    sampled_model = model.draw(n_samples, seed=seed, backend=backend)
     # Column layout throughout: inputs (S, 4k, M), rates (S, 2, M) per step.
     start = torch.zeros((n_samples, 2, n_maneuvers))
     if initial_rates is not None:
         start[:] = torch.as_tensor(np.asarray(initial_rates, dtype=np.float32)).t()
+    # A kind whose learnt part reads the controls alone computes its free runs whole (noise keys from
+    # the draws' seed, so `gen` is left as the step loop below finds it).
+    keys = torch.randint(2**62, (n_samples,), generator=torch.Generator().manual_seed(seed)).tolist()
+    newest = controls[:, np.maximum(np.arange(n_steps) - lags.control_lags[0], 0)]
+    whole = model.open_loop_free_runs(n_samples, seed, newest, start, keys, lags.rate_lags[0], backend)
+    if whole is not None:
+        rates, moments = whole
+        return (rates[:, 0], rates[:, 1]), moments
+    sampled_model = model.draw(n_samples, seed=seed, backend=backend)
     step_controls = torch.as_tensor(controls, dtype=torch.float32).permute(1, 2, 0).contiguous()  # (T, 2, M)
     noise = torch.randn((n_steps, n_samples, n_maneuvers, 2), generator=gen).transpose(2, 3)
     # Sampled rates are written straight into their (S, 2, M, T) home and the moments per step into

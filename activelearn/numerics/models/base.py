@@ -322,6 +322,22 @@ class Model(nn.Module, ABC):
         `training.fit`; rows x, y in physical units, `logs` as (controls, rates) per maneuver). Networks
         know nothing beforehand: a no-op."""
 
+    def open_loop_free_runs(
+        self,
+        n_samples: int,
+        seed: int,
+        controls: np.ndarray,
+        start: Tensor,
+        keys: list[int],
+        rate_lag: int,
+        backend: str,
+    ) -> tuple[Tensor, tuple[Tensor, Tensor, Tensor]] | None:
+        """Sampled free runs computed whole, for a kind whose learnt part reads the controls alone (its
+        past rates enter through fixed physics only), or None: a network reads its own past rates, so
+        free runs step it (`surrogate._sequential_rollout`). Arguments and results as the physics
+        kind's (`PhysicsModel.open_loop_free_runs`)."""
+        return None
+
     # ----- shared behaviour -------------------------------------------------------------------
     def expand_inputs(self, x: Tensor, dim: int = -1) -> Tensor:
         """Physical inputs with the derived ones appended along `dim` (-1: rows (N, d); -2: columns).

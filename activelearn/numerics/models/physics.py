@@ -18,7 +18,8 @@ The Bayesian part (a deep ensemble or hybrid PBNN of `config.correction`, on the
 learns only what the physics misses, every output squashed into a physical range:
   * a residual on each steady state, |Δv_ss| ≤ b · v_max, |Δω_ss| ≤ b · ω_max (b = `residual_bound`);
   * a factor on each lag in [1/3, 3];
-  * the aleatoric variance of each rate, at most one standard deviation of the training rates.
+  * the aleatoric variance of each rate, at most one standard deviation of the training rates and
+    `NOISE_CAP` (3 %) of the rate's limit.
 Each step's rate is then a convex combination of the previous rate and a bounded target, so a free
 run cannot leave the bounded targets' range (plus the noise the rollout adds), whatever the inputs.
 Its last layer starts at a tenth of the usual scale, so before training the model is the datasheet
@@ -39,6 +40,7 @@ from torch import Tensor
 
 from activelearn.config import ModelConfig
 from activelearn.errors import InputError
+from activelearn.numerics import counter_noise, native
 from activelearn.numerics.lags import N_CONTROLS, N_RATES, model_lags
 from activelearn.numerics.models.base import Model
 from activelearn.numerics.models.networks import NETWORK_CLASSES
@@ -48,6 +50,12 @@ N_CORRECTIONS = 4  # steady-state residuals (v, ω) and lag factors (v, ω)
 LAG_FACTOR = 3.0  # the correction scales each lag within [1/3, 3]
 YAW_CAP = 1.25 * datasheet.MAX_YAW_RATE  # rad/s: a steady yaw rate beyond the datasheet's limit + 25 %
 LAST_LAYER_SCALE = 0.1  # the correction starts near zero: an untrained model is the datasheet's physics
+# The aleatoric std of each rate is at most this fraction of its limit (speed, yaw rate). MuJoCo's
+# logged rates carry 0.2 % / 1.8 % of the limits; without a physical cap (the old one: the training
+# rates' std, 0.27 rad/s) the noise of a free run at full lock carried ω past 1.5x the limit (3 of
+# 608 sweep runs, experiments/results/physics.txt). With ≤ 3 %, five sigma over the 1.25x yaw cap
+# stays below 1.5x.
+NOISE_CAP = 0.03
 PRIOR_ROWS = 1e4  # the first pass of `_map_fit` weighs the datasheet prior this much less
 
 
@@ -320,6 +328,100 @@ class PhysicsModel(Model):
             values, _ = identify(x, y, self.dt, self.rate_at)
         self.theta.copy_(torch.as_tensor(values, dtype=torch.float32))
 
+    @torch.no_grad()
+    def set_scalers(self, x: np.ndarray | Tensor, y: np.ndarray | Tensor) -> None:
+        """The model's standardisation, shared by its correction: so the correction, drawn on its own
+        (`open_loop_free_runs`), reads physical inputs as the model hands them to it."""
+        super().set_scalers(x, y)
+        n = self.n_correction_inputs
+        self.correction.x_mean.copy_(self.x_mean[:n])
+        self.correction.x_std.copy_(self.x_std[:n])
+
+    # ----- free runs computed whole (correction_inputs = "control") ---------------------------
+    def native_parameters(self, spread: float) -> np.ndarray:
+        """The physics as physics_rollout.c reads it (its enum's order)."""
+        theta = self.theta.tolist()
+        return np.array(
+            [self.dt, *theta, datasheet.WHEELBASE, datasheet.THROTTLE_LIMIT]
+            + [self.config.residual_bound * datasheet.MAX_SPEED, self.config.residual_bound * datasheet.MAX_YAW_RATE]
+            + [YAW_CAP, math.log(LAG_FACTOR), *self.y_std.tolist(), *self._variance_cap().tolist(), spread]
+            + list(datasheet.REFERENCE_SPEED),
+            dtype=np.float32,
+        )
+
+    @torch.no_grad()
+    def open_loop_free_runs(
+        self,
+        n_samples: int,
+        seed: int,
+        controls: np.ndarray,
+        start: Tensor,
+        keys: list[int],
+        rate_lag: int,
+        backend: str,
+    ) -> tuple[Tensor, tuple[Tensor, Tensor, Tensor]] | None:
+        """Free runs of a model whose correction reads the control alone (else None).
+
+        The correction is then a function of the operating point: its S draws of `seed` (those of
+        `draw(n_samples, seed=seed)`) are evaluated once per distinct control row, and each step is
+        the single track's recurrence from the rates `rate_lag` steps back (`start`, (S, 2, M),
+        before that). controls (M, T, 2) are what each step's model reads;
+        keys (S,) the draws' counter-based noise keys (`counter_noise`). Returns the sampled rates
+        (S, 2, M, T) and the moments over draws per step, each (M, T, 2). The compiled kernel
+        (physics_rollout.c) where `backend` allows, else torch, drawing the same numbers.
+        """
+        if self.config.correction_inputs != "control":
+            return None
+        correction = self.correction.draw(n_samples, seed=seed, backend=backend)
+        spread = self.epistemic_scale**0.5 if n_samples > 1 else 1.0  # as `SampledModel.spread`
+        controls = np.ascontiguousarray(controls, dtype=np.float32)
+        n_maneuvers, n_steps, _ = controls.shape
+        rates = torch.empty((n_samples, 2, n_maneuvers, n_steps))
+        moments = tuple(torch.empty((n_maneuvers, n_steps, 2)) for _ in range(3))
+        if correction.kernel is not None:
+            native.physics_rollout(
+                correction.kernel,
+                self.native_parameters(spread),
+                controls,
+                start.contiguous().numpy(),
+                np.array(keys, dtype=np.uint64),
+                rate_lag,
+                rates.numpy(),
+                tuple(m.numpy() for m in moments),
+                threads=torch.get_num_threads(),
+            )
+            return rates, moments
+        self._torch_free_runs(correction, controls, start, keys, rate_lag, spread, rates, moments)
+        return rates, moments
+
+    def _torch_free_runs(self, correction, controls, start, keys, rate_lag, spread, rates, moments) -> None:
+        """`open_loop_free_runs` in torch: the reference physics_rollout.c is tested against."""
+        n_samples, _, n_maneuvers, n_steps = rates.shape
+        flat = controls.reshape(-1, N_CONTROLS)
+        unique, index = np.unique(flat, axis=0, return_inverse=True)
+        z, z_var = correction.columns(torch.as_tensor(unique.T.copy()))  # (S, 4, U)
+        cap = self._variance_cap()[None, :, None]
+        noise_std = torch.minimum(z_var[:, :N_RATES], cap).sqrt_() * self.y_std[None, :, None]
+        index = torch.as_tensor(index.reshape(n_maneuvers, n_steps))
+        noise = [counter_noise.step_noise(key, n_maneuvers, n_steps) for key in keys]
+        noise = torch.as_tensor(np.stack([np.stack(pair) for pair in noise]))  # (S, 2, M, T)
+        u = torch.as_tensor(controls)
+        for k in range(n_steps):
+            rows = index[:, k]
+            past = rates[..., k - rate_lag] if k >= rate_lag else start
+            zs = z[..., rows].unbind(1)
+            v1, w1 = single_track_step(
+                u[:, k, 0], u[:, k, 1], past[:, 0], past[:, 1], self.theta, self.dt, zs, self.config.residual_bound
+            )
+            means = torch.stack([v1, w1], dim=1)  # (S, 2, M)
+            centre = means.mean(dim=0)
+            deviation = (means - centre) * spread
+            std = noise_std[..., rows]
+            rates[..., k] = centre + deviation + std * noise[..., k]
+            moments[0][:, k] = centre.t()
+            moments[1][:, k] = std.square().mean(dim=0).t()
+            moments[2][:, k] = deviation.square().mean(dim=0).t()
+
     # ----- the step ---------------------------------------------------------------------------
     def _physical_step(self, x: Tensor, dim: int, z_mean: Tensor, z_var: Tensor) -> tuple[Tensor, Tensor]:
         """Standardised (mean, variance) of the next rates, stacked along `dim`, from standardised x."""
@@ -333,8 +435,14 @@ class PhysicsModel(Model):
         y_shape = [1] * mean.dim()
         y_shape[dim] = -1
         mean = (mean - self.y_mean.view(y_shape)) / self.y_std.view(y_shape)
-        var = z_var.narrow(dim, 0, N_RATES).clamp(max=1.0)
+        var = torch.minimum(z_var.narrow(dim, 0, N_RATES), self._variance_cap().view(y_shape))
         return mean, var
+
+    def _variance_cap(self) -> Tensor:
+        """The largest standardised aleatoric variance of (v, ω): one training std, and at most
+        `NOISE_CAP` of the rate's limit."""
+        limits = torch.tensor([datasheet.MAX_SPEED, datasheet.MAX_YAW_RATE], dtype=self.y_std.dtype)
+        return (NOISE_CAP * limits / self.y_std).square().clamp(max=1.0)
 
     def train_forward(self, x: Tensor) -> tuple[Tensor, Tensor | None]:
         """Stochastic pass on standardised x (N, d) or (K, N, d): the correction, then the physics."""

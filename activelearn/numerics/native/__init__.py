@@ -1,13 +1,16 @@
 """Compiled kernels, built on first use with the machine's C compiler and loaded through ctypes.
 
-Two fused loops that no library provides:
+Three fused loops that no library provides:
   * `network.c`: S sampled weight sets of a layer stack evaluated tile by tile with the activations
     in L1, the head and the moments over draws included (`NetworkKernel`), where torch writes every
     layer's (S x width x rows) output to memory and reads it back;
   * `static_rollout.c`: the static surrogate's S trajectories, per tile of steps the network on the
     tile's distinct control rows, then each draw's noise, rates and pose while the tile is in cache
     (`static_rollout`), replacing a chain of torch passes over multi-MB arrays.
-Both start their own threads (`threads` arguments), which take chunks of work from a shared counter.
+  * `physics_rollout.c`: the physics-structured surrogate's S free runs when its correction reads
+    the control alone: per tile the correction on the distinct control rows, then the single
+    track's recurrence, the moments and the noise per step (`physics_rollout`).
+All start their own threads (`threads` arguments), which take chunks of work from a shared counter.
 
 They are compiled once per machine (sources, flags, compiler and CPU features form the cache key) into
 `CACHE_DIR` (`~/.cache/activelearn/native`; a temporary directory if that is not writable), and
@@ -33,7 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
-SOURCES = tuple(Path(__file__).with_name(name) for name in ("static_rollout.c", "network.c"))
+SOURCES = tuple(
+    Path(__file__).with_name(name) for name in ("static_rollout.c", "network.c", "physics_rollout.c")
+)
 HEADERS = (Path(__file__).with_name("network.h"),)  # part of the cache key, not compiled on their own
 # Compile flags. -ffast-math lets GCC vectorise logf/sinf/cosf through glibc's libmvec; -march=native
 # is safe because the cache key includes this machine's CPU features.
@@ -107,6 +112,13 @@ SIGNATURES = {
         [ctypes.POINTER(_Network), ctypes.POINTER(_Outputs), ctypes.c_int64, ctypes.c_int64]
         + [ctypes.c_float, ctypes.c_float, _ptr, _ptr, ctypes.c_int64, _ptr, ctypes.c_int64]
         + [_ptr] * 8
+        + [ctypes.c_int64],
+        ctypes.c_int,
+    ),
+    "al_physics_parameter_count": ([], ctypes.c_int),
+    "al_physics_rollout": (
+        [ctypes.POINTER(_Network), _ptr, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64]
+        + [_ptr] * 7
         + [ctypes.c_int64],
         ctypes.c_int,
     ),
@@ -382,3 +394,48 @@ def static_rollout(
     del scalers  # kept alive through the call above
     if status != 0:
         raise MemoryError("al_static_rollout could not allocate its scratch memory")
+
+
+def physics_rollout(
+    kernel: NetworkKernel,
+    parameters: np.ndarray,
+    controls: np.ndarray,
+    start: np.ndarray,
+    keys: np.ndarray,
+    rate_lag: int,
+    rates: np.ndarray,
+    moments: tuple[np.ndarray, np.ndarray, np.ndarray],
+    *,
+    threads: int = 1,
+) -> None:
+    """Fill S sampled free runs of M maneuvers with `al_physics_rollout` on up to `threads` threads.
+
+    `kernel` holds the correction's S draws; `parameters` the physics in physics_rollout.c's order
+    (`activelearn.numerics.models.physics.native_parameters`); `controls` (M, T, 2) the control each
+    step reads; `start` (S, 2, M) the rates before the first step; `keys` (S,) uint64 the noise
+    keys. `rates` (S, 2, M, T) and `moments` (centre, aleatoric, epistemic), each (M, T, 2), are
+    written; all float32 and contiguous.
+    """
+    n_maneuvers, n_steps, _ = controls.shape
+    arrays = (controls, start, rates, *moments)
+    if any(a.dtype != np.float32 or not a.flags.c_contiguous for a in arrays):
+        raise ValueError("controls, start, rates and moments must be contiguous float32")
+    if rates.shape != (len(keys), 2, n_maneuvers, n_steps) or start.shape != (len(keys), 2, n_maneuvers):
+        raise ValueError("rates must be (S, 2, M, T) and start (S, 2, M)")
+    if any(m.shape != (n_maneuvers, n_steps, 2) for m in moments):
+        raise ValueError("moments must be (M, T, 2)")
+    parameters = np.ascontiguousarray(parameters, dtype=np.float32)
+    if len(parameters) != kernel.lib.al_physics_parameter_count():
+        raise ValueError("parameters do not match physics_rollout.c's layout")
+    keys = np.ascontiguousarray(keys, dtype=np.uint64)
+    status = kernel.lib.al_physics_rollout(
+        ctypes.byref(kernel.net),
+        _address(parameters),
+        n_maneuvers,
+        n_steps,
+        int(rate_lag),
+        *(_address(a) for a in (controls, start, keys, rates, *moments)),
+        threads,
+    )
+    if status != 0:
+        raise MemoryError("al_physics_rollout could not allocate its scratch memory")

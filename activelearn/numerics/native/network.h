@@ -66,5 +66,9 @@ typedef struct {
 /* Runs a job on the calling thread and up to n_threads - 1 more: 0, or -1 if a worker failed. */
 int al_run_parallel(al_job *job, int64_t n_threads);
 
+/* Standard normal (v, w) noise of steps [tile * 512, tile * 512 + 512) of maneuver m under a draw's
+ * 64-bit key (key0 low word, key1 high word): counter-based, so it depends on nothing else
+ * (static_rollout.c; the NumPy reference is activelearn/numerics/counter_noise.py). */
+void al_tile_noise(uint32_t tile, uint32_t m, uint32_t key0, uint32_t key1, float *zv, float *zw);
 
 #endif

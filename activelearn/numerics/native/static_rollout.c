@@ -82,6 +82,11 @@ static void tile_noise(uint32_t tile, uint32_t m, uint32_t key0, uint32_t key1, 
     for (int l = 0; l < TILE; ++l) zw[l] = radius[l] * sinf(angle[l]);
 }
 
+/* tile_noise for the other kernels (physics_rollout.c): one trajectory's noise of one tile. */
+void al_tile_noise(uint32_t tile, uint32_t m, uint32_t key0, uint32_t key1, float *zv, float *zw) {
+    tile_noise(tile, m, key0, key1, zv, zw);
+}
+
 /* Exclusive prefix sums of a tile in double: sums[i] = sum(values[:i]); returns the tile's total.
  * Four running sums over the tile's quarters, joined afterwards: with one, every step would wait
  * for the add before it (the loop's cost was that latency chain). */
