@@ -243,7 +243,7 @@ def _busy_controls() -> list[np.ndarray]:
     """Held steps, a brake, a slow sine of the steering: constant and distinct rows, across tiles."""
     rng = np.random.default_rng(2)
     out = []
-    for i in range(6):
+    for _ in range(6):
         throttle = np.repeat(rng.uniform(-1.0, 1.0, 14), 50)[:700]
         steering = np.repeat(rng.uniform(-0.5236, 0.5236, 28), 25)[:700]
         out.append(np.column_stack([throttle, steering]))

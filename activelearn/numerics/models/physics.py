@@ -307,6 +307,8 @@ class PhysicsModel(Model):
         self.rate_at = N_CONTROLS * lags.history
         self.dt = lags.step / datasheet.LOG_RATE_HZ
         self.register_buffer("theta", torch.as_tensor(NOMINAL, dtype=torch.float32).clone())
+        # False: the bare single track (the correction's outputs held at zero), for comparisons
+        self.corrected = True
         self._shrink_last_layer()
 
     # ----- the physical parameters ------------------------------------------------------------
@@ -340,14 +342,11 @@ class PhysicsModel(Model):
     # ----- free runs computed whole (correction_inputs = "control") ---------------------------
     def native_parameters(self, spread: float) -> np.ndarray:
         """The physics as physics_rollout.c reads it (its enum's order)."""
-        theta = self.theta.tolist()
-        return np.array(
-            [self.dt, *theta, datasheet.WHEELBASE, datasheet.THROTTLE_LIMIT]
-            + [self.config.residual_bound * datasheet.MAX_SPEED, self.config.residual_bound * datasheet.MAX_YAW_RATE]
-            + [YAW_CAP, math.log(LAG_FACTOR), *self.y_std.tolist(), *self._variance_cap().tolist(), spread]
-            + list(datasheet.REFERENCE_SPEED),
-            dtype=np.float32,
-        )
+        bound = self.config.residual_bound
+        values = [self.dt, *self.theta.tolist(), datasheet.WHEELBASE, datasheet.THROTTLE_LIMIT]
+        values += [bound * datasheet.MAX_SPEED, bound * datasheet.MAX_YAW_RATE, YAW_CAP, math.log(LAG_FACTOR)]
+        values += [*self.y_std.tolist(), *self._variance_cap().tolist(), spread, *datasheet.REFERENCE_SPEED]
+        return np.array(values, dtype=np.float32)
 
     @torch.no_grad()
     def open_loop_free_runs(
@@ -370,7 +369,7 @@ class PhysicsModel(Model):
         (S, 2, M, T) and the moments over draws per step, each (M, T, 2). The compiled kernel
         (physics_rollout.c) where `backend` allows, else torch, drawing the same numbers.
         """
-        if self.config.correction_inputs != "control":
+        if self.config.correction_inputs != "control" or not self.corrected:
             return None
         correction = self.correction.draw(n_samples, seed=seed, backend=backend)
         spread = self.epistemic_scale**0.5 if n_samples > 1 else 1.0  # as `SampledModel.spread`
@@ -396,7 +395,7 @@ class PhysicsModel(Model):
 
     def _torch_free_runs(self, correction, controls, start, keys, rate_lag, spread, rates, moments) -> None:
         """`open_loop_free_runs` in torch: the reference physics_rollout.c is tested against."""
-        n_samples, _, n_maneuvers, n_steps = rates.shape
+        _, _, n_maneuvers, n_steps = rates.shape
         flat = controls.reshape(-1, N_CONTROLS)
         unique, index = np.unique(flat, axis=0, return_inverse=True)
         z, z_var = correction.columns(torch.as_tensor(unique.T.copy()))  # (S, 4, U)
@@ -410,9 +409,8 @@ class PhysicsModel(Model):
             rows = index[:, k]
             past = rates[..., k - rate_lag] if k >= rate_lag else start
             zs = z[..., rows].unbind(1)
-            v1, w1 = single_track_step(
-                u[:, k, 0], u[:, k, 1], past[:, 0], past[:, 1], self.theta, self.dt, zs, self.config.residual_bound
-            )
+            tau, delta, bound = u[:, k, 0], u[:, k, 1], self.config.residual_bound
+            v1, w1 = single_track_step(tau, delta, past[:, 0], past[:, 1], self.theta, self.dt, zs, bound)
             means = torch.stack([v1, w1], dim=1)  # (S, 2, M)
             centre = means.mean(dim=0)
             deviation = (means - centre) * spread
@@ -429,7 +427,7 @@ class PhysicsModel(Model):
         shape[dim] = -1
         phys = x * self.x_std.view(shape) + self.x_mean.view(shape)
         tau, delta, v, w = _split(phys, dim, self.rate_at)
-        zs = z_mean.unbind(dim)
+        zs = z_mean.unbind(dim) if self.corrected else torch.zeros_like(z_mean).unbind(dim)
         v1, w1 = single_track_step(tau, delta, v, w, self.theta, self.dt, zs, self.config.residual_bound)
         mean = torch.stack([v1, w1], dim=dim)
         y_shape = [1] * mean.dim()
@@ -469,7 +467,8 @@ class PhysicsModel(Model):
 
     def columns_forward(self, x: Tensor, params: list, n_samples: int) -> tuple[Tensor, Tensor]:
         """Standardised (S, 2, N) means and variances for standardised x (d, N) or (S, d, N)."""
-        z_mean, z_var = self.correction.columns_forward(x.narrow(-2, 0, self.n_correction_inputs), params, n_samples)
+        inputs = x.narrow(-2, 0, self.n_correction_inputs)
+        z_mean, z_var = self.correction.columns_forward(inputs, params, n_samples)
         if x.dim() == 2:
             x = x.expand(n_samples, *x.shape)
         return self._physical_step(x, -2, z_mean, z_var)
