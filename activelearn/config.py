@@ -839,9 +839,17 @@ SPACE_PARAMS: dict[str, tuple[SpaceKind, tuple[Any, ...] | None]] = {
     "variational": ("bool", None),
     "variational_head": ("bool", None),
     "hidden_size": ("int", None),
+    # the physics kind's correction (read by kind = "physics" only)
+    "correction": ("choice", ("ensemble", "hybrid")),
+    "correction_inputs": ("choice", ("control", "history")),
+    "residual_bound": ("float", None),
 }
-# Upper bounds that keep a sampled network buildable and trainable in reasonable time.
+# Search-space parameters that may be left unset: trials then keep the config's [model] value.
+OPTIONAL_SPACE_PARAMS = ("correction", "correction_inputs", "residual_bound")
+# Upper bounds that keep a sampled network buildable and trainable in reasonable time (and the
+# physics correction's bound within ModelConfig's range).
 _SPACE_MAX = {"n_layers": 8, "width": 1024, "variational_width": 1024, "hidden_size": 512}
+_SPACE_MAX["residual_bound"] = 0.5
 
 
 class Range(_Section):
@@ -878,6 +886,8 @@ def _check_space_value(name: str, kind: SpaceKind, allowed: tuple[Any, ...] | No
         return value
     if not value > 0:
         raise ValueError(f"must be > 0, got {value!r}")
+    if name in _SPACE_MAX and value > _SPACE_MAX[name]:
+        raise ValueError(f"must be <= {_SPACE_MAX[name]}, got {value!r}")
     return float(value)
 
 
@@ -944,10 +954,17 @@ class SearchSpace(_Section):
     # Width of the recurrent model's GRU trunk (read by kind = "recurrent" only). A history model's
     # layout ([data] history, history_step) shapes the study's data: one study per layout.
     hidden_size: Any = 32
+    # The physics kind's correction (read by kind = "physics" only): its kind, what it reads, and the
+    # bound on its steady-state residuals. Unset (None): the config's [model] value, not searched.
+    correction: Any = None
+    correction_inputs: Any = None
+    residual_bound: Any = None
 
     @field_validator("*")
     @classmethod
     def _check_param(cls, value: Any, info: ValidationInfo) -> Any:
+        if value is None and info.field_name in OPTIONAL_SPACE_PARAMS:
+            return None
         return check_space_param(info.field_name, value)  # type: ignore[arg-type]
 
 

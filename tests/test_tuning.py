@@ -417,6 +417,8 @@ def test_timeout_stops_starting_trials(tmp_path, data_file, mlflow_uri):
         ("epochs = { low = 0, high = 10 }", "tuning.space.epochs"),  # out of bounds
         ("loss = { low = 1, high = 2 }", "tuning.space.loss"),  # a range for a categorical
         ("optimizer = [\"adam\", \"lbfgs\"]", "tuning.space.optimizer"),  # unknown choice
+        ("correction = [\"hybrid\", \"gp\"]", "tuning.space.correction"),  # the physics kind's knobs
+        ("residual_bound = { low = 0.01, high = 0.9 }", "tuning.space.residual_bound"),  # past 0.5
     ],
 )
 def test_bad_search_space_is_rejected_before_anything_runs(tmp_path, data_file, space, field, capsys):
@@ -662,3 +664,40 @@ def test_bad_arguments_are_clean_errors(tmp_path, data_file, mlflow_uri, capsys)
     assert not (tmp_path / "optuna.db").exists()
     # The CLI's copies of the defaults (kept to avoid importing Optuna at start-up) agree.
     assert cli._TUNE_STORAGE == DEFAULT_STORAGE and cli._TUNE_PRUNERS == PRUNERS
+
+
+def test_the_physics_corrections_knobs_are_searched_only_when_asked():
+    """Unset, a trial keeps the config's correction (and the study's signature is the one stored before
+    the knobs existed); set, trials sample them."""
+    from activelearn.config import SearchSpace
+    from activelearn.studies.tuning.space import sample_params, space_signature, trial_configs
+
+    default = SearchSpace()
+    trial = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=0)).ask()
+    model, _ = sample_params(trial, default)
+    assert not {"correction", "correction_inputs", "residual_bound"} & set(model)
+    assert "residual_bound" not in space_signature(default)
+    cfg = load_config_text('[model]\nkind = "physics"\ncorrection = "ensemble"\nresidual_bound = 0.1\n')
+    model_cfg, _ = trial_configs(cfg, model, {})
+    assert (model_cfg.correction, model_cfg.residual_bound) == ("ensemble", 0.1)  # the config's, untouched
+
+    searched = SearchSpace(
+        correction=["ensemble", "hybrid"], correction_inputs=["control", "history"],
+        residual_bound={"low": 0.01, "high": 0.2, "log": True},
+    )  # fmt: skip
+    studies = [optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=s)) for s in range(12)]
+    drawn = [sample_params(study.ask(), searched)[0] for study in studies]
+    assert {d["correction"] for d in drawn} == {"ensemble", "hybrid"}
+    assert {d["correction_inputs"] for d in drawn} == {"control", "history"}
+    assert all(0.01 <= d["residual_bound"] <= 0.2 for d in drawn)
+    assert space_signature(searched) != space_signature(default)
+
+
+def load_config_text(text: str):
+    """A campaign config from TOML text (defaults elsewhere), through the real loader."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as directory:
+        path = Path(directory) / "c.toml"
+        path.write_text('name = "c"\n[data]\ninputs = "history"\n' + text)
+        return load_config(path)

@@ -11,6 +11,7 @@ import numpy as np
 import optuna
 
 from activelearn.config import (
+    OPTIONAL_SPACE_PARAMS,
     SPACE_PARAMS,
     CampaignConfig,
     ModelConfig,
@@ -21,7 +22,11 @@ from activelearn.config import (
 )
 
 # Params of the [model] and [training] tables a trial sets (the rest come from the config).
-MODEL_KEYS: tuple[str, ...] = ("arch", "activation", "posterior", "kl", "prior_scale", "hidden_size")
+MODEL_KEYS: tuple[str, ...] = (
+    "arch", "activation", "posterior", "kl", "prior_scale", "hidden_size",
+    "correction", "correction_inputs", "residual_bound",
+)  # fmt: skip
+
 TRAINING_KEYS: tuple[str, ...] = ("lr", "epochs", "batch_size", "optimizer", "loss")
 PRUNERS: tuple[str, ...] = ("median", "hyperband", "none")
 
@@ -49,7 +54,8 @@ def sample_params(trial: optuna.Trial, space: SearchSpace) -> tuple[dict[str, An
         return _suggest(trial, name or key, getattr(space, key), SPACE_PARAMS[key][0])
 
     training = {k: draw(k) for k in TRAINING_KEYS}
-    model = {k: draw(k) for k in MODEL_KEYS if k != "arch"}
+    # unset optional keys (the physics correction's) keep the config's [model] values
+    model = {k: draw(k) for k in MODEL_KEYS if k != "arch" and getattr(space, k) is not None}
     tokens = []
     for i in range(draw("n_layers")):
         if draw("variational", f"variational_{i}"):
@@ -58,7 +64,7 @@ def sample_params(trial: optuna.Trial, space: SearchSpace) -> tuple[dict[str, An
             tokens.append(f"D{draw('width', f'width_{i}')}")
     tokens.append("V" if draw("variational_head") else "D")
     model["arch"] = "-".join(tokens)
-    return {k: model[k] for k in MODEL_KEYS}, training
+    return {k: model[k] for k in MODEL_KEYS if k in model}, training
 
 
 def max_epochs(space: SearchSpace) -> int:
@@ -71,13 +77,18 @@ def max_epochs(space: SearchSpace) -> int:
 
 def space_signature(space: SearchSpace) -> str:
     """The search space as canonical JSON (stored with the study: a study continues on the same space)."""
-    return json.dumps(space.model_dump(mode="json"), sort_keys=True)
+    # Unset optional keys are left out, so a study stored before they existed continues.
+    dumped = space.model_dump(mode="json")
+    dumped = {k: v for k, v in dumped.items() if v is not None or k not in OPTIONAL_SPACE_PARAMS}
+    return json.dumps(dumped, sort_keys=True)
 
 
 def describe_space(space: SearchSpace) -> dict[str, str]:
     """Human-readable form of every parameter's spec (for MLflow params and tables)."""
     out = {}
     for name, spec in space.model_dump().items():
+        if spec is None:  # an unset optional key: the config's value
+            continue
         if isinstance(spec, dict):
             text = f"{spec['low']:g}..{spec['high']:g}"
             text += " log" if spec["log"] else (f" step {spec['step']:g}" if spec["step"] else "")
