@@ -701,3 +701,42 @@ def load_config_text(text: str):
         path = Path(directory) / "c.toml"
         path.write_text('name = "c"\n[data]\ninputs = "history"\n' + text)
         return load_config(path)
+
+
+def test_a_physics_study_identifies_each_trial_on_the_training_maneuvers_whole_logs(tmp_path, mlflow_uri):
+    """Tuning a physics-structured model: its parameters come from the free runs of the training
+    split's whole logs (never a held-out maneuver's), as a campaign's do, not from strided rows."""
+    from activelearn.numerics.models.physics import PARAMETER_NAMES, identify_from_logs
+
+    extra = TINY_SPACE + """
+[pool]
+kinds = ["skidpad"]
+throttles = [0.4, 0.8]
+steerings = [0.2, 0.5]
+duration = 6.0
+[simulation]
+threads = 1
+[model]
+kind = "physics"
+"""
+    config = write_config(tmp_path, mlflow_uri, extra)
+    history = 'stride = 3\ninputs = "history"\nhistory = 2\n'
+    config.write_text(config.read_text().replace("stride = 1\n", history))
+    cfg = load_config(config)
+    data = collect_dataset(cfg)
+    assert len(data.logs) == 8 and all(len(u) >= 180 for _, u, _ in data.logs)  # whole 6-s logs at 30 Hz
+    split = split_data(data, cfg.tuning.val_fraction, cfg.seed)
+    logs = split.training_logs()
+    assert len(logs) == 8 - len(split.val_points) and len(split.val_points) >= 1
+    held_out = [u for point, u, _ in data.logs if point in split.val_points]
+    assert not any(np.array_equal(u, v) for u, _ in logs for v in held_out)
+
+    storage = sqlite_url(tmp_path)
+    assert cli.main(["tune", str(config), "--n-trials", "2", "--storage", storage, "--study-name", "p",
+                     "--seed", "0", "--no-tracking"]) == 0  # fmt: skip
+    expected, _ = identify_from_logs(logs)
+    for trial in study_trials(storage, "p"):
+        found = trial["user_attrs"]["physical_parameters"]
+        assert list(found) == list(PARAMETER_NAMES)
+        np.testing.assert_allclose(list(found.values()), expected, rtol=1e-5)
+    assert abs(expected[PARAMETER_NAMES.index("scrub")]) > 0.1  # identified: the datasheet says 0

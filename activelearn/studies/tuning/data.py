@@ -3,6 +3,7 @@ whole operating points so validation never sees a near copy of a training row.""
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 from collections.abc import Callable, Sequence
@@ -17,8 +18,11 @@ from activelearn.config import CampaignConfig
 from activelearn.data import read_autodrive_log, read_table, write_table
 from activelearn.errors import DataFormatError, InputError
 from activelearn.loop.collection import (
+    FEATURES,
+    TARGETS,
     SimulationCache,
     arrays,
+    control_rate_logs,
     noisy_logs,
     simulator_fingerprint,
     training_rows,
@@ -39,6 +43,9 @@ class TuningData:
     groups: np.ndarray  # operating-point key per row (str)
     key: str  # content hash: a study only continues on the same data
     source: str  # where the rows came from, for humans
+    # Every maneuver's whole log (controls and rates at the log rate) and its operating point: what a
+    # physics-structured model identifies itself on (free runs of whole logs, not the strided rows).
+    logs: tuple[tuple[str, np.ndarray, np.ndarray], ...] = ()
 
     @property
     def n_groups(self) -> int:
@@ -57,6 +64,15 @@ class Split:
     y_val: np.ndarray
     groups_val: np.ndarray
     val_points: tuple[str, ...]  # the held-out operating points
+    # The training side's whole logs, flattened for the workers' file: (throttle, steering, v, ω)
+    # steps, log i being log_steps[log_starts[i]:log_starts[i + 1]].
+    log_steps: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 4)))
+    log_starts: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(1, dtype=np.int64))
+
+    def training_logs(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The training side's logs as (controls (T, 2), rates (T, 2)) per maneuver."""
+        bounds = zip(self.log_starts[:-1], self.log_starts[1:], strict=True)
+        return [(self.log_steps[a:b, :2], self.log_steps[a:b, 2:]) for a, b in bounds]
 
     def describe(self) -> dict[str, int]:
         """Row and operating-point counts of both sides."""
@@ -102,7 +118,12 @@ def split_data(data: TuningData, val_fraction: float, seed: int) -> Split:
     """Hold out whole operating points for validation (seeded)."""
     is_val = group_split(data.groups, val_fraction, seed)
     _, codes = np.unique(data.groups, return_inverse=True)
+    held_out = set(np.unique(data.groups[is_val]))
+    kept = [np.column_stack([u, y]) for point, u, y in data.logs if point not in held_out]
+    starts = np.cumsum([0] + [len(steps) for steps in kept]).astype(np.int64)
     return Split(
+        log_steps=np.concatenate(kept) if kept else np.zeros((0, 4)),
+        log_starts=starts,
         x_train=data.x[~is_val],
         y_train=data.y[~is_val],
         groups_train=codes[~is_val],
@@ -118,9 +139,24 @@ def content_hash(payload: Any) -> str:
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def _assemble(rows: pd.DataFrame, cfg: CampaignConfig, key: str, source: str) -> TuningData:
+def _assemble(
+    rows: pd.DataFrame, cfg: CampaignConfig, key: str, source: str, logs: pd.DataFrame
+) -> TuningData:
     x, y = arrays(rows, cfg.data)
-    return TuningData(x=x, y=y, groups=rows["point"].to_numpy(dtype=object), key=key, source=source)
+    runs = [run for _, run in logs.groupby("run_id", sort=False)]
+    whole = tuple(
+        (str(run["point"].iloc[0]), u, y_)
+        for run, (u, y_) in zip(runs, control_rate_logs(runs), strict=True)
+    )
+    return TuningData(
+        x=x, y=y, groups=rows["point"].to_numpy(dtype=object), key=key, source=source, logs=whole
+    )
+
+
+def _log_table(frames: Sequence[pd.DataFrame]) -> pd.DataFrame:
+    """The maneuvers' whole logs, (controls, rates) at the log rate with their run and operating point."""
+    table = pd.concat([frame.assign(point=operating_points(frame)) for frame in frames], ignore_index=True)
+    return table[["run_id", "point", *FEATURES, *TARGETS]]
 
 
 def dataset_key(cfg: CampaignConfig) -> str:
@@ -147,9 +183,9 @@ def collect_dataset(
     """
     root = Path(cache_dir) if cache_dir is not None else Path(cfg.output_dir) / "cache"
     key = dataset_key(cfg)
-    path = root / f"tuning-data-{key}.parquet"
-    if path.exists():
-        return _assemble(read_table(path), cfg, key, str(path))
+    path, log_path = root / f"tuning-data-{key}.parquet", root / f"tuning-logs-{key}.parquet"
+    if path.exists() and log_path.exists():
+        return _assemble(read_table(path), cfg, key, str(path), read_table(log_path))
     maneuvers = pool_maneuvers(cfg.pool)
 
     def sim_progress(done: int, total: int) -> None:
@@ -160,8 +196,10 @@ def collect_dataset(
     frames = noisy_logs(clean, maneuvers, cfg.simulation.noise, cfg.seed)
     rows = pd.concat([training_rows(f, cfg.data) for f in frames], ignore_index=True)
     rows["point"] = operating_points(rows)
+    logs = _log_table(frames)
+    write_table(logs, log_path)  # the rows' table last: where it exists, so do the logs
     write_table(rows, path)
-    return _assemble(rows, cfg, key, str(path))
+    return _assemble(rows, cfg, key, str(path), logs)
 
 
 _REQUIRED_COLUMNS = ("time", "throttle", "steering", "speed", "angZ")
@@ -171,7 +209,7 @@ def load_dataset(paths: Sequence[str | Path], cfg: CampaignConfig) -> TuningData
     """Rows from sample tables (.parquet, or .csv as written by `simulate`) or AutoDRIVE CSV logs."""
     if not paths:
         raise InputError("--data", [], "give at least one file")
-    parts, digest = [], hashlib.sha256()
+    parts, runs, digest = [], [], hashlib.sha256()
     for index, raw in enumerate(paths):
         path = Path(raw)
         if not path.is_file():
@@ -196,6 +234,7 @@ def load_dataset(paths: Sequence[str | Path], cfg: CampaignConfig) -> TuningData
         table["run_id"] = f"{index}:" + table["run_id"].astype(str)
         for _, run in table.groupby("run_id", sort=False):
             parts.append(training_rows(run, cfg.data))
+            runs.append(run)
         digest.update(path.read_bytes())
     rows = pd.concat(parts, ignore_index=True)
     if rows.empty:
@@ -204,4 +243,4 @@ def load_dataset(paths: Sequence[str | Path], cfg: CampaignConfig) -> TuningData
     key = content_hash(
         {"version": _DATA_VERSION, "files": digest.hexdigest(), "data": cfg.data.model_dump(mode="json")}
     )
-    return _assemble(rows, cfg, key, ", ".join(str(p) for p in paths))
+    return _assemble(rows, cfg, key, ", ".join(str(p) for p in paths), _log_table(runs))

@@ -167,7 +167,10 @@ class Objective:
                 net, split.x_train, split.y_train, training_cfg,
                 x_val=split.x_val, y_val=split.y_val, groups=split.groups_train,
                 groups_val=split.groups_val, seed=job.seed, callback=callback,
+                logs=split.training_logs(),  # a physics-structured model identifies itself on them
             )  # fmt: skip
+            if hasattr(net, "physical_parameters"):
+                trial.set_user_attr("physical_parameters", net.physical_parameters())
             best = history.best_epoch
             # A diverged fit has no finite NLL: +inf ranks it last (NaN would mark the trial FAIL).
             values = [_finite_or_inf(history.val_nll[best]), _finite_or_inf(history.val_rmse[best])]
