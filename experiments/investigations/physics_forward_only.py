@@ -7,7 +7,10 @@ position error of the free runs of `dynamics.toml`'s 72 test maneuvers (noise-fr
 reverse ones (throttle < 0) and the fishhooks (steering ramps to full lock), with the 95 % fans' share
 of true positions.
 
-Usage: python experiments/investigations/physics_forward_only.py [--seeds 3]
+With `--figure PNG`, draws the seed-0 models' free runs (95 % fans as their sampled paths) beside
+MuJoCo's on a reverse skidpad and a fishhook to full lock.
+
+Usage: python experiments/investigations/physics_forward_only.py [--seeds 3] [--figure PNG]
 """
 
 from __future__ import annotations
@@ -50,6 +53,7 @@ def errors(model, logs, truth) -> tuple[np.ndarray, np.ndarray]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--figure", type=Path, default=None, metavar="PNG")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         params = Path(tmp) / "physics.toml"
@@ -63,7 +67,14 @@ def main() -> None:
         test, maneuvers = tester.test_set, tester.oracle.test_maneuvers()
         reverse = np.array([m.throttle < 0 for m in maneuvers])
         fishhook = np.array([m.kind == "fishhook" for m in maneuvers])
-        rows = []
+        rows, drawn = [], {}
+        cases = [
+            (f"{m.kind} {m.direction}, throttle {m.throttle:g}, steering {m.steering:g}", i)
+            for i, m in enumerate(maneuvers)
+            if (m.kind == "skidpad" and m.throttle < 0 and m.steering > 0.3)
+            or (m.kind == "fishhook" and m.throttle > 0.8)
+        ]
+        cases = [next(c for c in cases if "skidpad" in c[0]), next(c for c in cases if "fishhook" in c[0])]
         for name, cfg in configs.items():
             campaign = Campaign(cfg, Path(tmp) / name.replace(" ", "_"), cache_dir=Path("runs/cache"))
             campaign.prior = load_prior(cfg, campaign.nominal)  # the forward reference grid, simulated once
@@ -75,6 +86,8 @@ def main() -> None:
                 model = build_model(cfg.model)
                 fit(model, x, y, cfg.training, groups=groups, seed=seed, windows=windows, logs=logs)
                 err, cover = errors(model, test.logs, test.truth_logs)
+                if seed == 0:
+                    drawn[name] = free_runs(model, [test.logs[i] for _, i in cases])
                 rows.append({"model": name, "seed": seed, "all": err.mean(), "reverse": err[reverse].mean(),
                              "fishhook": err[fishhook].mean(), "fan_all": cover.mean()})  # fmt: skip
                 print(rows[-1], flush=True)
@@ -82,6 +95,18 @@ def main() -> None:
         print("\n30-s position error (m), mean ± s.e.m. over training seeds; fan: share of true positions in")
         cells = table.mean().round(4).astype(str) + " ± " + table.sem().round(4).astype(str)
         print(cells.to_string())
+        if args.figure is not None:
+            from activelearn.plots import paths_figure
+
+            title = "trained on the forward reference grid only (straights, skidpads): free runs, 30 s"
+            figure = paths_figure(
+                {f"{name} (seed 0)": rollout for name, rollout in drawn.items()},
+                [(label, k) for k, (label, _) in enumerate(cases)],
+                [test.truth_logs[i] for _, i in cases],
+                title=title,
+            )
+            figure.savefig(args.figure, dpi=100)
+            print(f"figure: {args.figure}")
 
 
 if __name__ == "__main__":
