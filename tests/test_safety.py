@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import torch
 
 from activelearn.config import (
     SafetyConfig,
@@ -288,6 +289,13 @@ def test_fans_place_the_path_where_the_car_logs_it(tmp_path):
     np.testing.assert_allclose(rollout.y, at_cg.y - 0.2, atol=1e-6)
     at_axle = simulate(model, controls, lever_arm=0.0, **call)
     assert np.nanmax(np.hypot(rollout.x - 0.3 - at_axle.x, rollout.y + 0.2 - at_axle.y)) > 0.1
+    # The model's own fan calibration (`fan_scale`, for predictions) does not widen the safety fan on
+    # top of [safety] fan_scale, the margin the safety numbers were measured with.
+    with torch.no_grad():
+        model.fan_scale.fill_(4.0)
+    again = fan(model, skidpads, cfg.safety, 30.0, seed=4)
+    np.testing.assert_array_equal(again.x, rollout.x)
+    assert not np.allclose(simulate(model, controls, lever_arm=cfg.data.pose_lever_arm, **call).x, at_cg.x)
 
 
 # ------------------------------------------------------------------------------------- campaigns

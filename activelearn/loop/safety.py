@@ -149,7 +149,8 @@ def violating(x: np.ndarray, y: np.ndarray, v: np.ndarray, w: np.ndarray, cfg: S
 def fan(model: Any, maneuvers: Sequence[Any], cfg: SafetyConfig, rate_hz: float, seed: int) -> Rollout:
     """The model's rollout of `maneuvers` from the start pose (epistemic spread widened by `fan_scale`).
 
-    Positions are in the arena frame.
+    Positions are in the arena frame. The model's own pose-fan calibration (`model.fan_scale`, which
+    `[design] fan_calibration` fits for predictions) is not applied: [safety] `fan_scale` is the margin.
     """
     x0, y0, yaw0 = cfg.start
     previous = float(model.epistemic_scale)
@@ -158,7 +159,7 @@ def fan(model: Any, maneuvers: Sequence[Any], cfg: SafetyConfig, rate_hz: float,
             model.epistemic_scale.fill_(previous * cfg.fan_scale**2)
         rollout = simulate(
             model, [maneuver_controls(m, rate_hz) for m in maneuvers], rate_hz=rate_hz,
-            n_samples=cfg.n_samples, seed=seed, initial_yaw=yaw0,
+            n_samples=cfg.n_samples, seed=seed, initial_yaw=yaw0, fan_scale=1.0,
         )  # fmt: skip
     finally:
         with torch.no_grad():
