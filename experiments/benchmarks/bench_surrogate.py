@@ -71,7 +71,17 @@ MODELS: dict[str, tuple[dict, dict]] = {
         {"inputs": "history", "history": 4, "history_step": 3},
         {"kind": "physics", "arch": "D32-D32-V16-V", "activation": "softplus"},
     ),
+    # the same with the correction on the control alone: free runs computed whole (physics_rollout.c)
+    "physics-control": (
+        {"inputs": "history", "history": 4, "history_step": 3},
+        {"kind": "physics", "arch": "D32-D32-V16-V", "activation": "softplus",
+         "correction_inputs": "control"},
+    ),
 }
+
+
+# Kinds with no deep-ensemble or kinematic-feature form here (the GRU's tokens, the physics kinds' own)
+NO_ENSEMBLE = ("recurrent", "physics", "physics-control")
 
 
 def maneuver_set(n: int, seed: int, duration: float = 90.0) -> list[Maneuver]:
@@ -191,10 +201,10 @@ def main() -> None:
     ]
     if args.ensemble:  # each MLP variant, multi-step ones included, also as an ensemble (<kind>/ens...)
         variants += [(label.replace(k, f"{k}/ens", 1), k, h, args.ensemble, False)
-                     for label, k, h, _, _ in variants if k not in ("recurrent", "physics")]  # fmt: skip
+                     for label, k, h, _, _ in variants if k not in NO_ENSEMBLE]  # fmt: skip
     if args.kinematic:
         variants += [(f"{label}+kin", k, h, e, True)
-                     for label, k, h, e, _ in variants if k not in ("recurrent", "physics")]  # fmt: skip
+                     for label, k, h, e, _ in variants if k not in NO_ENSEMBLE]  # fmt: skip
     if args.variants:
         wanted = {v for v in args.variants.split(",") if v} | {"static"}
         missing = wanted - {label for label, *_ in variants}
