@@ -24,6 +24,28 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
+PROJECT_STORE = Path(__file__).resolve().parents[1] / "mlruns"  # the README's tracking store
+
+
+def _store_snapshot() -> dict[str, tuple[int, int]]:
+    """Every file of the project's own MLflow store with its size and modification time."""
+    if not PROJECT_STORE.exists():
+        return {}
+    return {
+        str(path.relative_to(PROJECT_STORE)): (path.stat().st_size, path.stat().st_mtime_ns)
+        for path in PROJECT_STORE.rglob("*")
+        if path.is_file()
+    }
+
+
+@pytest.fixture(scope="session", autouse=True)
+def project_store_untouched():
+    """The suite tracks into temporary stores only: it fails if the project's `mlruns/` changed."""
+    before = _store_snapshot()
+    yield
+    after = _store_snapshot()
+    changed = sorted(k for k in before.keys() | after.keys() if before.get(k) != after.get(k))
+    assert not changed, f"the test suite wrote into the project's tracking store mlruns/: {changed[:5]}"
 
 
 def smoke_file(tmp_path: Path, max_maneuvers: int = 7) -> Path:

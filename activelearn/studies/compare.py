@@ -162,6 +162,8 @@ def compare(
     `metric` (default: the config's `[test] metric`) is what the table ranks by and the figure shows
     first: a one-step test error, or a free-running rollout error for dynamics models.
 
+    `tracking` False, or `[tracking] enabled = false`, logs nothing to MLflow.
+
     `executor` "process" runs `workers` local processes; "ray" one task per campaign on the Ray
     cluster at `ray_address` (see `activelearn.studies.executors`). Each campaign holds its directory's
     lock while it runs; one another command writes waits up to `lock_wait` s. The output directory, the
@@ -200,6 +202,7 @@ def compare(
     workers = max(1, min(workers or os.cpu_count() or 1, len(strategies) * len(seeds)))
 
     tracker, parent_run_id = None, None
+    tracking = tracking and cfg.tracking.enabled  # `[tracking] enabled = false` holds here too
     if tracking:  # an unreachable store fails here, before anything is simulated or written
         from activelearn.studies.tracking import Tracker
 
