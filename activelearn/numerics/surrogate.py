@@ -391,14 +391,10 @@ def _sequential_rollout(
     start = torch.zeros((n_samples, 2, n_maneuvers))
     if initial_rates is not None:
         start[:] = torch.as_tensor(np.asarray(initial_rates, dtype=np.float32)).t()
-    # A kind whose learnt part reads the controls alone computes its free runs whole (noise keys from
+    # A kind whose learnt part reads the controls alone computes its free runs whole (its noise from
     # the draws' seed, so `gen` is left as the step loop below finds it).
-    keys = torch.randint(2**62, (n_samples,), generator=torch.Generator().manual_seed(seed)).tolist()
-    newest = controls[:, np.maximum(np.arange(n_steps) - lags.control_lags[0], 0)]
     whole_runs = getattr(model, "open_loop_free_runs", None)  # wrappers (residual models) have none
-    whole = None
-    if whole_runs is not None:
-        whole = whole_runs(n_samples, seed, newest, start, keys, lags.rate_lags[0], backend)
+    whole = None if whole_runs is None else whole_runs(n_samples, seed, controls, start, lags, backend)
     if whole is not None:
         rates, moments = whole
         return (rates[:, 0], rates[:, 1]), moments

@@ -13,7 +13,7 @@ from torch import Tensor, nn
 
 from activelearn.config import ModelConfig
 from activelearn.errors import InputError
-from activelearn.numerics.lags import N_CONTROLS, model_lags
+from activelearn.numerics.lags import N_CONTROLS, Lags, model_lags
 from activelearn.numerics.native import NetworkKernel
 from activelearn.numerics.threads import even_blocks, intra_op_threads
 
@@ -91,6 +91,11 @@ def draw_moments(means: Tensor, var: Tensor, moments: tuple[Tensor, Tensor, Tens
     torch.mean(var, dim=0, out=aleatoric)
     # Population variance (ddof 0): the mixture's variance.
     torch.mean((means - centre).square_(), dim=0, out=epistemic)
+
+
+def draw_spread(epistemic_scale: float, n_samples: int) -> float:
+    """Factor on each of `n_samples` draws' deviation from their average: √(epistemic scale)."""
+    return float(epistemic_scale) ** 0.5 if n_samples > 1 else 1.0
 
 
 class SampledModel:
@@ -190,7 +195,7 @@ class SampledModel:
     @property
     def spread(self) -> float:
         """Factor on each draw's deviation from the average draw: √(epistemic scale)."""
-        return self.epistemic_scale**0.5 if self.n_samples > 1 else 1.0
+        return draw_spread(self.epistemic_scale, self.n_samples)
 
     @torch.no_grad()
     def columns(self, x: Tensor, out: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor]:
@@ -328,8 +333,7 @@ class Model(nn.Module, ABC):
         seed: int,
         controls: np.ndarray,
         start: Tensor,
-        keys: list[int],
-        rate_lag: int,
+        lags: Lags,
         backend: str,
     ) -> tuple[Tensor, tuple[Tensor, Tensor, Tensor]] | None:
         """Sampled free runs computed whole, for a kind whose learnt part reads the controls alone (its

@@ -41,8 +41,8 @@ from torch import Tensor
 from activelearn.config import ModelConfig
 from activelearn.errors import InputError
 from activelearn.numerics import counter_noise, native
-from activelearn.numerics.lags import N_CONTROLS, N_RATES, model_lags
-from activelearn.numerics.models.base import Model
+from activelearn.numerics.lags import N_CONTROLS, N_RATES, Lags, model_lags
+from activelearn.numerics.models.base import Model, draw_spread
 from activelearn.numerics.models.networks import NETWORK_CLASSES
 from simulator import datasheet
 
@@ -56,6 +56,7 @@ LAST_LAYER_SCALE = 0.1  # the correction starts near zero: an untrained model is
 # 608 sweep runs, experiments/results/physics.txt). With ≤ 3 %, five sigma over the 1.25x yaw cap
 # stays below 1.5x.
 NOISE_CAP = 0.03
+_RATE_LIMITS = torch.tensor([datasheet.MAX_SPEED, datasheet.MAX_YAW_RATE])  # float32, as y_std
 PRIOR_ROWS = 1e4  # the first pass of `_map_fit` weighs the datasheet prior this much less
 
 
@@ -355,25 +356,27 @@ class PhysicsModel(Model):
         seed: int,
         controls: np.ndarray,
         start: Tensor,
-        keys: list[int],
-        rate_lag: int,
+        lags: Lags,
         backend: str,
     ) -> tuple[Tensor, tuple[Tensor, Tensor, Tensor]] | None:
         """Free runs of a model whose correction reads the control alone (else None).
 
         The correction is then a function of the operating point: its S draws of `seed` (those of
         `draw(n_samples, seed=seed)`) are evaluated once per distinct control row, and each step is
-        the single track's recurrence from the rates `rate_lag` steps back (`start`, (S, 2, M),
-        before that). controls (M, T, 2) are what each step's model reads;
-        keys (S,) the draws' counter-based noise keys (`counter_noise`). Returns the sampled rates
-        (S, 2, M, T) and the moments over draws per step, each (M, T, 2). The compiled kernel
-        (physics_rollout.c) where `backend` allows, else torch, drawing the same numbers.
+        the single track's recurrence from the rates of the newest lag of `lags` (`start`, (S, 2, M),
+        before that), with the control of its newest control lag, from the log's controls (M, T, 2).
+        Each draw's counter-based noise (`counter_noise`) has a key drawn from `seed`. Returns the
+        sampled rates (S, 2, M, T) and the moments over draws per step, each (M, T, 2). The compiled
+        kernel (physics_rollout.c) where `backend` allows, else torch, drawing the same numbers.
         """
         if self.config.correction_inputs != "control" or not self.corrected:
             return None
         correction = self.correction.draw(n_samples, seed=seed, backend=backend)
-        spread = self.epistemic_scale**0.5 if n_samples > 1 else 1.0  # as `SampledModel.spread`
-        controls = np.ascontiguousarray(controls, dtype=np.float32)
+        spread = draw_spread(self.epistemic_scale, n_samples)
+        keys = torch.randint(2**62, (n_samples,), generator=torch.Generator().manual_seed(seed)).tolist()
+        rate_lag, n_steps = lags.rate_lags[0], controls.shape[1]
+        newest = np.maximum(np.arange(n_steps) - lags.control_lags[0], 0)  # the control each step reads
+        controls = np.ascontiguousarray(controls[:, newest], dtype=np.float32)
         n_maneuvers, n_steps, _ = controls.shape
         rates = torch.empty((n_samples, 2, n_maneuvers, n_steps))
         moments = tuple(torch.empty((n_maneuvers, n_steps, 2)) for _ in range(3))
@@ -439,8 +442,7 @@ class PhysicsModel(Model):
     def _variance_cap(self) -> Tensor:
         """The largest standardised aleatoric variance of (v, ω): one training std, and at most
         `NOISE_CAP` of the rate's limit."""
-        limits = torch.tensor([datasheet.MAX_SPEED, datasheet.MAX_YAW_RATE], dtype=self.y_std.dtype)
-        return (NOISE_CAP * limits / self.y_std).square().clamp(max=1.0)
+        return (NOISE_CAP * _RATE_LIMITS / self.y_std).square().clamp(max=1.0)
 
     def train_forward(self, x: Tensor) -> tuple[Tensor, Tensor | None]:
         """Stochastic pass on standardised x (N, d) or (K, N, d): the correction, then the physics."""

@@ -66,6 +66,10 @@ typedef struct {
 /* Runs a job on the calling thread and up to n_threads - 1 more: 0, or -1 if a worker failed. */
 int al_run_parallel(al_job *job, int64_t n_threads);
 
+/* The distinct consecutive rows of a tile's n <= 512 control rows u (n, 2): written in column layout
+ * to rows_x (2, 512), each step's row index to row; returns their count (static_rollout.c). */
+int32_t al_tile_rows(const float *u, int64_t n, float *rows_x, int32_t *row);
+
 /* Standard normal (v, w) noise of steps [tile * 512, tile * 512 + 512) of maneuver m under a draw's
  * 64-bit key (key0 low word, key1 high word): counter-based, so it depends on nothing else
  * (static_rollout.c; the NumPy reference is activelearn/numerics/counter_noise.py). */

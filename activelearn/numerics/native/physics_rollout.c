@@ -161,16 +161,7 @@ static void physics_maneuver(void *context, void *scratch, int64_t m) {
     float *mv = r->step, *mw = mv + S;
     for (int64_t t0 = 0; t0 < T; t0 += TILE) {
         const int64_t n = T - t0 < TILE ? T - t0 : TILE;
-        const float *u = c->controls + 2 * (m * T + t0);
-        int32_t n_rows = 0;
-        for (int64_t i = 0; i < n; ++i) {
-            if (i == 0 || u[2 * i] != u[2 * i - 2] || u[2 * i + 1] != u[2 * i - 1]) {
-                r->rows_x[n_rows] = u[2 * i];
-                r->rows_x[TILE + n_rows] = u[2 * i + 1];
-                ++n_rows;
-            }
-            r->row[i] = n_rows - 1;
-        }
+        const int32_t n_rows = al_tile_rows(c->controls + 2 * (m * T + t0), n, r->rows_x, r->row);
         al_network_rows(c->net, r->network, 0, n_rows, r->rows_x, TILE, 0, &out);
         row_coefficients(c, r, n_rows);
         for (int64_t s = 0; s < S; ++s) {

@@ -82,6 +82,20 @@ static void tile_noise(uint32_t tile, uint32_t m, uint32_t key0, uint32_t key1, 
     for (int l = 0; l < TILE; ++l) zw[l] = radius[l] * sinf(angle[l]);
 }
 
+/* Distinct consecutive control rows of a tile: skidpads and straights hold one row for the whole tile. */
+int32_t al_tile_rows(const float *u, int64_t n, float *rows_x, int32_t *row) {
+    int32_t n_rows = 0;
+    for (int64_t i = 0; i < n; ++i) {
+        if (i == 0 || u[2 * i] != u[2 * i - 2] || u[2 * i + 1] != u[2 * i - 1]) {
+            rows_x[n_rows] = u[2 * i];
+            rows_x[TILE + n_rows] = u[2 * i + 1];
+            ++n_rows;
+        }
+        row[i] = n_rows - 1;
+    }
+    return n_rows;
+}
+
 /* tile_noise for the other kernels (physics_rollout.c): one trajectory's noise of one tile. */
 void al_tile_noise(uint32_t tile, uint32_t m, uint32_t key0, uint32_t key1, float *zv, float *zw) {
     tile_noise(tile, m, key0, key1, zv, zw);
@@ -219,17 +233,7 @@ static void rollout_maneuver(void *context, void *scratch, int64_t m) {
     for (int64_t t0 = 0; t0 < T; t0 += TILE) {
         const int64_t n = T - t0 < TILE ? T - t0 : TILE;
         const int64_t at = m * T + t0;
-        const float *u = c->controls + 2 * at;
-        /* Distinct consecutive rows: skidpads and straights hold one row for the whole tile. */
-        int32_t n_rows = 0;
-        for (int64_t i = 0; i < n; ++i) {
-            if (i == 0 || u[2 * i] != u[2 * i - 2] || u[2 * i + 1] != u[2 * i - 1]) {
-                r->rows_x[n_rows] = u[2 * i];
-                r->rows_x[TILE + n_rows] = u[2 * i + 1];
-                ++n_rows;
-            }
-            r->row[i] = n_rows - 1;
-        }
+        const int32_t n_rows = al_tile_rows(c->controls + 2 * at, n, r->rows_x, r->row);
         al_network_rows(c->net, r->network, 0, n_rows, r->rows_x, TILE, 0, &out);
         for (int64_t i = 0; i < n; ++i)
             for (int j = 0; j < 2; ++j) {
