@@ -93,6 +93,16 @@ class ModelConfig(_Section):
         description="kind = 'physics': what the correction reads: the newest control (the operating "
         "point; free runs then evaluate it once per distinct control) or the whole input window",
     )
+    # Where the logs allow, a probe trained without a quarter of the training maneuvers decides how
+    # much of the correction's mean to keep (0, 1/2 or all) by free runs of the held-out ones; its
+    # posterior spread (the epistemic band) is kept whatever the choice. The correction fits one-step
+    # targets and, with little data, drags free runs away from the identified core
+    # (experiments/results/physics.txt).
+    correction_gate: bool = Field(
+        False,
+        description="kind = 'physics': keep the correction's mean only as far as it beats the identified "
+        "core on held-out maneuvers (a probe fit without a quarter of them)",
+    )
 
     @model_validator(mode="after")
     def _check_kinematic_feature(self) -> ModelConfig:

@@ -12,7 +12,7 @@ from activelearn.config import DataConfig, ModelConfig, TrainingConfig, load_con
 from activelearn.errors import ConfigError, InputError
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import arrays, control_rate_logs, training_rows
-from activelearn.numerics import native
+from activelearn.numerics import correction_gate, native
 from activelearn.numerics.models import PhysicsModel, build_model, load_model, physics, save_model
 from activelearn.numerics.models.base import Model
 from activelearn.numerics.surrogate import simulate
@@ -275,3 +275,81 @@ def test_free_runs_computed_whole_are_the_step_loops(monkeypatch):
     assert np.abs(whole.v).max() > 0.1 and whole.epistemic_var.max() > 1e-4
     for name in ("v", "w", "mean_rates", "epistemic_var"):
         np.testing.assert_allclose(getattr(whole, name), getattr(stepped, name), atol=2e-5, err_msg=name)
+
+
+def test_a_gated_correction_keeps_its_spread_and_a_share_of_its_mean():
+    """`correction_weight` scales the correction's mean over draws and leaves each draw's deviation."""
+    model = _perturbed_control_model()
+    params = model.correction.sample_params(16, 0)
+    inputs = torch.randn(2, 50, generator=torch.Generator().manual_seed(0))
+    z, _ = model.correction.columns_forward(inputs, model.correction.columns_params(params), 16)
+    assert z.mean(dim=0).abs().max() > 0.1  # a correction whose mean matters
+    for weight in (0.0, 0.5):
+        model.correction_weight.fill_(weight)
+        gated = model._gate(z)
+        torch.testing.assert_close(gated.mean(dim=0), weight * z.mean(dim=0), atol=1e-5, rtol=0)
+        torch.testing.assert_close(gated - gated.mean(dim=0), z - z.mean(dim=0), atol=1e-5, rtol=0)
+
+
+def test_gated_free_runs_computed_whole_are_the_step_loops(monkeypatch):
+    """With a share of the correction kept, the whole-run path (torch) still equals the step loop."""
+    monkeypatch.setattr(physics, "NOISE_CAP", 0.0)
+    model, controls = _perturbed_control_model(), _busy_controls()
+    model.correction_weight.fill_(0.5)
+    whole = simulate(model, controls, n_samples=8, seed=3)
+    full = simulate(_perturbed_control_model(), controls, n_samples=8, seed=3)
+    monkeypatch.setattr(PhysicsModel, "open_loop_free_runs", Model.open_loop_free_runs)
+    stepped = simulate(model, controls, n_samples=8, seed=3)
+    assert np.abs(whole.mean_rates - full.mean_rates).max() > 1e-2  # the gate moved the mean
+    for name in ("v", "w", "mean_rates", "epistemic_var"):
+        np.testing.assert_allclose(getattr(whole, name), getattr(stepped, name), atol=2e-5, err_msg=name)
+
+
+def test_the_gate_keeps_the_correction_only_where_held_out_maneuvers_want_it(monkeypatch):
+    """On logs of the bare single track the gate drops a correction that shifts the mean; on logs the
+    corrected model drives itself it keeps all of it."""
+    monkeypatch.setattr(physics, "NOISE_CAP", 1e-4)
+    model, controls = _perturbed_control_model(), _busy_controls()
+    start = np.zeros((len(controls), 2))
+    core = physics.run_single_track(np.stack(controls), start, model.theta.numpy().astype(float), model.dt)[0]
+    corrected = simulate(model, controls, n_samples=correction_gate.GATE_SAMPLES, seed=0).mean_rates
+    ids = list(range(len(controls)))
+    for rates, expected in ((core, 0.0), (corrected, 1.0)):
+        logs = [(u, r[: len(u)]) for u, r in zip(controls, rates, strict=True)]
+        trained_on = []
+
+        def probe(rows, probe_logs, windows, trained_on=trained_on):
+            trained_on.append(len(probe_logs))
+            return model
+
+        chosen = correction_gate.choose_correction_weight(
+            probe, groups=np.repeat(ids, 10), logs=logs, log_groups=ids, windows=None, seed=0
+        )
+        assert chosen is not None and trained_on == [len(controls) - 2]  # a quarter of 6 held out
+        weight, errors = chosen
+        assert weight == expected, errors
+        assert errors[weight] < 0.5 * max(errors.values())
+
+
+def test_fit_gates_the_correction_and_the_choice_is_saved(forward_grid: pd.DataFrame, tmp_path):
+    """`[model] correction_gate` through `fit`: a probe without a quarter of the maneuvers picks a share,
+    the model keeps it, and saving and loading keep it too (a state dict from before loads whole)."""
+    frames = [g for _, g in forward_grid.groupby("run_id", sort=False)]
+    rows = pd.concat([training_rows(g, DATA) for g in frames])
+    x, y = arrays(rows, DATA)
+    model = build_model(_config(correction_gate=True), seed=0)
+    history = fit(
+        model, x, y, TrainingConfig(epochs=4, batch_size=64, patience=None), seed=0,
+        groups=rows["run_id"].to_numpy(), logs=_logs(forward_grid),
+        log_groups=[g["run_id"].iloc[0] for g in frames],
+    )  # fmt: skip
+    assert set(history.gate_errors) == set(correction_gate.GATE_WEIGHTS)
+    assert history.correction_weight == min(history.gate_errors, key=lambda w: (history.gate_errors[w], w))
+    assert float(model.correction_weight) == history.correction_weight
+    save_model(model, tmp_path / "gated.pt")
+    assert float(load_model(tmp_path / "gated.pt").correction_weight) == history.correction_weight
+    state = {k: v for k, v in model.state_dict().items() if k != "correction_weight"}
+    fresh = build_model(_config(correction_gate=True), seed=1)
+    fresh.correction_weight.fill_(0.0)
+    fresh.load_state_dict(state)
+    assert float(fresh.correction_weight) == 1.0

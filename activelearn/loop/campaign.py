@@ -284,6 +284,10 @@ class Campaign:
         samples = self._with_prior(samples)
         return control_rate_logs([part for _, part in samples.groupby("pool_index", sort=False)])
 
+    def _log_groups(self, samples: pd.DataFrame) -> list[Any]:
+        """The maneuver id (`pool_index`, as in the training rows' groups) of each identification log."""
+        return list(self._with_prior(samples).groupby("pool_index", sort=False).groups)
+
     def target(self) -> tuple[np.ndarray, np.ndarray]:
         """Controls (and weights) of the target region (`[target]`, default: the test maneuvers')."""
         if self._target is None:
@@ -412,6 +416,7 @@ class Campaign:
         x, y, groups = self._training_data(samples)
         windows = self._training_windows(samples)
         logs = self._identification_logs(samples)
+        log_groups = self._log_groups(samples) if logs is not None else None
         seed = self.cfg.seed * 10_007 + round_index
         base = self.prior_model()
         use = self.cfg.design.prior.use if self.cfg.design.prior is not None else "data"
@@ -425,16 +430,18 @@ class Campaign:
             if len(x):
                 training = self.cfg.training.model_copy(update={"reinit": False})
                 fit(model, x, y, training, groups=groups, seed=seed, keep_scalers=True, windows=windows,
-                    logs=logs)  # fmt: skip
+                    logs=logs, log_groups=log_groups)  # fmt: skip
         elif previous is not None and self.cfg.training.warm_start:
             model = load_model_copy(previous)
             training = self.cfg.training
             epochs = training.warm_epochs or max(1, training.epochs // 4)
             fit(model, x, y, training.model_copy(update={"reinit": False, "epochs": epochs}),
-                groups=groups, seed=seed, keep_scalers=True, windows=windows, logs=logs)  # fmt: skip
+                groups=groups, seed=seed, keep_scalers=True, windows=windows, logs=logs,
+                log_groups=log_groups)  # fmt: skip
         else:
             model = build_model(self.cfg.model)
-            fit(model, x, y, self.cfg.training, groups=groups, seed=seed, windows=windows, logs=logs)
+            fit(model, x, y, self.cfg.training, groups=groups, seed=seed, windows=windows, logs=logs,
+                log_groups=log_groups)
         with torch.no_grad():
             model.epistemic_scale.fill_(epistemic_scale)
         return model
@@ -811,6 +818,8 @@ class Campaign:
                 model.fan_scale.fill_(fans["fan_scale"])
         x, _, _ = self._training_data(samples)
         metrics: dict[str, Any] = {"round": round_index, "epistemic_scale": scale, **fans}
+        if hasattr(model, "correction_weight"):  # the physics kind: the share of its correction kept
+            metrics["correction_weight"] = float(model.correction_weight)
         metrics.update(self.evaluate(model))
         metrics.update(
             n_samples=len(x),

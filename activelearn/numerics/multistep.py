@@ -27,13 +27,24 @@ class Windows:
 
     `controls` (W, (k-1)s + H, 2): the controls from the oldest one a window's first step reads to
     its last step; `past` (W, ks, 2): the recorded rates before the window; `target` (W, H, 2): the
-    rates to predict. `lags` is the model's input layout.
+    rates to predict. `lags` is the model's input layout; `source` (W,) the index of the log each
+    window comes from (to train on a subset of the logs).
     """
 
     controls: np.ndarray
     past: np.ndarray
     target: np.ndarray
     lags: Lags
+    source: np.ndarray | None = None
+
+    def of_logs(self, keep: np.ndarray) -> Windows | None:
+        """The windows of the logs whose indices are in `keep` (None if none)."""
+        if self.source is None:
+            raise InputError("windows", "source", "windows without their logs' indices cannot be split")
+        rows = np.isin(self.source, keep)
+        if not rows.any():
+            return None
+        return Windows(self.controls[rows], self.past[rows], self.target[rows], self.lags, self.source[rows])
 
     @property
     def horizon(self) -> int:
@@ -52,16 +63,17 @@ def windows_from_logs(
     if horizon < 1 or every < 1:
         raise InputError("rollout_horizon", horizon, "windows need horizon >= 1 and a step >= 1")
     back_u, back_y = (lags.history - 1) * lags.step, lags.span
-    controls, past, target = [], [], []
-    for u, y in logs:
+    controls, past, target, source = [], [], [], []
+    for i, (u, y) in enumerate(logs):
         for t0 in range(back_y, len(u) - horizon + 1, every):
+            source.append(i)
             controls.append(u[t0 - back_u : t0 + horizon])
             past.append(y[t0 - back_y : t0])
             target.append(y[t0 : t0 + horizon])
     if not target:
         return None
     as_array = lambda parts: np.asarray(np.stack(parts), dtype=np.float32)  # noqa: E731
-    return Windows(as_array(controls), as_array(past), as_array(target), lags)
+    return Windows(as_array(controls), as_array(past), as_array(target), lags, np.array(source))
 
 
 def window_loss(model, windows: Windows, rows: Tensor) -> Tensor:

@@ -18,7 +18,7 @@ import copy
 import math
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -28,6 +28,7 @@ from torch.func import functional_call, grad_and_value
 
 from activelearn.config import TrainingConfig
 from activelearn.errors import InputError
+from activelearn.numerics.correction_gate import choose_correction_weight
 from activelearn.numerics.models.base import Model
 from activelearn.numerics.multistep import Windows, window_loss
 from activelearn.numerics.threads import intra_op_threads
@@ -50,6 +51,10 @@ class History:
     stopped_early: bool = False
     kl_count: float = float("nan")
     epistemic_scale: float = 1.0
+    # [model] correction_gate: the share of the correction's mean kept, and each share's held-out
+    # free-run error (m); 1.0 and empty where nothing was gated
+    correction_weight: float = 1.0
+    gate_errors: dict[float, float] = field(default_factory=dict)
 
     @property
     def n_epochs(self) -> int:
@@ -278,6 +283,7 @@ def fit(
     keep_scalers: bool = False,
     windows: Windows | None = None,
     logs: list[tuple[np.ndarray, np.ndarray]] | None = None,
+    log_groups: Sequence | None = None,
 ) -> History:
     """Train `model` on (x, y) in physical units; return the per-epoch History.
 
@@ -297,7 +303,9 @@ def fit(
     `rollout_batch` windows at a time (eager steps: the compiled path trains one-step losses only).
     A physics-structured model (`[model] kind = "physics"`) first identifies its physical parameters:
     by free runs along `logs` (each (controls (T, 2), rates (T, 2)) at the log rate) where given, else
-    from the rows.
+    from the rows. With `[model] correction_gate`, `groups` and `log_groups` (each log's id among
+    `groups`), a probe trained without a quarter of the maneuvers then decides the share of its
+    correction's mean to keep (`activelearn.numerics.correction_gate`).
     """
     x, y = _check_xy(model, x, y, "")
     if config.rollout_horizon and windows is not None:
@@ -326,11 +334,34 @@ def fit(
             or (config.compile == "auto" and steps_per_epoch * config.epochs >= AUTO_COMPILE_STEPS)
         )
     )
+    gated = hasattr(model, "correction_weight")
+    if gated:
+        with torch.no_grad():
+            model.correction_weight.fill_(1.0)  # trained with its whole correction
+    gate = gated and model.config.correction_gate and groups is not None and logs and log_groups is not None
+    before = copy.deepcopy(model) if gate else None
+
+    def train_probe(rows: np.ndarray, probe_logs: list, probe_windows: Windows | None) -> Model:
+        probe = copy.deepcopy(before)
+        fit(probe, x[rows], y[rows], config, x_val=x_val, y_val=y_val, groups=groups[rows],  # type: ignore[index]
+            groups_val=groups_val, seed=seed, keep_scalers=keep_scalers, windows=probe_windows,
+            logs=probe_logs)  # fmt: skip
+        return probe
+
     with intra_op_threads(config.num_threads), torch.random.fork_rng(devices=[]):
-        return _fit(
+        _fit(
             model, x, y, config, x_val, y_val, groups_val, seed, callback,
             history, kl_weight, batch, use_compile, keep_scalers, windows, logs,
         )  # fmt: skip
+        if gate:
+            chosen = choose_correction_weight(
+                train_probe, groups=groups, logs=logs, log_groups=log_groups, windows=windows, seed=seed
+            )
+            if chosen is not None:
+                history.correction_weight, history.gate_errors = chosen
+                with torch.no_grad():
+                    model.correction_weight.fill_(history.correction_weight)
+    return history
 
 
 def _fit(

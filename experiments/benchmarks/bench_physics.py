@@ -8,6 +8,8 @@ maneuvers, 30 s, noise-free truth of the same oracle) for:
   * datasheet     Nigel's single track from its datasheet, no data at all;
   * core          the single track identified on the training logs, no learnt correction;
   * physics       the physics kind with its defaults (identified core + bounded hybrid correction);
+  * gated         the same with `[model] correction_gate`: a probe without a quarter of the training
+                  maneuvers decides how much of the correction's mean to keep;
   * black box     the best black box (history ensemble of 5 + kinematic feature + 30-step windows,
                   `dynamics.toml`'s model before it moved to the physics kind);
 all trained as `dynamics.toml` trains. Prints the 30-s position error of the mean path per test kind
@@ -38,7 +40,7 @@ from activelearn.numerics.training import fit
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "dynamics.toml"
 TWIN = {"tire_friction": 0.55, "motor_gain": 0.9}  # sim_to_real.toml's twin
-VARIANTS = ("datasheet", "core", "physics", "black box")
+VARIANTS = ("datasheet", "core", "physics", "gated", "black box")
 PHYSICS = {"kind": "physics", "kinematic_feature": False}
 BLACK_BOX = {"kind": "ensemble", "ensemble_size": 5, "kinematic_feature": True}
 
@@ -59,7 +61,10 @@ def campaign_for(oracle: str, scratch: Path, epochs: int | None) -> Campaign:
 def trained(campaign: Campaign, variant: str, frames: list[pd.DataFrame], seed: int):
     """One variant fitted to the training logs as dynamics.toml trains."""
     cfg = campaign.cfg
-    model_cfg = cfg.model.model_copy(update=BLACK_BOX if variant == "black box" else PHYSICS)
+    update = BLACK_BOX if variant == "black box" else PHYSICS
+    if variant in ("physics", "gated"):
+        update = {**update, "correction_gate": variant == "gated"}
+    model_cfg = cfg.model.model_copy(update=update)
     model = build_model(model_cfg, seed=seed)
     rows = pd.concat([training_rows(frame, cfg.data) for frame in frames])
     x, y = arrays(rows, cfg.data)
@@ -73,7 +78,9 @@ def trained(campaign: Campaign, variant: str, frames: list[pd.DataFrame], seed: 
     horizon = cfg.training.rollout_horizon
     windows = training_windows(frames, cfg.data, horizon) if horizon else None
     groups = rows["run_id"].to_numpy() if "run_id" in rows else None
-    fit(model, x, y, cfg.training, groups=groups, seed=seed, windows=windows, logs=logs)
+    log_groups = [int(frame["run_id"].iloc[0]) for frame in frames]
+    fit(model, x, y, cfg.training, groups=groups, seed=seed, windows=windows, logs=logs,
+        log_groups=log_groups)  # fmt: skip
     return model
 
 
@@ -99,6 +106,7 @@ def main() -> None:
     parser.add_argument("--oracles", default="nominal,twin")
     parser.add_argument("--epochs", type=int, default=None, help="default: dynamics.toml's")
     parser.add_argument("--test-maneuvers", type=int, default=None, help="default: all 72")
+    parser.add_argument("--variants", default=",".join(VARIANTS), help=f"a subset of {', '.join(VARIANTS)}")
     parser.add_argument("--quick", action="store_true", help="a few seconds per oracle: checks it runs")
     args = parser.parse_args()
     if args.quick:
@@ -106,6 +114,9 @@ def main() -> None:
     oracles = [o for o in args.oracles.split(",") if o]
     if set(oracles) - {"nominal", "twin"} or not oracles:
         parser.error("--oracles: nominal and/or twin")
+    variants = [v for v in args.variants.split(",") if v]
+    if set(variants) - set(VARIANTS) or not variants:
+        parser.error(f"--variants: a subset of {', '.join(VARIANTS)}")
     if args.seeds < 1 or args.train_maneuvers < 1:
         parser.error("--seeds and --train-maneuvers: at least 1")
     seeds = range(args.first_seed, args.first_seed + args.seeds)
@@ -128,7 +139,7 @@ def main() -> None:
                 frames = campaign.oracle.answer([candidates[i] for i in chosen], seed)
                 for i, frame in enumerate(frames):
                     frame["run_id"] = i
-                for variant in VARIANTS:
+                for variant in variants:
                     started = time.perf_counter()
                     model = trained(campaign, variant, frames, seed)
                     seconds = time.perf_counter() - started
@@ -139,24 +150,27 @@ def main() -> None:
                     for kind, error in zip(kinds, errors, strict=True):
                         rows.append({"seed": seed, "variant": variant, "kind": kind, "error": error,
                                      "coverage": coverage})  # fmt: skip
-            report(pd.DataFrame(rows), oracle, args.train_maneuvers, len(seeds))
+            report(pd.DataFrame(rows), oracle, args.train_maneuvers, len(seeds), variants)
 
 
-def report(frame: pd.DataFrame, oracle: str, n_train: int, n_seeds: int) -> None:
-    """Per-kind and overall 30-s errors, mean ± s.e.m. over seeds, and the paired ratio to the black box."""
+def report(frame: pd.DataFrame, oracle: str, n_train: int, n_seeds: int, variants: list[str]) -> None:
+    """Per-kind and overall 30-s errors, mean ± s.e.m. over seeds, and paired ratios (physics and gated
+    over the black box, gated over physics) where both were run."""
     per_seed = frame.groupby(["seed", "variant", "kind"])["error"].mean().unstack("kind")
     per_seed["all"] = frame.groupby(["seed", "variant"])["error"].mean()
-    mean = per_seed.groupby("variant").mean().reindex(VARIANTS)
-    sem = per_seed.groupby("variant").sem().reindex(VARIANTS).fillna(0.0)
+    mean = per_seed.groupby("variant").mean().reindex(variants)
+    sem = per_seed.groupby("variant").sem().reindex(variants).fillna(0.0)
     cells = mean.map(lambda v: f"{v:.4f}") + " ± " + sem.map(lambda v: f"{v:.4f}")
-    coverage = frame.groupby("variant")["coverage"].mean().reindex(VARIANTS)
+    coverage = frame.groupby("variant")["coverage"].mean().reindex(variants)
     cells["fan holds"] = coverage.map(lambda v: f"{v:.2f}")
     print(f"\n{oracle}: 30-s position error of the mean path (m), {n_train} training maneuvers, "
           f"mean ± s.e.m. over {n_seeds} seeds:")  # fmt: skip
     print(cells.to_string())
-    ratio = (per_seed.xs("physics", level="variant") / per_seed.xs("black box", level="variant"))
-    print(f"\n{oracle}: physics / black box per seed (paired):")
-    print(ratio.to_string(float_format="%.3f"))
+    for top, bottom in (("physics", "black box"), ("gated", "black box"), ("gated", "physics")):
+        if top in variants and bottom in variants:
+            ratio = per_seed.xs(top, level="variant") / per_seed.xs(bottom, level="variant")
+            print(f"\n{oracle}: {top} / {bottom} per seed (paired):")
+            print(ratio.to_string(float_format="%.3f"))
 
 
 if __name__ == "__main__":

@@ -308,6 +308,11 @@ class PhysicsModel(Model):
         self.rate_at = N_CONTROLS * lags.history
         self.dt = lags.step / datasheet.LOG_RATE_HZ
         self.register_buffer("theta", torch.as_tensor(NOMINAL, dtype=torch.float32).clone())
+        # The share of the correction's posterior mean a prediction keeps (`[model] correction_gate`,
+        # chosen by `training.fit`); each draw's deviation from that mean is kept whole. Models saved
+        # before it existed load with 1 (the whole correction).
+        self.register_buffer("correction_weight", torch.ones(()))
+        self.register_load_state_dict_pre_hook(_default_correction_weight)
         # False: the bare single track (the correction's outputs held at zero), for comparisons
         self.corrected = True
         self._shrink_last_layer()
@@ -371,6 +376,7 @@ class PhysicsModel(Model):
         """
         if self.config.correction_inputs != "control" or not self.corrected:
             return None
+        gated = float(self.correction_weight) != 1.0
         correction = self.correction.draw(n_samples, seed=seed, backend=backend)
         spread = draw_spread(self.epistemic_scale, n_samples)
         keys = torch.randint(2**62, (n_samples,), generator=torch.Generator().manual_seed(seed)).tolist()
@@ -380,7 +386,7 @@ class PhysicsModel(Model):
         n_maneuvers, n_steps, _ = controls.shape
         rates = torch.empty((n_samples, 2, n_maneuvers, n_steps))
         moments = tuple(torch.empty((n_maneuvers, n_steps, 2)) for _ in range(3))
-        if correction.kernel is not None:
+        if correction.kernel is not None and not gated:  # the kernel applies the whole correction
             native.physics_rollout(
                 correction.kernel,
                 self.native_parameters(spread),
@@ -402,6 +408,7 @@ class PhysicsModel(Model):
         flat = controls.reshape(-1, N_CONTROLS)
         unique, index = np.unique(flat, axis=0, return_inverse=True)
         z, z_var = correction.columns(torch.as_tensor(unique.T.copy()))  # (S, 4, U)
+        z = self._gate(z)
         cap = self._variance_cap()[None, :, None]
         noise_std = torch.minimum(z_var[:, :N_RATES], cap).sqrt_() * self.y_std[None, :, None]
         index = torch.as_tensor(index.reshape(n_maneuvers, n_steps))
@@ -471,9 +478,18 @@ class PhysicsModel(Model):
         """Standardised (S, 2, N) means and variances for standardised x (d, N) or (S, d, N)."""
         inputs = x.narrow(-2, 0, self.n_correction_inputs)
         z_mean, z_var = self.correction.columns_forward(inputs, params, n_samples)
+        z_mean = self._gate(z_mean)
         if x.dim() == 2:
             x = x.expand(n_samples, *x.shape)
         return self._physical_step(x, -2, z_mean, z_var)
+
+    def _gate(self, z: Tensor) -> Tensor:
+        """Draws (S, 4, N) of the correction with `correction_weight` of their mean over draws kept."""
+        weight = float(self.correction_weight)
+        if weight == 1.0:
+            return z
+        centre = z.mean(dim=0, keepdim=True)
+        return z - (1.0 - weight) * centre
 
     def reset_parameters(self, generator: torch.Generator | None = None) -> None:
         """Re-initialise the correction (last layer shrunk); physical parameters are identified, not drawn."""
@@ -486,6 +502,11 @@ class PhysicsModel(Model):
         for name in ("weight", "bias", "weight_mu", "bias_mu"):
             if hasattr(last, name):
                 getattr(last, name).mul_(LAST_LAYER_SCALE)
+
+
+def _default_correction_weight(module, state_dict, prefix, *args) -> None:
+    """Load hook: a state dict saved before `correction_weight` existed keeps the whole correction."""
+    state_dict.setdefault(prefix + "correction_weight", torch.ones(()))
 
 
 def control_box_sweep(duration: float = 60.0, rate_hz: float = datasheet.LOG_RATE_HZ) -> list[np.ndarray]:
