@@ -1,4 +1,4 @@
-# Two entry points for a fresh machine: `make demo` (the main job) and `make test` (the suite).
+# Two entry points for a fresh machine: `make demo` (the main job) and `make test` (the suite and the docs).
 # Both create or reuse .venv, install the CPU build of torch first (a bare `torch` requirement would
 # pull a multi-GB CUDA build), then the project with its dev extra.
 PYTHON ?= python3
@@ -29,12 +29,14 @@ demo-cold: setup
 	$(BIN)/activelearn compare experiments/configs/demo_cold.toml --strategies uniform,max_epistemic \
 		--seeds 3 --workers 2 --out runs/demo-cold/$$(date +%Y%m%d-%H%M%S)
 
+# The documentation is part of the test: a broken link or a page missing from mkdocs.yml's nav fails it.
 test: setup
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet --site-dir site
 
 lint: setup
 	$(BIN)/ruff check .
 
 clean:
-	rm -rf $(VENV) out .pytest_cache .ruff_cache .hypothesis
+	rm -rf $(VENV) out site .pytest_cache .ruff_cache .hypothesis

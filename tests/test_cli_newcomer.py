@@ -209,9 +209,15 @@ def test_a_typo_in_a_config_key_suggests_the_nearest(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["typo.toml"]
 
 
+def _documentation() -> str:
+    """The README and every page of the documentation (docs/), as one text."""
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+    return "\n".join(page.read_text() for page in pages if "results/files" not in page.as_posix())
+
+
 def _readme_commands() -> list[list[str]]:
-    """Every `$A ...`, `activelearn ...` or `.venv/bin/activelearn ...` command quoted in the README."""
-    text = ROOT.joinpath("README.md").read_text().replace("\\\n", " ")
+    """Every `$A ...`, `activelearn ...` or `.venv/bin/activelearn ...` command the README or docs/ quote."""
+    text = _documentation().replace("\\\n", " ")
     found = []
     for line in text.splitlines():
         match = re.match(r"\s*(?:\$A|(?:\.venv/bin/)?activelearn)\s+([a-z].*)", line)
@@ -226,6 +232,8 @@ def test_every_option_the_readme_quotes_exists() -> None:
     parser = build_parser()
     commands = _readme_commands()
     assert len(commands) > 15
+    readme = ROOT.joinpath("README.md").read_text()
+    assert "$A campaign ingest" in readme and "$A fidelity" in readme  # the README keeps its command tour
     for words in commands:
         sub = parser._subparsers._group_actions[0].choices[words[0]]  # type: ignore[union-attr]
         if words[0] == "campaign" and len(words) > 1 and not words[1].startswith("-"):
@@ -238,11 +246,12 @@ def test_every_option_the_readme_quotes_exists() -> None:
 
 
 def test_readme_paths_are_the_ones_the_tools_write() -> None:
-    text = ROOT.joinpath("README.md").read_text()
+    readme = ROOT.joinpath("README.md").read_text()
+    text = _documentation()  # the README and docs/
     assert "runs/tune/" not in text  # tune writes runs/tuning/<study>/best.toml
     makefile = ROOT.joinpath("Makefile").read_text()
     demo = re.search(r"^demo:.*\n((?:\t.*\n)+)", makefile, re.M).group(1)  # type: ignore[union-attr]
-    assert "--out runs/demo/" in demo and "--out runs/demo/<time>" in " ".join(text.split())
+    assert "--out runs/demo/" in demo and "--out runs/demo/<time>" in " ".join(readme.split())
     for flag in ("--no-tracking", "--run-id", "--samples", "--rate", "--noise", "--no-noise"):
         assert flag in text, flag
     assert "oracle_lookahead" in text
@@ -358,3 +367,25 @@ def test_an_mlflow_model_loads_without_leaving_files_behind(tmp_path: Path, monk
     with pytest.raises(ConfigError, match="--model"):
         load_model("runs:/deadbeef/model", uri)
     assert list((tmp_path / "scratch").iterdir()) == []  # no activelearn-model-* folders left
+
+
+def test_experiments_say_they_hold_model_training_runs(tmp_path: Path) -> None:
+    """MLflow >= 3 records an experiment's type in its `mlflow.experimentKind` tag (else it guesses):
+    experiments the project creates are "custom_model_development" (model training, not GenAI), an
+    existing one without the tag gets it, and a kind someone chose is left alone."""
+    from mlflow.tracking import MlflowClient
+
+    from activelearn.studies.tracking import EXPERIMENT_KIND, EXPERIMENT_KIND_TAG, Tracker
+
+    assert (EXPERIMENT_KIND_TAG, EXPERIMENT_KIND) == ("mlflow.experimentKind", "custom_model_development")
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    Tracker(uri)  # the default experiment, "activelearn"
+    client = MlflowClient(uri)
+    assert client.get_experiment_by_name("activelearn").tags[EXPERIMENT_KIND_TAG] == EXPERIMENT_KIND
+    old = client.create_experiment("older-store")  # as an earlier version of activelearn made it
+    assert EXPERIMENT_KIND_TAG not in client.get_experiment(old).tags
+    Tracker(uri, "older-store")
+    assert client.get_experiment(old).tags[EXPERIMENT_KIND_TAG] == EXPERIMENT_KIND
+    client.set_experiment_tag(old, EXPERIMENT_KIND_TAG, "genai_development")
+    Tracker(uri, "older-store")
+    assert client.get_experiment(old).tags[EXPERIMENT_KIND_TAG] == "genai_development"

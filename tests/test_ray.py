@@ -209,3 +209,30 @@ def test_ray_missing_or_unknown_executor_is_one_clear_error(tmp_path, monkeypatc
     assert len(err.strip().splitlines()) == 1
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
     assert not (tmp_path / "runs").exists()  # nothing simulated either
+
+
+@pytest.mark.parametrize(
+    ("token_env", "says"),
+    [
+        ({"RAY_AUTH_MODE": None, "RAY_AUTH_TOKEN": None}, "this command sent none"),
+        ({"RAY_AUTH_TOKEN": None}, "none was found"),
+        ({"RAY_AUTH_TOKEN": "0" * 32}, "refused this one"),
+    ],
+)
+def test_a_head_that_wants_a_token_says_so_and_how_to_pass_it(tmp_path, ray_head, token_env, says):
+    """The module's head authenticates with a token (Ray >= 2.59): a command without it, or with another,
+    is one line saying the head wants a token and how to give it, not Ray's bare "Failed to connect"."""
+    env = {**os.environ, "HOME": str(tmp_path), "RAY_gcs_server_port_wait_time_s": "2"}  # no ~/.ray token
+    for key, value in token_env.items():
+        env.pop(key) if value is None else env.update({key: value})
+    done = subprocess.run(
+        _ray_compare(tmp_path, ray_head, tmp_path / "out", seeds=1),
+        capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr[-2000:]
+    errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1, done.stderr[-2000:]
+    line = errors[0]
+    assert line.startswith("error: --ray-address: cannot join the Ray cluster: the head wants an auth token")
+    assert says in line and "export RAY_AUTH_MODE=token and RAY_AUTH_TOKEN=" in line
+    assert "ray get-auth-token" in line and ray_head in line

@@ -64,6 +64,37 @@ def run_jobs(
                 yield futures[future], future.result()
 
 
+def _auth_error_text(exc: BaseException) -> str | None:
+    """The text of Ray's token-authentication error in `exc` or what caused it; None if there is none."""
+    seen: BaseException | None = exc
+    while seen is not None:
+        text = str(seen)
+        if type(seen).__name__ == "AuthenticationError" or "InvalidAuthToken" in text:
+            return text
+        seen = seen.__cause__ or seen.__context__
+    return None
+
+
+def join_error(exc: BaseException) -> str:
+    """Why `ray.init` could not join a cluster, in one line; a head that wants a token says how to give one.
+
+    A Ray >= 2.59 head started with RAY_AUTH_MODE=token refuses clients without its token; Ray then says
+    only "Failed to connect to Ray cluster at <address>", and its token error is in what caused that.
+    """
+    text = _auth_error_text(exc)
+    if text is None:
+        return " ".join(str(exc).split()) or type(exc).__name__
+    how = (
+        "export RAY_AUTH_MODE=token and RAY_AUTH_TOKEN=<the cluster's token> (`ray get-auth-token` on the "
+        "head prints it) where you run this command"
+    )
+    if "no authentication token was found" in text:
+        return f"the head wants an auth token and none was found: {how}"
+    if "RAY_AUTH_MODE is currently" in text:  # Ray's note when this process is not in token mode
+        return f"the head wants an auth token (Ray >= 2.59) and this command sent none: {how}"
+    return f"the head wants an auth token and refused this one: {how}"
+
+
 def _ray_jobs(
     job: Callable[..., Any],
     jobs: Sequence[tuple[Any, tuple]],
@@ -83,8 +114,9 @@ def _ray_jobs(
             log_to_driver=False,
             configure_logging=False,
         )
-    except (ConnectionError, RuntimeError, ValueError) as exc:
-        raise InputError("--ray-address", address, f"cannot join the Ray cluster: {exc}") from None
+    except (ConnectionError, RuntimeError, ValueError, ray.exceptions.RayError) as exc:
+        reason = f"cannot join the Ray cluster: {join_error(exc)}"
+        raise InputError("--ray-address", address, reason) from None
     try:
         if on_start is not None and getattr(context, "dashboard_url", None):
             on_start({"event": "dashboard", "url": f"http://{context.dashboard_url}"})

@@ -38,6 +38,12 @@ _MAX_PARAM_LENGTH = 6000  # MLflow's limit on a param value
 _BATCH = 100  # MLflow accepts at most 100 params per log_batch call
 _METRIC_BATCH = 1000  # and at most 1000 metrics
 SERVER_TIMEOUT = 5.0  # s: an unreachable tracking server is one clear error, not minutes of retries
+# MLflow >= 3 records an experiment's type (GenAI or model training) in this tag and otherwise infers
+# it; its assistant reads it. Set on the experiments this module creates, added to existing ones without
+# it. It does not choose the page the UI opens on: in MLflow 3.17 the browser's "GenAI | Model training"
+# switch (top left, GenAI until clicked, then remembered) does; the README says to click it.
+EXPERIMENT_KIND_TAG = "mlflow.experimentKind"
+EXPERIMENT_KIND = "custom_model_development"
 
 T = TypeVar("T")
 
@@ -139,19 +145,26 @@ class Tracker:
 
     def _experiment_id(self, name: str) -> str:
         found = _retry(lambda: self.client.get_experiment_by_name(name))
-        if found is not None:
-            return found.experiment_id
-        try:
-            return _retry(
-                lambda: self.client.create_experiment(
-                    name, artifact_location=artifact_root_for(self.tracking_uri)
+        if found is None:
+            try:
+                return _retry(
+                    lambda: self.client.create_experiment(
+                        name,
+                        artifact_location=artifact_root_for(self.tracking_uri),
+                        tags={EXPERIMENT_KIND_TAG: EXPERIMENT_KIND},
+                    )
                 )
-            )
-        except MlflowException:  # another process created it first
-            found = self.client.get_experiment_by_name(name)
-            if found is None:
-                raise
-            return found.experiment_id
+            except MlflowException:  # another process created it first
+                found = self.client.get_experiment_by_name(name)
+                if found is None:
+                    raise
+        if EXPERIMENT_KIND_TAG not in found.tags:  # made by an older version, or by MLflow itself
+            try:
+                _retry(lambda: self.client.set_experiment_tag(found.experiment_id, EXPERIMENT_KIND_TAG,
+                                                              EXPERIMENT_KIND))
+            except MlflowException:  # a store that refuses (read-only, permissions): only the UI's page
+                pass
+        return found.experiment_id
 
     def start_run(
         self,

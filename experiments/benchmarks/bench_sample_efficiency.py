@@ -227,7 +227,7 @@ def main() -> None:
         "--lookahead-seeds", type=int, default=5, help="seeds of the lookahead oracle (0: none)"
     )
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--executor", default="process", help="process or ray (see README, Scale-out)")
+    parser.add_argument("--executor", default="process", help="process or ray (see docs/how-to/scale-out.md)")
     parser.add_argument("--ray-address", default=None, help="with --executor ray: auto, HOST:PORT or local")
     parser.add_argument("--pools", default=",".join(POOLS))
     parser.add_argument("--strategies", default=None, help="override every pool's strategy list")
