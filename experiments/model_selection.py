@@ -1,4 +1,4 @@
-"""Model-selection studies behind the defaults in activelearn/config.py (synthetic Ackermann data).
+"""Model-selection studies behind the defaults in activelearn/config/ (synthetic Ackermann data).
 
     python experiments/model_selection.py novelty     [--seeds 0 1]  # arrangement → 2-D novelty ratio
     python experiments/model_selection.py gap         [--seeds 0 1]  # arrangement → 1-D gap/beyond ratio

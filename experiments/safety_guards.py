@@ -69,14 +69,15 @@ def models(cfg, seeds: list[int], campaigns: str | None, work: Path):
         campaign = Campaign(seeded, work / f"seed{seed}", cache_dir=Path("runs/cache"))
         campaign.prior = load_prior(seeded, campaign.nominal)
         if campaigns is None:
-            yield seed, campaign, campaign.fit_model(pd.DataFrame(), 0), [], 0, campaign._logs(None)
+            fitting = campaign.fitting
+            yield seed, campaign, fitting.fit(pd.DataFrame(), 0), [], 0, fitting.known_logs(None)
             continue
         found = sorted(Path(campaigns).glob(f"*/seed{seed}/{MODEL_FILE}"))
         if not found:
             raise SystemExit(f"no {MODEL_FILE} for seed {seed} under {campaigns}")
         state = CampaignState.load(found[0].parent)
         samples = found[0].parent / SAMPLES_FILE
-        logs = campaign._logs(pd.read_parquet(samples) if samples.exists() else None)
+        logs = campaign.fitting.known_logs(pd.read_parquet(samples) if samples.exists() else None)
         yield seed, campaign, load_model(found[0]), list(state.taken), len(state.rounds) - 1, logs
 
 

@@ -94,7 +94,7 @@ def at_equal_seconds(safe: pd.DataFrame, free: pd.DataFrame) -> tuple[float, flo
 class ClairvoyantCampaign(Campaign):
     """A safe campaign whose safe set is read off the noise-free MuJoCo paths (a yardstick, not a method)."""
 
-    def _assess(
+    def assess(
         self, model: Any | None, round_index: int, open_: np.ndarray, samples: pd.DataFrame | None
     ) -> Assessment:
         safety, rate = self.cfg.safety, self.cfg.simulation.rate_hz

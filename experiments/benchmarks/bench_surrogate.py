@@ -44,15 +44,10 @@ import pandas as pd
 import simulator
 from activelearn.config import DataConfig, ModelConfig, TrainingConfig
 from activelearn.loop.collection import arrays, control_rate_logs, training_rows, training_windows
+from activelearn.numerics.diagnostics import calibrate_fan, relative_pose, track_metrics
 from activelearn.numerics.models import build_model
 from activelearn.numerics.models.physics import control_box_sweep, runs_out_of_bounds
-from activelearn.numerics.surrogate import (
-    calibrate_fan,
-    path_from_rates,
-    relative_pose,
-    simulate,
-    track_metrics,
-)
+from activelearn.numerics.surrogate import path_from_rates, simulate
 from activelearn.numerics.training import fit
 from simulator import Maneuver
 
