@@ -128,11 +128,11 @@ class TrainingConfig(_Section):
     batch_size: int = 64
     # Epochs without a better validation NLL before stopping; None trains all epochs.
     patience: int | None = 60
-    # N in KL/N: "rows" = training rows, "maneuvers" = distinct `groups`, "sqrt" = √(rows × maneuvers),
-    # or a positive number used as is (without groups every row is its own maneuver). Default "sqrt",
-    # measured (experiments/model_selection.py klsize): held-out z spread before recalibration stays
-    # in 0.8-1.6 from 8 to 40 operating points and 60 to 600 rows per point, where "rows" drifts from
-    # 1.4 to 5.1 (overconfident as rows per maneuver grow) and "maneuvers" to 0.7 (underconfident).
+    # N in KL/N: "rows" = training rows, "maneuvers" = distinct `groups`, "sqrt" = √(rows × maneuvers), or a
+    # positive number used as is (without groups every row is its own maneuver). Default "sqrt", measured
+    # (experiments/investigations/model_selection.py klsize): held-out z spread before recalibration stays in
+    # 0.8-1.6 from 8 to 40 operating points and 60 to 600 rows per point, where "rows" drifts from 1.4 to 5.1
+    # (overconfident as rows per maneuver grow) and "maneuvers" to 0.7 (underconfident).
     kl_count: KLCount | float = "sqrt"
     # Extra multiplier on KL/N (cold/warm posterior tempering); 1 is the plain ELBO.
     kl_weight: float = 1.0

@@ -35,13 +35,13 @@ class SafetyConfig(_Section):
     max_lateral_acceleration: Positive = 0.2  # |v·ω|, m/s²
     delta: float = 0.05
     margin: NonNegative = 0.16  # m: half the car's length, so its body stays inside too
-    # m, fans only: what a free run's path may still miss of the car's. Free runs integrate the rear
-    # axle and place the logged point `pose_lever_arm` ahead of it, so the CG's side slip is in the
-    # fan (true rates retrace the logged path to ~1 cm). Measured on safe_track.toml
-    # (experiments/safety_guards.py, results/safety.txt): beside the kinematic guard no admitted true
-    # path hit a wall at 0 either, but the nearest came within 8 mm (fan_scale 1) and 28 mm (3) of
-    # the margin in the first round; at 0.04, within 43 mm there and 10 mm after 8 maneuvers (a
-    # trusted fan 1-2 % off a 2.9-m circle), for 0.4 % fewer admitted seconds (0.16: 1.5 %).
+    # m, fans only: what a free run's path may still miss of the car's. Free runs integrate the rear axle and
+    # place the logged point `pose_lever_arm` ahead of it, so the CG's side slip is in the fan (true rates
+    # retrace the logged path to ~1 cm). Measured on safe_track.toml
+    # (experiments/investigations/safety_guards.py, results/safety_guards.txt): beside the kinematic guard no
+    # admitted true path hit a wall at 0 either, but the nearest came within 8 mm (fan_scale 1) and 28 mm (3)
+    # of the margin in the first round; at 0.04, within 43 mm there and 10 mm after 8 maneuvers (a trusted fan
+    # 1-2 % off a 2.9-m circle), for 0.4 % fewer admitted seconds (0.16: 1.5 %).
     path_tolerance: NonNegative = 0.04
     min_duration: Positive = 5.0  # s: a candidate cut shorter than this is not admissible
     n_samples: Annotated[int, Field(ge=8)] = 64  # trajectories of the fan
@@ -62,7 +62,7 @@ class SafetyConfig(_Section):
     # How the walls are kept: "planned" (each proposal is admitted, or cut short in advance, by its fan's
     # risk of meeting a wall or breaking a limit) or "live" (the car brakes as soon as its measured pose
     # comes within `margin + stop_buffer` of a wall, so only the limits are judged by the fan; the log
-    # ends there). Nigel stops within 1.7 cm and 0.17 s from any speed in MuJoCo (results/safety.txt).
+    # ends there). Nigel stops within 1.7 cm and 0.17 s from any speed in MuJoCo (results/bench_safety.txt).
     stop: Literal["planned", "live"] = "planned"
     # m, live stop only: what the car travels between the pose that triggers the stop and standing still
     # (braking plus the pose's latency: ~0.27 m/s x latency); 0.05 m is an automatic stop on a 30-Hz pose.

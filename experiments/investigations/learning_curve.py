@@ -22,10 +22,10 @@ to round 2 on all three seeds. This script separates the candidate causes:
 
 Every fit is cached in <out>/fits.json, so a rerun only fits what is missing.
 
-    PYTHONPATH=. python experiments/learning_curve.py --out runs/lc --seeds 0 1 2 --train-seeds 4 \\
-        --rounds 1 2 3 4 --variants base
-    PYTHONPATH=. python experiments/learning_curve.py --out runs/lc --seeds 0 1 2 --train-seeds 3 \\
-        --rounds 1 2 --variants base,fixed_scalers,equal_rows,const_steps,alt_batch
+    PYTHONPATH=. python experiments/investigations/learning_curve.py --out runs/lc --seeds 0 1 2 \\
+        --train-seeds 4 --rounds 1 2 3 4 --variants base
+    PYTHONPATH=. python experiments/investigations/learning_curve.py --out runs/lc --seeds 0 1 2 \\
+        --train-seeds 3 --rounds 1 2 --variants base,fixed_scalers,equal_rows,const_steps,alt_batch
 
 (a few minutes each on 2 cores; `--first-train-seed` adds further training seeds, `--no-fit` prints
 the tables of what is cached).

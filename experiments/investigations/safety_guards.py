@@ -17,7 +17,7 @@ slack to a wall of an admitted true path (clearance - margin, m; negative = viol
 With `--worst-case`, rows with fan_scale "none" judge by the kinematic worst case alone (no model:
 what a cold start's initial design gets, and the bound every untrusted candidate must meet too).
 
-Usage: python experiments/safety_guards.py [--config FILE] [--seeds 3] [--fan-scales 1,3]
+Usage: python experiments/investigations/safety_guards.py [--config FILE] [--seeds 3] [--fan-scales 1,3]
        [--tolerances 0,0.04,0.08,0.16] [--trust 0.02] [--campaigns DIR] [--worst-case]
        [--turn-speed measured|none]
 """
@@ -41,7 +41,7 @@ from activelearn.loop.state import MODEL_FILE, SAMPLES_FILE, CampaignState
 from activelearn.numerics.models import load_model
 from simulator.maneuvers import sample_times
 
-CONFIGS = Path(__file__).resolve().parent / "configs"
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 NO_GUARD = 1e9  # trust_std so large that the kinematic worst case never applies
 
 
