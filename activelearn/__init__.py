@@ -1,12 +1,13 @@
 """activelearn: active learning of a calibrated Bayesian surrogate of vehicle dynamics.
 
-The package has three rooms (see the README's "Architecture" section):
+The package has three rooms (see docs/design/index.md):
 
 - `activelearn.loop`: the active-learning loop (pool, collection, acquisition, campaign);
 - `activelearn.studies`: what is built on it (strategy comparisons, tuning, MLflow tracking);
 - `activelearn.numerics`: models, training, uncertainty, the surrogate and its compiled kernels;
 
-plus the shared ground floor: `config`, `errors`, `data`, `plots` and the command line (`cli`).
+plus the shared ground floor: `config`, `names` (strategies, metrics, log columns), `errors`, `data`,
+`plots`; and the command line on top (`cli`, one module per command).
 The names users reach for most are importable from the package itself (loaded on first use, so
 `import activelearn` stays cheap):
 

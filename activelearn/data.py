@@ -19,16 +19,16 @@ import numpy as np
 import pandas as pd
 
 from activelearn.errors import DataFormatError, InputError
-from simulator.collect import AUTODRIVE_COLUMNS
+from activelearn.names import CONTROLS, RATES, RECORDED_COLUMNS
+from simulator.collect import AUTODRIVE_COLUMNS, EXTRA_COLUMNS
 
 # The AutoDRIVE layout is the simulator's own log layout: one definition, in `simulator`.
 # The raw AutoDRIVE CSV ends with three perception columns this project does not use.
 AUTODRIVE_UNUSED_COLUMNS = ("cam0", "cam1", "lidar")
-EXTRA_COLUMNS = ("time", "maneuver", "direction", "op_throttle", "op_steering", "run_id", "diverged")
 SAMPLE_COLUMNS = AUTODRIVE_COLUMNS + EXTRA_COLUMNS
 
-FEATURES = ("throttle", "steering")  # model inputs of the reference study
-LABELS = ("speed", "angZ")  # model outputs of the reference study
+FEATURES = CONTROLS  # model inputs of the reference study
+LABELS = RATES  # model outputs of the reference study
 
 INT_COLUMNS = ("leftTicks", "rightTicks")
 TEXT_COLUMNS = ("maneuver", "direction", "run_id")
@@ -228,10 +228,6 @@ def write_autodrive_log(table: pd.DataFrame, path: str | Path, start: datetime |
     for column in AUTODRIVE_UNUSED_COLUMNS:
         out[column] = ""
     return atomic_write_bytes(path, out.to_csv(index=False, header=False, float_format="%.9g").encode())
-
-
-# What a recorded drive must hold to say what the car did: time, the commands and the two rates.
-RECORDED_COLUMNS = ("time", "throttle", "steering", "speed", "angZ")
 
 
 def read_recorded_log(path: str | Path) -> pd.DataFrame:

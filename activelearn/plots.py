@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -11,6 +12,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import FormatStrFormatter, LogLocator, MaxNLocator, NullFormatter
 
+from activelearn.names import REFERENCE_STRATEGY, metric_label
+
 _MAX_LEGEND = 8
 
 
@@ -18,6 +21,17 @@ def _new_figure(width: float, height: float) -> Figure:
     fig = Figure(figsize=(width, height), layout="constrained")
     FigureCanvasAgg(fig)  # render off-screen whatever the global matplotlib backend is
     return fig
+
+
+def save_figure(fig: Figure, path: str | Path, *, dpi: int) -> Path:
+    """Write `fig` to `path` atomically: under a hidden temporary name beside it, then renamed, so a
+    reader (a browser, MLflow, a second command) never finds half a figure."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{path.suffix}")
+    fig.savefig(tmp, dpi=dpi)
+    tmp.replace(path)
+    return path
 
 
 def plot_log(table: pd.DataFrame, title: str | None = None) -> Figure:
@@ -177,26 +191,11 @@ def _plans(panel: Any, names: Sequence[str], controls: Sequence[np.ndarray], rol
                  frameon=False)  # fmt: skip
 
 
-_METRIC_LABELS = {
-    "epistemic_std_mean": "mean epistemic std on the grid (standardised)",
-    "test_rmse": "test RMSE (standardised, v and ω)",
-    "test_rmse_v": "test RMSE of v (m/s)",
-    "test_rmse_w": "test RMSE of ω (rad/s)",
-    "test_nll": "test NLL (standardised)",
-    "rollout_pos_err_10s": "free-run position error at 10 s (m)",
-    "rollout_pos_err_30s": "free-run position error at 30 s (m)",
-    "rollout_heading_err_30s": "free-run heading error at 30 s (rad)",
-    "rollout_rmse_v": "free-run RMSE of v (m/s)",
-    "rollout_rmse_w": "free-run RMSE of ω (rad/s)",
-}
-_BUDGETS = {"n_maneuvers": "maneuvers collected", "track_seconds": "track seconds (durations + set-up)"}
-
-
 def comparison_figure(
     curves: pd.DataFrame,
     metrics: Sequence[str],
     *,
-    reference: str = "uniform",
+    reference: str = REFERENCE_STRATEGY,
     title: str = "",
     seconds: bool = False,
 ) -> Figure:
@@ -224,10 +223,10 @@ def comparison_figure(
                 label = f"{strategy} (reference)" if strategy == reference else strategy
                 ax.plot(stats["x"], stats["mean"], color=color, label=label, **style)
                 ax.fill_between(stats["x"], stats["mean"] - sem, stats["mean"] + sem, color=color, alpha=0.2)
-            ax.set_xlabel(_BUDGETS[budget])
+            ax.set_xlabel(metric_label(budget))
             if budget == "n_maneuvers":
                 ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-            ax.set_ylabel(_METRIC_LABELS.get(metric, metric), fontsize=8.5)
+            ax.set_ylabel(metric_label(metric), fontsize=8.5)
             if metric != "test_nll":
                 ax.set_yscale("log")
                 # plain decimals at 1-2-5 steps: the default gives "1.3 x 10^-1"-style labels; minor

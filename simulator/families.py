@@ -28,7 +28,7 @@ the measured heading has turned a full circle (closed loop); its family member f
 `loop_time` s, taken from the nominal turn (`simulator.maneuvers.eight_loop_time`, the schedule
 campaigns already plan eights with) or measured on the car (`measured_loop_time` of a logged eight).
 The two drive apart where the car's turn takes longer or shorter than T (measured in MuJoCo:
-`tests/test_families.py`, `experiments/results/families.txt`).
+`tests/test_families.py`, `experiments/results/figure_eight.txt`).
 """
 
 from __future__ import annotations

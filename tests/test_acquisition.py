@@ -14,10 +14,10 @@ from activelearn.loop.acquisition import (
     BaldStrategy,
     FunctionSamples,
     MaxEpistemicStrategy,
-    _condition,
     greedy_maximin,
     make_strategy,
 )
+from activelearn.loop.function_space import _condition
 from activelearn.loop.pool import build_pool, pool_maneuvers, target_points, test_maneuvers
 from activelearn.numerics import synthetic
 from activelearn.numerics.models import build_model

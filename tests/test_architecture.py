@@ -33,6 +33,12 @@ def _modules() -> dict[str, Path]:
 
 
 MODULES = _modules()
+# What a campaign is made of besides its strategies (each room one job; see the README's map).
+_CAMPAIGN_ROOMS = (
+    "campaign", "fitting", "evaluation", "budget", "run_log", "proposals", "admission", "round_figure",
+    "oracles", "collection", "prior", "state", "lock", "asktell", "safety",
+)  # fmt: skip
+_STRATEGY_ROOMS = ("strategy", "space_filling", "function_space", "acquisition")
 
 
 def _imports(name: str, path: Path) -> Iterator[tuple[str, int]]:
@@ -104,8 +110,10 @@ def _cycles(edges: dict[str, set[str]]) -> list[list[str]]:
 def test_the_scan_sees_the_known_edges():
     # Guards the checker itself: if it resolved nothing, every rule below would pass vacuously.
     edges = _project_edges()
-    assert "activelearn.numerics.arch" in edges["activelearn.config"]
+    assert "activelearn.numerics.arch" in edges["activelearn.config.model"]
     assert "activelearn.loop.acquisition" in edges["activelearn.loop.campaign"]
+    assert "activelearn.loop.fitting" in edges["activelearn.loop.campaign"]
+    assert "activelearn.cli.common" in edges["activelearn.cli.campaign"]
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
 
 
@@ -133,12 +141,74 @@ def _violations(importers: str, forbidden: tuple[str, ...]) -> list[str]:
             ("activelearn.loop", "activelearn.studies", "activelearn.cli", "activelearn.plots"),
         ),
         ("activelearn.loop", ("activelearn.studies", "activelearn.cli")),
-        ("activelearn.config", ("activelearn.studies", "activelearn.cli")),
+        # the ground floor: the config names strategies and metrics through `names`, not the loop
+        (
+            "activelearn.config",
+            ("activelearn.loop", "activelearn.studies", "activelearn.cli", "activelearn.plots"),
+        ),
         ("activelearn.data", ("activelearn.loop", "activelearn.studies", "activelearn.numerics")),
+        ("activelearn.plots", ("activelearn.loop", "activelearn.studies", "activelearn.numerics")),
+        # the names everything shares import nothing of the project (the CLI's help reads them cheaply)
+        ("activelearn.names", ("activelearn", "simulator")),
+        # the campaign's rooms serve the campaign; none reaches back into it
+        *[
+            (f"activelearn.loop.{room}", ("activelearn.loop.campaign", "activelearn.loop.asktell"))
+            for room in _CAMPAIGN_ROOMS[1:8]
+        ],
+        # strategies only score a pool: they know no campaign, oracle, model store or tracker
+        *[
+            (f"activelearn.loop.{room}", tuple(f"activelearn.loop.{other}" for other in _CAMPAIGN_ROOMS))
+            for room in _STRATEGY_ROOMS
+        ],
     ],
 )
 def test_layers_import_downwards(importers, forbidden):
     assert _violations(importers, forbidden) == []
+
+
+def test_the_numerics_never_run_mujoco():
+    # `against_simulator` lives a floor up (activelearn.loop.benchmark): the numerics may read the
+    # simulator's maneuver definitions and datasheet, never drive its MuJoCo model.
+    runs_mujoco = {"collect", "Vehicle", "twin_vehicle", "NoiseConfig", "add_noise", "model_xml"}
+    bad = []
+    for name, path in MODULES.items():
+        if not name.startswith("activelearn.numerics"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import) and any(a.name.split(".")[0] == "simulator" for a in node.names):
+                bad.append(f"{name}:{node.lineno} imports the whole simulator")
+            elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith("simulator"):
+                module = node.module or ""
+                if module in ("simulator.collect", "simulator.vehicle", "simulator.twin"):
+                    bad.append(f"{name}:{node.lineno} imports {module}")
+                bad += [f"{name}:{node.lineno} imports {a.name}" for a in node.names if a.name in runs_mujoco]
+    assert bad == []
+
+
+def test_the_loop_names_no_strategy():
+    # Every strategy is called through one interface (Strategy.pick, round_metrics): outside the
+    # strategy rooms no module of the loop or the studies names one, by its name or its class.
+    from activelearn.names import STRATEGY_NAMES
+
+    rooms = {f"activelearn.loop.{room}" for room in _STRATEGY_ROOMS}
+    bad = []
+    for name, path in MODULES.items():
+        if not name.startswith(("activelearn.loop", "activelearn.studies")) or name in rooms:
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Constant) and node.value in STRATEGY_NAMES:
+                bad.append(f"{name}:{node.lineno} names {node.value!r}")
+            elif isinstance(node, ast.Name | ast.alias):
+                ident = node.id if isinstance(node, ast.Name) else node.name
+                if ident.endswith("Strategy") and ident != "Strategy":
+                    bad.append(f"{name}:{node.lineno} names {ident}")
+    assert bad == []
+
+
+def test_no_module_is_much_longer_than_600_lines():
+    # A module a newcomer can read in one sitting; past ~600 lines it does more than one job.
+    long = {name: n for name, path in MODULES.items() if (n := len(path.read_text().splitlines())) > 650}
+    assert long == {}
 
 
 @pytest.mark.parametrize(

@@ -122,9 +122,8 @@ def test_an_ingest_interrupted_after_taking_its_logs_is_finished_with_resume(pro
     assert main(["campaign", "ingest", str(reference), *map(str, logs), "--no-tracking"]) == 0
     # The logs are taken in (the batch committed), then the ingest is killed before it proposes.
     campaign = open_campaign(directory)
-    state, samples = campaign._open(resume=True)
     frames = [read_log(log).table for log in logs]  # proposal order, as ingest stages them
-    campaign._receive(state, samples, campaign._label(frames, state.pending, len(state.batches)))
+    campaign.receive(frames)
     capsys.readouterr()
     assert main(["campaign", "ingest", str(directory), "--no-tracking"]) == 2
     assert "--resume" in capsys.readouterr().err

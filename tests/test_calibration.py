@@ -4,7 +4,7 @@ All on synthetic Ackermann data (activelearn.numerics.synthetic), with the defau
 KL counting. Tests 1-3 and 6 use a shorter schedule (150 epochs at lr 3e-3 instead of up to 400 at
 1e-3) to keep the suite fast; test 7 uses the default TrainingConfig as is. Epistemic novelty only
 appears once the posterior has contracted on the data: at lr 1e-3 it takes ~400 epochs
-(experiments/model_selection.py gap: ratio ~1.8 after 150 epochs, ~3.2 after 400).
+(experiments/investigations/model_selection.py gap: ratio ~1.8 after 150 epochs, ~3.2 after 400).
 """
 
 from __future__ import annotations

@@ -170,10 +170,10 @@ def test_a_straight_without_steering_still_drives(cwd: Path) -> None:
 
 
 def test_help_lists_every_strategy_and_the_real_out_defaults(capsys: pytest.CaptureFixture[str]) -> None:
-    from activelearn.cli import _STRATEGIES
     from activelearn.loop.acquisition import STRATEGIES
+    from activelearn.names import STRATEGY_NAMES
 
-    assert _STRATEGIES == tuple(STRATEGIES)
+    assert STRATEGY_NAMES == tuple(STRATEGIES)
     for command, default in ((["campaign", "run"], "<output_dir>/<name>/<strategy>/seed<N>"),
                              (["compare"], "<output_dir>/<name>/compare")):
         assert run([*command, "--help"]) == 0

@@ -15,13 +15,15 @@ import torch
 
 import simulator
 from activelearn.config import RANKING_METRICS, DataConfig, ModelConfig, TrainingConfig, load_config
-from activelearn.loop.campaign import Campaign, CampaignState, load_model_copy
+from activelearn.loop.campaign import Campaign, CampaignState
 from activelearn.loop.collection import arrays, training_rows, training_windows
+from activelearn.loop.fitting import load_model_copy
+from activelearn.numerics.diagnostics import ROLLOUT_METRICS, free_run_metrics
 from activelearn.numerics.lags import Lags, model_lags
 from activelearn.numerics.models import build_model, load_model, save_model
 from activelearn.numerics.multistep import window_loss
 from activelearn.numerics.paths import evenly_spaced_steps, path_inputs
-from activelearn.numerics.surrogate import ROLLOUT_METRICS, free_run_metrics, simulate, steady_state_inputs
+from activelearn.numerics.surrogate import simulate, steady_state_inputs
 from activelearn.numerics.training import fit
 from simulator import Maneuver
 from tests.conftest import predict_slalom_fan
@@ -316,9 +318,9 @@ def test_warm_started_rounds_start_from_the_last_model_and_resume_exactly(tmp_pa
     samples = pd.read_parquet(tmp_path / "ref" / "samples.parquet")
     final = load_model(tmp_path / "ref" / "model.pt")
     x = campaign.test_set.x
-    warm = campaign.fit_model(samples, 2, previous=load_model(tmp_path / "ref" / "warm" / "round001.pt"))
+    warm = campaign.fitting.fit(samples, 2, previous=load_model(tmp_path / "ref" / "warm" / "round001.pt"))
     np.testing.assert_array_equal(warm.predict(x, n_samples=8).mean, final.predict(x, n_samples=8).mean)
-    fresh = campaign.fit_model(samples, 2)
+    fresh = campaign.fitting.fit(samples, 2)
     assert not np.allclose(fresh.predict(x, n_samples=8).mean, final.predict(x, n_samples=8).mean)
 
 
@@ -447,8 +449,8 @@ def test_a_campaign_scores_dynamic_candidates_along_their_paths(tmp_path):
     other = Campaign(steady, tmp_path / "s").pool(result.state.taken, model)
     assert other.points.shape[0] < pool.points.shape[0]  # steady state: distinct control points only
     # `auto` learns from the context that candidates are scored along paths (it then seeks max_epistemic)
-    assert campaign._context(result.state).get("dynamic_paths") == 1.0
-    assert "dynamic_paths" not in Campaign(steady, tmp_path / "s")._context(result.state)
+    assert campaign.strategy_context(result.state).get("dynamic_paths") == 1.0
+    assert "dynamic_paths" not in Campaign(steady, tmp_path / "s").strategy_context(result.state)
 
 
 def test_a_free_run_that_blows_up_scores_infinity_not_nan(history_models, slalom_log):

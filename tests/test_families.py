@@ -173,7 +173,7 @@ def test_the_eight_is_a_figure_eight_member_with_the_planned_schedule():
 def test_the_figure_eight_with_the_measured_loop_time_retraces_the_closed_loop_eight_in_mujoco():
     # The reference eight flips on the measured heading; its open-loop member flips on a stopwatch.
     # With the loop time measured from the eight's own log the two drive the same path
-    # (experiments/figure_eight.py: within 2.1 cm over 90 s at 15 operating points); with the
+    # (experiments/investigations/figure_eight.py: within 2.1 cm over 90 s at 15 operating points); with the
     # nominal one they part (up to 1 m).
     eights = [Maneuver("eight", 1.0, 0.35, "ccw", 30.0), Maneuver("eight", -0.6, 0.5236, "cw", 30.0)]
     closed = collect(eights, rate_hz=RATE, noise=None)

@@ -280,7 +280,7 @@ def test_a_fuzzed_config_file_loads_or_the_cli_exits_2_writing_nothing(config, c
                 "tune": ["tune", str(path), "--n-trials", "1", "--storage", f"sqlite:///{root}/optuna.db"],
             }[command]
             err = _cli_rejects(args, root, capsys)
-            assert cli._one_line(exc.field) in err  # the field as printed (escaped)
+            assert cli.one_line(exc.field) in err  # the field as printed (escaped)
             return
         event("valid")
         # What the CLI builds before any long work (no simulation yet): its pool and budget.
@@ -463,7 +463,7 @@ def test_a_campaign_with_the_largest_seed_fits_its_rounds():
     campaign = Campaign(cfg, "unused")
     samples = simulator.collect([simulator.Maneuver("skidpad", 0.5, 0.3, duration=3.0)], noise=None)
     samples["pool_index"], samples["batch"] = 0, 0
-    assert campaign.fit_model(samples, round_index=1000).n_inputs == 2
+    assert campaign.fitting.fit(samples, round_index=1000).n_inputs == 2
 
 
 def test_an_unknown_key_with_control_characters_is_printed_as_one_escaped_line(tmp_path, capsys):

@@ -14,9 +14,10 @@ import simulator
 from activelearn.config import DataConfig, ModelConfig, TrainingConfig
 from activelearn.loop.campaign import Campaign, load_campaign_model
 from activelearn.loop.collection import arrays, training_rows, training_windows
+from activelearn.names import ROLLOUT_METRICS
 from activelearn.numerics.lags import Lags
 from activelearn.numerics.models import build_model, load_model, save_model
-from activelearn.numerics.surrogate import ROLLOUT_METRICS, simulate
+from activelearn.numerics.surrogate import simulate
 from activelearn.numerics.training import fit
 from simulator import Maneuver
 from tests.test_dynamics import _dynamic_config

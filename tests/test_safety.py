@@ -347,7 +347,7 @@ def test_a_cut_candidate_is_scored_as_it_would_be_driven(tmp_path):
     cfg = safe_config(tmp_path, pool=pool, tracking={"enabled": False})
     campaign = Campaign(cfg, tmp_path / "c")
     whole = campaign.pool([])
-    pool, safe = campaign._safe_pool(whole, None, 0)  # before any model: the kinematic worst case
+    pool, safe = campaign.admission.safe_pool(whole, None, 0)  # before any model: the kinematic worst case
     cut = np.flatnonzero(safe.cut)
     assert len(cut) and np.array_equal(pool.affordable, safe.admissible)
     for i in cut:
@@ -373,7 +373,7 @@ def test_every_strategy_picks_among_admissible_candidates_only(tmp_path):
     model = build_model(cfg.model)
     test = campaign.test_set
     fit(model, test.x, test.y_noisy, cfg.training, groups=test.groups, seed=0)
-    pool, safe = campaign._safe_pool(campaign.pool([], model), model, 1)
+    pool, safe = campaign.admission.safe_pool(campaign.pool([], model), model, 1)
     admissible = set(np.flatnonzero(safe.admissible).tolist())
     assert 2 <= len(admissible) < len(campaign.maneuvers) and safe.cut.any()
     assert set(pool.available.tolist()) == admissible

@@ -14,19 +14,12 @@ import torch
 import simulator
 from activelearn.config import DataConfig, ModelConfig, TrainingConfig
 from activelearn.errors import InputError
-from activelearn.loop.campaign import load_model_copy
+from activelearn.loop.benchmark import against_simulator
 from activelearn.loop.collection import arrays, training_rows
+from activelearn.loop.fitting import load_model_copy
+from activelearn.numerics.diagnostics import calibrate_fan, free_run_metrics, relative_pose
 from activelearn.numerics.models import build_model, load_model, save_model
-from activelearn.numerics.surrogate import (
-    _integrate,
-    against_simulator,
-    calibrate_fan,
-    estimate_lever_arm,
-    free_run_metrics,
-    path_from_rates,
-    relative_pose,
-    simulate,
-)
+from activelearn.numerics.surrogate import _integrate, estimate_lever_arm, path_from_rates, simulate
 from activelearn.numerics.training import fit
 from simulator import Maneuver
 

@@ -32,10 +32,11 @@ import sys, time
 from pathlib import Path
 
 from activelearn import cli
+from activelearn.cli import common
 
 control, plan, *argv = sys.argv[1:]
 actions = {(e, int(r)): a for e, r, a in (item.split(":") for item in plan.split(","))}
-notice = cli._notice
+notice = common.notice
 
 
 def at_event(event):
@@ -49,7 +50,7 @@ def at_event(event):
     return notice(event)
 
 
-cli._notice = at_event
+common.notice = at_event
 raise SystemExit(cli.main(argv))
 """
 

@@ -663,7 +663,7 @@ def test_bad_arguments_are_clean_errors(tmp_path, data_file, mlflow_uri, capsys)
         assert option in capsys.readouterr().err
     assert not (tmp_path / "optuna.db").exists()
     # The CLI's copies of the defaults (kept to avoid importing Optuna at start-up) agree.
-    assert cli._TUNE_STORAGE == DEFAULT_STORAGE and cli._TUNE_PRUNERS == PRUNERS
+    assert cli.tune.TUNE_STORAGE == DEFAULT_STORAGE and cli.tune.TUNE_PRUNERS == PRUNERS
 
 
 def test_the_physics_corrections_knobs_are_searched_only_when_asked():

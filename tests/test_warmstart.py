@@ -67,7 +67,7 @@ def test_prior_rows_train_every_round_but_count_against_no_budget(tmp_path):
     assert prior_rows > 0
     # every later round trains on the prior rows plus the new ones
     samples = read_table(tmp_path / "c" / "samples.parquet")
-    x, _, _ = Campaign(cfg, tmp_path / "other")._rows(samples)
+    x, _, _ = Campaign(cfg, tmp_path / "other").fitting.rows(samples)
     assert history["n_samples"].iloc[-1] == prior_rows + len(x)
     assert len(result.state.taken) == cfg.design.max_maneuvers
     assert result.state.stop_reason == "max_maneuvers"
@@ -77,8 +77,7 @@ def test_a_killed_warm_campaign_resumes_with_its_prior(tmp_path):
     cfg = warm_config(tmp_path)
     reference = Campaign(cfg, tmp_path / "ref").run(figures=False, log_model=False)
     victim = Campaign(cfg, tmp_path / "kill")
-    state, samples = victim._open(resume=False)
-    victim._propose(state, samples, figures=False)  # round 0 fitted, first batch proposed: then "killed"
+    victim.propose(figures=False)  # round 0 fitted, first batch proposed: then "killed"
     resumed = Campaign(cfg, tmp_path / "kill").run(resume=True, figures=False, log_model=False)
     assert resumed.state.prior_digest == reference.state.prior_digest is not None
     assert resumed.state.batches == reference.state.batches
@@ -155,7 +154,7 @@ def test_finetune_and_residual_warm_starts_run_and_keep_their_prior_model(tmp_pa
     assert np.isfinite(result.history["test_rmse"]).all()
     # the prior rows do not train the rounds: only the new maneuvers' rows count
     samples = read_table(tmp_path / "c" / "samples.parquet")
-    x, y, _ = Campaign(cfg, tmp_path / "other")._rows(samples)
+    x, y, _ = Campaign(cfg, tmp_path / "other").fitting.rows(samples)
     assert result.history["n_samples"].iloc[-1] == len(x)
     prior = load_model(tmp_path / "c" / PRIOR_MODEL_FILE)
     if use == "residual":
@@ -171,7 +170,7 @@ def test_finetune_and_residual_warm_starts_run_and_keep_their_prior_model(tmp_pa
     else:
         # A round fine-tunes a copy of the prior: with a vanishing learning rate it stays the prior.
         still = warm_config(tmp_path, training={"epochs": 1, "lr": 1e-9}, design=cfg.design.model_dump())
-        tuned = Campaign(still, tmp_path / "c").fit_model(samples, 1)
+        tuned = Campaign(still, tmp_path / "c").fitting.fit(samples, 1)
         torch.testing.assert_close(flat_weights(tuned), flat_weights(prior), rtol=0, atol=1e-6)
         assert torch.equal(tuned.x_mean, prior.x_mean) and torch.equal(tuned.y_std, prior.y_std)
 

@@ -22,13 +22,14 @@ import pandas as pd
 import simulator
 from activelearn.config import CampaignConfig, DataConfig, NoiseSettings, SimulationConfig
 from activelearn.data import read_table, write_table
+from activelearn.names import CONTROLS, PREVIOUS_RATES, RATES
 from activelearn.numerics.lags import Lags
 from activelearn.numerics.multistep import Windows, windows_from_logs
 from simulator import Maneuver
 
-FEATURES: tuple[str, ...] = ("throttle", "steering")
-TARGETS: tuple[str, ...] = ("speed", "angZ")
-RATE_FEATURES: tuple[str, ...] = ("prev_speed", "prev_angZ")
+FEATURES: tuple[str, ...] = CONTROLS  # a static model's inputs
+TARGETS: tuple[str, ...] = RATES  # every model's outputs
+RATE_FEATURES: tuple[str, ...] = PREVIOUS_RATES  # a Markov model's extra inputs
 
 Progress = Callable[[int, int], None]
 
@@ -174,6 +175,22 @@ def arrays(rows: pd.DataFrame, cfg: DataConfig) -> tuple[np.ndarray, np.ndarray]
     x = rows[feature_columns(cfg)].to_numpy(dtype=np.float64)
     y = rows[list(TARGETS)].to_numpy(dtype=np.float64)
     return x, y
+
+
+def truth_rows(frames: Sequence[pd.DataFrame], cfg: DataConfig) -> dict[str, np.ndarray]:
+    """Noise-free training rows of every candidate, stacked, and the candidate each row belongs to
+    (`Pool.truth_x`, `truth_y`, `truth_owner`: what only a simulated oracle knows)."""
+    xs, ys, owner = [], [], []
+    for i, frame in enumerate(frames):
+        x, y = arrays(training_rows(frame, cfg), cfg)
+        xs.append(x)
+        ys.append(y)
+        owner.append(np.full(len(x), i))
+    return {
+        "truth_x": np.concatenate(xs),
+        "truth_y": np.concatenate(ys),
+        "truth_owner": np.concatenate(owner),
+    }
 
 
 def rows_per_maneuver(duration: float, settings: SimulationConfig, cfg: DataConfig) -> float:

@@ -13,9 +13,11 @@ import numpy as np
 from scipy.stats import qmc
 
 from activelearn.config import MAX_STEERING, CampaignConfig, PoolConfig, TestSetConfig
-from activelearn.loop.acquisition import Pool
 from activelearn.loop.collection import rows_per_maneuver
 from activelearn.loop.family_pool import family_codes, family_features, family_maneuvers, is_family_pool
+from activelearn.loop.strategy import Pool
+from activelearn.numerics.paths import path_inputs
+from activelearn.numerics.surrogate import model_inputs
 from simulator import Maneuver, nominal_controls
 
 KIND_ORDER: tuple[str, ...] = ("straight", "skidpad", "fishhook", "slalom", "eight")
@@ -271,3 +273,28 @@ def _operating_design(
             ]
         )
     return operating_features(maneuvers, bounds), kinds, prior_features, prior_kinds
+
+
+def path_points(
+    cfg: CampaignConfig, model: Any, maneuvers: Sequence[Any], test: Sequence[Any], target: np.ndarray
+) -> dict[str, Any]:
+    """Pool points of a dynamic model along each candidate's predicted path (and the target's).
+
+    `test`: the test maneuvers (the target follows their paths where `[target] region = "test"`);
+    `target`: the target region's controls otherwise.
+    """
+    rate, n_points = cfg.simulation.rate_hz, cfg.acquisition.score_points
+    inputs = path_inputs(model, [maneuver_controls(m, rate) for m in maneuvers], n_points, rate_hz=rate)
+    rows = [rows_per_maneuver(m.duration, cfg.simulation, cfg.data) for m in maneuvers]
+    fields: dict[str, Any] = {
+        "points": np.concatenate(inputs),
+        "owner": np.repeat(np.arange(len(inputs)), n_points),
+        "weights": np.repeat(np.asarray(rows) / n_points, n_points),
+    }
+    if cfg.target.region == "test" and test:
+        per_maneuver = max(1, cfg.target.max_points // len(test))
+        paths = path_inputs(model, [maneuver_controls(m, rate) for m in test], per_maneuver, rate_hz=rate)
+        fields.update(target=np.concatenate(paths), target_weights=None)
+    else:
+        fields["target"] = model_inputs(model, target)
+    return fields

@@ -23,11 +23,11 @@ from activelearn.errors import InputError
 from activelearn.loop.collection import SimulationCache, noisy_logs
 from activelearn.loop.pool import KIND_ORDER, grid_maneuvers
 from activelearn.loop.state import SAMPLES_FILE, CampaignState
+from activelearn.names import RECORDED_COLUMNS
 
 PRIOR_FILE = "prior.parquet"  # the prior rows a campaign directory keeps (resume never re-reads sources)
 # Where prior runs sit in a sample table: pool_index = -1 - run number, batch = -1.
 PRIOR_BATCH = -1
-_REQUIRED = ("time", "throttle", "steering", "speed", "angZ")
 # Plausibility bounds of a 1:14 car in SI units: a prior beyond them is in other units or of another car.
 _MAX_SPEED = 3.0  # m/s (Nigel tops out at 0.27 m/s)
 _MAX_YAW_RATE = 10.0  # rad/s (Nigel: 0.81 rad/s)
@@ -102,7 +102,7 @@ def _read_source(field: str, path: Path) -> list[pd.DataFrame]:
         table, key = read_autodrive_log(path), "run_id"
     if table.empty:
         raise InputError(field, str(path), "holds no samples")
-    missing = [c for c in _REQUIRED if c not in table]
+    missing = [c for c in RECORDED_COLUMNS if c not in table]
     if missing:
         raise InputError(field, str(path), f"lacks the column(s) {', '.join(missing)} the model needs")
     if key not in table:
@@ -113,7 +113,7 @@ def _read_source(field: str, path: Path) -> list[pd.DataFrame]:
 
 def _check_run(field: str, path: Path, frame: pd.DataFrame, rate_hz: float) -> None:
     """Reject runs that cannot be this config's data: NaNs, another log rate, other units."""
-    values = frame[list(_REQUIRED)].to_numpy(dtype=np.float64)
+    values = frame[list(RECORDED_COLUMNS)].to_numpy(dtype=np.float64)
     if not np.isfinite(values).all():
         raise InputError(field, str(path), "has missing or non-finite values in time/controls/rates")
     if len(frame) < 3:

@@ -66,9 +66,9 @@ from activelearn.numerics.surrogate import Rollout, simulate
 SPEED_PER_THROTTLE = 0.287  # m/s: above every point of the reference throttle -> speed table
 WHEELBASE = 0.1415  # m, Nigel (reference/nigel.md)
 # A skidpad's radius at most this many times the kinematic one: MuJoCo's steady skidpads lie at
-# 1.02-1.07 (safe_track.toml's pool, forward and reverse), the twin of the README's fidelity table at
-# 1.01-1.03; within the lateral-acceleration limit (0.12 m/s², far below grip) the car does not
-# slide. Twice is the margin for a car that is not the model.
+# 1.02-1.07 (safe_track.toml's pool, forward and reverse), the twin of the fidelity table
+# (docs/how-to/fidelity.md) at 1.01-1.03; within the lateral-acceleration limit (0.12 m/s², far
+# below grip) the car does not slide. Twice is the margin for a car that is not the model.
 UNDERSTEER_MAX = 2.0
 # The measured turn speed (`TurnSpeed`) is raised by this share of the envelope for throttles and
 # directions the logs did not hold (the envelope lies 0-7 % above the reference speed table).
@@ -456,14 +456,14 @@ def proposal_figure(campaign: Any, path: str | Path) -> Path:
     """
     from activelearn.loop.state import MODEL_FILE, CampaignState
     from activelearn.numerics.models import load_model
-    from activelearn.plots import arena_figure
+    from activelearn.plots import arena_figure, save_figure
 
     cfg, safety = campaign.cfg, campaign.cfg.safety
     state = CampaignState.load(campaign.directory)
     campaign.cuts = dict(state.cuts)
     pending = state.pending or []
     model_file = campaign.directory / MODEL_FILE
-    model = load_model(model_file) if state.rounds and model_file.exists() else campaign.prior_model()
+    model = load_model(model_file) if state.rounds and model_file.exists() else campaign.fitting.prior_model()
     maneuvers = [campaign.driven(i) for i in pending]
     proposals = []
     for i, m in zip(pending, maneuvers, strict=True):
@@ -480,9 +480,4 @@ def proposal_figure(campaign: Any, path: str | Path) -> Path:
         reach = max(room, 0.0)
     title = f"{cfg.name}: proposals of batch {len(state.batches)}, delta {safety.delta:g}"
     fig = arena_figure(safety.arena, safety.start, proposals, margin=safety.margin, reach=reach, title=title)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=110)
-    tmp.replace(path)
-    return path
+    return save_figure(fig, path, dpi=110)

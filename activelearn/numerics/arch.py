@@ -16,10 +16,10 @@ ACTIVATIONS: tuple[str, ...] = ("tanh", "sigmoid", "elu", "relu", "selu", "softp
 ARCH_PRESETS: dict[str, str] = {
     # The reference study's hybrid (3D-2V): saturating first variational layer, relu dense layers.
     "reference": "V8:sigmoid-D32:relu-D32:relu-D8:relu-V",
-    # Chosen by measurement (experiments/model_selection.py): a dense relu feature extractor and a
-    # variational read-out (the last two layers). Relu features grow linearly away from the data, so
-    # the read-out's spread grows too: novelty ratio ~20 vs ~1.1 for `reference`, in-between (gap)
-    # ratio ~3.7; as accurate as the alternatives and faster to train than D32-V32-V16-V.
+    # Chosen by measurement (experiments/investigations/model_selection.py): a dense relu feature extractor
+    # and a variational read-out (the last two layers). Relu features grow linearly away from the data, so the
+    # read-out's spread grows too: novelty ratio ~20 vs ~1.1 for `reference`, in-between (gap) ratio ~3.7; as
+    # accurate as the alternatives and faster to train than D32-V32-V16-V.
     "default": "D64:relu-D64:relu-V16:relu-V",
 }
 

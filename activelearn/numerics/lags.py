@@ -15,10 +15,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from activelearn.names import CONTROLS, RATES
+
 N_CONTROLS = 2
 N_RATES = 2
-CONTROL_COLUMNS = ("throttle", "steering")
-RATE_COLUMNS = ("speed", "angZ")
 
 
 @dataclass(frozen=True)
@@ -57,8 +57,8 @@ class Lags:
 
         Lagged columns are named `<name>_lag<d>`; the current controls keep their names.
         """
-        pairs = [(c, d) for d in self.control_lags for c in CONTROL_COLUMNS]
-        pairs += [(c, d) for d in self.rate_lags for c in RATE_COLUMNS]
+        pairs = [(c, d) for d in self.control_lags for c in CONTROLS]
+        pairs += [(c, d) for d in self.rate_lags for c in RATES]
         return [(c if d == 0 else f"{c}_lag{d}", c, d) for c, d in pairs]
 
     def columns(self) -> list[str]:

@@ -26,6 +26,8 @@ Two model variants:
     depend on past controls and rates (`activelearn.numerics.lags` says which). The rollout is
     sequential in time but batched over maneuvers and samples; each trajectory feeds its own sampled
     rates back in, so the fans propagate the uncertainty.
+
+How far these free runs drift and how wide their fans must be: `activelearn.numerics.diagnostics`.
 """
 
 from __future__ import annotations
@@ -46,7 +48,6 @@ from simulator import Maneuver, nominal_controls
 N_CONTROLS = 2
 TORCH_BLOCK = 16  # maneuvers per task of a sequential rollout on torch (no compiled kernel)
 BANDS = (0.025, 0.25, 0.5, 0.75, 0.975)  # quantiles of the 95% and 50% bands and the median
-FAN_SCALE_RANGE = (1e-2, 1e3)  # free-run fan scales beyond these mean a broken model, not a fan
 MAX_LEVER_ARM = 1.0  # m: a 1:14 car's logged point lies centimetres from its rear axle
 
 
@@ -435,56 +436,6 @@ def _sequential_rollout(
     return (rates[:, 0], rates[:, 1]), tuple(m.permute(2, 0, 1).contiguous() for m in moments)
 
 
-@dataclass(frozen=True)
-class TrackMetrics:
-    """Accuracy of one surrogate rollout against ground truth."""
-
-    rmse_v: float
-    rmse_w: float
-    position_error: dict[float, float]  # seconds -> metres between mean path and true path
-    coverage_v: float  # fraction of true steps inside the 95% band
-    coverage_w: float
-    coverage_position: float  # fraction of steps whose true (x, y) lies inside both 95% bands
-
-
-def track_metrics(
-    rollout: Rollout, index: int, truth: dict[str, np.ndarray], times: Sequence[float] = (10.0, 30.0)
-) -> TrackMetrics:
-    """Compare maneuver `index` of a rollout with ground truth arrays `speed`, `angZ`, `posX`, `posY`.
-
-    Truth positions are taken relative to the start, rotated into the start heading `yaw[0]`.
-    """
-    n = int(rollout.lengths[index])
-    true_v, true_w = truth["speed"][:n], truth["angZ"][:n]
-    true_x, true_y, _ = relative_pose(truth, n)
-    mean_v, mean_w = rollout.mean_rates[index, :n, 0], rollout.mean_rates[index, :n, 1]
-    mx, my = (a[:n] for a in rollout.mean_path(index))
-    q = {name: rollout.quantiles(name, index)[:, :n] for name in ("v", "w", "x", "y")}
-
-    def inside(values: np.ndarray, name: str) -> np.ndarray:
-        return (values >= q[name][0]) & (values <= q[name][-1])
-
-    errors = np.hypot(mx - true_x, my - true_y)
-    marks = {float(t): float(errors[min(round(t / rollout.dt), n - 1)]) for t in times if t < n * rollout.dt}
-    marks[float((n - 1) * rollout.dt)] = float(errors[-1])
-    return TrackMetrics(
-        rmse_v=float(np.sqrt(np.mean((mean_v - true_v) ** 2))),
-        rmse_w=float(np.sqrt(np.mean((mean_w - true_w) ** 2))),
-        position_error=marks,
-        coverage_v=float(inside(true_v, "v").mean()),
-        coverage_w=float(inside(true_w, "w").mean()),
-        coverage_position=float((inside(true_x, "x") & inside(true_y, "y")).mean()),
-    )
-
-
-def relative_pose(truth: dict[str, np.ndarray], n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """x, y and unwrapped heading of the first n steps of a log, relative to its start pose."""
-    dx, dy = truth["posX"][:n] - truth["posX"][0], truth["posY"][:n] - truth["posY"][0]
-    c, s = np.cos(-truth["yaw"][0]), np.sin(-truth["yaw"][0])
-    heading = np.unwrap(truth["yaw"][:n]) - truth["yaw"][0]
-    return c * dx - s * dy, s * dx + c * dy, heading
-
-
 def estimate_lever_arm(logs: Sequence, *, rate_hz: float = 30.0, min_yaw_rate: float = 0.2) -> float:
     """Where the logged pose lies ahead of the rear axle (m), from logs' positions, heading and ω.
 
@@ -508,185 +459,6 @@ def estimate_lever_arm(logs: Sequence, *, rate_hz: float = 30.0, min_yaw_rate: f
         raise InputError("logs", len(w_all), f"need at least 10 steps turning at |ω| >= {min_yaw_rate} rad/s")
     return float(np.dot(w_all, np.concatenate(lateral)) / np.dot(w_all, w_all))
 
-
-# Free-running rollout metrics a campaign logs every round (MLflow and curves.csv).
-ROLLOUT_METRICS: tuple[str, ...] = (
-    "rollout_pos_err_10s",
-    "rollout_pos_err_30s",
-    "rollout_heading_err_30s",
-    "rollout_rmse_v",
-    "rollout_rmse_w",
-    "rollout_coverage_95",
-)
-_TRUTH_COLUMNS = ("speed", "angZ", "posX", "posY", "yaw")
-
-
-def free_runs(
-    model,
-    logs: Sequence,
-    *,
-    rate_hz: float = 30.0,
-    n_samples: int = 32,
-    seed: int = 0,
-    fan_scale: float | None = None,
-) -> Rollout:
-    """Each log's recorded controls run free through `model` from its first recorded rates."""
-    controls = [np.asarray(t[["throttle", "steering"]].to_numpy(), dtype=np.float64) for t in logs]
-    initial = np.array([[t["speed"].iloc[0], t["angZ"].iloc[0]] for t in logs])
-    return simulate(
-        model, controls, rate_hz=rate_hz, n_samples=n_samples, seed=seed, initial_rates=initial,
-        fan_scale=fan_scale,
-    )  # fmt: skip
-
-
-def fan_widening_needed(rollout: Rollout, truth_logs: Sequence) -> np.ndarray:
-    """Per step of every run: the factor by which the 95 % position fan must widen about the mean
-    path to hold the true position (x and y band both; <= 1 where it already does; inf where the
-    fan has no width yet, as at a noisy log's first steps)."""
-    band_x, band_y = (np.quantile(getattr(rollout, a), (0.025, 0.975), axis=0) for a in ("x", "y"))
-    mean_x, mean_y = rollout.mean_path()
-    needs = []
-    for i, table in enumerate(truth_logs):
-        n = int(rollout.lengths[i])
-        tx, ty, _ = relative_pose({c: table[c].to_numpy(dtype=np.float64) for c in _TRUTH_COLUMNS}, n)
-        per_axis = []
-        for truth, centre, band in (
-            (tx, mean_x[i, :n], band_x[:, i, :n]),
-            (ty, mean_y[i, :n], band_y[:, i, :n]),
-        ):
-            error = truth - centre
-            gap = np.where(error >= 0, band[1] - centre, centre - band[0])
-            with np.errstate(divide="ignore", invalid="ignore"):
-                need = np.abs(error) / np.maximum(gap, 0.0)
-            per_axis.append(np.where(np.abs(error) < 1e-9, 0.0, need))  # the start: no error, no width
-        needs.append(np.maximum(*per_axis))
-    return np.concatenate(needs)
-
-
-def fan_scale_needed(
-    model,
-    logs: Sequence,
-    *,
-    level: float = 0.95,
-    rate_hz: float = 30.0,
-    n_samples: int = 32,
-    seed: int = 0,
-) -> float:
-    """The free-run fan scale under which `level` of the true positions of `logs` lie inside the
-    95 % fan (split-conformal on held-out maneuvers). Leaves the model as it was.
-
-    The scale widens the pose fan about the mean path (`simulate`), so a band's quantiles move
-    exactly by it and one rollout tells the scale. A run that blows up gives scale 1e3.
-    """
-    if not 0.0 < level < 1.0:
-        raise InputError("level", level, "must lie in (0, 1)")
-    if not logs:
-        raise InputError("logs", 0, "need at least one log to calibrate the fan on")
-    rollout = free_runs(model, logs, rate_hz=rate_hz, n_samples=n_samples, seed=seed, fan_scale=1.0)
-    needs = np.nan_to_num(fan_widening_needed(rollout, logs), nan=np.inf)
-    # "higher": an order statistic, no interpolation between a finite need and an infinite one
-    need = float(np.quantile(needs, level, method="higher"))
-    return float(np.clip(need, *FAN_SCALE_RANGE))
-
-
-def calibrate_fan(model, logs: Sequence, **kwargs) -> float:
-    """Fit the model's `fan_scale` on held-out logs (`fan_scale_needed`); store it and return it."""
-    scale = fan_scale_needed(model, logs, **kwargs)
-    with torch.no_grad():
-        model.fan_scale.fill_(scale)
-    return scale
-
-
-def free_run_metrics(
-    model,
-    logs: Sequence,
-    truth_logs: Sequence | None = None,
-    *,
-    rate_hz: float = 30.0,
-    n_samples: int = 32,
-    seed: int = 0,
-) -> dict[str, float]:
-    """Run each logged maneuver free through `model` and measure how far it drifts (`ROLLOUT_METRICS`).
-
-    Each rollout starts from its log's first recorded rates and is given only the recorded controls
-    (the eight's too, which MuJoCo chose by heading feedback); nothing after the start is fed back
-    from the log. Against `truth_logs` (noise-free where known; default the logs themselves):
-    position error of the mean path at 10 s and 30 s (a maneuver shorter than that at its end) and
-    heading error at 30 s, averaged over maneuvers; RMSE of the mean v and ω along the run; the share
-    of true positions inside the 95 % fan (both the x and the y band), over every step of every run.
-    """
-    truth_logs = logs if truth_logs is None else truth_logs
-    rollout = free_runs(model, logs, rate_hz=rate_hz, n_samples=n_samples, seed=seed)
-    band_x, band_y = (np.quantile(getattr(rollout, a), (0.025, 0.975), axis=0) for a in ("x", "y"))
-    mean_x, mean_y = rollout.mean_path()
-    mean_yaw = rollout.yaw.mean(axis=0)
-    at = {10.0: [], 30.0: []}
-    heading, sq_v, sq_w, inside, steps = [], 0.0, 0.0, 0, 0
-    for i, table in enumerate(truth_logs):
-        n = int(rollout.lengths[i])
-        truth = {c: table[c].to_numpy(dtype=np.float64) for c in _TRUTH_COLUMNS}
-        tx, ty, tyaw = relative_pose(truth, n)
-        # a run that blew up (inf, then nan) is as far off as can be: inf, so rankings put it last
-        errors = np.nan_to_num(np.hypot(mean_x[i, :n] - tx, mean_y[i, :n] - ty), nan=np.inf)
-        for t in at:
-            at[t].append(errors[min(round(t / rollout.dt), n - 1)])
-        k30 = min(round(30.0 / rollout.dt), n - 1)
-        gap = mean_yaw[i, k30] - tyaw[k30]
-        heading.append(abs(np.angle(np.exp(1j * gap))) if np.isfinite(gap) else np.inf)  # wrapped to [0, π]
-        sq_v += float(np.sum((rollout.mean_rates[i, :n, 0] - truth["speed"][:n]) ** 2))
-        sq_w += float(np.sum((rollout.mean_rates[i, :n, 1] - truth["angZ"][:n]) ** 2))
-        within = (band_x[0, i, :n] <= tx) & (tx <= band_x[1, i, :n])
-        within &= (band_y[0, i, :n] <= ty) & (ty <= band_y[1, i, :n])
-        inside += int(within.sum())
-        steps += n
-    return {
-        "rollout_pos_err_10s": float(np.mean(at[10.0])),
-        "rollout_pos_err_30s": float(np.mean(at[30.0])),
-        "rollout_heading_err_30s": float(np.mean(heading)),
-        "rollout_rmse_v": float(np.nan_to_num(np.sqrt(sq_v / steps), nan=np.inf)),
-        "rollout_rmse_w": float(np.nan_to_num(np.sqrt(sq_w / steps), nan=np.inf)),
-        "rollout_coverage_95": float(inside / steps),
-    }
-
-
-@dataclass(frozen=True)
-class Benchmark:
-    """A surrogate rollout beside the MuJoCo log of the same maneuvers, with per-maneuver metrics."""
-
-    rollout: Rollout
-    truth: list  # one pandas DataFrame per maneuver (MuJoCo log, AutoDRIVE layout)
-    metrics: list[TrackMetrics]
-
-
-def against_simulator(
-    model,
-    maneuvers: Sequence[Maneuver],
-    *,
-    rate_hz: float = 30.0,
-    n_samples: int = 32,
-    seed: int = 0,
-    noise: object | None = "default",
-) -> Benchmark:
-    """Simulate maneuvers in MuJoCo and with the surrogate on the same applied controls; compare them.
-
-    The surrogate is driven by the controls MuJoCo actually applied (for the eight these come from
-    heading feedback), and a Markov model starts from the rates logged at the first step.
-    """
-    import simulator
-
-    noise_cfg = simulator.NoiseConfig() if noise == "default" else noise
-    log = simulator.collect(list(maneuvers), rate_hz=rate_hz, seed=seed, noise=noise_cfg)
-    truth = [part.reset_index(drop=True) for _, part in log.groupby("run_id", sort=False)]
-    controls = [t[["throttle", "steering"]].to_numpy() for t in truth]
-    initial = np.array([[t["speed"].iloc[0], t["angZ"].iloc[0]] for t in truth])
-    rollout = simulate(
-        model, controls, rate_hz=rate_hz, n_samples=n_samples, seed=seed, initial_rates=initial
-    )
-    metrics = [
-        track_metrics(rollout, i, {c: t[c].to_numpy() for c in ("speed", "angZ", "posX", "posY", "yaw")})
-        for i, t in enumerate(truth)
-    ]
-    return Benchmark(rollout, truth, metrics)
 
 
 def steady_state_inputs(model, controls: np.ndarray, *, steps: int = 60, n_samples: int = 8) -> np.ndarray:

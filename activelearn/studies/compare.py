@@ -20,11 +20,10 @@ from activelearn.loop.campaign import Campaign
 from activelearn.loop.lock import DEFAULT_WAIT
 from activelearn.loop.pool import pool_maneuvers, test_maneuvers
 from activelearn.loop.state import STATE_FILE
+from activelearn.names import CURVE_METRICS, RANKING_METRICS, REFERENCE_STRATEGY
 from activelearn.studies.executors import check_executor, run_jobs
 
 Progress = Callable[[dict[str, Any]], None]
-# Curves of the comparison figure: the standardised aggregate beside v in m/s and ω in rad/s.
-CURVE_METRICS: tuple[str, ...] = ("test_rmse", "test_rmse_v", "test_rmse_w", "epistemic_std_mean", "test_nll")
 
 
 @dataclass(frozen=True)
@@ -169,7 +168,6 @@ def compare(
     lock while it runs; one another command writes waits up to `lock_wait` s. The output directory, the
     simulation cache (under `cfg.output_dir`) and the tracking store must be reachable by every node.
     """
-    from activelearn.config import RANKING_METRICS
     from activelearn.loop.acquisition import STRATEGIES
 
     metric = metric or cfg.test.metric
@@ -285,22 +283,21 @@ def compare(
 
     records = [{"strategy": s, "seed": seed, **r} for (s, seed), rounds in results.items() for r in rounds]
     curves = pd.DataFrame(records).sort_values(["strategy", "seed", "round"]).reset_index(drop=True)
-    reference = "uniform" if "uniform" in strategies else strategies[0]
+    reference = REFERENCE_STRATEGY if REFERENCE_STRATEGY in strategies else strategies[0]
     if metric not in curves:
         raise InputError("--metric", metric, "these campaigns did not log it (a test set without logs?)")
     table = _summary(curves, reference, metric)
     curves.to_csv(directory / "curves.csv", index=False)
     table.to_csv(directory / "summary.csv", index=False)
 
-    from activelearn.plots import comparison_figure
+    from activelearn.plots import comparison_figure, save_figure
 
     shown = (metric, *(m for m in CURVE_METRICS if m != metric and m in curves))
     fig = comparison_figure(
         curves, shown, reference=reference, title=cfg.name,
         seconds="track_seconds" in curves,
     )  # fmt: skip
-    figure_path = directory / "comparison.png"
-    fig.savefig(figure_path, dpi=110)
+    figure_path = save_figure(fig, directory / "comparison.png", dpi=110)
     if tracker is not None and parent_run_id is not None:
         tracker.log_figure(parent_run_id, fig, "comparison.png")
         tracker.log_artifact(parent_run_id, directory / "summary.csv")

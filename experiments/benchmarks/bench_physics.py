@@ -34,8 +34,8 @@ import pandas as pd
 from activelearn.config import load_config
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import arrays, control_rate_logs, training_rows, training_windows
+from activelearn.numerics.diagnostics import free_run_metrics, free_runs, relative_pose
 from activelearn.numerics.models import build_model
-from activelearn.numerics.surrogate import free_run_metrics, free_runs, relative_pose
 from activelearn.numerics.training import fit
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "dynamics.toml"

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from quick import shrink
 
 from activelearn.config import load_config
 from activelearn.loop.campaign import Campaign
@@ -94,7 +95,7 @@ def at_equal_seconds(safe: pd.DataFrame, free: pd.DataFrame) -> tuple[float, flo
 class ClairvoyantCampaign(Campaign):
     """A safe campaign whose safe set is read off the noise-free MuJoCo paths (a yardstick, not a method)."""
 
-    def _assess(
+    def assess(
         self, model: Any | None, round_index: int, open_: np.ndarray, samples: pd.DataFrame | None
     ) -> Assessment:
         safety, rate = self.cfg.safety, self.cfg.simulation.rate_hz
@@ -148,9 +149,13 @@ def main() -> None:
     parser.add_argument("--no-tracking", action="store_true")
     parser.add_argument("--only", choices=("safe", "unconstrained"), default=None,
                         help="one variant only (both later with --resume into the same --out)")
+    parser.add_argument("--quick", action="store_true",
+                        help="tiny sizes: checks every part still runs (tests/test_benchmarks.py)")
     parser.add_argument("--clairvoyant", action="store_true",
                         help="also the same strategy with the safe set read off the true paths (a yardstick)")
     args = parser.parse_args()
+    if args.quick:
+        args.seeds, args.workers, args.no_tracking = 1, 1, True
 
     overrides: dict = {} if args.delta is None else {"safety": {"delta": args.delta}}
     if args.strategy:
@@ -162,6 +167,8 @@ def main() -> None:
     if args.setup_seconds is not None:
         overrides.setdefault("design", {})["setup_seconds"] = args.setup_seconds
     cfg = load_config(args.config, overrides=overrides)
+    if args.quick:
+        cfg = shrink(cfg, Path(args.out) / "runs")
     if cfg.safety is None:
         raise SystemExit(f"{args.config} has no [safety] section")
     seeds = list(range(args.seeds))

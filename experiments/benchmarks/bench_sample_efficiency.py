@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from quick import shrink
 
 from activelearn.config import CampaignConfig, load_config
 from activelearn.loop.campaign import STATE_FILE, CampaignState
@@ -234,11 +235,19 @@ def main() -> None:
     parser.add_argument("--out", default="runs/bench_sample_efficiency")
     parser.add_argument("--resume", action="store_true")
     parser.add_argument("--no-tracking", action="store_true")
+    parser.add_argument("--quick", action="store_true",
+                        help="tiny sizes: checks every part still runs (tests/test_benchmarks.py)")
     args = parser.parse_args()
+    if args.quick:  # one pool unless named, one seed of each strategy and of the lookahead oracle
+        args.seeds, args.lookahead_seeds, args.workers, args.no_tracking = 1, 1, 1, True
+        if args.pools == ",".join(POOLS):
+            args.pools = "skidpad"
     pd.set_option("display.width", 200)
     pd.set_option("display.max_columns", 30)
     for name in args.pools.split(","):
         cfg = load_config(CONFIGS / f"{name}.toml")
+        if args.quick:
+            cfg = shrink(cfg, Path(args.out) / "runs")
         metric = cfg.test.metric  # what the config ranks by: test_rmse, or a free-run error
         strategies = args.strategies.split(",") if args.strategies else list(POOLS[name])
         started = time.perf_counter()

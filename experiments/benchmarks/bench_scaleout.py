@@ -2,7 +2,7 @@
 
 Then where one campaign's time goes (simulation, training, acquisition, tracking), from a profile of
 one campaign run in this process: the numbers behind the scale-out estimate in
-experiments/results/scaleout.txt.
+experiments/results/bench_scaleout.txt.
 
     python experiments/benchmarks/bench_scaleout.py [--config experiments/configs/smoke.toml]
         [--campaigns 4] [--out DIR]
@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 import pandas as pd
+from quick import shrink
 
 from activelearn.config import load_config
 from activelearn.loop.campaign import Campaign
@@ -29,8 +30,8 @@ SMOKE = Path(__file__).resolve().parents[1] / "configs" / "smoke.toml"
 PHASES = {
     "simulation": ("simulator/collect.py:collect",),
     "training": ("numerics/training.py:fit",),
-    "acquisition": ("loop/acquisition.py:select",),
-    "evaluation": ("loop/campaign.py:evaluate",),
+    "acquisition": tuple(f"loop/{m}.py:select" for m in ("space_filling", "function_space", "acquisition")),
+    "evaluation": ("loop/evaluation.py:evaluate",),
     "tracking": ("studies/tracking.py:log_", "studies/tracking.py:start_run", "studies/tracking.py:end_run"),
 }
 
@@ -76,15 +77,19 @@ def main() -> None:
     parser.add_argument("--config", default=str(SMOKE))
     parser.add_argument("--campaigns", type=int, default=4, help="campaigns per measurement")
     parser.add_argument("--out", default=None)
+    parser.add_argument("--quick", action="store_true",
+                        help="tiny sizes: checks every part still runs (tests/test_benchmarks.py)")
     args = parser.parse_args()
     root = Path(args.out or tempfile.mkdtemp(prefix="bench-scaleout-"))
     cfg = load_config(args.config).model_copy(update={"output_dir": str(root / "runs")})
+    if args.quick:  # one campaign per measurement, one worker per executor
+        args.campaigns, cfg = 1, shrink(cfg, root / "runs")
     # Warm the simulation cache first: every measurement below then times campaigns, not MuJoCo.
     compare(cfg, ["uniform"], [0], directory=root / "warm", workers=1, tracking=False)
 
     rows = []
     for executor in ("process", "ray"):
-        for workers in (1, 2):
+        for workers in (1,) if args.quick else (1, 2):
             rate = throughput(cfg, executor, workers, args.campaigns, root)
             rows.append({"executor": executor, "workers": workers, "campaigns_per_hour": rate})
             print(f"{executor:8s} {workers} worker(s): {rate:7.1f} campaigns/hour", flush=True)

@@ -69,7 +69,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--duration", type=float, default=90.0, help="seconds per maneuver")
+    parser.add_argument("--quick", action="store_true",
+                        help="tiny sizes: checks every part still runs (tests/test_benchmarks.py)")
     args = parser.parse_args()
+    if args.quick:  # the grid's maneuvers 2 s long; the calibration tables as always (a few seconds)
+        args.duration = 2.0
     threads = args.threads
     vehicle = Vehicle()
     _ = vehicle.rest_state

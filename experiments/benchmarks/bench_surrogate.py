@@ -44,15 +44,10 @@ import pandas as pd
 import simulator
 from activelearn.config import DataConfig, ModelConfig, TrainingConfig
 from activelearn.loop.collection import arrays, control_rate_logs, training_rows, training_windows
+from activelearn.numerics.diagnostics import calibrate_fan, relative_pose, track_metrics
 from activelearn.numerics.models import build_model
 from activelearn.numerics.models.physics import control_box_sweep, runs_out_of_bounds
-from activelearn.numerics.surrogate import (
-    calibrate_fan,
-    path_from_rates,
-    relative_pose,
-    simulate,
-    track_metrics,
-)
+from activelearn.numerics.surrogate import path_from_rates, simulate
 from activelearn.numerics.training import fit
 from simulator import Maneuver
 
@@ -183,7 +178,13 @@ def main() -> None:
                              "the static baseline always)")
     parser.add_argument("--attribution", action="store_true",
                         help="split the 30-s error: mean-rate path, with the true v, with the true ω")
+    parser.add_argument("--quick", action="store_true",
+                        help="tiny sizes: checks every part still runs (tests/test_benchmarks.py)")
     args = parser.parse_args()  # fmt: skip
+    if args.quick:  # one maneuver of each kind, every model kind, two epochs, one timed call
+        args.maneuvers, args.train_maneuvers, args.samples, args.epochs = len(KINDS), len(KINDS), 4, 2
+        args.rounds, args.repeats = 1, 1
+    seconds, sweep_seconds = (35.0, 5.0) if args.quick else (90.0, 60.0)  # maneuvers; control-box sweeps
     kinds = [m for m in args.models.split(",") if m]
     unknown = set(kinds) - set(MODELS)
     if unknown or "static" not in kinds:
@@ -220,7 +221,7 @@ def main() -> None:
     seeds = range(args.first_train_seed, args.first_train_seed + args.train_seeds)
     threads = os.cpu_count() or 1
 
-    train_log = simulator.collect(maneuver_set(args.train_maneuvers, seed=1), seed=1)
+    train_log = simulator.collect(maneuver_set(args.train_maneuvers, seed=1, duration=seconds), seed=1)
     models: dict[tuple[str, int], object] = {}
     for seed in seeds:
         for name, kind, horizon, ensemble, kinematic in variants:
@@ -238,7 +239,7 @@ def main() -> None:
             print(f"free-run fan scale of {name} (seed {seed}): {scale:.2f} "
                   f"(on {len(held_out)} held-out maneuvers)")  # fmt: skip
 
-    test = maneuver_set(args.maneuvers, seed=2)
+    test = maneuver_set(args.maneuvers, seed=2, duration=seconds)
     # Rounds of (MuJoCo, then every surrogate variant): this machine's speed drifts by a quarter
     # within minutes, so each round's ratio pairs times taken back to back. Timed: the seed-0 models.
     runs = (("static", "auto"), ("static", "reference"), *((n, "auto") for n in names if n != "static"))
@@ -271,7 +272,7 @@ def main() -> None:
 
     steps = sum(len(c) for c in controls)
     print(
-        f"\n{args.maneuvers} maneuvers x 90 s at 30 Hz ({steps} steps), {threads} threads, "
+        f"\n{args.maneuvers} maneuvers x {seconds:g} s at 30 Hz ({steps} steps), {threads} threads, "
         f"S = {args.samples}. {args.rounds} rounds of MuJoCo then {args.repeats} surrogate calls per "
         "variant;\na round's ratio is MuJoCo's time over the median call. 'first' is the run's first "
         "full-size call (after a small warm-up)."
@@ -290,10 +291,10 @@ def main() -> None:
     print("  first call:" + "".join(f"  {k} {v:.2f} s (x{sim_seconds[0] / v:.1f})" for k, v in first.items()))
 
     if args.figure is not None:
-        from activelearn.plots import paths_figure
+        from activelearn.plots import paths_figure, save_figure
 
         cases = [(f"{test[i].kind} {test[i].direction}", i) for i in range(len(KINDS))]
-        paths_figure({v: rollouts[v] for v in shown}, cases, truth).savefig(args.figure, dpi=100)
+        save_figure(paths_figure({v: rollouts[v] for v in shown}, cases, truth), args.figure, dpi=100)
         print(f"figure: {args.figure}")
     rows = []
     for seed in seeds:
@@ -358,9 +359,9 @@ def main() -> None:
             print(mean.to_string(float_format="%.3f"))
     # Trained on forward driving (the training set's throttles are 0.2-1.0), every model is driven over
     # the whole control box for 60 s: how many sampled runs are not finite or leave 1.5x the limits
-    sweep = control_box_sweep(60.0)
+    sweep = control_box_sweep(sweep_seconds)
     print(f"\nruns leaving 1.5x Nigel's speed or yaw-rate limit (or not finite) over the control box: "
-          f"{len(sweep)} sweeps x S = {args.samples}, 60 s, per training seed")  # fmt: skip
+          f"{len(sweep)} sweeps x S = {args.samples}, {sweep_seconds:g} s, per training seed")  # fmt: skip
     for name in names:
         counts = []
         for seed in seeds:

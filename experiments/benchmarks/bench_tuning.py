@@ -22,6 +22,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from quick import shrink
+
 from activelearn.config import load_config
 from activelearn.studies.tuning import collect_dataset, split_data, study_trials, tune
 
@@ -44,6 +46,15 @@ FIXED_SPACE = {
 }
 
 
+QUICK = False  # `--quick`: the skidpad config at quick sizes (see quick.py)
+
+
+def skidpad(overrides: dict | None = None):
+    """The skidpad config with `overrides` (at quick sizes with `--quick`, its [tuning] kept)."""
+    cfg = load_config(SKIDPAD, overrides=overrides)
+    return shrink(cfg).model_copy(update={"tuning": cfg.tuning, "tracking": cfg.tracking}) if QUICK else cfg
+
+
 def load() -> str:
     """The 1-minute load average and the core count."""
     return f"load {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores"
@@ -51,8 +62,7 @@ def load() -> str:
 
 def throughput(n_trials: int, epochs: int, workers: int, directory: Path) -> tuple[float, float, float]:
     """Trials per minute, wall seconds and mean seconds per trial of one fixed-cost study."""
-    cfg = load_config(
-        SKIDPAD,
+    cfg = skidpad(
         overrides={
             "tracking": {"uri": f"sqlite:///{directory}/mlflow.db"},
             # patience above epochs: every trial runs all its epochs
@@ -84,9 +94,15 @@ def main() -> None:
     parser.add_argument("--study-timeout", type=float, default=1200, help="seconds: no new trial after this")
     parser.add_argument("--out", default=str(ROOT / "runs" / "bench_tuning"),
                         help="directory of the real study")
+    parser.add_argument("--quick", action="store_true",
+                        help="tiny sizes: checks every part still runs (tests/test_benchmarks.py)")
     args = parser.parse_args()
+    if args.quick:  # two trials of two epochs each way, a two-trial study
+        global QUICK
+        QUICK = True
+        args.trials, args.epochs, args.study_trials, args.study_workers = 2, 2, 2, 1
 
-    cfg = load_config(SKIDPAD)
+    cfg = skidpad()
     t0 = time.perf_counter()
     data = collect_dataset(cfg)  # simulated once, then read from runs/cache
     split = split_data(data, cfg.tuning.val_fraction, cfg.seed)
@@ -106,7 +122,7 @@ def main() -> None:
 
     if args.study_trials > 0:
         out = Path(args.out)
-        study_cfg = load_config(SKIDPAD, overrides={"tracking": {"uri": f"sqlite:///{out}/mlflow.db"}})
+        study_cfg = skidpad({"tracking": {"uri": f"sqlite:///{out}/mlflow.db"}})
         name = f"skidpad-{time.strftime('%Y%m%d-%H%M%S')}"
         print(f"real study {name!r}: {args.study_trials} trials, {args.study_workers} workers, "
               f"timeout {args.study_timeout:g} s, default search space ({load()})")  # fmt: skip

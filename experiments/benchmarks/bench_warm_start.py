@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from quick import shrink
 
 from activelearn.config import load_config
 from activelearn.studies.compare import compare
@@ -32,9 +33,14 @@ def _sem(values: np.ndarray) -> float:
     return float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) > 1 else float("nan")
 
 
-def run(config: str, strategy: str, seeds: int, workers: int, warm_epochs: int | None, out: Path) -> None:
+def run(
+    config: str, strategy: str, seeds: int, workers: int, warm_epochs: int | None, out: Path,
+    quick: bool = False,
+) -> None:  # fmt: skip
     """Both modes of one config, then its printout."""
     base = load_config(CONFIGS / f"{config}.toml")
+    if quick:
+        base = shrink(base, out / "runs")
     metric = base.test.metric
     finals, walls = {}, {}
     for mode, warm in (("scratch", False), ("warm", True)):
@@ -75,11 +81,17 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--warm-epochs", type=int, default=None)
     parser.add_argument("--out", type=Path, default=None, help="keep the campaigns (default: a temp dir)")
+    parser.add_argument("--quick", action="store_true",
+                        help="tiny sizes: checks every part still runs (tests/test_benchmarks.py)")
     args = parser.parse_args()
+    if args.quick:  # one config unless named, two seeds (a paired difference needs two)
+        args.seeds, args.workers = 2, 1
+        if args.configs == "odd_expansion,dynamics":
+            args.configs = "odd_expansion"
     with tempfile.TemporaryDirectory() as scratch:
         out = args.out or Path(scratch)
         for config in args.configs.split(","):
-            run(config, args.strategy, args.seeds, args.workers, args.warm_epochs, out)
+            run(config, args.strategy, args.seeds, args.workers, args.warm_epochs, out, args.quick)
 
 
 if __name__ == "__main__":

@@ -25,8 +25,8 @@ import pandas as pd
 from activelearn.config import load_config
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.prior import load_prior
+from activelearn.numerics.diagnostics import free_runs, relative_pose
 from activelearn.numerics.models import build_model
-from activelearn.numerics.surrogate import free_runs, relative_pose
 from activelearn.numerics.training import fit
 
 PHYSICS = '[model]\nkind = "physics"\nkinematic_feature = false\n'
@@ -78,10 +78,10 @@ def main() -> None:
         for name, cfg in configs.items():
             campaign = Campaign(cfg, Path(tmp) / name.replace(" ", "_"), cache_dir=Path("runs/cache"))
             campaign.prior = load_prior(cfg, campaign.nominal)  # the forward reference grid, simulated once
-            empty = campaign._with_prior(pd.DataFrame()).iloc[:0]
-            x, y, groups = campaign._training_data(empty)
-            windows = campaign._training_windows(empty)
-            logs = campaign._identification_logs(empty)
+            empty = campaign.fitting.with_prior(pd.DataFrame()).iloc[:0]
+            x, y, groups = campaign.fitting.training_data(empty)
+            windows = campaign.fitting.training_windows(empty)
+            logs = campaign.fitting.identification_logs(empty)
             for seed in range(args.seeds):
                 model = build_model(cfg.model)
                 fit(model, x, y, cfg.training, groups=groups, seed=seed, windows=windows, logs=logs)

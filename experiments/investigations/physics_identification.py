@@ -22,9 +22,9 @@ import torch
 from activelearn.config import load_config
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import control_rate_logs
+from activelearn.numerics.diagnostics import free_run_metrics
 from activelearn.numerics.models import build_model
 from activelearn.numerics.models.physics import identify_from_logs
-from activelearn.numerics.surrogate import free_run_metrics
 
 
 def main() -> None:
@@ -40,7 +40,7 @@ def main() -> None:
     samples = pd.read_parquet(args.run / "samples.parquet")
     order = list(dict.fromkeys(samples["pool_index"]))
     model = build_model(cfg.model)
-    model.set_scalers(*campaign._training_data(samples)[:2])
+    model.set_scalers(*campaign.fitting.training_data(samples)[:2])
     # the bare single track: the correction's outputs held at zero
     step = model._physical_step
     model._physical_step = lambda x, dim, z, var: step(x, dim, torch.zeros_like(z), var)

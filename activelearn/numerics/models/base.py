@@ -257,7 +257,7 @@ class Model(nn.Module, ABC):
     Inputs and outputs are standardised internally; the scalers (`x_mean`, `x_std`, `y_mean`,
     `y_std`) are buffers fitted by `activelearn.numerics.training.fit` and saved with the state dict, as are
     `epistemic_scale` (fitted by `activelearn.numerics.uncertainty.recalibrate_epistemic`) and
-    `fan_scale`, the widening of a free run's pose fan about its mean path (`surrogate.calibrate_fan`).
+    `fan_scale`, the widening of a free run's pose fan about its mean path (`diagnostics.calibrate_fan`).
     """
 
     kind: ClassVar[str] = ""

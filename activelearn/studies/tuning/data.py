@@ -28,6 +28,7 @@ from activelearn.loop.collection import (
     training_rows,
 )
 from activelearn.loop.pool import pool_maneuvers
+from activelearn.names import RECORDED_COLUMNS
 
 _DATA_VERSION = 1  # bump when the way a dataset is assembled changes (invalidates cached tables)
 
@@ -202,7 +203,6 @@ def collect_dataset(
     return _assemble(rows, cfg, key, str(path), logs)
 
 
-_REQUIRED_COLUMNS = ("time", "throttle", "steering", "speed", "angZ")
 
 
 def load_dataset(paths: Sequence[str | Path], cfg: CampaignConfig) -> TuningData:
@@ -221,7 +221,7 @@ def load_dataset(paths: Sequence[str | Path], cfg: CampaignConfig) -> TuningData
             table = read_autodrive_log(path)
         else:
             raise InputError("--data", str(path), "must be a .parquet table or a .csv log")
-        missing = [c for c in _REQUIRED_COLUMNS if c not in table.columns]
+        missing = [c for c in RECORDED_COLUMNS if c not in table.columns]
         if missing:
             raise DataFormatError(f"{path}: lacks column(s) {', '.join(missing)}")
         table = table.copy()

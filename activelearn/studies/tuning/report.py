@@ -122,6 +122,8 @@ def figures_of(study: optuna.Study, directory: Path) -> tuple[list[Path], list[s
     import matplotlib.pyplot as plt
     from optuna.visualization import matplotlib as ovm
 
+    from activelearn.plots import save_figure
+
     kwargs: dict[str, Any] = {}
     if len(study.directions) > 1:
         kwargs = {"target": lambda t: t.values[0], "target_name": "validation NLL"}
@@ -140,10 +142,7 @@ def figures_of(study: optuna.Study, directory: Path) -> tuple[list[Path], list[s
         fig = ax.figure
         fig.set_size_inches(8, 5)
         fig.tight_layout()
-        path = directory / f"{name}.png"
-        tmp = path.with_name(f".{path.name}.tmp.png")
-        fig.savefig(tmp, dpi=110)
-        tmp.replace(path)
+        path = save_figure(fig, directory / f"{name}.png", dpi=110)
         plt.close(fig)
         paths.append(path)
     return paths, notes

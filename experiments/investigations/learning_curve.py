@@ -8,7 +8,7 @@ to round 2 on all three seeds. This script separates the candidate causes:
    and prints their curves and the maneuvers uniform took in every batch;
 2. refits every round's data with several training seeds (the same seeds at every round, so rounds
    are paired) under controlled variants, one change at a time:
-     base          the campaign's recipe (`Campaign.fit_model` with cfg.seed = training seed);
+     base          the campaign's recipe (`Campaign.fitting.fit` with cfg.seed = training seed);
      fixed_scalers input scalers fitted on the candidate pool's inputs and output scalers on the last
                    round's data, the same at every round (are refitted scalers the cause?);
      pool_x_scaler input scalers fitted on the candidate pool's inputs, output scalers refitted as usual;
@@ -22,10 +22,10 @@ to round 2 on all three seeds. This script separates the candidate causes:
 
 Every fit is cached in <out>/fits.json, so a rerun only fits what is missing.
 
-    PYTHONPATH=. python experiments/learning_curve.py --out runs/lc --seeds 0 1 2 --train-seeds 4 \\
-        --rounds 1 2 3 4 --variants base
-    PYTHONPATH=. python experiments/learning_curve.py --out runs/lc --seeds 0 1 2 --train-seeds 3 \\
-        --rounds 1 2 --variants base,fixed_scalers,equal_rows,const_steps,alt_batch
+    PYTHONPATH=. python experiments/investigations/learning_curve.py --out runs/lc --seeds 0 1 2 \\
+        --train-seeds 4 --rounds 1 2 3 4 --variants base
+    PYTHONPATH=. python experiments/investigations/learning_curve.py --out runs/lc --seeds 0 1 2 \\
+        --train-seeds 3 --rounds 1 2 --variants base,fixed_scalers,equal_rows,const_steps,alt_batch
 
 (a few minutes each on 2 cores; `--first-train-seed` adds further training seeds, `--no-fit` prints
 the tables of what is cached).
@@ -49,7 +49,8 @@ import torch
 
 from activelearn.config import CampaignConfig, load_config
 from activelearn.data import read_table
-from activelearn.loop.campaign import EVAL_SAMPLES, Campaign
+from activelearn.loop.campaign import Campaign
+from activelearn.loop.evaluation import EVAL_SAMPLES
 from activelearn.loop.prior import PRIOR_FILE, prior_from_rows
 from activelearn.loop.state import SAMPLES_FILE, CampaignState
 from activelearn.numerics.models import build_model
@@ -100,10 +101,10 @@ def fit_variant(
     if variant == "base":  # exactly the campaign's recipe, with another seed
         campaign.cfg = cfg.model_copy(update={"seed": train_seed})
         try:
-            return campaign.fit_model(samples, round_index)
+            return campaign.fitting.fit(samples, round_index)
         finally:
             campaign.cfg = cfg
-    x, y, groups = campaign._training_data(samples)
+    x, y, groups = campaign.fitting.training_data(samples)
     seed = train_seed * 10_007 + round_index
     training = cfg.training
     model = build_model(cfg.model)
@@ -190,12 +191,12 @@ def main() -> None:
     for seed, campaign in campaigns.items():
         samples = read_table(campaign.directory / SAMPLES_FILE)
         state = CampaignState.load(campaign.directory)
-        final_x, final_y, _ = campaign._training_data(samples)
+        final_x, final_y, _ = campaign.fitting.training_data(samples)
         context = {
             "pool_x": campaign.pool([]).points,
             "final_x": final_x,
             "final_y": final_y,
-            "rows0": len(campaign._training_data(samples.iloc[:0])[0]),
+            "rows0": len(campaign.fitting.training_data(samples.iloc[:0])[0]),
         }
         for r in args.rounds:
             if r >= len(state.rounds):
@@ -208,7 +209,7 @@ def main() -> None:
                         continue
                     names = [m.name for m in campaign.maneuvers]
                     picks = [names.index(name) for name in args.alt.split(",")]
-                    alt = campaign._collect(picks, r - 1)
+                    alt = campaign.collect(picks, r - 1)
                     data = pd.concat([samples[samples["batch"] < r - 1], alt], ignore_index=True)
                 for t in train_seeds:
                     key = f"{seed}|{r}|{v}|{t}"

@@ -17,7 +17,7 @@ slack to a wall of an admitted true path (clearance - margin, m; negative = viol
 With `--worst-case`, rows with fan_scale "none" judge by the kinematic worst case alone (no model:
 what a cold start's initial design gets, and the bound every untrusted candidate must meet too).
 
-Usage: python experiments/safety_guards.py [--config FILE] [--seeds 3] [--fan-scales 1,3]
+Usage: python experiments/investigations/safety_guards.py [--config FILE] [--seeds 3] [--fan-scales 1,3]
        [--tolerances 0,0.04,0.08,0.16] [--trust 0.02] [--campaigns DIR] [--worst-case]
        [--turn-speed measured|none]
 """
@@ -41,7 +41,7 @@ from activelearn.loop.state import MODEL_FILE, SAMPLES_FILE, CampaignState
 from activelearn.numerics.models import load_model
 from simulator.maneuvers import sample_times
 
-CONFIGS = Path(__file__).resolve().parent / "configs"
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 NO_GUARD = 1e9  # trust_std so large that the kinematic worst case never applies
 
 
@@ -69,14 +69,15 @@ def models(cfg, seeds: list[int], campaigns: str | None, work: Path):
         campaign = Campaign(seeded, work / f"seed{seed}", cache_dir=Path("runs/cache"))
         campaign.prior = load_prior(seeded, campaign.nominal)
         if campaigns is None:
-            yield seed, campaign, campaign.fit_model(pd.DataFrame(), 0), [], 0, campaign._logs(None)
+            fitting = campaign.fitting
+            yield seed, campaign, fitting.fit(pd.DataFrame(), 0), [], 0, fitting.known_logs(None)
             continue
         found = sorted(Path(campaigns).glob(f"*/seed{seed}/{MODEL_FILE}"))
         if not found:
             raise SystemExit(f"no {MODEL_FILE} for seed {seed} under {campaigns}")
         state = CampaignState.load(found[0].parent)
         samples = found[0].parent / SAMPLES_FILE
-        logs = campaign._logs(pd.read_parquet(samples) if samples.exists() else None)
+        logs = campaign.fitting.known_logs(pd.read_parquet(samples) if samples.exists() else None)
         yield seed, campaign, load_model(found[0]), list(state.taken), len(state.rounds) - 1, logs
 
 

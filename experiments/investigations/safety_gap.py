@@ -10,7 +10,7 @@ test maneuvers the safe model misses most, and whether the safe campaign drove a
 operating point (same kind, or a family member for a skidpad; sign and throttle within 0.2), with the
 largest steering it reached as driven.
 
-Usage: python experiments/safety_gap.py [--bench runs/bench_safety] [--config FILE] [--top 3]
+Usage: python experiments/investigations/safety_gap.py [--bench runs/bench_safety] [--config FILE] [--top 3]
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from activelearn.loop.state import MODEL_FILE, CampaignState
 from activelearn.numerics.models import load_model
 from simulator.families import FAMILIES
 
-CONFIGS = Path(__file__).resolve().parent / "configs"
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 EVAL_SAMPLES = 64
 
 

@@ -5,7 +5,7 @@ per rule the final test RMSE, its area under the curve, and how spread each roun
 distance between the two picks of a batch, in the [0, 1] operating-point cube). This is the
 measurement behind the default `[acquisition] batch = "fantasy"`.
 
-Usage: python experiments/batch_ablation.py [--seeds 5] [--workers 2] [--config skidpad]
+Usage: python experiments/investigations/batch_ablation.py [--seeds 5] [--workers 2] [--config skidpad]
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from activelearn.loop.campaign import STATE_FILE, CampaignState
 from activelearn.loop.pool import operating_features, pool_maneuvers
 from activelearn.studies.compare import compare
 
-CONFIGS = Path(__file__).resolve().parent / "configs"
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
 def batch_spread(directory: Path, features: np.ndarray) -> float:

@@ -1,11 +1,12 @@
-"""Model-selection studies behind the defaults in activelearn/config.py (synthetic Ackermann data).
+"""Model-selection studies behind the defaults in activelearn/config/ (synthetic Ackermann data).
 
-    python experiments/model_selection.py novelty     [--seeds 0 1]  # arrangement → 2-D novelty ratio
-    python experiments/model_selection.py gap         [--seeds 0 1]  # arrangement → 1-D gap/beyond ratio
-    python experiments/model_selection.py archfinal   [--seeds 0 1]  # finalists: calibration at defaults
-    python experiments/model_selection.py klsize      [--seeds 0 1]  # KL counting × data size
-    python experiments/model_selection.py levers      [--seeds 0 1]  # prior, init, tempering, training
-    python experiments/model_selection.py issuetests  [--seeds 0 1]  # values behind tests 1-3, 6, 7
+    python experiments/investigations/model_selection.py STUDY [--seeds 0 1], STUDY one of
+        novelty     arrangement → 2-D novelty ratio
+        gap         arrangement → 1-D gap/beyond ratio
+        archfinal   finalists: calibration at defaults
+        klsize      KL counting × data size
+        levers      prior, init, tempering, training
+        issuetests  values behind tests 1-3, 6, 7
 
 novelty: train on forward throttle (0.2…1) × left steering (0…0.52); the novelty ratio is the mean
 epistemic std on reverse-throttle × right-steering inputs over the mean std on the data box (per

@@ -5,9 +5,9 @@ closed-loop eight is driven, then two figure_eight members open loop: the one `a
 default (loop time from the nominal turn) and the one with the loop time measured from the eight's own
 log (`measured_loop_time`). Prints the loop times, the number of steering flips of each, and the
 distance between the closed-loop path and each open-loop path (at 30 s, 90 s, and the largest).
-Results: experiments/results/families.txt.
+Results: experiments/results/figure_eight.txt.
 
-    python experiments/figure_eight.py
+    python experiments/investigations/figure_eight.py
 """
 
 from __future__ import annotations

@@ -1,0 +1,5 @@
+"""`python -m activelearn.cli`: the `activelearn` console script."""
+
+from activelearn.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,108 @@
+"""`activelearn fidelity`: the simulator replaying logs' commands, against the logs, per operating point."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from pathlib import Path
+
+from activelearn.cli.common import PLOT_SUFFIXES, output_path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "fidelity",
+        help="replay logs' commands in the simulator and compare steady speed, yaw rate and turn speed loss",
+        description="Replay the commands of each log (AutoDRIVE CSV, our CSV or Parquet) in MuJoCo and "
+                    "compare, per operating point of constant commands, the steady speed, yaw rate and "
+                    "speed loss in turns of the simulator and of the log.",
+    )
+    p.add_argument("logs", nargs="+", metavar="LOG", help="log files, or folders searched for .csv/.parquet")
+    p.add_argument("--config", default=None, metavar="CONFIG",
+                   help="campaign config: its [oracle] twin (overrides) and log rate (default: nominal car)")
+    p.add_argument("--plot", default=None, metavar="PNG", help="also draw the figure (.png, .pdf, .svg)")
+    p.add_argument("--settle", type=float, default=1.0, metavar="SEC",
+                   help="seconds dropped at the start of each stretch of constant commands (default 1)")
+    p.add_argument("--min-window", type=float, default=1.0, metavar="SEC",
+                   help="seconds of steady data a stretch must still have (default 1)")
+    p.set_defaults(handler=_fidelity)
+
+
+def log_files(specs: Sequence[str]) -> list:
+    from pathlib import Path
+
+    from activelearn.errors import InputError
+
+    files: list[Path] = []
+    for spec in specs:
+        path = Path(spec)
+        if path.is_dir():
+            found = sorted(p for p in path.rglob("*") if p.suffix.lower() in (".csv", ".parquet"))
+            if not found:
+                raise InputError("LOG", spec, "the folder holds no .csv or .parquet log")
+            files.extend(found)
+        elif path.is_file():
+            files.append(path)
+        else:
+            raise InputError("LOG", spec, "no such file or folder")
+    if len(set(files)) != len(files):
+        raise InputError("LOG", next(str(f) for f in files if files.count(f) > 1), "given twice")
+    return files
+
+
+def _fidelity(args: argparse.Namespace) -> int:
+    import math
+
+    from activelearn.errors import InputError
+    from activelearn.fidelity import FidelitySettings, compare, read_log_file
+
+    plot = output_path("--plot", args.plot, suffixes=PLOT_SUFFIXES) if args.plot else None
+    if not math.isfinite(args.settle) or args.settle < 0:
+        raise InputError("--settle", args.settle, "must be a finite number of seconds >= 0")
+    if not math.isfinite(args.min_window) or args.min_window <= 0:
+        raise InputError("--min-window", args.min_window, "must be a finite number of seconds > 0")
+    vehicle, name, rate = None, "nominal", 30.0
+    if args.config is not None:
+        from activelearn.config import load_config
+
+        cfg = load_config(args.config)
+        rate = cfg.simulation.rate_hz
+        if cfg.oracle.kind == "twin":
+            from simulator import twin_vehicle
+
+            vehicle = twin_vehicle(cfg.oracle.overrides)
+            name = "twin " + ", ".join(f"{k}={v:g}" for k, v in sorted(cfg.oracle.overrides.items()))
+    logs = [(str(path), read_log_file(path)) for path in log_files(args.logs)]  # all read before simulating
+    settings = FidelitySettings(settle=args.settle, min_window=args.min_window, rate_hz=rate)
+    report = compare(logs, vehicle=vehicle, vehicle_name=name, settings=settings)
+
+    points = report.points
+    print(f"fidelity of the simulator ({name}) against {len(logs)} log(s): "
+          f"{len(report.stretches)} stretch(es) of constant commands, {len(points)} operating point(s)")
+    header = ("throttle", "steering", "s", "v sim", "v log", "Δv", "ω sim", "ω log", "Δω",
+              "loss sim", "loss log", "Δloss", "straight")
+    lines = []
+    for row in points.itertuples():
+        loss = ("", "", "", "")
+        if row.straight_source:  # a turn
+            loss = (f"{row.loss_sim:.4f}", f"{row.loss_log:.4f}", f"{row.dloss:+.4f}", row.straight_source)
+        lines.append((f"{row.throttle:.2f}", f"{row.steering:+.3f}", f"{row.seconds:.0f}",
+                      f"{row.v_sim:.4f}", f"{row.v_log:.4f}", f"{row.dv:+.4f}",
+                      f"{row.w_sim:+.4f}", f"{row.w_log:+.4f}", f"{row.dw:+.4f}", *loss))
+    widths = [max(len(h), *(len(line[i]) for line in lines)) for i, h in enumerate(header)]
+    print("  ".join(h.rjust(w) for h, w in zip(header, widths, strict=True)))
+    for line in lines:
+        print("  ".join(c.rjust(w) for c, w in zip(line, widths, strict=True)))
+    rms_v = math.sqrt(float((points["dv"] ** 2).mean()))
+    rms_w = math.sqrt(float((points["dw"] ** 2).mean()))
+    print(f"RMS difference over operating points: speed {rms_v:.4f} m/s, yaw rate {rms_w:.4f} rad/s "
+          "(v in m/s, ω in rad/s, loss = straight-line speed at that throttle - turn speed; "
+          "straight: where the log's straight-line speed comes from)")
+    if plot is not None:
+        from activelearn.plots import fidelity_figure, save_figure
+
+        fig = fidelity_figure(points, title=f"simulator ({name}) vs {len(logs)} log(s)")
+        save_figure(fig, plot, dpi=120)
+        print(f"wrote {plot}")
+    return 0
+

@@ -1,0 +1,42 @@
+"""`activelearn identify`: the physical parameters of Nigel's single track, fitted to logs."""
+
+from __future__ import annotations
+
+import argparse
+
+from activelearn.cli.fidelity import log_files
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "identify",
+        help="fit the physical parameters of Nigel's single track to logs, beside the datasheet's",
+        description="Fit the seven physical parameters of the physics-structured model ([model] kind = "
+                    "'physics') to logs (AutoDRIVE CSV, our CSV or Parquet) by free runs of their "
+                    "recorded commands, and print them beside the datasheet's values.",
+    )
+    p.add_argument("logs", nargs="+", metavar="LOG", help="log files, or folders searched for .csv/.parquet")
+    p.add_argument("--rate-hz", type=float, default=30.0, metavar="HZ", help="the logs' rate (default 30)")
+    p.set_defaults(handler=_identify)
+
+
+def _identify(args: argparse.Namespace) -> int:
+    import math
+
+    from activelearn.errors import InputError
+    from activelearn.fidelity import read_log_file
+    from activelearn.loop.collection import control_rate_logs
+    from activelearn.numerics.models.physics import PARAMETERS, identify_from_logs
+
+    if not (math.isfinite(args.rate_hz) and args.rate_hz > 0):
+        raise InputError("--rate-hz", args.rate_hz, "must be a positive number")
+    logs = control_rate_logs([read_log_file(path) for path in log_files(args.logs)])
+    values, stderr = identify_from_logs(logs, dt=1.0 / args.rate_hz)
+    print(f"physical parameters from {len(logs)} log(s), {sum(len(u) for u, _ in logs)} steps:")
+    print(f"  {'parameter':<13}{'datasheet':>10}{'fitted':>10}{'± s.e.':>9}{'change':>9}  unit  meaning")
+    for p, value, err in zip(PARAMETERS, values, stderr, strict=True):
+        change = f"{value / p.nominal - 1:+.1%}" if p.nominal else f"{value - p.nominal:+.3f}"
+        row = f"{p.name:<13}{p.nominal:>10.4f}{value:>10.4f}{err:>9.4f}{change:>9}"
+        print(f"  {row}  {p.unit:<5} {p.meaning}")
+    return 0
+

@@ -1,0 +1,118 @@
+"""`activelearn predict`: a trained surrogate beside MuJoCo on one maneuver, with its fans."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from activelearn.cli.common import PLOT_SUFFIXES, output_path
+from activelearn.cli.maneuver_args import add_maneuver_options, driven_from_args
+
+PREDICT_RATE = 30.0  # Hz: the rate predict simulates at (MuJoCo's log and the surrogate's steps)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("predict", help="forward-simulate a trained surrogate against MuJoCo on one maneuver",
+                       description="Run the surrogate (with uncertainty fans) and MuJoCo on one maneuver: a "
+                                   "reference kind (--maneuver) or a schedule file at 30 Hz (--schedule).")
+    p.add_argument("--model", required=True, metavar="URI|PATH",
+                   help="model file (model.pt), campaign directory, or MLflow model URI (runs:/<id>/model)")
+    add_maneuver_options(p)
+    p.add_argument("--samples", type=int, default=32, metavar="S", help="sampled trajectories (default 32)")
+    p.add_argument("--seed", type=int, default=0, metavar="N", help="noise and sampling seed (default 0)")
+    p.add_argument("--out", default=None, metavar="PNG", help="write the figure here (.png, .pdf, .svg)")
+    p.add_argument("--run-id", default=None, metavar="RUN",
+                   help="also log metrics and figure to this MLflow run")
+    p.add_argument("--tracking-uri", default="sqlite:///mlruns/mlflow.db", metavar="URI",
+                   help="MLflow store for runs:/ URIs and --run-id (default sqlite:///mlruns/mlflow.db)")
+    p.set_defaults(handler=_predict)
+
+
+def _load_any_model(spec: str, tracking_uri: str):
+    from pathlib import Path
+
+    from activelearn.errors import InputError
+    from activelearn.numerics.models import load_model
+
+    path = Path(spec)
+    if path.is_dir():
+        if not (path / "model.pt").is_file():
+            raise InputError("--model", spec, "the folder holds no model.pt (a campaign directory has one "
+                                              "once a round is fitted: after `campaign run` or an ingest)")
+        path = path / "model.pt"
+    if path.is_file():
+        try:
+            return load_model(path)
+        except Exception as exc:  # a foreign or truncated file: say which
+            raise InputError("--model", spec, f"cannot read the model file: {exc}") from None
+    if "://" not in spec and not spec.startswith(("runs:/", "models:/")):
+        raise InputError("--model", spec, "no such file, directory or MLflow model URI")
+    _existing_store(tracking_uri)
+    from activelearn.studies.tracking import load_model as load_mlflow_model
+
+    return load_mlflow_model(spec, tracking_uri)
+
+
+def _existing_store(tracking_uri: str) -> None:
+    """Refuse a local SQLite MLflow store that does not exist (MLflow would create it, empty)."""
+    from activelearn.errors import InputError
+
+    if tracking_uri.startswith("sqlite:///") and not Path(tracking_uri.removeprefix("sqlite:///")).is_file():
+        raise InputError("--tracking-uri", tracking_uri,
+                         "no MLflow store there; give the store that holds the run (the command that "
+                         "logged it printed it)")
+
+
+def _predict(args: argparse.Namespace) -> int:
+
+    from activelearn.errors import InputError
+
+    maneuver = driven_from_args(args, PREDICT_RATE, fixed_rate=True)
+    if args.samples < 2:
+        raise InputError("--samples", args.samples, "must be at least 2")
+    if not 0 <= args.seed < 2**32:  # torch's manual_seed overflows past 2**64
+        raise InputError("--seed", args.seed, "must lie in [0, 2**32)")
+    out = output_path("--out", args.out, suffixes=PLOT_SUFFIXES) if args.out else None
+    if args.run_id is not None:
+        _existing_store(args.tracking_uri)
+    model = _load_any_model(args.model, args.tracking_uri)
+    tracker = None
+    if args.run_id is not None:
+        from activelearn.studies.tracking import Tracker
+
+        tracker = Tracker(args.tracking_uri)
+        tracker.run_status(args.run_id)  # fails early, naming the run, before simulating
+
+    from activelearn.loop.benchmark import against_simulator
+
+    result = against_simulator(model, [maneuver], rate_hz=PREDICT_RATE, n_samples=args.samples,
+                               seed=args.seed)
+    m = result.metrics[0]
+    rows = [("RMSE v (m/s)", m.rmse_v), ("RMSE ω (rad/s)", m.rmse_w)]
+    rows += [(f"position error at {t:g} s (m)", e) for t, e in m.position_error.items()]
+    rows += [("steps inside 95% band: v", m.coverage_v), ("steps inside 95% band: ω", m.coverage_w),
+             ("steps inside 95% band: position", m.coverage_position)]
+    width = max(len(name) for name, _ in rows)
+    print(f"{maneuver.name}: surrogate ({args.samples} samples) against MuJoCo")
+    for name, value in rows:
+        print(f"  {name:<{width}}  {value:.4f}")
+    fig = None
+    if out is not None or tracker is not None:
+        from activelearn.plots import surrogate_figure
+
+        title = f"{maneuver.name}: surrogate vs MuJoCo"
+        fig = surrogate_figure(result.rollout, 0, result.truth[0], title=title)
+    if out is not None:
+        from activelearn.plots import save_figure
+
+        save_figure(fig, out, dpi=120)
+        print(f"wrote {out}")
+    if tracker is not None:
+        metrics = {"predict_rmse_v": m.rmse_v, "predict_rmse_w": m.rmse_w, "predict_coverage_v": m.coverage_v,
+                   "predict_coverage_w": m.coverage_w, "predict_coverage_position": m.coverage_position}
+        metrics.update({f"predict_position_error_{t:g}s": e for t, e in m.position_error.items()})
+        tracker.log_metrics(args.run_id, metrics, step=0)
+        tracker.log_figure(args.run_id, fig, f"predict/{maneuver.name}.png")
+        print(f"logged to MLflow run {args.run_id}")
+    return 0
+
