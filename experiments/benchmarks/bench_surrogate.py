@@ -184,7 +184,7 @@ def main() -> None:
     if args.quick:  # one maneuver of each kind, every model kind, two epochs, one timed call
         args.maneuvers, args.train_maneuvers, args.samples, args.epochs = len(KINDS), len(KINDS), 4, 2
         args.rounds, args.repeats = 1, 1
-    seconds, sweep_seconds = (35.0, 5.0) if args.quick else (90.0, 60.0)  # maneuvers; control-box sweeps
+    length, sweep_seconds = (35.0, 5.0) if args.quick else (90.0, 60.0)  # maneuvers; control-box sweeps
     kinds = [m for m in args.models.split(",") if m]
     unknown = set(kinds) - set(MODELS)
     if unknown or "static" not in kinds:
@@ -221,7 +221,7 @@ def main() -> None:
     seeds = range(args.first_train_seed, args.first_train_seed + args.train_seeds)
     threads = os.cpu_count() or 1
 
-    train_log = simulator.collect(maneuver_set(args.train_maneuvers, seed=1, duration=seconds), seed=1)
+    train_log = simulator.collect(maneuver_set(args.train_maneuvers, seed=1, duration=length), seed=1)
     models: dict[tuple[str, int], object] = {}
     for seed in seeds:
         for name, kind, horizon, ensemble, kinematic in variants:
@@ -239,7 +239,7 @@ def main() -> None:
             print(f"free-run fan scale of {name} (seed {seed}): {scale:.2f} "
                   f"(on {len(held_out)} held-out maneuvers)")  # fmt: skip
 
-    test = maneuver_set(args.maneuvers, seed=2, duration=seconds)
+    test = maneuver_set(args.maneuvers, seed=2, duration=length)
     # Rounds of (MuJoCo, then every surrogate variant): this machine's speed drifts by a quarter
     # within minutes, so each round's ratio pairs times taken back to back. Timed: the seed-0 models.
     runs = (("static", "auto"), ("static", "reference"), *((n, "auto") for n in names if n != "static"))
@@ -272,7 +272,7 @@ def main() -> None:
 
     steps = sum(len(c) for c in controls)
     print(
-        f"\n{args.maneuvers} maneuvers x {seconds:g} s at 30 Hz ({steps} steps), {threads} threads, "
+        f"\n{args.maneuvers} maneuvers x {length:g} s at 30 Hz ({steps} steps), {threads} threads, "
         f"S = {args.samples}. {args.rounds} rounds of MuJoCo then {args.repeats} surrogate calls per "
         "variant;\na round's ratio is MuJoCo's time over the median call. 'first' is the run's first "
         "full-size call (after a small warm-up)."
