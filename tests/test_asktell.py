@@ -82,6 +82,7 @@ def proposed(tmp_path, capsys):
     return tmp_path, directory
 
 
+@pytest.mark.slow
 def test_propose_drive_ingest_propose_round_trip(proposed, capsys):
     tmp_path, directory = proposed
     proposals = pd.read_csv(directory / "proposals" / "round-000.csv")
@@ -113,6 +114,7 @@ def test_propose_drive_ingest_propose_round_trip(proposed, capsys):
     assert tracker.run_status(state.run_id) == "FINISHED"
 
 
+@pytest.mark.slow
 def test_an_ingest_interrupted_after_taking_its_logs_is_finished_with_resume(proposed, capsys):
     tmp_path, directory = proposed
     proposals = pd.read_csv(directory / "proposals" / "round-000.csv")
@@ -136,6 +138,7 @@ def test_an_ingest_interrupted_after_taking_its_logs_is_finished_with_resume(pro
     assert (directory / name).read_text() == (reference / name).read_text()
 
 
+@pytest.mark.slow
 def test_bad_logs_are_refused_and_the_directory_is_unchanged(proposed, capsys):
     tmp_path, directory = proposed
     proposals = pd.read_csv(directory / "proposals" / "round-000.csv")
@@ -179,6 +182,7 @@ def test_bad_logs_are_refused_and_the_directory_is_unchanged(proposed, capsys):
         assert _snapshot(directory) == before, name
 
 
+@pytest.mark.slow
 def test_a_logs_pool_in_the_autodrive_layout_runs_compare(tmp_path):
     root = tmp_path / "nigel"
     n = 0

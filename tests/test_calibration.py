@@ -18,6 +18,8 @@ from activelearn.numerics.models import build_model
 from activelearn.numerics.training import fit
 from activelearn.numerics.uncertainty import coverage, epistemic_diagnostic, recalibrate_epistemic, rmse
 
+pytestmark = pytest.mark.slow  # models trained to convergence on the calibration tasks
+
 STEER = syn.STEER_MAX
 TRAIN = TrainingConfig(epochs=150, batch_size=64, lr=3e-3, patience=None)
 

@@ -44,6 +44,7 @@ def tiny_config(tmp_path: Path, **overrides):
     return load_config(SMOKE, overrides=data)
 
 
+@pytest.mark.slow
 def test_smoke_campaign_logs_every_round_metric_to_sqlite(tmp_path):
     cfg = tiny_config(tmp_path)
     tracker = Tracker(cfg.tracking.uri, cfg.tracking.experiment)
@@ -109,6 +110,7 @@ def _run_cli_signalled(signal_name: str, at: tuple[str, int], args, **kwargs):
     return subprocess.Popen(command, **kwargs)
 
 
+@pytest.mark.slow
 def test_killed_campaign_resumes_to_identical_data(tmp_path):
     common = ["campaign", "run", str(SMOKE), "--no-tracking", "--seed", "3"]
     reference = _run_cli([*common, "--out", str(tmp_path / "ref")])
@@ -132,6 +134,7 @@ def test_killed_campaign_resumes_to_identical_data(tmp_path):
         assert a["test_rmse"] == b["test_rmse"] and a["test_nll"] == b["test_nll"]
 
 
+@pytest.mark.slow
 def test_ctrl_c_marks_the_run_killed_and_leaves_a_resumable_directory(tmp_path):
     uri = f"sqlite:///{tmp_path}/mlruns/mlflow.db"
     out = tmp_path / "c"
@@ -173,6 +176,7 @@ def test_bad_configs_are_rejected_naming_the_key(patch, key):
     assert key in str(info.value)
 
 
+@pytest.mark.slow
 def test_cli_rejects_a_bad_config_with_exit_code_2(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text(SMOKE.read_text().replace("initial = 3", "initial = -3"))
@@ -184,6 +188,7 @@ def test_cli_rejects_a_bad_config_with_exit_code_2(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", ["campaign run", "compare"])
 def test_an_unreachable_tracking_server_is_one_error_within_5_s_and_nothing_runs(
     tmp_path, capsys, silent_server, command
@@ -213,6 +218,7 @@ def test_campaign_run_with_params_trains_the_tuned_model(tmp_path):
     assert load_model(out / MODEL_FILE).config.arch == "D8-V4-V"
 
 
+@pytest.mark.slow
 def test_comparison_produces_its_table_and_figure(tmp_path):
     cfg = tiny_config(tmp_path)
     result = compare(cfg, ["uniform", "max_epistemic"], [0, 1], directory=tmp_path / "cmp", workers=2)

@@ -27,6 +27,8 @@ from activelearn.loop.state import CampaignState
 from activelearn.studies.tracking import Tracker
 from tests.test_asktell import _drive
 
+pytestmark = pytest.mark.slow  # processes racing for one campaign directory
+
 RACES = int(os.environ.get("ACTIVELEARN_RACES", "2"))
 OUTCOMES = os.environ.get("ACTIVELEARN_RACES_LOG")  # a file to append each race's outcome to
 

@@ -19,6 +19,8 @@ from activelearn.loop.lock import HOLDER_FILE
 from activelearn.loop.state import CampaignState
 from activelearn.studies.tracking import Tracker
 
+pytestmark = pytest.mark.slow  # a campaign for every checkpoint write that fails
+
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
 # By default the writes up to the end of the first round (config, state, samples, figure, model, the
 # state after the metrics reached MLflow): the second round repeats them. ACTIVELEARN_FAULTS=all: all.

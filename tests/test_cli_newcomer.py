@@ -346,6 +346,7 @@ def test_fidelity_legend_names_simulator_and_log(tmp_path: Path) -> None:
     assert all(ax.get_legend() is None for ax in fig.axes)
 
 
+@pytest.mark.slow
 def test_an_mlflow_model_loads_without_leaving_files_behind(tmp_path: Path, monkeypatch) -> None:
     import tempfile
 

@@ -237,6 +237,7 @@ def _dynamic_config(tmp_path: Path, **overrides):
     return load_config(SMOKE, overrides=data)
 
 
+@pytest.mark.slow
 def test_a_history_campaign_logs_free_run_metrics_every_round(tmp_path):
     cfg = _dynamic_config(tmp_path, model={"kind": "recurrent", "arch": "D16-V8-V", "hidden_size": 8})
     assert cfg.model.n_inputs == 12 and cfg.model.history_step == 2  # the data section sets the layout
@@ -251,6 +252,7 @@ def test_a_history_campaign_logs_free_run_metrics_every_round(tmp_path):
     assert "position error" in done.stdout and (tmp_path / "fan.png").stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_compare_ranks_by_the_chosen_metric(tmp_path):
     out = tmp_path / "cmp"
     args = ["compare", str(SMOKE), "--strategies", "uniform,random", "--seeds", "1", "--workers", "1",
@@ -270,6 +272,7 @@ def test_compare_ranks_by_the_chosen_metric(tmp_path):
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "--metric" in bad.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("section", "patch", "field"),
     [
@@ -298,6 +301,7 @@ def test_bad_dynamics_settings_are_one_line_and_exit_2(tmp_path, section, patch,
     assert not (tmp_path / "never").exists()
 
 
+@pytest.mark.slow
 def test_warm_started_rounds_start_from_the_last_model_and_resume_exactly(tmp_path):
     cfg = tmp_path / "warm.toml"
     warm = "[training]\nwarm_start = true\nwarm_epochs = 10\n"
@@ -324,6 +328,7 @@ def test_warm_started_rounds_start_from_the_last_model_and_resume_exactly(tmp_pa
     assert not np.allclose(fresh.predict(x, n_samples=8).mean, final.predict(x, n_samples=8).mean)
 
 
+@pytest.mark.slow
 def test_tune_searches_the_recurrent_trunk_width(tmp_path, slalom_log):
     import optuna
 
@@ -373,6 +378,7 @@ def test_a_residual_models_free_run_adds_the_base_mean(history_models, slalom_lo
     assert np.abs(rollout.mean_rates[0]).max() > 0
 
 
+@pytest.mark.slow
 def test_prequential_fan_calibration_widens_each_rounds_fans_by_the_measured_need(tmp_path):
     cfg = _dynamic_config(tmp_path, design={"initial": 2, "per_round": 1, "max_maneuvers": 5,
                                             "fan_calibration": "prequential"})  # fmt: skip

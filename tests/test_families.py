@@ -375,6 +375,7 @@ def test_propose_writes_parameters_and_schedules_and_ingest_matches_simulated_lo
 # --------------------------------------------------------------------------------------------- campaign
 
 
+@pytest.mark.slow
 def test_a_tiny_family_campaign_runs_with_uniform_and_max_epistemic(tmp_path, capsys):
     config = _config(tmp_path, text=SMOKE.read_text().replace("max_maneuvers = 7", "max_maneuvers = 5"))
     names = {m.name for m in pool_maneuvers(load_config(config).pool)}

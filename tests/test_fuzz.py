@@ -251,6 +251,7 @@ def _cli_rejects(args: list[str], root: Path, capsys: pytest.CaptureFixture[str]
 # ------------------------------------------------------------------------------------------- configs
 
 
+@pytest.mark.slow
 @given(config=configs())
 @settings(max_examples=_examples(4))
 def test_a_fuzzed_config_validates_or_is_one_config_error(config):
@@ -264,6 +265,7 @@ def test_a_fuzzed_config_validates_or_is_one_config_error(config):
     assert isinstance(cfg, CampaignConfig)
 
 
+@pytest.mark.slow
 @given(config=configs(), command=st.sampled_from(["campaign", "compare", "tune"]))
 @settings(max_examples=_examples(3), suppress_health_check=[HealthCheck.function_scoped_fixture])
 def test_a_fuzzed_config_file_loads_or_the_cli_exits_2_writing_nothing(config, command, capsys):
@@ -415,12 +417,14 @@ def _check_log(data: bytes, capsys: pytest.CaptureFixture[str]) -> None:
             _cli_rejects(args, root, capsys)
 
 
+@pytest.mark.slow
 @given(data=st.data())
 @settings(max_examples=_examples(3), suppress_health_check=[HealthCheck.function_scoped_fixture])
 def test_a_mutated_autodrive_log_loads_or_the_cli_exits_2_writing_nothing(real_log, data, capsys):
     _check_log(data.draw(mutated_logs(real_log)), capsys)
 
 
+@pytest.mark.slow
 @given(data=st.data())
 @settings(max_examples=_examples(2), suppress_health_check=[HealthCheck.function_scoped_fixture])
 def test_a_mutated_csv_with_header_loads_or_the_cli_exits_2_writing_nothing(our_csv, data, capsys):

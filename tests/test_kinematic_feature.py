@@ -97,6 +97,7 @@ def test_markov_training_with_windows_uses_the_feature():
     assert not np.allclose(fitted[False], fitted[True])
 
 
+@pytest.mark.slow
 def test_a_dynamic_campaign_trains_scores_and_rolls_out_with_the_feature(tmp_path):
     cfg = _dynamic_config(tmp_path, model={"kinematic_feature": True})
     result = Campaign(cfg, tmp_path / "c").run(figures=False)

@@ -277,6 +277,7 @@ def test_markov_state_inputs():
     assert m.draw(3)(np.zeros((3, 7, 4)))[0].shape == (3, 7, 2)
 
 
+@pytest.mark.slow
 def test_mlflow_pytorch_round_trip(trained, data, tmp_path, monkeypatch):
     """The module logs and loads through mlflow.pytorch with a real SQLite store (pickle format)."""
     mlflow_pytorch = pytest.importorskip("mlflow.pytorch")

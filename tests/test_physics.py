@@ -102,6 +102,7 @@ def test_identification_recovers_the_parameters_of_its_own_structure():
     assert np.all(stderr < 0.05 * np.maximum(truth, 0.1))
 
 
+@pytest.mark.slow
 def test_identification_on_the_twin_recovers_its_weaker_motor_and_grip():
     """The twin's change (weaker motor, less grip) is found within 10 % of the change MuJoCo shows."""
     maneuvers = [Maneuver("straight", t, 0.0, "ccw", 10.0) for t in (0.3, 0.6, 0.9, -0.5)]
@@ -132,6 +133,7 @@ def test_identification_on_the_twin_recovers_its_weaker_motor_and_grip():
     assert abs(found - change) <= 0.1 * abs(change), (found, change)
 
 
+@pytest.mark.slow
 def test_trained_forward_only_it_never_leaves_physics(forward_model: PhysicsModel):
     """Every draw of every 60-s free run over the control box stays finite and within 1.5x Nigel's limits."""
     draws = forward_model.n_members or 32  # an ensemble's S = K draws are all its members
@@ -194,6 +196,7 @@ def test_identify_command_prints_the_fit_beside_the_datasheet(tmp_path, capsys):
     assert "LOG" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_campaign_scores_along_paths_with_it_and_predict_draws_its_fans(tmp_path):
     """Wherever a model kind works: a campaign (max_epistemic along the free runs), its saved model in
     `predict`, and the identified parameters carried along."""
@@ -264,6 +267,7 @@ def test_free_runs_of_a_control_correction_agree_between_the_kernel_and_torch():
         np.testing.assert_allclose(getattr(kernel, name), getattr(torch_runs, name), atol=2e-5, err_msg=name)
 
 
+@pytest.mark.slow
 def test_free_runs_computed_whole_are_the_step_loops(monkeypatch):
     """Without noise, the whole-run path and the generic step loop through `columns_forward` give the
     same free runs: the shortcut is exact, not an approximation."""

@@ -27,6 +27,8 @@ from activelearn.loop.state import SAMPLES_FILE, CampaignState
 from activelearn.studies.compare import compare
 from tests.conftest import skip_or_fail, smoke_file
 
+pytestmark = pytest.mark.slow  # a local Ray cluster in every test
+
 try:
     import ray  # noqa: F401
 except ImportError:  # skipped on a developer machine without Ray; in CI (`CI` set) the module fails

@@ -94,6 +94,7 @@ def test_bad_safety_values_name_their_field(safety, field, words):
     assert str(info.value).startswith(field) and words in str(info.value)
 
 
+@pytest.mark.slow
 def test_bad_arena_on_the_command_line_is_one_line_exit_2_nothing_written(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text(SMOKE.read_text() + '\n[safety]\narena = [[0, 0], [1, 1], [1, 0], [0, 1]]\n')
@@ -301,6 +302,7 @@ def test_fans_place_the_path_where_the_car_logs_it(tmp_path):
 # ------------------------------------------------------------------------------------- campaigns
 
 
+@pytest.mark.slow
 def test_safe_campaign_drives_admissible_cuts_and_logs_safety(tmp_path):
     cfg = safe_config(tmp_path)
     tracker = Tracker(cfg.tracking.uri, cfg.tracking.experiment)
@@ -394,6 +396,7 @@ def test_unconstrained_campaign_counts_its_violations(tmp_path):
     assert set(result.state.violated.values()) <= {"", "arena", "speed", "yaw_rate", "lateral"}
 
 
+@pytest.mark.slow
 def test_nothing_admissible_stops_cleanly_and_resumes_with_a_relaxed_arena(tmp_path):
     out = tmp_path / "c"
     tight = tmp_path / "tight.toml"
@@ -421,6 +424,7 @@ def test_nothing_admissible_stops_cleanly_and_resumes_with_a_relaxed_arena(tmp_p
     assert (tmp_path / "p.png").stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_plot_needs_an_arena(tmp_path):
     done = _cli("campaign", "propose", str(SMOKE), "--no-tracking", "--out", str(tmp_path / "o"),
                 "--plot", str(tmp_path / "p.png"))  # fmt: skip

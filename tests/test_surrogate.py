@@ -55,6 +55,7 @@ def _circle_radius(x: np.ndarray, y: np.ndarray) -> float:
     return float(np.sqrt(c[2] + (c[0] / 2) ** 2 + (c[1] / 2) ** 2))
 
 
+@pytest.mark.slow
 def test_skidpad_circle_radius_within_ten_percent(skidpad_model):
     result = against_simulator(skidpad_model, [Maneuver("skidpad", 0.6, 0.3, "ccw", 30.0)], n_samples=32)
     truth = result.truth[0].iloc[60:]
@@ -87,6 +88,7 @@ def test_bands_widen_far_outside_the_training_range(skidpad_model):
         assert epistemic_std[1, i] > 3.0 * epistemic_std[0, i], (name, epistemic_std[:, i])
 
 
+@pytest.mark.slow
 def test_markov_variant_tracks_a_throttle_step_better_than_the_static_map():
     maneuvers = [Maneuver("straight", t, 0.0, "ccw", 3.0) for t in (0.2, 0.35, 0.5, 0.65, 0.8, 0.95, 1.0)]
     maneuvers += [Maneuver("skidpad", t, 0.3, "ccw", 3.0) for t in (0.25, 0.55, 0.85)]
@@ -146,6 +148,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow
 def test_predict_cli_bad_input_is_one_line_and_exit_2(tmp_path, skidpad_model):
     path = tmp_path / "model.pt"
     save_model(skidpad_model, path)
@@ -163,6 +166,7 @@ def test_predict_cli_bad_input_is_one_line_and_exit_2(tmp_path, skidpad_model):
         assert field in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
 
 
+@pytest.mark.slow
 def test_predict_cli_prints_metrics_and_writes_the_figure(tmp_path, skidpad_model):
     path = tmp_path / "model.pt"
     save_model(skidpad_model, path)

@@ -22,6 +22,8 @@ import pytest
 from activelearn.loop.campaign import CampaignState
 from activelearn.studies.tracking import Tracker
 
+pytestmark = pytest.mark.slow  # an MLflow server killed and restarted mid-campaign
+
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
 
 # The real CLI; when its campaign reports an event named in argv (every event passes the CLI's notice

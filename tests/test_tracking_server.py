@@ -22,6 +22,8 @@ from mlflow.tracking import MlflowClient
 from activelearn.config import load_config
 from activelearn.studies.compare import compare
 
+pytestmark = pytest.mark.slow  # an MLflow server on PostgreSQL
+
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
 
 

@@ -172,6 +172,7 @@ def test_ensemble_members_train_independently(data):
     assert m.predict(x[:10]).epistemic_var.min() > 0
 
 
+@pytest.mark.slow
 def test_compiled_step_computes_what_the_eager_step_computes(data):
     """The fused, compiled training step matches torch.optim's update (a deterministic PNN)."""
     x, y, _ = data
@@ -189,6 +190,7 @@ def test_compiled_step_computes_what_the_eager_step_computes(data):
     assert not torch.equal(weights[0], flat_weights(build_model(ModelConfig(kind="pnn", arch="D8-D"))))
 
 
+@pytest.mark.slow
 def test_compiled_hybrid_training_is_reproducible(data):
     """The compiled path draws its training noise from the seeded RNG too: same seed, same weights."""
     x, y, _ = data

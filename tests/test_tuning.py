@@ -180,6 +180,7 @@ def _parent_id(text: str) -> str:
     return text.split("MLflow parent run ")[1].split()[0]
 
 
+@pytest.mark.slow
 def test_sqlite_study_logs_nested_runs_and_resumes(tmp_path, data_file, mlflow_uri, capsys):
     config = write_config(tmp_path, mlflow_uri)
     storage = sqlite_url(tmp_path)
@@ -241,6 +242,7 @@ def test_sqlite_study_logs_nested_runs_and_resumes(tmp_path, data_file, mlflow_u
     assert len(study_trials(storage, "s1")) == 6
 
 
+@pytest.mark.slow
 def test_best_params_round_trip_into_campaign_config(tmp_path, data_file, mlflow_uri):
     config = write_config(tmp_path, mlflow_uri)
     cfg = load_config(config)
@@ -280,6 +282,7 @@ variational = false
 """
 
 
+@pytest.mark.slow
 def test_pruning_stops_a_clearly_worse_trial(tmp_path, data_file, mlflow_uri):
     cfg = load_config(write_config(tmp_path, mlflow_uri, PRUNING_SPACE))
     # Two good trials complete first; then a learning rate far too small to learn in 25 epochs.
@@ -295,6 +298,7 @@ def test_pruning_stops_a_clearly_worse_trial(tmp_path, data_file, mlflow_uri):
     assert len(tracker.metric_history(pruned[0].info.run_id, "val_nll")) == trials[2]["last_step"] + 1
 
 
+@pytest.mark.slow
 def test_hyperband_prunes_at_its_rungs(tmp_path, data_file, mlflow_uri):
     cfg = load_config(write_config(tmp_path, mlflow_uri, PRUNING_SPACE))
     storage = sqlite_url(tmp_path)
@@ -312,6 +316,7 @@ def test_hyperband_prunes_at_its_rungs(tmp_path, data_file, mlflow_uri):
     assert pruned and all(t.last_step in rungs for t in pruned)
 
 
+@pytest.mark.slow
 def test_same_seed_and_storage_state_give_the_same_suggestions(tmp_path, data_file, mlflow_uri):
     cfg = load_config(write_config(tmp_path, mlflow_uri, TINY_SPACE.replace("high = 8", "high = 4")))
 
@@ -325,6 +330,7 @@ def test_same_seed_and_storage_state_give_the_same_suggestions(tmp_path, data_fi
     assert params("c", 8) != first
 
 
+@pytest.mark.slow
 def test_two_workers_on_sqlite_finish_exactly_the_requested_trials(tmp_path, data_file, mlflow_uri):
     cfg = load_config(write_config(tmp_path, mlflow_uri))
     storage = sqlite_url(tmp_path)
@@ -361,6 +367,7 @@ def test_postgres_study_with_two_workers_records_every_trial_once(
     assert result.storage.count("***") == 1 and "***" not in postgres_url  # password never shown
 
 
+@pytest.mark.slow
 def test_multi_objective_study_does_not_prune(tmp_path, data_file, mlflow_uri, capsys):
     config = write_config(tmp_path, mlflow_uri, TINY_SPACE + 'loss = ["nll", "mse"]\n')
     storage = sqlite_url(tmp_path)
@@ -389,6 +396,7 @@ def _dominates(a: list[float], b: list[float]) -> bool:
     return all(x <= y for x, y in zip(a, b, strict=True)) and a != b
 
 
+@pytest.mark.slow
 def test_timeout_stops_starting_trials(tmp_path, data_file, mlflow_uri):
     cfg = load_config(write_config(tmp_path, mlflow_uri))
     started = time.perf_counter()
@@ -460,6 +468,7 @@ def _running_trial(storage: str, name: str, deadline: float) -> dict:
     raise AssertionError("no trial started in time")
 
 
+@pytest.mark.slow
 def test_a_worker_killed_mid_trial_costs_no_trial(tmp_path, data_file, mlflow_uri):
     config = write_config(tmp_path, mlflow_uri, SLOW_SPACE)
     storage = sqlite_url(tmp_path)
@@ -541,6 +550,7 @@ def _add_running_trial(storage: optuna.storages.RDBStorage, study: optuna.Study,
     return storage.create_new_trial(study._study_id, template_trial=template)
 
 
+@pytest.mark.slow
 def test_a_lost_trial_is_retried_at_most_retry_lost_times(tmp_path):
     tuning = TuningConfig(heartbeat_interval=1, grace_period=2, retry_lost=1)
     storage = open_storage(sqlite_url(tmp_path), tuning)
@@ -574,6 +584,7 @@ def test_trials_silent_since_they_started_are_failed_once_old_enough(tmp_path):
     assert [t.system_attrs["failed_trial"] for t in retries] == [storage.get_trial(silent).number]
 
 
+@pytest.mark.slow
 def test_the_next_command_fails_a_trial_lost_before_its_first_heartbeat(tmp_path, data_file, mlflow_uri):
     cfg = load_config(write_config(tmp_path, mlflow_uri, HEARTBEAT_SPACE))
     storage = sqlite_url(tmp_path)
@@ -591,6 +602,7 @@ def test_the_next_command_fails_a_trial_lost_before_its_first_heartbeat(tmp_path
     assert len(warnings) == 1 and f"trial {lost['number']} " in warnings[0]
 
 
+@pytest.mark.slow
 def test_a_trial_whose_machine_died_is_retried_by_the_next_worker(tmp_path, data_file, mlflow_uri):
     # A whole `tune` command killed (its machine lost): no supervisor sees it, Optuna's heartbeat does.
     config = write_config(tmp_path, mlflow_uri, SLOW_SPACE)
@@ -615,6 +627,7 @@ def test_a_trial_whose_machine_died_is_retried_by_the_next_worker(tmp_path, data
     assert retry["user_attrs"]["model"] == lost["user_attrs"]["model"]
 
 
+@pytest.mark.slow
 def test_unreachable_tracking_server_fails_fast_and_creates_nothing(
     tmp_path, data_file, capsys, silent_server
 ):
@@ -628,6 +641,7 @@ def test_unreachable_tracking_server_fails_fast_and_creates_nothing(
     assert not (tmp_path / "optuna.db").exists()
 
 
+@pytest.mark.slow
 def test_unreachable_storage_fails_fast_and_creates_nothing(tmp_path, data_file, capsys, silent_server):
     mlflow_db = tmp_path / "mlflow.db"
     config = write_config(tmp_path, f"sqlite:///{mlflow_db}")
@@ -703,6 +717,7 @@ def load_config_text(text: str):
         return load_config(path)
 
 
+@pytest.mark.slow
 def test_a_physics_study_identifies_each_trial_on_the_training_maneuvers_whole_logs(tmp_path, mlflow_uri):
     """Tuning a physics-structured model: its parameters come from the free runs of the training
     split's whole logs (never a held-out maneuver's), as a campaign's do, not from strided rows."""

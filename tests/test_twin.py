@@ -38,6 +38,7 @@ def _twin_toml(tmp_path: Path, overrides: str) -> Path:
     return path
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("overrides", "field", "reason", "cli"),
     [
@@ -113,6 +114,7 @@ def test_latency_delays_the_response_by_about_the_latency():
     assert _steady(late, "speed", after=1.0) == pytest.approx(_steady(nominal, "speed", after=1.0), rel=1e-3)
 
 
+@pytest.mark.slow
 def test_twin_logs_have_their_own_cache_and_a_tiny_campaign_records_the_overrides(tmp_path):
     overrides = {"tire_friction": 0.6, "motor_gain": 0.8, "latency": 0.05}
     data = {

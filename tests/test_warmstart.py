@@ -73,6 +73,7 @@ def test_prior_rows_train_every_round_but_count_against_no_budget(tmp_path):
     assert result.state.stop_reason == "max_maneuvers"
 
 
+@pytest.mark.slow
 def test_a_killed_warm_campaign_resumes_with_its_prior(tmp_path):
     cfg = warm_config(tmp_path)
     reference = Campaign(cfg, tmp_path / "ref").run(figures=False, log_model=False)
@@ -87,6 +88,7 @@ def test_a_killed_warm_campaign_resumes_with_its_prior(tmp_path):
     )
 
 
+@pytest.mark.slow
 def test_a_prior_campaign_directory_and_table_feed_a_new_campaign(tmp_path):
     earlier = Campaign(warm_config(tmp_path), tmp_path / "earlier").run(figures=False, log_model=False)
     table = tmp_path / "known.parquet"
@@ -312,6 +314,7 @@ def test_auto_decides_from_the_warm_start_and_is_deterministic(pool_cfg, forward
     assert auto.decide(dataclasses.replace(cold, context={"dynamic_paths": 1.0})) == "uniform"
 
 
+@pytest.mark.slow
 def test_auto_campaigns_are_deterministic_for_a_seed(tmp_path):
     cfg = warm_config(tmp_path, strategy="auto")
     a = Campaign(cfg, tmp_path / "a").run(figures=False, log_model=False)
