@@ -19,7 +19,7 @@ BENCHMARKS = Path(__file__).resolve().parents[1] / "experiments" / "benchmarks"
 EXPECTED = {
     "bench_simulator": ("ratio collect / raw", False),
     "bench_models": ("## 4. Accuracy and epistemic calibration", False),
-    "bench_physics": ("", False),
+    "bench_physics": ("gated / physics per seed (paired)", False),
     "bench_surrogate": ("speed against MuJoCo", False),
     "bench_tuning": ("ratio 2 workers / 1 worker", True),
     "bench_warm_start": ("the rule for a default", True),

@@ -18,7 +18,7 @@ paired ratio physics / black box per seed.
 
 Usage: python experiments/benchmarks/bench_physics.py [--seeds 5] [--train-maneuvers 40]
        [--oracles nominal,twin] [--epochs 150] [--quick]
-`--quick` (what the test runs): 2 seeds, 4 training maneuvers, 3 epochs, 4 test maneuvers.
+`--quick` (what the test runs): 1 seed, 4 training maneuvers, 3 epochs, 4 test maneuvers.
 """
 
 from __future__ import annotations
@@ -110,7 +110,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="a few seconds per oracle: checks it runs")
     args = parser.parse_args()
     if args.quick:
-        args.seeds, args.train_maneuvers, args.epochs, args.test_maneuvers = 2, 4, 3, 4
+        args.seeds, args.train_maneuvers, args.epochs, args.test_maneuvers = 1, 4, 3, 4
     oracles = [o for o in args.oracles.split(",") if o]
     if set(oracles) - {"nominal", "twin"} or not oracles:
         parser.error("--oracles: nominal and/or twin")
