@@ -91,16 +91,16 @@ class Fitting:
         frames = [part for _, part in samples.groupby("pool_index", sort=False)]
         return training_windows(frames, self.cfg.data, horizon)
 
-    def identification_logs(self, samples: pd.DataFrame) -> list[tuple[np.ndarray, np.ndarray]] | None:
-        """Each training log's (controls, rates) for a physics-structured model to identify itself on."""
+    def identification_logs(
+        self, samples: pd.DataFrame
+    ) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[Any]] | None:
+        """Each training log's (controls, rates) for a physics-structured model to identify itself on,
+        and its maneuver id (`pool_index`, as in the training rows' groups; the correction gate holds
+        maneuvers out by it). None for other kinds."""
         if self.cfg.model.kind != "physics":
             return None
-        samples = self.with_prior(samples)
-        return control_rate_logs([part for _, part in samples.groupby("pool_index", sort=False)])
-
-    def log_groups(self, samples: pd.DataFrame) -> list[Any]:
-        """The maneuver id (`pool_index`, as in the training rows' groups) of each identification log."""
-        return list(self.with_prior(samples).groupby("pool_index", sort=False).groups)
+        parts = self.with_prior(samples).groupby("pool_index", sort=False)
+        return control_rate_logs([part for _, part in parts]), list(parts.groups)
 
     # ------------------------------------------------------------------ models
 
@@ -143,8 +143,7 @@ class Fitting:
         """
         x, y, groups = self.training_data(samples)
         windows = self.training_windows(samples)
-        logs = self.identification_logs(samples)
-        log_groups = self.log_groups(samples) if logs is not None else None
+        logs, log_groups = self.identification_logs(samples) or (None, None)
         seed = self.cfg.seed * 10_007 + round_index
         base = self.prior_model()
         use = self.cfg.design.prior.use if self.cfg.design.prior is not None else "data"

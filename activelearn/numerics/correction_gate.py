@@ -27,7 +27,7 @@ HELD_OUT_SHARE = 0.25  # of the training maneuvers, at least one
 GATE_SAMPLES = 32  # posterior draws of the held-out free runs
 
 Log = tuple[np.ndarray, np.ndarray]  # (controls (T, 2), rates (T, 2)) at the log rate
-# Trains a probe on the rows whose mask is given, with these logs and windows; returns the probe.
+# Trains the probe on the rows whose mask is given, with these logs and windows; returns it. Called once.
 ProbeTrainer = Callable[[np.ndarray, list[Log], Windows | None], torch.nn.Module]
 
 

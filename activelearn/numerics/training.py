@@ -334,15 +334,15 @@ def fit(
             or (config.compile == "auto" and steps_per_epoch * config.epochs >= AUTO_COMPILE_STEPS)
         )
     )
-    gated = hasattr(model, "correction_weight")
-    if gated:
+    has_gate = hasattr(model, "correction_weight")
+    if has_gate:
         with torch.no_grad():
             model.correction_weight.fill_(1.0)  # trained with its whole correction
-    gate = gated and model.config.correction_gate and groups is not None and logs and log_groups is not None
-    before = copy.deepcopy(model) if gate else None
+    gate = has_gate and model.config.correction_gate and groups is not None and bool(logs)
+    gate = gate and log_groups is not None
+    probe = copy.deepcopy(model) if gate else None  # as it starts training: the probe starts there too
 
     def train_probe(rows: np.ndarray, probe_logs: list, probe_windows: Windows | None) -> Model:
-        probe = copy.deepcopy(before)
         fit(probe, x[rows], y[rows], config, x_val=x_val, y_val=y_val, groups=groups[rows],  # type: ignore[index]
             groups_val=groups_val, seed=seed, keep_scalers=keep_scalers, windows=probe_windows,
             logs=probe_logs)  # fmt: skip
