@@ -6,8 +6,9 @@
 The page is read off the models themselves (`CampaignConfig.model_fields`, recursively), so it needs
 no list of sections and keeps working however `activelearn.config` is laid out inside: key, type,
 default, the constraints pydantic enforces from the type (`Field(ge=...)` and the like) and
-`Field(description=...)` where a field has one. Checks written as validators (cross-field rules)
-are not visible here; the section's docstring and the error messages say them.
+`Field(description=...)`, which every field has (tests/test_docs.py checks). Checks written as
+validators (cross-field rules) are not visible here; the section's docstring and the error messages
+say them.
 """
 
 from __future__ import annotations
@@ -40,9 +41,8 @@ every value is checked before anything runs (one red line naming the key, exit c
 over the config.
 
 Columns: the key, its type (`a | b` for a choice), the default (*required* where there is none), the
-constraints the type enforces, and the field's description where the model gives one. Rules that
-involve several keys (a grid *or* a range, a budget must be given, ...) are in each section's
-introduction and in the error messages.
+constraints the type enforces, and what the field does. Rules that involve several keys (a grid *or*
+a range, a budget must be given, ...) are in each section's introduction and in the error messages.
 """
 
 
@@ -152,7 +152,18 @@ def _toml(value: Any) -> str:
 
 
 def _cell(text: str) -> str:
+    """Text for one table cell: on one line, its pipes escaped so they do not split the cell."""
     return " ".join(text.replace("|", "\\|").split()) if text else ""
+
+
+def config_models(model: type[BaseModel] = CampaignConfig) -> list[type[BaseModel]]:
+    """`model` and every config model its fields hold, recursively, in page order (each once)."""
+    found = [model]
+    for field in model.model_fields.values():
+        section = _is_section(field.annotation)
+        if section is not None:
+            found += [m for m in config_models(section) if m not in found]
+    return found
 
 
 def _rows(model: type[BaseModel], path: str) -> tuple[list[str], list[tuple[str, type[BaseModel]]]]:
@@ -164,7 +175,8 @@ def _rows(model: type[BaseModel], path: str) -> tuple[list[str], list[tuple[str,
             sections.append((key, section))
             optional = field.default is None
             link = f"[`[{key}]`](#{_anchor(key)})"
-            rows.append(f"| `{name}` | section {link} | {'absent' if optional else 'see its table'} | | |")
+            default = "absent" if optional else "see its table"
+            rows.append(f"| `{name}` | section {link} | {default} | | {_cell(field.description or '')} |")
             continue
         text, words = _type(field.annotation)
         words += _constraint_words(field.metadata)

@@ -30,26 +30,63 @@ from activelearn.names import STRATEGY_NAMES
 class CampaignConfig(_Section):
     """A whole campaign: pool, simulation, data, design, acquisition, model, training, test set, tracking."""
 
-    name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")] = "campaign"
-    seed: Seed = 0
-    strategy: str = "max_epistemic"
-    output_dir: str = "runs"
-    pool: PoolConfig = PoolConfig()
-    simulation: SimulationConfig = SimulationConfig()
-    data: DataConfig = DataConfig()
-    design: DesignConfig = DesignConfig()
-    acquisition: AcquisitionConfig = AcquisitionConfig()
-    model: ModelConfig = ModelConfig()
-    training: TrainingConfig = TrainingConfig()
-    test: TestSetConfig = TestSetConfig()
-    target: TargetConfig = TargetConfig()
-    oracle: OracleConfig = OracleConfig()
-    tracking: TrackingConfig = TrackingConfig()
-    # [safety] (issue 23): the arena and limits of a track day; None = no walls.
-    safety: SafetyConfig | None = None
+    name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")] = Field(
+        "campaign",
+        description="Name of the campaign: its folder under `output_dir` and the name of its MLflow runs and "
+        "tuning studies; `load_config` defaults it to the TOML file's stem",
+    )
+    seed: Seed = Field(
+        0,
+        description="Campaign seed (`--seed` overrides): seeds the initial design, the oracle's sensor "
+        "noise, the fits and the strategies' draws; the run folder is `seed<N>`",
+    )
+    strategy: str = Field(
+        "max_epistemic",
+        description="Acquisition strategy that picks each round's maneuvers (`--strategy` overrides), "
+        "e.g. `uniform`, `max_epistemic`, `bald`, `integrated_variance`, `auto`",
+    )
+    output_dir: str = Field(
+        "runs",
+        description="Root folder of the outputs: campaigns in `<output_dir>/<name>/<strategy>/seed<N>`, "
+        "comparisons, tuning results and the simulation cache (`<output_dir>/cache`)",
+    )
+    pool: PoolConfig = Field(PoolConfig(), description="The candidate maneuvers strategies choose from")
+    simulation: SimulationConfig = Field(
+        SimulationConfig(), description="How maneuvers are simulated and logged (rate, threads, sensor noise)"
+    )
+    data: DataConfig = Field(
+        DataConfig(), description="Which logged rows become training samples and what the model reads"
+    )
+    design: DesignConfig = Field(
+        DesignConfig(), description="Warm start, initial design, batch size, budget and stop rule"
+    )
+    acquisition: AcquisitionConfig = Field(
+        AcquisitionConfig(), description="How uncertainty strategies score and batch candidates"
+    )
+    model: ModelConfig = Field(ModelConfig(), description="The surrogate model: kind, architecture, priors")
+    training: TrainingConfig = Field(TrainingConfig(), description="How each round's model is trained")
+    test: TestSetConfig = Field(
+        TestSetConfig(), description="The fixed test set every round is measured on, and the ranking metric"
+    )
+    target: TargetConfig = Field(
+        TargetConfig(), description="Where the model must be good: the region target-aware scores integrate"
+    )
+    oracle: OracleConfig = Field(
+        OracleConfig(), description="Who answers the proposed maneuvers: simulator, twin, person or logs"
+    )
+    tracking: TrackingConfig = Field(TrackingConfig(), description="Where MLflow records runs")
+    safety: SafetyConfig | None = Field(
+        None,
+        description="The arena, the car's limits and the risk a proposal may carry on a track day; "
+        "absent: no walls and no limits",
+    )
     # [tuning] (issue 5) is read by `activelearn tune` only; excluded from dumps, so campaign hashes,
     # logged params and the configs sent to workers do not depend on it.
-    tuning: TuningConfig = Field(default_factory=lambda: TuningConfig(), exclude=True)
+    tuning: TuningConfig = Field(
+        default_factory=lambda: TuningConfig(),
+        exclude=True,
+        description="What `activelearn tune` searches and how; read by it only, left out of config dumps",
+    )
 
     @field_validator("strategy")
     @classmethod

@@ -16,53 +16,91 @@ Activation = Literal[ACTIVATIONS]  # type: ignore[valid-type]
 class ModelConfig(_Section):
     """Which network to build and how its Bayesian layers are parameterised."""
 
-    kind: ModelKind = "hybrid"
-    # Spec string (e.g. "V8-D32-D32-D8-V") or a preset name from ARCH_PRESETS. Baselines reuse the
-    # widths: pbnn/bnn turn every layer variational, pnn/dnn/ensemble turn every layer dense.
-    arch: str = "default"
-    # Activation of tokens that do not name their own.
-    activation: Activation = "relu"
-    posterior: Literal["mean_field", "full_cov"] = "mean_field"
-    kl: Literal["exact", "mc"] = "exact"
+    kind: ModelKind = Field(
+        "hybrid",
+        description="Model kind: `hybrid` (layers as `arch` says), `pbnn`/`bnn` (all variational), "
+        "`pnn`/`dnn` (all dense), `ensemble` (of pnns), `recurrent` (GRU trunk), `physics` (single track "
+        "plus a correction)",
+    )
+    # Baselines reuse the widths: pbnn/bnn turn every layer variational, pnn/dnn/ensemble every layer dense.
+    arch: str = Field(
+        "default",
+        description="Layer spec, e.g. `V8-D32-D32-D8-V` (V variational, D dense, width, optional "
+        "`:activation`; the last token is the head), or a preset name (`default`, `reference`)",
+    )
+    activation: Activation = Field("relu", description="Activation of the `arch` tokens that name none")
+    posterior: Literal["mean_field", "full_cov"] = Field(
+        "mean_field",
+        description="Gaussian posterior of each variational layer: independent weights (`mean_field`) "
+        "or a full covariance over the layer's weights (`full_cov`, cost O(p²) in its parameter count)",
+    )
+    kl: Literal["exact", "mc"] = Field(
+        "exact", description="KL term of the ELBO: closed form (`exact`) or Monte Carlo (`mc`)"
+    )
     kl_samples: int = Field(1, description="weight draws per step for the Monte Carlo KL")
-    prior_scale: float = 1.0
-    prior_trainable: bool = False
-    # Initial posterior std of every variational weight (weight units, inputs are standardised).
-    posterior_init_std: float = 0.01
-    ensemble_size: int = 5
-    # Floor of the Gaussian head's std, in standardised output units.
-    min_std: float = 1e-3
-    n_inputs: int = 2
-    n_outputs: int = 2
-    # Log steps between the lagged inputs of a dynamic model (`activelearn.numerics.lags`); a campaign
-    # sets it from [data] history_step. The forward simulation reads it from the saved model.
-    history_step: int = 1
-    # Metres the logged position lies ahead of the rear axle; free runs place their paths there
-    # (`activelearn.numerics.surrogate`). A campaign sets it from [data] pose_lever_arm.
-    pose_lever_arm: Annotated[float, Field(ge=-1.0, le=1.0)] = POSE_LEVER_ARM
-    # Width of the recurrent model's GRU trunk (kind = "recurrent"): it reads the history window as a
-    # sequence of (controls, rates) tokens, oldest first; the layers of `arch` form its head.
-    hidden_size: int = 32
-    # Also feed the network the kinematic yaw-rate proxy, a speed times tan(steering): throttle ×
-    # tan(steering) for a static map, the newest past speed × tan(current steering) for a dynamic one.
+    prior_scale: float = Field(
+        1.0, description="Std s of the N(0, s²) prior of every variational weight (standardised units)"
+    )
+    prior_trainable: bool = Field(
+        False, description="Learn the prior's std s along with the weights; false keeps `prior_scale`"
+    )
+    posterior_init_std: float = Field(
+        0.01,
+        description="Initial posterior std of every variational weight (weight units; inputs are "
+        "standardised)",
+    )
+    ensemble_size: int = Field(
+        5, description="Members of kind = 'ensemble' (and of the physics kind's ensemble correction)"
+    )
+    min_std: float = Field(1e-3, description="Floor of the Gaussian head's std, in standardised output units")
+    n_inputs: int = Field(
+        2,
+        description="Inputs the model reads: 2 for [data] inputs = 'controls', 4 for 'controls+rates'; "
+        "a campaign sets it to 4 × history for 'history'",
+    )
+    n_outputs: int = Field(
+        2, description="Outputs the model predicts: forward speed v (m/s) and yaw rate ω (rad/s)"
+    )
+    history_step: int = Field(
+        1,
+        description="Log steps between the lagged inputs of a dynamic model (`activelearn.numerics.lags`); "
+        "a campaign sets it from [data] history_step and the saved model carries it to free runs",
+    )
+    pose_lever_arm: Annotated[float, Field(ge=-1.0, le=1.0)] = Field(
+        POSE_LEVER_ARM,
+        description="Metres the logged position lies ahead of the rear axle, where free runs place their "
+        "paths (`activelearn.numerics.surrogate`); a campaign sets it from [data] pose_lever_arm",
+    )
+    hidden_size: int = Field(
+        32,
+        description="kind = 'recurrent': width of the GRU trunk that reads the history window as "
+        "(controls, rates) tokens, oldest first; the layers of `arch` form its head",
+    )
     # A steady turn's ω is about v·tan(δ)/L: with the product as an input the net need not build it
     # from few operating points (measured: half the static map's free-run error on eights, see the
     # docs/results/models.md). Derived inside the model, so data, rollouts and kernels are unchanged.
-    kinematic_feature: bool = False
+    kinematic_feature: bool = Field(
+        False,
+        description="Also feed the network the kinematic yaw-rate proxy: throttle × tan(steering) for a "
+        "static map, newest past speed × tan(current steering) for a dynamic one (not recurrent, physics)",
+    )
     # kind = "physics" (`activelearn.numerics.models.physics`): Nigel's single track from its datasheet,
     # its physical parameters identified from the training logs, plus a Bayesian correction of this kind
     # (same arch, activation and ensemble_size) that learns only what the physics misses.
     # The correction's defaults (hybrid, bound 0.05) beat the ensemble with bound 0.2 and the bare identified
     # single track on 4 of 4 fresh seeds after 4 cold-start signals (experiments/results/physics.txt).
     correction: Literal["ensemble", "hybrid"] = Field(
-        "hybrid", description="kind = 'physics': the Bayesian correction's kind"
+        "hybrid",
+        description="kind = 'physics': the kind of the Bayesian correction that learns what the single "
+        "track misses (with this section's `arch`, `activation` and `ensemble_size`)",
     )
     identify: bool = Field(
         True, description="kind = 'physics': fit the physical parameters to the training logs before training"
     )
     residual_bound: Annotated[float, Field(ge=0.0, le=0.5)] = Field(
         0.05,
-        description="kind = 'physics': largest learnt change of a steady rate, times its limit",
+        description="kind = 'physics': largest learnt change of a steady rate, as a share of its limit "
+        "(Nigel's top speed, its largest yaw rate)",
     )
     correction_inputs: Literal["control", "history"] = Field(
         "history",
@@ -124,58 +162,94 @@ KLCount = Literal["rows", "maneuvers", "sqrt"]
 class TrainingConfig(_Section):
     """How `activelearn.numerics.training.fit` trains a model."""
 
-    # Data term of the ELBO. "nll" = Gaussian NLL (the head's variance is learnt); "mse"/"mae" fit the
-    # mean only, as the reference study did (the head's scale then receives no gradient).
-    loss: Literal["nll", "mse", "mae"] = "nll"
-    optimizer: Literal["adam", "rmsprop", "sgd"] = "adam"
-    lr: float = 1e-3
-    # "cosine" anneals the learning rate to 1% of `lr` over `epochs`: the final weights then stop
-    # wandering with the minibatch noise, which makes fits on a fixed budget far less seed-dependent.
-    lr_schedule: Literal["constant", "cosine"] = "constant"
-    momentum: float = 0.9
-    weight_decay: float = 0.0
-    epochs: int = 400
-    batch_size: int = 64
-    # Epochs without a better validation NLL before stopping; None trains all epochs.
-    patience: int | None = 60
-    # N in KL/N: "rows" = training rows, "maneuvers" = distinct `groups`, "sqrt" = √(rows × maneuvers), or a
-    # positive number used as is (without groups every row is its own maneuver). Default "sqrt", measured
-    # (experiments/investigations/model_selection.py klsize): held-out z spread before recalibration stays in
-    # 0.8-1.6 from 8 to 40 operating points and 60 to 600 rows per point, where "rows" drifts from 1.4 to 5.1
-    # (overconfident as rows per maneuver grow) and "maneuvers" to 0.7 (underconfident).
-    kl_count: KLCount | float = "sqrt"
-    # Extra multiplier on KL/N (cold/warm posterior tempering); 1 is the plain ELBO.
-    kl_weight: float = 1.0
-    # Posterior samples used for the per-epoch validation metrics.
-    n_eval_samples: int = 16
-    # Fit `epistemic_scale` on the validation set after training ("validation"), or leave it at 1.
-    recalibrate: Literal["none", "validation"] = "none"
-    # Re-initialise the weights from `seed` before training (reproducible); False continues training.
-    reinit: bool = True
-    # Compile the whole training step (forward, backward, update) with torch.compile: ~5x faster per
-    # step, after a one-off compile of ~5-20 s. "auto" compiles fits of >= 40,000 steps.
-    compile: bool | Literal["auto"] = "auto"
-    # torch intra-op threads during fit (restored afterwards); these layers are too small to gain
-    # from more threads, and one thread avoids contention. None leaves torch's setting alone.
-    num_threads: int | None = 1
-    # Campaigns: start each round from the previous round's weights (and scalers) and train
-    # `warm_epochs` epochs (default a quarter of `epochs`) instead of a fresh model for `epochs`.
-    warm_start: bool = False
-    warm_epochs: int | None = None
-    # Multi-step training of dynamic models: beside the one-step loss, the Gaussian NLL of free runs
-    # of `rollout_horizon` log steps (the model fed its own mean predictions, back-propagated through
-    # the whole window), `rollout_batch` windows on every `rollout_every`-th step, weighted by
-    # `rollout_weight` (times `rollout_every`, so the weight per epoch does not depend on it). 0: off.
-    rollout_horizon: Annotated[int, Field(ge=0, le=900)] = 0
-    rollout_weight: Annotated[float, Field(gt=0)] = 1.0
-    rollout_batch: Annotated[int, Field(ge=1)] = 32
-    # The window loss joins every n-th optimiser step: a window of H steps costs H small forward and
-    # backward passes (measured ~0.2 s per step on a busy 2-core machine at H = 30, batch 32).
-    rollout_every: Annotated[int, Field(ge=1)] = 8
-    # Largest global gradient norm of a step while windows train (0: no clipping). Back-propagation
-    # through a free run can explode: unclipped, the Markov model trained on 30-step windows ran free
-    # to infinity on every kind; clipped at 1 its free runs stayed within 0.12-0.16 m at 30 s.
-    rollout_clip: Annotated[float, Field(ge=0)] = 1.0
+    loss: Literal["nll", "mse", "mae"] = Field(
+        "nll",
+        description="Data term of the ELBO: `nll`, Gaussian NLL (the head's variance is learnt); `mse`/`mae` "
+        "fit the mean only, as the reference study did (the head's scale then gets no gradient)",
+    )
+    optimizer: Literal["adam", "rmsprop", "sgd"] = Field(
+        "adam", description="Optimiser: Adam, RMSprop or SGD (with `momentum`), each with L2 `weight_decay`"
+    )
+    lr: float = Field(1e-3, description="Learning rate (the starting one under `lr_schedule = 'cosine'`)")
+    # Cosine: the final weights then stop wandering with the minibatch noise, which makes fits on a fixed
+    # budget far less seed-dependent.
+    lr_schedule: Literal["constant", "cosine"] = Field(
+        "constant",
+        description="`cosine` anneals the learning rate to 1 % of `lr` over `epochs`; `constant` keeps `lr`",
+    )
+    momentum: float = Field(0.9, description="Momentum of SGD (optimizer = 'sgd' only)")
+    weight_decay: float = Field(0.0, description="L2 weight decay of the optimiser; 0: none")
+    epochs: int = Field(400, description="Training epochs (passes over the rows) of a fresh fit")
+    batch_size: int = Field(64, description="Rows per minibatch (at most the number of training rows)")
+    patience: int | None = Field(
+        60,
+        description="Epochs without a better validation NLL before training stops and the best epoch's "
+        "weights return (fits given validation data, e.g. `activelearn tune`); none trains all epochs",
+    )
+    # Default "sqrt", measured (experiments/investigations/model_selection.py klsize): held-out z spread
+    # before recalibration stays in 0.8-1.6 from 8 to 40 operating points and 60 to 600 rows per point,
+    # where "rows" drifts from 1.4 to 5.1 (overconfident as rows per maneuver grow) and "maneuvers" to 0.7
+    # (underconfident).
+    kl_count: KLCount | float = Field(
+        "sqrt",
+        description="N in KL/N: `rows` (training rows), `maneuvers` (distinct maneuvers), `sqrt` "
+        "(√(rows × maneuvers)) or a positive number used as is (without groups each row is a maneuver)",
+    )
+    kl_weight: float = Field(
+        1.0, description="Extra multiplier on KL/N (cold or warm posterior tempering); 1 is the plain ELBO"
+    )
+    n_eval_samples: int = Field(16, description="Posterior draws for the per-epoch validation metrics")
+    recalibrate: Literal["none", "validation"] = Field(
+        "none",
+        description="`validation`: after training, fit the scale of the epistemic variance on the "
+        "validation data (fits given validation data only); `none` leaves the scale at 1",
+    )
+    reinit: bool = Field(
+        True,
+        description="Re-initialise the weights from the fit's seed before training (reproducible); "
+        "false continues from the current weights",
+    )
+    compile: bool | Literal["auto"] = Field(
+        "auto",
+        description="Compile the whole training step with torch.compile: ~5x faster per step after a "
+        "one-off compile of ~5-20 s; `auto` compiles fits of 40,000 steps or more",
+    )
+    # These layers are too small to gain from more threads, and one thread avoids contention.
+    num_threads: int | None = Field(
+        1, description="torch intra-op threads during a fit (restored afterwards); none: torch's own setting"
+    )
+    warm_start: bool = Field(
+        False,
+        description="Campaigns: start each round from the previous round's weights (and scalers) and train "
+        "`warm_epochs` epochs, instead of a fresh model for `epochs`",
+    )
+    warm_epochs: int | None = Field(
+        None, description="Epochs of a warm-started round (`warm_start`); none: a quarter of `epochs`"
+    )
+    rollout_horizon: Annotated[int, Field(ge=0, le=900)] = Field(
+        0,
+        description="Dynamic models: log steps of the free-run windows whose Gaussian NLL joins the one-step "
+        "loss (the model fed its own mean predictions, back-propagated through the window); 0: off",
+    )
+    rollout_weight: Annotated[float, Field(gt=0)] = Field(
+        1.0,
+        description="Weight of the window loss, times `rollout_every` (so the weight per epoch does not "
+        "depend on it)",
+    )
+    rollout_batch: Annotated[int, Field(ge=1)] = Field(
+        32, description="Free-run windows in each step that trains them (`rollout_horizon` > 0)"
+    )
+    # A window of H steps costs H small forward and backward passes (measured ~0.2 s per step on a busy
+    # 2-core machine at H = 30, batch 32).
+    rollout_every: Annotated[int, Field(ge=1)] = Field(
+        8, description="The window loss joins every n-th optimiser step (`rollout_horizon` > 0)"
+    )
+    # Back-propagation through a free run can explode: unclipped, the Markov model trained on 30-step
+    # windows ran free to infinity on every kind; clipped at 1 its free runs stayed within 0.12-0.16 m
+    # at 30 s.
+    rollout_clip: Annotated[float, Field(ge=0)] = Field(
+        1.0, description="Largest global gradient norm of a step while windows train; 0: no clipping"
+    )
 
     @field_validator("lr")
     @classmethod

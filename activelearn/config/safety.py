@@ -26,48 +26,84 @@ class SafetyConfig(_Section):
         limit; one whose risk reaches delta later than `min_duration` is cut short there.
     """
 
-    arena: list[tuple[float, float]]
-    start: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    arena: list[tuple[float, float]] = Field(
+        description="Vertices [x, y] (m) of the polygon the car must stay in, closed implicitly (the first "
+        "vertex may be repeated at the end)",
+    )
+    start: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0),
+        description="The pose [x (m), y (m), yaw (rad)] every maneuver starts from, inside the arena",
+    )
     # Defaults a little above what Nigel can do (0.267 m/s, 0.805 rad/s, about 0.17 m/s² at full
     # throttle and full lock), so the arena binds and the limits only where set lower.
-    max_speed: Positive = 0.3  # |v|, m/s
-    max_yaw_rate: Positive = 0.9  # |ω|, rad/s
-    max_lateral_acceleration: Positive = 0.2  # |v·ω|, m/s²
-    delta: float = 0.05
-    margin: NonNegative = 0.16  # m: half the car's length, so its body stays inside too
-    # m, fans only: what a free run's path may still miss of the car's. Free runs integrate the rear axle and
-    # place the logged point `pose_lever_arm` ahead of it, so the CG's side slip is in the fan (true rates
-    # retrace the logged path to ~1 cm). Measured on safe_track.toml
+    max_speed: Positive = Field(0.3, description="Limit on the forward speed's magnitude (m/s)")
+    max_yaw_rate: Positive = Field(0.9, description="Limit on the yaw rate's magnitude (rad/s)")
+    max_lateral_acceleration: Positive = Field(
+        0.2, description="Limit on the lateral acceleration's magnitude, speed × yaw rate (m/s²)"
+    )
+    delta: float = Field(
+        0.05,
+        description="Largest probability (in (0, 1)) of leaving the arena or exceeding a limit that an "
+        "admitted proposal may carry, from the model's rollout fan",
+    )
+    margin: NonNegative = Field(
+        0.16,
+        description="Closest the car's centre may come to a wall (m); the default is half the car's length, "
+        "so its body stays inside too",
+    )
+    # Free runs integrate the rear axle and place the logged point `pose_lever_arm` ahead of it, so the CG's
+    # side slip is in the fan (true rates retrace the logged path to ~1 cm). Measured on safe_track.toml
     # (experiments/investigations/safety_guards.py, results/safety_guards.txt): beside the kinematic guard no
     # admitted true path hit a wall at 0 either, but the nearest came within 8 mm (fan_scale 1) and 28 mm (3)
     # of the margin in the first round; at 0.04, within 43 mm there and 10 mm after 8 maneuvers (a trusted fan
     # 1-2 % off a 2.9-m circle), for 0.4 % fewer admitted seconds (0.16: 1.5 %).
-    path_tolerance: NonNegative = 0.04
-    min_duration: Positive = 5.0  # s: a candidate cut shorter than this is not admissible
-    n_samples: Annotated[int, Field(ge=8)] = 64  # trajectories of the fan
-    # Widens the fan's epistemic spread (a std factor) over the model's own: its epistemic std ranks
-    # errors but is 2-4x too small on campaign designs (docs/results/calibration.md; z spread 2.9-5.6 on
-    # safe_track.toml), and a fan too narrow drives the car into the wall.
-    fan_scale: Annotated[float, Field(ge=1)] = 3.0
-    # The fan is trusted alone where the model's own epistemic std of the speed stays within this
-    # share of the speed along the maneuver; beyond, the kinematic worst case must hold as well
-    # (activelearn/loop/safety.py). Measured on safe_track.toml's prior model: 0.001-0.013 on the
-    # prior's forward operating points, 0.03-0.08 in reverse, where the fan missed the true speed.
-    trust_std: Positive = 0.02
-    limit_window: NonNegative = 0.5  # s: rates are averaged over this window before the limits apply
-    # The kinematic worst case takes the speed the car kept in its own logged steady turns (the
-    # prior's and the campaign's skidpads and straights, `activelearn.loop.safety.turn_speed`) instead
-    # of assuming none is lost in turns; false: none is.
-    measured_turn_speed: bool = True
-    # How the walls are kept: "planned" (each proposal is admitted, or cut short in advance, by its fan's
-    # risk of meeting a wall or breaking a limit) or "live" (the car brakes as soon as its measured pose
-    # comes within `margin + stop_buffer` of a wall, so only the limits are judged by the fan; the log
-    # ends there). Nigel stops within 1.7 cm and 0.17 s from any speed in MuJoCo (results/bench_safety.txt).
-    stop: Literal["planned", "live"] = "planned"
-    # m, live stop only: what the car travels between the pose that triggers the stop and standing still
-    # (braking plus the pose's latency: ~0.27 m/s x latency); 0.05 m is an automatic stop on a 30-Hz pose.
-    stop_buffer: NonNegative = 0.05
-    enforce: bool = True  # false: measure risk and violations only, pick from every candidate
+    path_tolerance: NonNegative = Field(
+        0.04,
+        description="What a predicted path may still miss of the car's (m): added to `margin` where the "
+        "fan and the kinematic worst case judge the walls",
+    )
+    min_duration: Positive = Field(
+        5.0, description="Shortest admissible proposal (s): a candidate cut shorter than this is rejected"
+    )
+    n_samples: Annotated[int, Field(ge=8)] = Field(
+        64, description="Trajectories of the rollout fan (posterior draws with aleatoric noise)"
+    )
+    # The model's own epistemic std ranks errors but is 2-4x too small on campaign designs
+    # (docs/results/calibration.md; z spread 2.9-5.6 on safe_track.toml), and a fan too narrow drives the
+    # car into the wall.
+    fan_scale: Annotated[float, Field(ge=1)] = Field(
+        3.0, description="Factor on the fan's epistemic std over the model's own"
+    )
+    # Measured on safe_track.toml's prior model: 0.001-0.013 on the prior's forward operating points,
+    # 0.03-0.08 in reverse, where the fan missed the true speed.
+    trust_std: Positive = Field(
+        0.02,
+        description="The fan is trusted alone where the model's epistemic std of the speed stays within "
+        "this share of the speed along the maneuver; beyond, the kinematic worst case must hold as well",
+    )
+    limit_window: NonNegative = Field(
+        0.5, description="Window (s) the rates are averaged over before the limits apply"
+    )
+    measured_turn_speed: bool = Field(
+        True,
+        description="The kinematic worst case takes the speed the car kept in its own logged steady turns "
+        "(`activelearn.loop.safety.turn_speed`); false assumes no speed is lost in turns",
+    )
+    # Nigel stops within 1.7 cm and 0.17 s from any speed in MuJoCo (results/bench_safety.txt).
+    stop: Literal["planned", "live"] = Field(
+        "planned",
+        description="`planned`: a proposal is admitted, or cut short in advance, by its fan's risk of a wall "
+        "or limit; `live`: the car brakes within `margin + stop_buffer` of a wall, the fan judges limits",
+    )
+    # ~0.27 m/s x latency; 0.05 m is an automatic stop on a 30-Hz pose.
+    stop_buffer: NonNegative = Field(
+        0.05,
+        description="`live` stop only: distance (m) the car travels between the pose that triggers the "
+        "stop and standing still (braking plus the pose's latency)",
+    )
+    enforce: bool = Field(
+        True, description="False: measure risk and violations only, and pick from every candidate"
+    )
 
     @field_validator("arena", mode="after")
     @classmethod

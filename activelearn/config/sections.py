@@ -39,23 +39,54 @@ class PoolConfig(_Section):
     pool range; low = high fixes a parameter), times `directions`. It replaces kinds and the grid.
     """
 
-    kinds: list[Kind] = ["skidpad"]
-    directions: list[Direction] = ["ccw", "cw"]
-    throttles: list[Throttle] | None = [0.2, 0.4, 0.6, 0.8, 1.0]
-    steerings: list[Steering] | None = [0.1047, 0.2094, 0.3142, 0.4189, 0.5236]
-    throttle_range: tuple[Throttle, Throttle] | None = None
-    steering_range: tuple[Steering, Steering] | None = None
-    size: Annotated[int, Field(ge=2)] | None = None
-    seed: Seed = 0
-    duration: Positive = 90.0
-    # Seconds per maneuver kind, overriding `duration` (e.g. {straight = 20, eight = 90}): maneuvers
-    # differ in what they cost on a track, and a seconds budget (design.max_sim_seconds) counts it.
-    durations: dict[Kind | FamilyName, Positive] = {}
-    # Distance added between candidates of different kinds, in units of the [0, 1] operating-point cube
-    # (of the normalised family-parameter cube for a family pool).
-    kind_distance: NonNegative = 0.5
-    families: list[FamilyName] = []
-    ranges: dict[FamilyName, dict[str, tuple[float, float]]] = {}
+    kinds: list[Kind] = Field(
+        ["skidpad"], description="Maneuver kinds of the candidates, each driven at every operating point"
+    )
+    directions: list[Direction] = Field(
+        ["ccw", "cw"], description="Turn directions: `ccw` (left, positive steering) and/or `cw` (right)"
+    )
+    throttles: list[Throttle] | None = Field(
+        [0.2, 0.4, 0.6, 0.8, 1.0],
+        description="Throttle values of the grid (share of full throttle, negative reverses; 0 is skipped)",
+    )
+    steerings: list[Steering] | None = Field(
+        [0.1047, 0.2094, 0.3142, 0.4189, 0.5236],
+        description="Unsigned steering amplitudes of the grid (rad, at most Nigel's full lock 0.5236)",
+    )
+    throttle_range: tuple[Throttle, Throttle] | None = Field(
+        None, description="Continuous pool: [low, high] throttle of the Sobol operating points"
+    )
+    steering_range: tuple[Steering, Steering] | None = Field(
+        None, description="Continuous pool: [low, high] unsigned steering (rad) of the Sobol operating points"
+    )
+    size: Annotated[int, Field(ge=2)] | None = Field(
+        None,
+        description="Scrambled-Sobol operating points of a continuous pool, or parameter vectors per family "
+        "of a family pool; unset: the grid",
+    )
+    seed: Seed = Field(
+        0, description="Seed of the pool's Sobol draws (the same pool for every campaign seed)"
+    )
+    duration: Positive = Field(
+        90.0, description="Seconds each candidate maneuver lasts, unless `durations` names its kind"
+    )
+    # Maneuvers differ in what they cost on a track, and a seconds budget (design.max_sim_seconds) counts it.
+    durations: dict[Kind | FamilyName, Positive] = Field(
+        {}, description="Seconds per maneuver kind or family, overriding `duration` (e.g. {straight = 20})"
+    )
+    kind_distance: NonNegative = Field(
+        0.5,
+        description="Distance added between candidates of different kinds (or families), in units of the "
+        "[0, 1] operating-point (or normalised family-parameter) cube",
+    )
+    families: list[FamilyName] = Field(
+        [], description="Maneuver families (`simulator.families`) of a family pool; empty: kinds and the grid"
+    )
+    ranges: dict[FamilyName, dict[str, tuple[float, float]]] = Field(
+        {},
+        description="Family pool: [low, high] per family parameter ({family = {parameter = [low, high]}}); "
+        "unset parameters take the family's own pool range",
+    )
 
     def duration_of(self, kind: str) -> float:
         """Seconds a maneuver of `kind` lasts in this pool."""
@@ -141,38 +172,67 @@ class PoolConfig(_Section):
 class NoiseSettings(_Section):
     """Sensor noise of the simulated logs (passed to `simulator.NoiseConfig`; None keeps its default)."""
 
-    enabled: bool = True
-    heteroscedastic: bool = True
-    speed: NonNegative | None = None
-    yaw_rate: NonNegative | None = None
+    enabled: bool = Field(
+        True, description="Add seeded Gaussian sensor noise to the logs; false logs the true signals"
+    )
+    heteroscedastic: bool = Field(
+        True,
+        description="Scale every noise std by 1 + 2 × speed / 0.267 m/s (the simulator's speed_gain: three "
+        "times the noise at full speed); false: the same std at every speed",
+    )
+    speed: NonNegative | None = Field(
+        None, description="Std of the forward-speed noise (m/s); unset: the simulator's 0.002"
+    )
+    yaw_rate: NonNegative | None = Field(
+        None, description="Std of the noise on the three gyro axes (rad/s); unset: the simulator's 0.005"
+    )
 
 
 class SimulationConfig(_Section):
     """How maneuvers are simulated and logged."""
 
-    rate_hz: Annotated[float, Field(gt=0, le=500)] = 30.0
-    threads: Count | None = None  # None: all cores
-    noise: NoiseSettings = NoiseSettings()
+    rate_hz: Annotated[float, Field(gt=0, le=500)] = Field(
+        30.0, description="Log rate (Hz): rows per second of the simulated logs"
+    )
+    threads: Count | None = Field(
+        None, description="Parallel simulation workers; unset: all cores (the logs do not depend on it)"
+    )
+    noise: NoiseSettings = Field(NoiseSettings(), description="Sensor noise added to the simulated logs")
 
 
 class DataConfig(_Section):
     """Which logged rows become training samples."""
 
-    # Keep every `stride`-th logged row: neighbouring rows at 30 Hz carry nearly the same information.
-    stride: Count = 10
-    # Drop each maneuver's first seconds: the start-up transient is not a function of the controls.
-    skip_seconds: NonNegative = 2.0
-    # Model inputs: the controls (a static map), the controls and the previous rates (the Markov-state
-    # variant), or "history": the last `history` steps of controls and rates, `history_step` log steps
-    # apart (a delay embedding, `activelearn.numerics.lags`; "controls+rates" is history 1, step 1).
-    inputs: Literal["controls", "controls+rates", "history"] = "controls"
-    history: Annotated[int, Field(ge=1, le=64)] = 4
-    history_step: Annotated[int, Field(ge=1, le=300)] = 3
-    # Where the logged pose (posX, posY) lies, in metres ahead of the rear axle: a kinematic car's
-    # rear axle does not slip sideways, so a point `a` ahead of it moves sideways at a·ω in a turn.
-    # Free runs integrate v along the heading at the axle and place the path there. Nigel's IMU sits
-    # at the CG, l_r = 0.0793 m ahead (0 integrates v along the heading at the logged point itself).
-    pose_lever_arm: Annotated[float, Field(ge=-1.0, le=1.0)] = POSE_LEVER_ARM
+    stride: Count = Field(
+        10,
+        description="Keep every n-th logged row: neighbouring rows at 30 Hz carry nearly the same "
+        "information (also the spacing of multi-step training windows)",
+    )
+    skip_seconds: NonNegative = Field(
+        2.0,
+        description="Seconds dropped at each maneuver's start: the start-up transient is not a function of "
+        "the controls",
+    )
+    inputs: Literal["controls", "controls+rates", "history"] = Field(
+        "controls",
+        description="Model inputs: the controls (a static map), the controls and the previous rates "
+        "(Markov state), or the last `history` steps of both (`controls+rates` is history 1, step 1)",
+    )
+    history: Annotated[int, Field(ge=1, le=64)] = Field(
+        4, description="inputs = 'history': past steps of controls and rates the model reads"
+    )
+    history_step: Annotated[int, Field(ge=1, le=300)] = Field(
+        3,
+        description="inputs = 'history': log steps between those past steps (a delay embedding, "
+        "`activelearn.numerics.lags`)",
+    )
+    # A kinematic car's rear axle does not slip sideways, so a point `a` ahead of it moves sideways at a·ω
+    # in a turn; free runs integrate v along the heading at the axle and place the path there.
+    pose_lever_arm: Annotated[float, Field(ge=-1.0, le=1.0)] = Field(
+        POSE_LEVER_ARM,
+        description="Metres the logged pose (posX, posY) lies ahead of the rear axle: Nigel's IMU at the CG, "
+        "0.0793 m; 0 integrates v along the heading at the logged point itself",
+    )
 
     @model_validator(mode="after")
     def _history_knobs_need_history(self) -> DataConfig:
@@ -187,13 +247,19 @@ class DataConfig(_Section):
 class PriorGridConfig(_Section):
     """A maneuver grid already driven: simulated once by the nominal simulator (cached), fixed noise."""
 
-    kinds: list[Kind] = ["skidpad"]
-    directions: list[Direction] = ["ccw", "cw"]
-    throttles: list[Throttle]
-    steerings: list[Steering] = [0.0]
-    duration: Positive = 30.0
+    kinds: list[Kind] = Field(["skidpad"], description="Maneuver kinds of the prior grid")
+    directions: list[Direction] = Field(["ccw", "cw"], description="Turn directions of the prior grid")
+    throttles: list[Throttle] = Field(
+        description="Throttle values of the prior grid (share of full throttle)"
+    )
+    steerings: list[Steering] = Field(
+        [0.0], description="Unsigned steering amplitudes of the prior grid (rad)"
+    )
+    duration: Positive = Field(30.0, description="Seconds each prior maneuver lasts")
     # The prior is data already in hand: the same rows for every campaign seed and strategy.
-    noise_seed: Seed = 2_000_003
+    noise_seed: Seed = Field(
+        2_000_003, description="Seed of the prior logs' sensor noise, fixed across campaign seeds"
+    )
 
     @field_validator("kinds", "directions", "throttles", "steerings")
     @classmethod
@@ -216,10 +282,24 @@ class PriorConfig(_Section):
     directory) instead of fitting the prior model on the prior rows.
     """
 
-    grid: PriorGridConfig | None = None
-    paths: list[str] = []
-    use: PriorUse = "data"
-    model: str | None = None
+    grid: PriorGridConfig | None = Field(
+        None, description="A maneuver grid simulated once by the nominal simulator and cached"
+    )
+    paths: list[str] = Field(
+        [],
+        description="Earlier campaign directories, sample tables (.parquet/.csv in the sample schema) and "
+        "AutoDRIVE logs (.csv) whose rows the prior holds",
+    )
+    use: PriorUse = Field(
+        "data",
+        description="`data`: the prior rows train every round; `finetune`: each round starts from the prior "
+        "model and trains on new maneuvers; `residual`: learn the difference from the fixed prior model",
+    )
+    model: str | None = Field(
+        None,
+        description="Trained prior model (a model.pt or a campaign directory) instead of fitting one on "
+        "the prior rows",
+    )
 
     @model_validator(mode="before")
     @classmethod
@@ -245,34 +325,51 @@ class PriorConfig(_Section):
 class DesignConfig(_Section):
     """Initial design, batch size, budget and stop rule of the outer loop."""
 
-    # Warm start (see PriorConfig); prior maneuvers count against no budget. Declared first: the
-    # checks of `initial` read it.
-    prior: PriorConfig | None = None
-    # Maneuvers of the strategy-independent initial design (greedy maximin); 0 only with a prior,
-    # whose model then chooses from the first round on.
-    initial: Annotated[int, Field(ge=0)] = 4
-    per_round: Count = 2
-    # Budget: the loop stops at the first limit reached (at least one must be given).
-    max_maneuvers: Count | None = 24
-    max_rounds: Count | None = None
-    max_sim_seconds: Positive | None = None
-    # Stop once the largest epistemic std over the pool falls below this (standardised units).
-    stop_epistemic_std: Positive | None = None
-    # "prequential": scale each round's epistemic variance by what calibrated the last two models on
-    # the maneuvers collected after them (held-out operating points the loop gets for free). Off by
-    # default: strategies pick where the model errs most, so those points overstate its error
+    # Declared first: the checks of `initial` read it.
+    prior: PriorConfig | None = Field(
+        None, description="Warm start: what is known before the budget is spent; its maneuvers cost nothing"
+    )
+    initial: Annotated[int, Field(ge=0)] = Field(
+        4,
+        description="Maneuvers of the strategy-independent initial design (greedy maximin); 0 only with a "
+        "prior, whose model then chooses from the first round on",
+    )
+    per_round: Count = Field(2, description="Maneuvers each round collects after the initial design")
+    max_maneuvers: Count | None = Field(
+        24,
+        description="Budget: maneuvers collected in all, the initial design included; the loop stops at "
+        "the first limit reached (give at least one)",
+    )
+    max_rounds: Count | None = Field(None, description="Budget: rounds after the initial design")
+    max_sim_seconds: Positive | None = Field(
+        None,
+        description="Budget: seconds of track time, the maneuvers' durations as driven plus `setup_seconds` "
+        "each; candidates that no longer fit are left out",
+    )
+    stop_epistemic_std: Positive | None = Field(
+        None,
+        description="Stop once the largest epistemic std over the pool falls below this (standardised "
+        "units); unset: no such stop",
+    )
+    # Off by default: strategies pick where the model errs most, so those points overstate its error
     # (measured: scales of 40-60 that left the test set 3-6x underconfident).
-    recalibrate: Literal["none", "prequential"] = "none"
-    # "prequential" (the default): widen (or narrow) each round's free-run fans by the factor under
-    # which 95 % of the true positions of the maneuvers collected after the last two models lay inside
-    # their fans (`numerics.diagnostics.fan_scale_needed`); the saved model carries it as `fan_scale`, so
-    # `predict` draws the calibrated fans too. Uncalibrated fans held 0.12-0.49 of the true positions
-    # (physics kind, dynamics.toml), calibrated 0.90-0.99 from round 1 on (10 seeds,
-    # experiments/results/physics.txt). Round 0 has nothing to calibrate on. "none": the posterior's
-    # and the noise's own fans. The safety fan ignores it ([safety] fan_scale is its margin).
-    fan_calibration: Literal["none", "prequential"] = "prequential"
-    # Seconds of set-up per maneuver (drive to the start, reset, check): part of each maneuver's cost.
-    setup_seconds: NonNegative = 0.0
+    recalibrate: Literal["none", "prequential"] = Field(
+        "none",
+        description="`prequential`: scale each round's epistemic variance by what calibrated the last two "
+        "models on the maneuvers collected after them; `none`: the model's own",
+    )
+    # Uncalibrated fans held 0.12-0.49 of the true positions (physics kind, dynamics.toml), calibrated
+    # 0.90-0.99 from round 1 on (10 seeds, experiments/results/physics.txt). Round 0 has nothing to
+    # calibrate on. The safety fan ignores it ([safety] fan_scale is its margin).
+    fan_calibration: Literal["none", "prequential"] = Field(
+        "prequential",
+        description="`prequential`: widen or narrow each round's free-run fans until 95 % of the true "
+        "positions of the maneuvers collected after the last two models lie inside; `none`: the model's own",
+    )
+    setup_seconds: NonNegative = Field(
+        0.0,
+        description="Seconds of set-up per maneuver (drive to the start, reset, check), part of its cost",
+    )
 
     @field_validator("initial")
     @classmethod
@@ -296,22 +393,41 @@ class DesignConfig(_Section):
 class AcquisitionConfig(_Section):
     """How uncertainty strategies score and batch candidates, and the evaluation grid."""
 
-    batch: Literal["fantasy", "penalty", "topk"] = "fantasy"
-    n_samples: Annotated[int, Field(ge=2)] = 64
-    fantasy_weight: Positive = 1.0
-    penalty_length: Positive = 0.15
-    # Points along each candidate's control sequence at which it is scored.
-    score_points: Count = 24
-    # Where a dynamic model (history or Markov inputs) scores a candidate: "steady_state", at the rates
-    # it settles to under each control point held; "path", at the inputs it would see along its own
-    # free run of the candidate's whole control signal (`activelearn.numerics.paths`); the target
-    # region "test" then holds the inputs along the test maneuvers' predicted paths.
-    dynamic_points: Literal["steady_state", "path"] = "steady_state"
-    # Evaluation grid (throttle × signed steering): uncertainty metrics and maps.
-    grid_throttles: Annotated[int, Field(ge=2)] = 15
-    grid_steerings: Annotated[int, Field(ge=2)] = 15
-    # Score information per second of track time (score / (duration + design.setup_seconds)).
-    cost_aware: bool = False
+    batch: Literal["fantasy", "penalty", "topk"] = Field(
+        "fantasy",
+        description="How a round picks several: `fantasy` conditions the posterior on each pick before the "
+        "next, `penalty` damps scores near earlier picks, `topk` takes the best scores",
+    )
+    n_samples: Annotated[int, Field(ge=2)] = Field(
+        64, description="Posterior draws evaluated at the candidates' scoring points"
+    )
+    fantasy_weight: Positive = Field(
+        1.0, description="`fantasy` batches: factor on the training rows each scoring point stands for"
+    )
+    penalty_length: Positive = Field(
+        0.15,
+        description="`penalty` batches: length of the Gaussian damping around earlier picks, in the pool's "
+        "design distance (the [0, 1] operating-point cube plus `kind_distance`)",
+    )
+    score_points: Count = Field(
+        24, description="Points along each candidate's control sequence at which it is scored"
+    )
+    dynamic_points: Literal["steady_state", "path"] = Field(
+        "steady_state",
+        description="Where a dynamic model scores a candidate: at the rates it settles to under each control "
+        "held (`steady_state`), or along its own free run (`path`; a `test` target then follows those too)",
+    )
+    grid_throttles: Annotated[int, Field(ge=2)] = Field(
+        15, description="Throttle values of the evaluation grid spanning the pool (uncertainty metrics, maps)"
+    )
+    grid_steerings: Annotated[int, Field(ge=2)] = Field(
+        15, description="Signed steering values of the evaluation grid spanning the pool"
+    )
+    cost_aware: bool = Field(
+        False,
+        description="Score information per second of track time: score / (duration + "
+        "design.setup_seconds)",
+    )
 
 
 class TargetConfig(_Section):
@@ -322,13 +438,29 @@ class TargetConfig(_Section):
     "box": a grid over `throttle_range` × `steering_range` (unsigned; `directions` give the signs).
     """
 
-    region: Literal["test", "pool", "box"] = "test"
-    throttle_range: tuple[Throttle, Throttle] | None = None
-    steering_range: tuple[Steering, Steering] | None = None
-    directions: list[Direction] = ["ccw", "cw"]
-    # Most target points kept (evenly thinned): integrated variance costs O(points x draws^2).
-    max_points: Annotated[int, Field(ge=4)] = 400
-    grid_size: Annotated[int, Field(ge=2)] = 12
+    region: Literal["test", "pool", "box"] = Field(
+        "test",
+        description="`test`: the controls the test maneuvers apply; `pool`: the evaluation grid spanning "
+        "the pool; `box`: a grid over `throttle_range` × `steering_range`",
+    )
+    throttle_range: tuple[Throttle, Throttle] | None = Field(
+        None, description="region = 'box': [low, high] throttle"
+    )
+    steering_range: tuple[Steering, Steering] | None = Field(
+        None, description="region = 'box': [low, high] unsigned steering (rad)"
+    )
+    directions: list[Direction] = Field(
+        ["ccw", "cw"], description="region = 'box': the steering signs the box covers"
+    )
+    # Integrated variance costs O(points x draws^2).
+    max_points: Annotated[int, Field(ge=4)] = Field(
+        400,
+        description="region = 'test': most target points kept (a seeded subset weighted by time held; along "
+        "predicted paths, shared evenly by the test maneuvers)",
+    )
+    grid_size: Annotated[int, Field(ge=2)] = Field(
+        12, description="region = 'box': values per axis of the box grid"
+    )
 
     @model_validator(mode="after")
     def _box(self) -> TargetConfig:
@@ -352,19 +484,34 @@ class TestSetConfig(_Section):
 
     __test__ = False  # not a pytest class
 
-    kinds: list[Kind] = ["skidpad"]
-    directions: list[Direction] = ["ccw", "cw"]
-    throttles: list[Throttle] = [0.3, 0.5, 0.7, 0.9]
-    steerings: list[Steering] = [0.05, 0.1571, 0.2618, 0.3665, 0.4712]
-    duration: Positive = 30.0
-    noise_seed: Seed = 1_000_003
-    # Recorded logs (a folder or files) to test on instead of the simulated grid: a real car's test set.
-    logs: list[str] | None = None
-    # What `compare` ranks by (its table, "to reach uniform" columns and figure): a one-step error
-    # (static maps) or a free-running rollout error (dynamics models); `compare --metric` overrides.
-    metric: str = "test_rmse"
-    # Free-running rollouts of the test maneuvers every round (posterior draws per rollout; 0: off).
-    rollout_samples: Annotated[int, Field(ge=0)] = 32
+    kinds: list[Kind] = Field(["skidpad"], description="Maneuver kinds of the test grid")
+    directions: list[Direction] = Field(["ccw", "cw"], description="Turn directions of the test grid")
+    throttles: list[Throttle] = Field(
+        [0.3, 0.5, 0.7, 0.9], description="Throttle values of the test grid (share of full throttle)"
+    )
+    steerings: list[Steering] = Field(
+        [0.05, 0.1571, 0.2618, 0.3665, 0.4712],
+        description="Unsigned steering amplitudes of the test grid (rad)",
+    )
+    duration: Positive = Field(30.0, description="Seconds each test maneuver lasts")
+    noise_seed: Seed = Field(
+        1_000_003, description="Seed of the test logs' sensor noise, the same for every campaign seed"
+    )
+    logs: list[str] | None = Field(
+        None,
+        description="Recorded logs (a folder or files) to test on instead of the simulated grid: a real "
+        "car's test set",
+    )
+    metric: str = Field(
+        "test_rmse",
+        description="What `compare` ranks by (`--metric` overrides): a one-step error (static maps, e.g. "
+        "`test_rmse`) or a free-run error (dynamics models, e.g. `rollout_pos_err_30s`)",
+    )
+    rollout_samples: Annotated[int, Field(ge=0)] = Field(
+        32,
+        description="Posterior draws per free-running rollout of the test maneuvers every round; 0: no "
+        "rollouts",
+    )
 
     @field_validator("metric")
     @classmethod
@@ -410,16 +557,41 @@ class OracleConfig(_Section):
     is the finite pool; strategies choose among the recorded maneuvers.
     """
 
-    kind: OracleKind = "simulator"
-    overrides: dict[str, float] = {}
-    path: str | None = None
-    # logs: share of the recorded maneuvers held out as the test set when [test] logs is not given.
-    test_fraction: Annotated[float, Field(gt=0, lt=1)] = 0.25
-    # external: how far a log's controls may be from a proposal's and still be that maneuver, and how
-    # much shorter than proposed a log may be before it counts as cut off.
-    throttle_tolerance: Positive = 0.05
-    steering_tolerance: Positive = 0.05
-    duration_tolerance: Annotated[float, Field(gt=0, lt=1)] = 0.1
+    kind: OracleKind = Field(
+        "simulator",
+        description="`simulator`: nominal MuJoCo; `twin`: MuJoCo with `overrides`; `external`: a person or "
+        "script drives and hands back logs; `logs`: recorded logs under `path` are the pool",
+    )
+    overrides: dict[str, float] = Field(
+        {},
+        description="kind = 'twin': simulator parameters to change, by name (`simulator.twin."
+        "TWIN_PARAMETERS` gives meaning, unit and range)",
+    )
+    path: str | None = Field(
+        None,
+        description="kind = 'logs': the folder of recorded logs in the AutoDRIVE layout "
+        "(`<maneuver>_30_hz/<variation> Log.csv`)",
+    )
+    test_fraction: Annotated[float, Field(gt=0, lt=1)] = Field(
+        0.25,
+        description="kind = 'logs': share of the recorded maneuvers held out as the test set when [test] "
+        "logs is not given",
+    )
+    throttle_tolerance: Positive = Field(
+        0.05,
+        description="kind = 'external': how far a log's median throttle may be from a proposal's and still "
+        "answer it",
+    )
+    steering_tolerance: Positive = Field(
+        0.05,
+        description="kind = 'external': how far a log's steering amplitude may be from a proposal's (rad); "
+        "below it a log does not steer",
+    )
+    duration_tolerance: Annotated[float, Field(gt=0, lt=1)] = Field(
+        0.1,
+        description="kind = 'external': share of the proposed duration a log may fall short before it "
+        "counts as cut off",
+    )
 
     @field_validator("overrides", mode="before")
     @classmethod
@@ -444,7 +616,9 @@ class OracleConfig(_Section):
 class TrackingConfig(_Section):
     """Where MLflow writes."""
 
-    uri: str = "sqlite:///mlruns/mlflow.db"
-    experiment: str = "activelearn"
-    enabled: bool = True
-
+    uri: str = Field(
+        "sqlite:///mlruns/mlflow.db",
+        description="MLflow tracking URI: a local store (`sqlite:///...`) or a tracking server (`http://...`)",
+    )
+    experiment: str = Field("activelearn", description="MLflow experiment the runs are recorded under")
+    enabled: bool = Field(True, description="Record runs in MLflow; false: no tracking at all")

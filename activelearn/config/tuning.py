@@ -50,10 +50,12 @@ _SPACE_MAX["residual_bound"] = 0.5
 class Range(_Section):
     """A numeric interval of the search space: [low, high], optionally log-uniform or stepped."""
 
-    low: int | float
-    high: int | float
-    log: bool = False
-    step: float | None = None
+    low: int | float = Field(description="Lower end of the interval (inclusive)")
+    high: int | float = Field(description="Upper end of the interval (inclusive)")
+    log: bool = Field(False, description="Sample log-uniformly instead of uniformly")
+    step: float | None = Field(
+        None, description="Spacing of the values sampled from `low` on (not with `log`); unset: continuous"
+    )
 
 
 def _check_space_value(name: str, kind: SpaceKind, allowed: tuple[Any, ...] | None, value: Any) -> Any:
@@ -131,29 +133,53 @@ class SearchSpace(_Section):
 
     model_config = ConfigDict(extra="forbid", validate_assignment=True, validate_default=True)
 
-    lr: Any = Range(low=1e-4, high=1e-1, log=True)
-    epochs: Any = Range(low=20, high=200, step=10)
-    batch_size: Any = [16, 32, 64, 128, 256]
-    activation: Any = list(ACTIVATIONS)
-    optimizer: Any = ["sgd", "rmsprop", "adam"]
-    loss: Any = ["nll", "mse", "mae"]
-    posterior: Any = ["mean_field", "full_cov"]
-    kl: Any = ["exact", "mc"]
-    prior_scale: Any = Range(low=0.1, high=10.0, log=True)
-    n_layers: Any = Range(low=1, high=4)
-    width: Any = [8, 16, 32, 64]
-    variational_width: Any = [4, 8, 16]
-    variational: Any = [False, True]
+    lr: Any = Field(Range(low=1e-4, high=1e-1, log=True), description="Learning rate ([training] lr)")
+    epochs: Any = Field(
+        Range(low=20, high=200, step=10),
+        description="Training epochs ([training] epochs; the largest is Hyperband's budget)",
+    )
+    batch_size: Any = Field([16, 32, 64, 128, 256], description="Rows per minibatch ([training] batch_size)")
+    activation: Any = Field(
+        list(ACTIVATIONS), description="Activation of every hidden layer ([model] activation)"
+    )
+    optimizer: Any = Field(["sgd", "rmsprop", "adam"], description="Optimiser ([training] optimizer)")
+    loss: Any = Field(["nll", "mse", "mae"], description="Data term of the ELBO ([training] loss)")
+    posterior: Any = Field(
+        ["mean_field", "full_cov"], description="Posterior of the variational layers ([model] posterior)"
+    )
+    kl: Any = Field(["exact", "mc"], description="KL term, closed form or Monte Carlo ([model] kl)")
+    prior_scale: Any = Field(
+        Range(low=0.1, high=10.0, log=True), description="Std of the weight prior ([model] prior_scale)"
+    )
+    n_layers: Any = Field(Range(low=1, high=4), description="Hidden layers of the sampled `arch` (at most 8)")
+    width: Any = Field([8, 16, 32, 64], description="Width of each dense hidden layer (drawn per layer)")
+    variational_width: Any = Field(
+        [4, 8, 16], description="Width of each variational hidden layer (drawn per layer)"
+    )
+    variational: Any = Field(
+        [False, True], description="Whether each hidden layer is variational or dense (drawn per layer)"
+    )
     # The read-out is variational by default: the model then always has epistemic uncertainty.
-    variational_head: Any = True
-    # Width of the recurrent model's GRU trunk (read by kind = "recurrent" only). A history model's
-    # layout ([data] history, history_step) shapes the study's data: one study per layout.
-    hidden_size: Any = 32
-    # The physics kind's correction (read by kind = "physics" only): its kind, what it reads, and the
-    # bound on its steady-state residuals. Unset (None): the config's [model] value, not searched.
-    correction: Any = None
-    correction_inputs: Any = None
-    residual_bound: Any = None
+    variational_head: Any = Field(True, description="Whether the output layer is variational")
+    # A history model's layout ([data] history, history_step) shapes the study's data: one study per layout.
+    hidden_size: Any = Field(
+        32, description="Width of the recurrent model's GRU trunk ([model] hidden_size; kind = 'recurrent')"
+    )
+    # The physics kind's correction (read by kind = "physics" only). Unset (None): the config's [model]
+    # value, not searched.
+    correction: Any = Field(
+        None, description="kind = 'physics': the correction's kind ([model] correction); unset: not searched"
+    )
+    correction_inputs: Any = Field(
+        None,
+        description="kind = 'physics': what the correction reads ([model] correction_inputs); unset: not "
+        "searched",
+    )
+    residual_bound: Any = Field(
+        None,
+        description="kind = 'physics': bound on the steady-state residuals ([model] residual_bound, at most "
+        "0.5); unset: not searched",
+    )
 
     @field_validator("*")
     @classmethod
@@ -166,24 +192,38 @@ class SearchSpace(_Section):
 class TuningConfig(_Section):
     """`activelearn tune`: the search space, the validation split and the pruner/sampler settings."""
 
-    space: SearchSpace = SearchSpace()
-    # Share of operating points (whole maneuvers) held out for validation.
-    val_fraction: Annotated[float, Field(gt=0, lt=1)] = 0.2
-    # TPE samples at random for its first trials of each run, then models the good region.
-    sampler_startup_trials: Annotated[int, Field(ge=0)] = 10
-    # MedianPruner: prune only once this many trials completed, and never before this epoch.
-    pruner_startup_trials: Annotated[int, Field(ge=0)] = 5
-    pruner_warmup_epochs: Annotated[int, Field(ge=0)] = 10
-    # HyperbandPruner: the fewest epochs a trial runs before it can be stopped.
-    hyperband_min_epochs: Count = 5
+    space: SearchSpace = Field(SearchSpace(), description="What the trials sample")
+    val_fraction: Annotated[float, Field(gt=0, lt=1)] = Field(
+        0.2, description="Share of operating points (whole maneuvers) held out for validation"
+    )
+    sampler_startup_trials: Annotated[int, Field(ge=0)] = Field(
+        10,
+        description="TPE samples at random for this many first trials of each run, then models the good "
+        "region",
+    )
+    pruner_startup_trials: Annotated[int, Field(ge=0)] = Field(
+        5, description="MedianPruner: prune only once this many trials have completed"
+    )
+    pruner_warmup_epochs: Annotated[int, Field(ge=0)] = Field(
+        10, description="MedianPruner: never prune a trial before this epoch"
+    )
+    hyperband_min_epochs: Count = Field(
+        5, description="HyperbandPruner: the fewest epochs a trial runs before it can be stopped"
+    )
     # Every trial is a new architecture: compiling would cost more than it saves (see training.py).
-    compile: bool = False
-    # Optuna heartbeats: a running trial records one every `heartbeat_interval` s; one silent for
-    # `grace_period` s (its worker or machine is gone) is marked FAIL and queued again, at most
-    # `retry_lost` times. Every machine joining a study should use the same values (same config).
-    heartbeat_interval: Annotated[int, Field(ge=1)] = 10
-    grace_period: Annotated[int, Field(ge=2)] = 60
-    retry_lost: Annotated[int, Field(ge=0)] = 2
+    compile: bool = Field(False, description="Compile the trials' training steps with torch.compile")
+    # Every machine joining a study should use the same values (same config).
+    heartbeat_interval: Annotated[int, Field(ge=1)] = Field(
+        10, description="Seconds between the heartbeats a running trial records (Optuna)"
+    )
+    grace_period: Annotated[int, Field(ge=2)] = Field(
+        60,
+        description="Seconds without a heartbeat after which a trial (its worker or machine gone) is marked "
+        "FAIL and queued again",
+    )
+    retry_lost: Annotated[int, Field(ge=0)] = Field(
+        2, description="How many times a lost trial is queued again"
+    )
 
     @model_validator(mode="after")
     def _grace_exceeds_heartbeat(self) -> TuningConfig:
