@@ -67,9 +67,11 @@ def predict_slalom_fan(model: Path, cwd: Path) -> subprocess.CompletedProcess:
     )  # fmt: skip
 
 
-# What the README promises for an unreachable tracking server or storage: one error within 5 s. A
-# command may spend up to a second of its own (config, imports) before it waits on the server.
-UNREACHABLE_SECONDS = 5.0 + 1.0
+# What the README promises for an unreachable tracking server or storage: one error within 5 s, the
+# client's one timeout. On top of it a command spends time of its own (config, imports, the error),
+# which on a loaded machine takes seconds, not one: 4 s of slack. That stays below two timeouts, so a
+# client that retries (5 + 5 s) still fails the check.
+UNREACHABLE_SECONDS = 5.0 + 4.0
 
 
 @pytest.fixture

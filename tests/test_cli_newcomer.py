@@ -169,17 +169,24 @@ def test_a_straight_without_steering_still_drives(cwd: Path) -> None:
 # --- 6. help texts and the README ---------------------------------------------------------------------
 
 
-def test_help_lists_every_strategy_and_the_real_out_defaults(capsys: pytest.CaptureFixture[str]) -> None:
+def test_help_lists_every_strategy_and_the_out_defaults_of_the_command_reference(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Each --out default the help gives is the command reference's, which the tools are held to below."""
     from activelearn.loop.acquisition import STRATEGIES
     from activelearn.names import STRATEGY_NAMES
 
     assert STRATEGY_NAMES == tuple(STRATEGIES)
-    for command, default in ((["campaign", "run"], "<output_dir>/<name>/<strategy>/seed<N>"),
-                             (["compare"], "<output_dir>/<name>/compare")):
-        assert run([*command, "--help"]) == 0
+    table = _outputs_table()
+    for command, default in (("campaign run", table["campaign run"][0]),
+                             ("campaign propose", table["campaign propose"][0]),
+                             ("compare", table["compare"][0]),
+                             ("tune", table["tune"][0] + "best.toml")):  # fmt: skip
+        assert run([*command.split(), "--help"]) == 0
         text = " ".join(capsys.readouterr().out.split())
-        assert all(re.search(rf"\b{name}\b", text) for name in STRATEGIES), command
-        assert f"default {default}" in text
+        if command != "tune":
+            assert all(re.search(rf"\b{name}\b", text) for name in STRATEGIES), command
+        assert f"default {default}" in text, (command, default)
 
 
 def test_top_level_help_describes_the_tool_not_the_module(capsys: pytest.CaptureFixture[str]) -> None:
@@ -245,10 +252,83 @@ def test_every_option_the_readme_quotes_exists() -> None:
                 assert option in known, (words, option)
 
 
+def _outputs_table() -> dict[str, tuple[str, list[str]]]:
+    """docs/reference/commands.md's "Where outputs go": command -> (default directory, files it writes there).
+
+    A row reads `DIR`: `FILE`, `FILE`, ...; free text after a ";" and rows naming no directory (the
+    commands that write the file --out names) are not read.
+    """
+    text = (ROOT / "docs" / "reference" / "commands.md").read_text()
+    section = text.split("## Where outputs go", 1)[1].split("\n## ", 1)[0]
+    table, unread = {}, []
+    for line in section.splitlines():
+        if not line.startswith("| `"):
+            continue
+        cells = [cell.strip() for cell in line.strip("| ").split(" | ")]
+        commands = re.findall(r"`([^`]+)`", cells[0])
+        match = re.match(r"`([^`]+)`: ([^;]*)", cells[1])
+        if match is None:
+            unread += commands
+            continue
+        for command in commands:
+            table[command] = (match.group(1), re.findall(r"`([^`]+)`", match.group(2)))
+    assert unread == ["simulate", "predict", "fidelity --plot"], unread
+    return table
+
+
+def _placed(path: str, values: dict[str, str]) -> str:
+    """A path of the table with its placeholders filled in, round numbers as glob digits."""
+    for placeholder, value in values.items():
+        path = path.replace(placeholder, value)
+    return path.replace("NNN", "[0-9]" * 3).replace("NN", "[0-9]" * 2)
+
+
+# The smoke config, smaller still: 5 maneuvers (2 rounds), 5 epochs, a tuning space of short trials. Its
+# output_dir is not the default (runs), so a path the table spells `runs/` where it means <output_dir> fails.
+TINY = 'output_dir = "outputs"\n' + SMOKE.read_text().replace("max_maneuvers = 7", "max_maneuvers = 5")
+TINY = TINY.replace("epochs = 60", "epochs = 5") + """
+[tuning.space]
+epochs = { low = 3, high = 5 }
+n_layers = 1
+width = [8, 16]
+"""
+
+
+@pytest.mark.slow
+def test_each_command_writes_its_files_where_the_command_reference_says(
+    cwd: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    table = _outputs_table()
+    (cwd / "tiny.toml").write_text(TINY)
+    assert 'name = "smoke"' in TINY
+    commands = {  # each command the table lists, with no --out, and the strategy it runs
+        "campaign run": (["campaign", "run", "tiny.toml"], "max_epistemic"),  # the config's strategy
+        "campaign propose": (["campaign", "propose", "tiny.toml", "--strategy", "uniform"], "uniform"),
+        "compare": (["compare", "tiny.toml", "--strategies", "uniform", "--seeds", "1"], "uniform"),
+        "tune": (["tune", "tiny.toml", "--n-trials", "2"], None),  # 2 trials: a parameter importance
+    }
+    assert set(table) == set(commands)
+    for command, (argv, strategy) in commands.items():
+        assert run([*argv, "--no-tracking"]) == 0, capsys.readouterr().err
+        capsys.readouterr()
+        values = {"<output_dir>": "outputs", "<name>": "smoke", "<study>": "smoke", "<N>": "0"}
+        values |= {"<strategy>": strategy} if strategy else {}
+        base, files = table[command]
+        directory = cwd / _placed(base, values)
+        assert directory.is_dir(), (command, directory)
+        assert files, command
+        for name in files:
+            found = sorted(directory.glob(_placed(name, values)))
+            assert found, (command, directory, name, sorted(p.name for p in directory.iterdir()))
+        if command == "compare":  # the seed's campaign holds what `campaign run` writes
+            seed = directory / _placed("<strategy>/seed<N>", values)
+            assert all(list(seed.glob(_placed(name, values))) for name in table["campaign run"][1])
+
+
 def test_readme_paths_are_the_ones_the_tools_write() -> None:
     readme = ROOT.joinpath("README.md").read_text()
     text = _documentation()  # the README and docs/
-    assert "runs/tune/" not in text  # tune writes runs/tuning/<study>/best.toml
+    assert "runs/tune/" not in text  # tune writes <output_dir>/tuning/<study>/best.toml (checked above)
     makefile = ROOT.joinpath("Makefile").read_text()
     demo = re.search(r"^demo:.*\n((?:\t.*\n)+)", makefile, re.M).group(1)  # type: ignore[union-attr]
     assert "--out runs/demo/" in demo and "--out runs/demo/<time>" in " ".join(readme.split())

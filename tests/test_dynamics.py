@@ -16,9 +16,9 @@ import torch
 import simulator
 from activelearn.config import RANKING_METRICS, DataConfig, ModelConfig, TrainingConfig, load_config
 from activelearn.loop.campaign import Campaign, CampaignState
-from activelearn.loop.collection import arrays, training_rows, training_windows
+from activelearn.loop.collection import arrays, data_lags, feature_columns, training_rows, training_windows
 from activelearn.loop.fitting import load_model_copy
-from activelearn.numerics.diagnostics import ROLLOUT_METRICS, free_run_metrics
+from activelearn.numerics.diagnostics import ROLLOUT_METRICS, free_run_metrics, free_runs
 from activelearn.numerics.lags import Lags, model_lags
 from activelearn.numerics.models import build_model, load_model, save_model
 from activelearn.numerics.multistep import window_loss
@@ -68,8 +68,16 @@ def test_history_columns_hold_the_lagged_log_values(slalom_log):
         "speed_lag2", "angZ_lag2", "speed_lag4", "angZ_lag4", "speed_lag6", "angZ_lag6",
     ]  # fmt: skip
     # The Markov-state model is history 1 at step 1: the same inputs in the same order.
-    assert DataConfig(inputs="history", history=1, history_step=1) is not None
+    markov = DataConfig(stride=5, skip_seconds=0.0, inputs="controls+rates")
+    history1 = DataConfig(stride=5, skip_seconds=0.0, inputs="history", history=1, history_step=1)
+    assert data_lags(history1) == Lags(1, 1) and data_lags(markov) is None
+    assert feature_columns(history1) == ["throttle", "steering", "speed_lag1", "angZ_lag1"]
     assert Lags(1, 1).n_inputs == 4 and Lags(1, 1).rate_lags == (1,)
+    x1, y1 = _rows(slalom_log, history1)
+    xm, ym = _rows(slalom_log, markov)
+    assert x1.shape == (len(y1), 4)
+    np.testing.assert_array_equal(x1, xm)
+    np.testing.assert_array_equal(y1, ym)
     part = next(iter(slalom_log.groupby("run_id", sort=False)))[1].reset_index(drop=True)
     rows = training_rows(part, DataConfig(stride=5, skip_seconds=0.0, **HISTORY))
     assert rows.index[0] == lags.span  # no row without a full history
@@ -126,6 +134,18 @@ def test_free_run_metrics_are_zero_error_for_the_truth_and_grow_with_a_bias(hist
     worse = free_run_metrics(history_models["hybrid"], logs, faster, n_samples=8)
     assert worse["rollout_pos_err_30s"] > metrics["rollout_pos_err_30s"]
     assert worse["rollout_rmse_v"] == metrics["rollout_rmse_v"]
+    # Judged against its own mean run as the truth (the same draws: the same seed), every error is zero.
+    rollout = free_runs(history_models["hybrid"], logs, n_samples=8)
+    mean_x, mean_y = rollout.mean_path()
+    own = [
+        pd.DataFrame({"posX": mean_x[i, :n], "posY": mean_y[i, :n], "yaw": rollout.yaw[:, i, :n].mean(axis=0),
+                      "speed": rollout.mean_rates[i, :n, 0], "angZ": rollout.mean_rates[i, :n, 1]})
+        for i, n in enumerate(rollout.lengths)
+    ]  # fmt: skip
+    exact = free_run_metrics(history_models["hybrid"], logs, own, n_samples=8)
+    errors = [name for name in ROLLOUT_METRICS if name != "rollout_coverage_95"]
+    assert all(metrics[name] > 0 for name in errors), metrics  # against the log, the run errs
+    assert {name: exact[name] for name in errors} == dict.fromkeys(errors, 0.0), exact
 
 
 def test_window_loss_of_one_step_is_the_one_step_nll(history_models, slalom_log):

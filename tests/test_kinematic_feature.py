@@ -97,6 +97,38 @@ def test_markov_training_with_windows_uses_the_feature():
     assert not np.allclose(fitted[False], fitted[True])
 
 
+def test_a_trained_static_map_reads_its_yaw_rate_off_the_feature():
+    """Not just a wider input: trained on skidpads, the network's yaw rate hangs on the feature column.
+    Held at its mean while the raw controls stay as they are, the yaw-rate error grows manifold."""
+    maneuvers = [Maneuver("skidpad", throttle, steering, direction, 6.0) for throttle in (0.3, 0.6, 0.9)
+                 for steering in (0.15, 0.3, 0.45) for direction in ("ccw", "cw")]  # fmt: skip
+    log = simulator.collect(maneuvers, seed=3)
+    data = DataConfig(stride=3, skip_seconds=2.0)
+    samples = pd.concat([training_rows(part, data) for _, part in log.groupby("run_id", sort=False)])
+    x, y = arrays(samples, data)
+    model = build_model(ModelConfig(n_inputs=2, kinematic_feature=True), seed=0)
+    fit(model, x, y, TrainingConfig(epochs=20, patience=None), seed=0)
+    params, n = model.mean_params()
+
+    def network(rows: torch.Tensor) -> np.ndarray:  # the forward path on expanded rows, physical units
+        means, _ = model.sampled_forward((rows - model.x_mean) / model.x_std, params, n)
+        return (means.mean(dim=0) * model.y_std + model.y_mean).numpy()
+
+    with torch.no_grad():
+        xt = torch.tensor(x, dtype=torch.float32)
+        rows = model.expand_inputs(xt)
+        intact = network(rows)
+        np.testing.assert_array_equal(intact, model(xt)[:, :2].numpy())  # the path `forward` takes
+        held = rows.clone()
+        held[:, -1] = model.x_mean[-1]  # the feature at its mean; the throttle and steering as they are
+        ablated = network(held)
+    torch.testing.assert_close(held[:, :2], rows[:, :2])
+    error = {name: float(np.sqrt(np.mean((out[:, 1] - y[:, 1]) ** 2))) for name, out in
+             (("intact", intact), ("ablated", ablated))}  # fmt: skip
+    assert error["ablated"] > 5 * error["intact"], error
+    assert error["ablated"] > 0.25 * y[:, 1].std(), error  # a sizeable share of the yaw rate's spread
+
+
 @pytest.mark.slow
 def test_a_dynamic_campaign_trains_scores_and_rolls_out_with_the_feature(tmp_path):
     cfg = _dynamic_config(tmp_path, model={"kinematic_feature": True})

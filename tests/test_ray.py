@@ -134,18 +134,36 @@ def test_ray_address_local_starts_an_in_process_cluster_with_the_same_numbers(tm
     assert _rounds(out, "uniform", range(1)) == {0: reference[0]}
 
 
-def _ray_job_pids() -> list[int]:
-    """Processes of Ray workers running a campaign (Ray titles them after the task's function)."""
-    pids = []
+def _ray_job_pids(address: str) -> list[int]:
+    """Processes of Ray workers running a campaign (Ray titles them after the task's function) in the
+    cluster at `address` alone: those whose parent chain reaches the `ray start --head --port=PORT` this
+    test process started (the fixture's head), never the workers of another cluster on the machine."""
+    port = f"--port={address.rsplit(':', 1)[1]}".encode()
+    parents, heads, jobs = {}, set(), []
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
             try:
                 cmdline = (entry / "cmdline").read_bytes()
-            except OSError:
+                stat = (entry / "stat").read_text()
+            except OSError:  # it ended while being read
                 continue
+            pid = int(entry.name)
+            # "pid (comm) state ppid ...", where comm may hold spaces and ")"
+            parents[pid] = int(stat.rsplit(")", 1)[1].split()[1])
+            args = cmdline.split(b"\0")
+            if b"--head" in args and port in args and parents[pid] == os.getpid():
+                heads.add(pid)
             if cmdline.startswith(b"ray::_run_job"):
-                pids.append(int(entry.name))
-    return pids
+                jobs.append(pid)
+
+    def ours(pid: int) -> bool:
+        while pid > 1:
+            if pid in heads:
+                return True
+            pid = parents.get(pid, 0)
+        return False
+
+    return [pid for pid in jobs if ours(pid)]
 
 
 def test_a_killed_ray_worker_is_retried_and_its_campaign_resumes(tmp_path, ray_head, process_reference):
@@ -170,7 +188,7 @@ def test_a_killed_ray_worker_is_retried_and_its_campaign_resumes(tmp_path, ray_h
                 checkpointed_round = state.rounds[0]
                 checkpointed_batches = len(state.batches)
                 checkpointed_samples = _committed_samples(state_file.parent, checkpointed_batches)
-                for pid in _ray_job_pids():
+                for pid in _ray_job_pids(ray_head):
                     try:
                         os.kill(pid, signal.SIGKILL)
                     except ProcessLookupError:  # it ended between the listing and the kill

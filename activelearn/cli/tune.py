@@ -62,7 +62,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--pruner", default="median", choices=TUNE_PRUNERS, help="trial pruner (default median)")
     p.add_argument("--seed", type=int, default=None, metavar="N", help="sampler seed (default: the config's)")
     p.add_argument("--out", default=None, metavar="TOML",
-                   help="best params file (default runs/tuning/<study>/best.toml); figures go beside it")
+                   help="best params file (default <output_dir>/tuning/<study>/best.toml, <output_dir> being "
+                        "the config's, default runs); figures go beside it")
     p.set_defaults(handler=_tune)
 
 

@@ -6,9 +6,10 @@ NFS server) drops it when its process dies, so a lock left by a dead process is 
 it, DIR/lock.json records the holder (host, pid, command, since when) for the message a second writer
 gets, and a lease the holder renews every LEASE_SECONDS / 3: a record from another host that was not
 renewed for LEASE_SECONDS is stale (its holder is gone, or its file system's locks did not reach this
-host), one from this host is stale once its pid is gone. A second writer waits up to `wait` seconds,
-then raises CampaignLocked naming the holder. Re-entering the lock in the same thread (`tell` proposes,
-`ingest` tells) only counts.
+host), one from this host is stale once its pid is gone. A holder stalled past its lease and taken over
+finds out from the record at its next commit (`check`) and stops without writing; its renewer does not
+write its record back. A second writer waits up to `wait` seconds, then raises CampaignLocked naming the
+holder. Re-entering the lock in the same thread (`tell` proposes, `ingest` tells) only counts.
 """
 
 from __future__ import annotations
@@ -99,6 +100,7 @@ class DirectoryLock:
         self._fd: int | None = None
         self._created: list[Path] = []
         self._holder: Holder | None = None
+        self._written = 0.0  # Unix time of the last renewal written to the record
         self._stop = threading.Event()
         self._renewer: threading.Thread | None = None
 
@@ -177,12 +179,26 @@ class DirectoryLock:
     def _write(self) -> None:
         assert self._holder is not None
         atomic_write_bytes(self.directory / HOLDER_FILE, json.dumps(asdict(self._holder)).encode())
+        self._written = self._holder.renewed
+
+    def held(self) -> bool:
+        """Whether this process still holds the lock, by its record: no other holder's token in it.
+
+        A record gone while this holder's lease ran out (it was stalled past it) counts as lost too:
+        another process may have taken the directory over, done its work and released it meanwhile.
+        A record gone within the lease is a read that failed for a moment.
+        """
+        if self.lost or self._holder is None:
+            return False
+        current = read_holder(self.directory)
+        if current is None:
+            return time.time() - self._written <= self.lease
+        return current.token == self._holder.token
 
     def _renew(self) -> None:
         while not self._stop.wait(self.lease / 3):
             assert self._holder is not None
-            current = read_holder(self.directory)
-            if current is not None and current.token != self._holder.token:
+            if not self.held():  # taken over: writing again would overwrite the new holder's record
                 self.lost = True
                 return
             self._holder = Holder(**{**asdict(self._holder), "renewed": time.time()})
@@ -216,9 +232,18 @@ _held: dict[tuple[Path, int], tuple[DirectoryLock, int]] = {}
 
 @contextlib.contextmanager
 def hold(
-    directory: str | Path, wait: float = DEFAULT_WAIT, on_wait: Callable[[Holder], None] | None = None
+    directory: str | Path,
+    wait: float = DEFAULT_WAIT,
+    on_wait: Callable[[Holder], None] | None = None,
+    *,
+    lease: float = LEASE_SECONDS,
 ) -> Iterator[DirectoryLock]:
-    """Hold a campaign directory's lock for the block (re-entrant within a thread)."""
+    """Hold a campaign directory's lock for the block (re-entrant within a thread).
+
+    `lease`: seconds the lock's record stays valid without a renewal (renewed every lease / 3); a holder
+    stalled for longer may be taken over, and then stops at its next checkpoint (`check`). Re-entering
+    keeps the lease of the outer block.
+    """
     if not wait >= 0:
         raise InputError("--wait", wait, "must be a number of seconds >= 0")
     key = (Path(directory).absolute(), threading.get_ident())
@@ -226,7 +251,7 @@ def hold(
         lock, depth = _held[key]
         _held[key] = (lock, depth + 1)
     else:
-        lock = DirectoryLock(directory)
+        lock = DirectoryLock(directory, lease=lease)
         lock.acquire(wait, on_wait)
         _held[key] = (lock, 1)
     try:
@@ -246,9 +271,14 @@ def _within(filename: Any, directory: Path) -> bool:
 
 
 def check(directory: str | Path) -> None:
-    """Raise CampaignLocked if this thread held the directory's lock and another process took it over."""
+    """Raise CampaignLocked if this thread held the directory's lock and another process took it over.
+
+    It asks the record itself rather than waiting for the renewer to notice: a holder resumed after a
+    stall may reach its next write before its renewer thread runs again.
+    """
     entry = _held.get((Path(directory).absolute(), threading.get_ident()))
-    if entry is not None and entry[0].lost:
+    if entry is not None and not entry[0].held():
+        entry[0].lost = True
         raise CampaignLocked(
             f"{directory}: another command took this campaign over while this one was stalled for more "
             f"than {entry[0].lease:g} s; this one stops without writing"
