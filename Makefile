@@ -30,16 +30,20 @@ demo-cold: setup
 		--seeds 3 --workers 2 --out runs/demo-cold/$$(date +%Y%m%d-%H%M%S)
 
 # The documentation is part of the test: a broken link or a page missing from mkdocs.yml's nav fails it.
+# Two pytest-xdist workers, a test file each at a time (a file's fixtures are built once): much of the
+# suite waits on servers and subprocesses, so two workers pay even on 2 cores. The files go in the order
+# tests/conftest.py gives them (the longest first; xdist would otherwise sort them by test count).
+PYTEST := $(BIN)/python -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder
 test: setup
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest -q
+	$(PYTEST)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet --site-dir site
 
 # The loop to run while working: everything but the tests marked slow (servers, racing processes, many
 # campaigns, the benchmarks' quick modes); `make test` still runs them all.
 test-fast: setup
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(PYTEST) -m "not slow"
 
 lint: setup
 	$(BIN)/ruff check .

@@ -18,7 +18,7 @@ paired ratio physics / black box per seed.
 
 Usage: python experiments/benchmarks/bench_physics.py [--seeds 5] [--train-maneuvers 40]
        [--oracles nominal,twin] [--epochs 150] [--quick]
-`--quick` (what the test runs): 1 seed, 4 training maneuvers, 3 epochs, 4 test maneuvers.
+`--quick` (what the test runs): 1 seed, 4 training maneuvers, 3 epochs, the test set at quick.py's sizes.
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from quick import shrink
 
 from activelearn.config import load_config
 from activelearn.loop.campaign import Campaign
@@ -45,8 +46,9 @@ PHYSICS = {"kind": "physics", "kinematic_feature": False}
 BLACK_BOX = {"kind": "ensemble", "ensemble_size": 5, "kinematic_feature": True}
 
 
-def campaign_for(oracle: str, scratch: Path, epochs: int | None) -> Campaign:
-    """dynamics.toml against the nominal simulator or the twin (its test set cached in runs/cache)."""
+def campaign_for(oracle: str, scratch: Path, epochs: int | None, quick: bool = False) -> Campaign:
+    """dynamics.toml against the nominal simulator or the twin (its test set cached in runs/cache; at
+    quick.py's sizes with `quick`: a few short test maneuvers instead of 72 of 30 s)."""
     config, params = scratch / f"{oracle}.toml", scratch / f"{oracle}_params.toml"
     text = CONFIG.read_text()
     if oracle == "twin":
@@ -55,6 +57,8 @@ def campaign_for(oracle: str, scratch: Path, epochs: int | None) -> Campaign:
     config.write_text(text)
     params.write_text("" if epochs is None else f"[training]\nepochs = {epochs}\n")
     cfg = load_config(config, params=str(params))
+    if quick:
+        cfg = shrink(cfg).model_copy(update={"training": cfg.training})
     return Campaign(cfg, scratch / oracle, cache_dir=Path("runs/cache"))
 
 
@@ -123,7 +127,7 @@ def main() -> None:
     pd.set_option("display.width", 160)
     with tempfile.TemporaryDirectory() as scratch:
         for oracle in oracles:
-            campaign = campaign_for(oracle, Path(scratch), args.epochs)
+            campaign = campaign_for(oracle, Path(scratch), args.epochs, args.quick)
             test = campaign.test_set
             kinds = [m.kind for m in campaign.oracle.test_maneuvers()]
             n_test = args.test_maneuvers or len(test.logs)
