@@ -31,6 +31,13 @@ from activelearn.config.base import (
     Throttle,
 )
 from activelearn.config.campaign import CampaignConfig, load_config, read_toml, validate_config
+from activelearn.config.evaluation import (
+    OracleConfig,
+    OracleKind,
+    TargetConfig,
+    TestSetConfig,
+    TrackingConfig,
+)
 from activelearn.config.geometry import (
     boundary_distance,
     polygon_area,
@@ -44,16 +51,11 @@ from activelearn.config.sections import (
     DataConfig,
     DesignConfig,
     NoiseSettings,
-    OracleConfig,
-    OracleKind,
     PoolConfig,
     PriorConfig,
     PriorGridConfig,
     PriorUse,
     SimulationConfig,
-    TargetConfig,
-    TestSetConfig,
-    TrackingConfig,
 )
 from activelearn.config.tuning import (
     OPTIONAL_SPACE_PARAMS,

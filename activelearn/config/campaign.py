@@ -9,18 +9,15 @@ from typing import Annotated, Any
 from pydantic import Field, ValidationError, field_validator, model_validator
 
 from activelearn.config.base import Seed, _Section
+from activelearn.config.evaluation import OracleConfig, TargetConfig, TestSetConfig, TrackingConfig
 from activelearn.config.model import ModelConfig, TrainingConfig
 from activelearn.config.safety import SafetyConfig
 from activelearn.config.sections import (
     AcquisitionConfig,
     DataConfig,
     DesignConfig,
-    OracleConfig,
     PoolConfig,
     SimulationConfig,
-    TargetConfig,
-    TestSetConfig,
-    TrackingConfig,
 )
 from activelearn.config.tuning import TuningConfig
 from activelearn.errors import ConfigError
