@@ -16,6 +16,7 @@ from simulator.maneuvers import (
     sample_times,
 )
 from simulator.schedules import check_schedule, member_from_name, schedule_maneuver
+from simulator.stop import StopRule
 from simulator.twin import TWIN_PARAMETERS, TwinParameter, check_overrides, twin_vehicle
 from simulator.vehicle import (
     ENCODER_CPR,
@@ -54,6 +55,7 @@ __all__ = [
     "OverrideError",
     "Replay",
     "SimulatorError",
+    "StopRule",
     "TwinParameter",
     "Vehicle",
     "__version__",

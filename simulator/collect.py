@@ -42,6 +42,7 @@ import pandas as pd
 from simulator.errors import DivergenceError, DivergenceWarning, ManeuverError
 from simulator.families import FamilyManeuver
 from simulator.maneuvers import Maneuver, Replay, open_loop_steering
+from simulator.stop import StopRule
 from simulator.vehicle import ENCODER_CPR, MAX_SPEED, Vehicle
 
 AUTODRIVE_COLUMNS = (
@@ -156,6 +157,19 @@ class _Run:
         self.yaw = 0.0
         self.turn_start = 0.0
         self.flip_sample: int | None = None
+        # closed-loop stop (StopRule): the run's first true pose, the sample whose pose triggered it
+        self.origin: tuple[float, float, float] | None = None
+        self.stopped_at: int | None = None
+
+    def extend(self, n: int, vehicle: Vehicle) -> None:
+        """Make room for n log samples (a stop runs on past the maneuver's end)."""
+        extra = n - len(self.throttle)
+        if extra > 0:
+            self.throttle = np.concatenate([self.throttle, np.zeros(extra)])
+            self.steering = np.concatenate([self.steering, np.zeros(extra)])
+            self.ctrl = np.concatenate([self.ctrl, np.zeros((extra, self.ctrl.shape[1]))])
+            self.sens = np.concatenate([self.sens, np.full((extra, self.sens.shape[1]), np.nan)])
+        self.n = n
 
     @property
     def kept(self) -> int:
@@ -194,6 +208,7 @@ def _check_args(
     threads: int | None,
     on_divergence: str,
     physics_rate: float,
+    stop: StopRule | None = None,
 ) -> list[Maneuver]:
     if isinstance(maneuvers, Maneuver | Replay | FamilyManeuver):
         maneuvers = [maneuvers]
@@ -217,6 +232,8 @@ def _check_args(
         raise ManeuverError("threads", threads, "must be an integer >= 1")
     if on_divergence not in ("warn", "raise"):
         raise ManeuverError("on_divergence", on_divergence, "must be 'warn' or 'raise'")
+    if stop is not None and not isinstance(stop, StopRule):
+        raise ManeuverError("stop", stop, "must be a StopRule or None")
     return list(maneuvers)
 
 
@@ -240,6 +257,7 @@ def collect(
     progress: ProgressCallback | None = None,
     on_divergence: str = "warn",
     vehicle: Vehicle | None = None,
+    stop: StopRule | None = None,
 ) -> pd.DataFrame:
     """Simulate maneuvers in parallel and return their logs, one row per log sample, in COLUMNS order.
 
@@ -258,17 +276,25 @@ def collect(
     `FamilyManeuver` (simulator.families) runs its open-loop schedule, logged with `maneuver` = its
     family, `run_id` = its name (the parameters), `op_throttle` its median throttle and `op_steering`
     its largest |steering|.
+
+    `stop` (a `simulator.stop.StopRule`) closes a stop at the walls of an arena around every run: once
+    the run's true pose comes within `stop.distance` of the arena's boundary, the throttle is 0 (the
+    brake) from the next sample on and the log runs on, past the maneuver's end if need be, until
+    the car stands; a run that never comes that close is simulated as without it.
     """
     vehicle = vehicle if vehicle is not None else _default_vehicle()
     dt = vehicle.timestep
     physics_rate = 1.0 / dt
-    maneuvers = _check_args(maneuvers, rate_hz, seed, noise, threads, on_divergence, physics_rate)
+    maneuvers = _check_args(maneuvers, rate_hz, seed, noise, threads, on_divergence, physics_rate, stop)
     rate_hz = float(rate_hz)
     if not maneuvers:
         return _empty_table()
 
     runs = _make_runs(maneuvers, rate_hz, vehicle)
     n_max = max(run.n for run in runs)
+    settle = 0 if stop is None else max(1, math.ceil(stop.settle * rate_hz - 1e-9))
+    if stop is not None:
+        n_max += settle + 1  # a stopped run may log `settle` samples past its maneuver's end
     # physics step at which each log sample is taken (nearest step to k / rate_hz)
     sample_step = np.rint(np.arange(n_max + 1) * (physics_rate / rate_hz)).astype(np.int64)
     total = sum(run.n for run in runs)
@@ -296,14 +322,16 @@ def collect(
             chunk = int(min(chunk_cap, max(1, _CHUNK_BYTES // bytes_per_sample)))
             k1 = min(k + chunk, max(run.n for run in active))
             start = int(sample_step[k])
-            # the last sample of a run needs its own step; otherwise stop where sample k1 begins
-            end = int(sample_step[k1]) if any(run.n > k1 for run in active) else int(sample_step[k1 - 1]) + 1
+            # the last sample of a run needs its own step; otherwise stop where sample k1 begins (always
+            # there under a stop rule: a run stopped in this chunk may go on past its last sample)
+            more = stop is not None or any(run.n > k1 for run in active)
+            end = int(sample_step[k1]) if more else int(sample_step[k1 - 1]) + 1
             nstep = end - start
             # log sample that owns each physics step of the chunk (commands held between samples)
             owner = np.searchsorted(sample_step, np.arange(start, end), side="right") - 1
 
             for run in active:
-                if run.maneuver.kind == "eight":
+                if run.maneuver.kind == "eight" and run.stopped_at is None:
                     _plan_eight(run, k, min(k1, run.n), sample_step, dt, vehicle)
             control = buffers.get("control", (nb, nstep, nu))
             init = np.empty((nb, nstate))
@@ -312,11 +340,7 @@ def collect(
                 # actuation latency: step s applies the command owning step s - delay (brake before t=0)
                 lagged = np.searchsorted(sample_step, np.arange(start, end) - delay, side="right") - 1
             for b, run in enumerate(active):
-                if delay:
-                    control[b] = run.ctrl[np.clip(lagged, 0, run.n - 1)]
-                    control[b, lagged < 0] = idle
-                else:
-                    control[b] = run.ctrl[np.minimum(owner, run.n - 1)]
+                control[b] = _run_controls(run, owner, lagged if delay else None, idle)
                 init[b] = run.state
                 warm[b] = _warmstart(vehicle, scratch, run, control[b, 0])
             state_out = buffers.get("state", (nb, nstep, nstate))
@@ -340,10 +364,19 @@ def collect(
                 rows = local[: kk - k]
                 run.sens[k:kk] = sens_out[b, rows]
                 run.state = state_out[b, -1].copy()
+                times = state_out[b, rows, vehicle.state_time]
+                if stop is not None:
+                    n_before = run.n
+                    times = _apply_stop(
+                        stop, run, k, k1, times, state_out[b], start, end, sample_step, settle, vehicle,
+                        roller, datas, scratch, lagged if delay else None, idle,
+                    )
+                    total += run.n - n_before
+                    kk = min(k1, run.n)
                 # a MuJoCo instability (bad qacc) resets or freezes the state: time stops matching
                 expected = (sample_step[k:kk] + 1) * dt
-                _check_divergence(run, k, vehicle, state_out[b, rows, vehicle.state_time], expected, dt)
-                if run.maneuver.kind == "eight" and run.diverged_at is None:
+                _check_divergence(run, k, vehicle, times[: kk - k], expected, dt)
+                if run.maneuver.kind == "eight" and run.diverged_at is None and run.stopped_at is None:
                     _track_heading(run, k, kk, vehicle)
                 done += (kk - k) + (run.n - kk if run.diverged_at is not None else 0)
             if progress is not None:
@@ -361,6 +394,86 @@ def collect(
             raise DivergenceError(names, detail, data=table)
         warnings.warn(f"{len(diverged)} maneuver(s) diverged: {detail}", DivergenceWarning, stacklevel=2)
     return table
+
+
+def _run_controls(run: _Run, owner: np.ndarray, lagged: np.ndarray | None, idle: np.ndarray) -> np.ndarray:
+    """The run's actuator controls at the physics steps whose log samples are `owner` (commands held
+    between samples, the last one after the run's end); with a latency, `lagged` are the samples whose
+    commands the steps apply (< 0: before the run started, the brake `idle`)."""
+    if lagged is None:
+        return run.ctrl[np.minimum(owner, run.n - 1)]
+    control = run.ctrl[np.clip(lagged, 0, run.n - 1)]
+    control[lagged < 0] = idle
+    return control
+
+
+def _apply_stop(
+    stop: StopRule,
+    run: _Run,
+    k: int,
+    k1: int,
+    times: np.ndarray,
+    states: np.ndarray,
+    start: int,
+    end: int,
+    sample_step: np.ndarray,
+    settle: int,
+    vehicle: Vehicle,
+    roller: mujoco.rollout.Rollout,
+    datas: list[mujoco.MjData],
+    scratch: mujoco.MjData,
+    lagged: np.ndarray | None,
+    idle: np.ndarray,
+) -> np.ndarray:
+    """Judge the stop rule on the run's samples k..k1-1 just simulated (states: the chunk's states,
+    steps start..end-1), brake and re-simulate from the sample after a trigger, end the log where
+    the braked car stands. Returns the physics times of the run's samples from k on."""
+    times = times.copy()
+    if run.stopped_at is None:
+        kk = min(k1, run.n)
+        ch = vehicle.decode(run.sens[k:kk])
+        if run.origin is None:
+            run.origin = (float(ch["posX"][0]), float(ch["posY"][0]), float(ch["yaw"][0]))
+        with np.errstate(invalid="ignore"):
+            x, y = stop.placed(ch["posX"], ch["posY"], ch["yaw"], run.origin)
+            near = stop.clearance(x, y) < stop.distance
+        if not near.any():
+            return times
+        j = k + int(np.argmax(near))
+        run.stopped_at = j
+        run.extend(j + 1 + settle, vehicle)
+        hold = run.steering[j]
+        run.throttle[j + 1 :] = 0.0
+        run.steering[j + 1 :] = hold
+        run.ctrl[j + 1 :] = vehicle.controls(0.0, hold)
+        if j + 1 < k1:  # the chunk drove on after the trigger: drive its rest again, braking
+            s0 = int(sample_step[j + 1])
+            steps = np.arange(s0, end)
+            owner = np.searchsorted(sample_step, steps, side="right") - 1
+            lag = None if lagged is None else lagged[s0 - start :]
+            control = _run_controls(run, owner, lag, idle)[None]
+            run.state = states[s0 - start - 1].copy()
+            warm = _warmstart(vehicle, scratch, run, control[0, 0])[None]
+            state_out = np.empty((1, len(steps), vehicle.nstate))
+            sens_out = np.empty((1, len(steps), vehicle.model.nsensordata))
+            roller.rollout(
+                [vehicle.model], datas, run.state[None].copy(), np.ascontiguousarray(control),
+                control_spec=mujoco.mjtState.mjSTATE_CTRL.value, skip_checks=True, nstep=len(steps),
+                initial_warmstart=warm, state=state_out, sensordata=sens_out,
+            )  # fmt: skip
+            kk = min(k1, run.n)
+            rows = sample_step[j + 1 : kk] - s0
+            run.sens[j + 1 : kk] = sens_out[0, rows]
+            run.state = state_out[0, -1].copy()
+            times = np.concatenate([times[: j + 1 - k], state_out[0, rows, vehicle.state_time]])
+    kk = min(k1, run.n)
+    first = max(k, run.stopped_at + 1)
+    if first < kk:
+        speed = np.abs(vehicle.decode(run.sens[first:kk])["speed"])
+        still = np.flatnonzero(speed < stop.still_speed)
+        if len(still):
+            run.n = first + int(still[0]) + 1
+    return times
 
 
 def _make_runs(maneuvers: list[Maneuver], rate_hz: float, vehicle: Vehicle) -> list[_Run]:

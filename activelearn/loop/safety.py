@@ -59,6 +59,7 @@ import numpy as np
 import pandas as pd
 import torch
 
+import simulator
 from activelearn.config import POSE_LEVER_ARM, SafetyConfig, boundary_distance, polygon_clearance
 from activelearn.loop.pool import maneuver_controls
 from activelearn.numerics.surrogate import Rollout, simulate
@@ -417,10 +418,21 @@ def placed_path(log: pd.DataFrame, cfg: SafetyConfig) -> tuple[np.ndarray, np.nd
     return x0 + c * dx - s * dy, y0 + s * dx + c * dy
 
 
+def stop_rule(cfg: SafetyConfig | None) -> simulator.StopRule | None:
+    """The live stop of an enforced `[safety] stop = "live"` as the simulator drives it (None otherwise):
+    brake once the pose, placed at the start pose, comes within `margin + stop_buffer` of a wall."""
+    if cfg is None or cfg.stop != "live" or not cfg.enforce:
+        return None
+    return simulator.StopRule(
+        polygon=tuple(cfg.arena), start=tuple(cfg.start), distance=cfg.margin + cfg.stop_buffer
+    )
+
+
 def live_stop(log: pd.DataFrame, cfg: SafetyConfig) -> pd.DataFrame:
-    """The log as a live stop leaves it: up to the sample before the first whose measured pose comes
-    within `margin + stop_buffer` of a wall (the car brakes there; its braking rows are not logged).
-    A log that never comes that close is returned whole."""
+    """A log that cannot be driven again (a recorded pool's) cut where a live stop would have braked: up
+    to the sample before the first whose measured pose comes within `margin + stop_buffer` of a wall
+    (the braking is not in it: simulated oracles drive it, `stop_rule`). A log that never comes that
+    close is returned whole."""
     x, y = placed_path(log, cfg)
     near = polygon_clearance(cfg.arena, x, y) < cfg.margin + cfg.stop_buffer
     if not near.any():
