@@ -10,6 +10,9 @@ How a collection runs:
   (exact for rates dividing the 300 Hz physics rate, such as 30 Hz); commands are held between
   samples, so the logged throttle/steering is what the car received until the next row (with a
   vehicle `latency`, what was sent: the car applies it `latency` seconds later);
+- with a `stop` rule (simulator.stop) every run is braked closed-loop near an arena's walls: a run
+  whose true pose triggers it is simulated again from the next sample with throttle 0, and its log
+  runs on (past the maneuver's end if need be) until the car stands;
 - sensor noise is drawn per maneuver from `SeedSequence(seed).spawn(len(maneuvers))[i]`, keyed by
   the maneuver's position in the list, so results never depend on the thread count. The physics,
   including the eight's heading feedback, never sees the noise: noise-free and noisy logs of a
@@ -42,7 +45,7 @@ import pandas as pd
 from simulator.errors import DivergenceError, DivergenceWarning, ManeuverError
 from simulator.families import FamilyManeuver
 from simulator.maneuvers import Maneuver, Replay, open_loop_steering
-from simulator.stop import StopRule
+from simulator.stop import StopRule, brake_on_trigger, end_when_standing
 from simulator.vehicle import ENCODER_CPR, MAX_SPEED, Vehicle
 
 AUTODRIVE_COLUMNS = (
@@ -408,71 +411,36 @@ def _run_controls(run: _Run, owner: np.ndarray, lagged: np.ndarray | None, idle:
 
 
 def _apply_stop(
-    stop: StopRule,
-    run: _Run,
-    k: int,
-    k1: int,
-    times: np.ndarray,
-    states: np.ndarray,
-    start: int,
-    end: int,
-    sample_step: np.ndarray,
-    settle: int,
-    vehicle: Vehicle,
-    roller: mujoco.rollout.Rollout,
-    datas: list[mujoco.MjData],
-    scratch: mujoco.MjData,
-    lagged: np.ndarray | None,
-    idle: np.ndarray,
-) -> np.ndarray:
+    stop: StopRule, run: _Run, k: int, k1: int, times: np.ndarray, states: np.ndarray, start: int, end: int,
+    sample_step: np.ndarray, settle: int, vehicle: Vehicle, roller: mujoco.rollout.Rollout,
+    datas: list[mujoco.MjData], scratch: mujoco.MjData, lagged: np.ndarray | None, idle: np.ndarray,
+) -> np.ndarray:  # fmt: skip
     """Judge the stop rule on the run's samples k..k1-1 just simulated (states: the chunk's states,
     steps start..end-1), brake and re-simulate from the sample after a trigger, end the log where
     the braked car stands. Returns the physics times of the run's samples from k on."""
     times = times.copy()
-    if run.stopped_at is None:
+    j = brake_on_trigger(stop, run, k, min(k1, run.n), settle, vehicle) if run.stopped_at is None else None
+    if j is not None and j + 1 < k1:  # the chunk drove on after the trigger: drive its rest again, braking
+        s0 = int(sample_step[j + 1])
+        steps = np.arange(s0, end)
+        owner = np.searchsorted(sample_step, steps, side="right") - 1
+        lag = None if lagged is None else lagged[s0 - start :]
+        control = _run_controls(run, owner, lag, idle)[None]
+        run.state = states[s0 - start - 1].copy()
+        warm = _warmstart(vehicle, scratch, run, control[0, 0])[None]
+        state_out = np.empty((1, len(steps), vehicle.nstate))
+        sens_out = np.empty((1, len(steps), vehicle.model.nsensordata))
+        roller.rollout(
+            [vehicle.model], datas, run.state[None].copy(), np.ascontiguousarray(control),
+            control_spec=mujoco.mjtState.mjSTATE_CTRL.value, skip_checks=True, nstep=len(steps),
+            initial_warmstart=warm, state=state_out, sensordata=sens_out,
+        )  # fmt: skip
         kk = min(k1, run.n)
-        ch = vehicle.decode(run.sens[k:kk])
-        if run.origin is None:
-            run.origin = (float(ch["posX"][0]), float(ch["posY"][0]), float(ch["yaw"][0]))
-        with np.errstate(invalid="ignore"):
-            x, y = stop.placed(ch["posX"], ch["posY"], ch["yaw"], run.origin)
-            near = stop.clearance(x, y) < stop.distance
-        if not near.any():
-            return times
-        j = k + int(np.argmax(near))
-        run.stopped_at = j
-        run.extend(j + 1 + settle, vehicle)
-        hold = run.steering[j]
-        run.throttle[j + 1 :] = 0.0
-        run.steering[j + 1 :] = hold
-        run.ctrl[j + 1 :] = vehicle.controls(0.0, hold)
-        if j + 1 < k1:  # the chunk drove on after the trigger: drive its rest again, braking
-            s0 = int(sample_step[j + 1])
-            steps = np.arange(s0, end)
-            owner = np.searchsorted(sample_step, steps, side="right") - 1
-            lag = None if lagged is None else lagged[s0 - start :]
-            control = _run_controls(run, owner, lag, idle)[None]
-            run.state = states[s0 - start - 1].copy()
-            warm = _warmstart(vehicle, scratch, run, control[0, 0])[None]
-            state_out = np.empty((1, len(steps), vehicle.nstate))
-            sens_out = np.empty((1, len(steps), vehicle.model.nsensordata))
-            roller.rollout(
-                [vehicle.model], datas, run.state[None].copy(), np.ascontiguousarray(control),
-                control_spec=mujoco.mjtState.mjSTATE_CTRL.value, skip_checks=True, nstep=len(steps),
-                initial_warmstart=warm, state=state_out, sensordata=sens_out,
-            )  # fmt: skip
-            kk = min(k1, run.n)
-            rows = sample_step[j + 1 : kk] - s0
-            run.sens[j + 1 : kk] = sens_out[0, rows]
-            run.state = state_out[0, -1].copy()
-            times = np.concatenate([times[: j + 1 - k], state_out[0, rows, vehicle.state_time]])
-    kk = min(k1, run.n)
-    first = max(k, run.stopped_at + 1)
-    if first < kk:
-        speed = np.abs(vehicle.decode(run.sens[first:kk])["speed"])
-        still = np.flatnonzero(speed < stop.still_speed)
-        if len(still):
-            run.n = first + int(still[0]) + 1
+        rows = sample_step[j + 1 : kk] - s0
+        run.sens[j + 1 : kk] = sens_out[0, rows]
+        run.state = state_out[0, -1].copy()
+        times = np.concatenate([times[: j + 1 - k], state_out[0, rows, vehicle.state_time]])
+    end_when_standing(stop, run, k, min(k1, run.n), vehicle)
     return times
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -90,3 +91,38 @@ class StopRule:
         crosses = ((ay > py) != (by > py)) & (px < ax + (py - ay) * ex / np.where(ey == 0, 1.0, ey))
         inside = np.sum(crosses, axis=1) % 2 == 1
         return np.where(inside, dist, -dist)
+
+
+# Called by `collect` on its per-run book-keeping (`simulator.collect._Run`) after every chunk.
+
+
+def brake_on_trigger(stop: StopRule, run: Any, k: int, kk: int, settle: int, vehicle: Any) -> int | None:
+    """Judge the run's samples k..kk-1 (true poses); at the first that triggers, brake from the next
+    sample on (throttle 0, steering held), make room for `settle` samples after it and return it."""
+    ch = vehicle.decode(run.sens[k:kk])
+    if run.origin is None:
+        run.origin = (float(ch["posX"][0]), float(ch["posY"][0]), float(ch["yaw"][0]))
+    with np.errstate(invalid="ignore"):
+        x, y = stop.placed(ch["posX"], ch["posY"], ch["yaw"], run.origin)
+        near = stop.clearance(x, y) < stop.distance
+    if not near.any():
+        return None
+    j = k + int(np.argmax(near))
+    run.stopped_at = j
+    run.extend(j + 1 + settle, vehicle)
+    hold = run.steering[j]
+    run.throttle[j + 1 :] = 0.0
+    run.steering[j + 1 :] = hold
+    run.ctrl[j + 1 :] = vehicle.controls(0.0, hold)
+    return j
+
+
+def end_when_standing(stop: StopRule, run: Any, k: int, kk: int, vehicle: Any) -> None:
+    """End a braking run's log at its first sample after the trigger (among k..kk-1) that stands."""
+    if run.stopped_at is None:
+        return
+    first = max(k, run.stopped_at + 1)
+    if first < kk:
+        still = np.flatnonzero(np.abs(vehicle.decode(run.sens[first:kk])["speed"]) < stop.still_speed)
+        if len(still):
+            run.n = first + int(still[0]) + 1
