@@ -235,3 +235,17 @@ def test_a_bad_safety_value_on_the_command_line_is_one_line_exit_2_nothing_writt
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and f"safety.{field}" in err and words in err, err
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["bad.toml"]
+
+
+def test_a_comparison_simulates_the_pool_under_the_live_stop_before_its_workers(tmp_path):
+    from activelearn.loop.oracles import SimulatorOracle
+    from activelearn.studies.compare import compare
+
+    cfg = campaign_config(tmp_path, {"arena": SMALL, "stop": "live"},
+                          design={"initial": 2, "per_round": 1, "max_maneuvers": 2})  # fmt: skip
+    result = compare(cfg, ["uniform"], [0], directory=tmp_path / "cmp", workers=1, tracking=False)
+    assert len(result.table) >= 1
+    oracle = SimulatorOracle(cfg, SimulationCache(Path(cfg.output_dir) / "cache", cfg.simulation))
+    assert oracle.driven.root != oracle.cache.root and oracle.driven.stop == stop_rule(cfg.safety)
+    assert oracle.driven.missing(oracle.candidates()) == []  # the whole pool, braked, in its own entries
+    assert oracle.cache.missing(oracle.test_maneuvers()) == []  # the test set without the stop
