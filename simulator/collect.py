@@ -34,8 +34,6 @@ import math
 import os
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, fields
-from numbers import Integral, Real
 
 import mujoco
 import mujoco.rollout
@@ -45,8 +43,9 @@ import pandas as pd
 from simulator.errors import DivergenceError, DivergenceWarning, ManeuverError
 from simulator.families import FamilyManeuver
 from simulator.maneuvers import Maneuver, Replay, open_loop_steering
+from simulator.noise import NoiseConfig, is_int, is_real, noisy_columns
 from simulator.stop import StopRule, brake_on_trigger, end_when_standing
-from simulator.vehicle import ENCODER_CPR, MAX_SPEED, Vehicle
+from simulator.vehicle import ENCODER_CPR, Vehicle
 
 AUTODRIVE_COLUMNS = (
     "timestamp",
@@ -77,65 +76,6 @@ _CHUNK_SECONDS = 2.0  # < one full turn of the eight at any reachable yaw rate: 
 _CHUNK_BYTES = 64 * 2**20  # memory bound of one chunk's rollout outputs
 
 ProgressCallback = Callable[[int, int], None]
-
-
-def _is_real(value: object) -> bool:
-    return isinstance(value, Real) and not isinstance(value, bool)
-
-
-def _is_int(value: object) -> bool:
-    return isinstance(value, Integral) and not isinstance(value, bool)
-
-
-@dataclass(frozen=True)
-class NoiseConfig:
-    """Seeded Gaussian sensor noise: one standard deviation per channel group.
-
-    With `heteroscedastic`, every standard deviation is scaled by (1 + speed_gain * |v| / 0.267),
-    v being the true forward speed of the sample and 0.267 m/s the reference speed limit, so noise
-    at full speed is (1 + speed_gain) times the noise at rest. Encoder tick noise is rounded to
-    whole counts.
-    """
-
-    enabled: bool = True
-    speed: float = 0.002  # m/s, forward speed
-    yaw_rate: float = 0.005  # rad/s, all three gyro axes
-    acceleration: float = 0.02  # m/s^2, all three accelerometer axes
-    position: float = 0.002  # m, posX/posY/posZ
-    angle: float = 0.002  # rad, roll/pitch/yaw
-    ticks: float = 1.0  # counts, left/right encoders
-    heteroscedastic: bool = False
-    speed_gain: float = 2.0
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if f.name in ("enabled", "heteroscedastic"):
-                if not isinstance(value, bool):
-                    raise ManeuverError(f"noise.{f.name}", value, "must be true or false")
-            elif not _is_real(value) or not math.isfinite(value) or value < 0:
-                raise ManeuverError(f"noise.{f.name}", value, "must be a finite number >= 0")
-
-
-# (column, NoiseConfig field) in the fixed order noise is drawn: changing one std never changes the
-# noise drawn for another channel.
-_NOISE_CHANNELS = (
-    ("speed", "speed"),
-    ("angX", "yaw_rate"),
-    ("angY", "yaw_rate"),
-    ("angZ", "yaw_rate"),
-    ("accX", "acceleration"),
-    ("accY", "acceleration"),
-    ("accZ", "acceleration"),
-    ("posX", "position"),
-    ("posY", "position"),
-    ("posZ", "position"),
-    ("roll", "angle"),
-    ("pitch", "angle"),
-    ("yaw", "angle"),
-    ("leftTicks", "ticks"),
-    ("rightTicks", "ticks"),
-)
 
 
 class _Run:
@@ -220,18 +160,18 @@ def _check_args(
     for m in maneuvers:
         if not isinstance(m, Maneuver | Replay | FamilyManeuver):
             raise ManeuverError("maneuvers", m, "every item must be a Maneuver (a Replay, a FamilyManeuver)")
-    if not _is_real(rate_hz) or not math.isfinite(rate_hz):
+    if not is_real(rate_hz) or not math.isfinite(rate_hz):
         raise ManeuverError("rate_hz", rate_hz, "must be a finite number")
     if not 0.0 < rate_hz <= physics_rate + 1e-9:
         raise ManeuverError("rate_hz", rate_hz, f"must lie in (0, {physics_rate:g}] Hz (the physics rate)")
     for m in maneuvers:
         if isinstance(m, Replay) and m.rate_hz != rate_hz:
             raise ManeuverError("rate_hz", rate_hz, f"must equal replay {m.label!r}'s rate_hz {m.rate_hz:g}")
-    if not _is_int(seed) or seed < 0:
+    if not is_int(seed) or seed < 0:
         raise ManeuverError("seed", seed, "must be an integer >= 0")
     if noise is not None and not isinstance(noise, NoiseConfig):
         raise ManeuverError("noise", noise, "must be a NoiseConfig or None")
-    if threads is not None and (not _is_int(threads) or threads < 1):
+    if threads is not None and (not is_int(threads) or threads < 1):
         raise ManeuverError("threads", threads, "must be an integer >= 1")
     if on_divergence not in ("warn", "raise"):
         raise ManeuverError("on_divergence", on_divergence, "must be 'warn' or 'raise'")
@@ -255,7 +195,7 @@ def collect(
     *,
     rate_hz: float = 30.0,
     seed: int = 0,
-    noise: NoiseConfig | None = NoiseConfig(),  # frozen dataclass: a safe shared default
+    noise: NoiseConfig | None = NoiseConfig(),  # noqa: B008 (a frozen dataclass: a safe shared default)
     threads: int | None = None,
     progress: ProgressCallback | None = None,
     on_divergence: str = "warn",
@@ -540,11 +480,6 @@ def _check_divergence(
             break
 
 
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    """Wrap angles to (-pi, pi]."""
-    return np.pi - np.mod(np.pi - angle, 2.0 * np.pi)
-
-
 def _assemble(
     runs: list[_Run],
     vehicle: Vehicle,
@@ -568,7 +503,7 @@ def _assemble(
                 ticks = np.nan_to_num(ch[wheel] * (ENCODER_CPR / (2.0 * np.pi)))
                 cols[column] = np.rint(ticks).astype(np.int64)
         if noise is not None and noise.enabled:
-            _noisy(cols, noise, np.random.default_rng(children[run.index]))
+            noisy_columns(cols, noise, np.random.default_rng(children[run.index]))
         m = run.maneuver
         cols.update(
             timestamp=offset + time,
@@ -589,48 +524,6 @@ def _assemble(
     for c in ("maneuver", "direction", "run_id"):
         table[c] = table[c].astype("str")
     return table
-
-
-def _noisy(cols: dict[str, np.ndarray], noise: NoiseConfig, rng: np.random.Generator) -> None:
-    """Replace the sensor channels in `cols` by noisy copies (one stream, fixed channel order)."""
-    n = len(cols["speed"])
-    draws = rng.standard_normal((n, len(_NOISE_CHANNELS)))
-    scale = np.ones(n)
-    if noise.heteroscedastic:
-        scale = 1.0 + noise.speed_gain * np.abs(np.nan_to_num(cols["speed"])) / MAX_SPEED
-    for j, (column, field) in enumerate(_NOISE_CHANNELS):
-        delta = getattr(noise, field) * scale * draws[:, j]
-        if column in ("leftTicks", "rightTicks"):
-            cols[column] = cols[column] + np.rint(delta).astype(np.int64)
-        else:
-            cols[column] = cols[column] + delta
-    cols["yaw"] = _wrap(cols["yaw"])
-
-
-def add_noise(
-    frame: pd.DataFrame,
-    noise: NoiseConfig,
-    seed: int | np.random.SeedSequence | np.random.Generator,
-) -> pd.DataFrame:
-    """Copy of a noise-free log with seeded sensor noise added (the noise `collect` itself adds).
-
-    All rows form one noise stream drawn in a fixed channel order, so changing one channel's std
-    never changes another channel's noise. `collect(ms, seed=s, noise=cfg)` equals `add_noise` of
-    the noise-free log of run i with seed `SeedSequence(s).spawn(len(ms))[i]`. Encoder noise is
-    whole counts; yaw is re-wrapped to (-pi, pi]. Disabled noise returns an unchanged copy.
-    """
-    out = frame.copy()
-    if not noise.enabled or len(out) == 0:
-        return out
-    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-    cols = {
-        column: out[column].to_numpy(np.int64 if column.endswith("Ticks") else float)
-        for column, _ in _NOISE_CHANNELS
-    }
-    _noisy(cols, noise, rng)
-    for column, values in cols.items():
-        out[column] = values
-    return out
 
 
 def _empty_table() -> pd.DataFrame:
