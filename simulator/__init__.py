@@ -3,7 +3,7 @@
 Knows nothing about learning; `activelearn` reaches MuJoCo only through this package.
 """
 
-from simulator.collect import AUTODRIVE_COLUMNS, COLUMNS, EXTRA_COLUMNS, NoiseConfig, add_noise, collect
+from simulator.collect import AUTODRIVE_COLUMNS, COLUMNS, EXTRA_COLUMNS, collect
 from simulator.errors import DivergenceError, DivergenceWarning, ManeuverError, OverrideError, SimulatorError
 from simulator.families import FAMILIES, Family, FamilyManeuver, as_family, family
 from simulator.maneuvers import (
@@ -15,7 +15,9 @@ from simulator.maneuvers import (
     nominal_turn,
     sample_times,
 )
+from simulator.noise import NoiseConfig, add_noise
 from simulator.schedules import check_schedule, member_from_name, schedule_maneuver
+from simulator.stop import StopRule
 from simulator.twin import TWIN_PARAMETERS, TwinParameter, check_overrides, twin_vehicle
 from simulator.vehicle import (
     ENCODER_CPR,
@@ -54,6 +56,7 @@ __all__ = [
     "OverrideError",
     "Replay",
     "SimulatorError",
+    "StopRule",
     "TwinParameter",
     "Vehicle",
     "__version__",

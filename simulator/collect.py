@@ -10,6 +10,9 @@ How a collection runs:
   (exact for rates dividing the 300 Hz physics rate, such as 30 Hz); commands are held between
   samples, so the logged throttle/steering is what the car received until the next row (with a
   vehicle `latency`, what was sent: the car applies it `latency` seconds later);
+- with a `stop` rule (simulator.stop) every run is braked closed-loop near an arena's walls: a run
+  whose true pose triggers it is simulated again from the next sample with throttle 0, and its log
+  runs on (past the maneuver's end if need be) until the car stands;
 - sensor noise is drawn per maneuver from `SeedSequence(seed).spawn(len(maneuvers))[i]`, keyed by
   the maneuver's position in the list, so results never depend on the thread count. The physics,
   including the eight's heading feedback, never sees the noise: noise-free and noisy logs of a
@@ -31,8 +34,6 @@ import math
 import os
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, fields
-from numbers import Integral, Real
 
 import mujoco
 import mujoco.rollout
@@ -42,7 +43,9 @@ import pandas as pd
 from simulator.errors import DivergenceError, DivergenceWarning, ManeuverError
 from simulator.families import FamilyManeuver
 from simulator.maneuvers import Maneuver, Replay, open_loop_steering
-from simulator.vehicle import ENCODER_CPR, MAX_SPEED, Vehicle
+from simulator.noise import NoiseConfig, is_int, is_real, noisy_columns
+from simulator.stop import StopRule, brake_on_trigger, end_when_standing
+from simulator.vehicle import ENCODER_CPR, Vehicle
 
 AUTODRIVE_COLUMNS = (
     "timestamp",
@@ -75,65 +78,6 @@ _CHUNK_BYTES = 64 * 2**20  # memory bound of one chunk's rollout outputs
 ProgressCallback = Callable[[int, int], None]
 
 
-def _is_real(value: object) -> bool:
-    return isinstance(value, Real) and not isinstance(value, bool)
-
-
-def _is_int(value: object) -> bool:
-    return isinstance(value, Integral) and not isinstance(value, bool)
-
-
-@dataclass(frozen=True)
-class NoiseConfig:
-    """Seeded Gaussian sensor noise: one standard deviation per channel group.
-
-    With `heteroscedastic`, every standard deviation is scaled by (1 + speed_gain * |v| / 0.267),
-    v being the true forward speed of the sample and 0.267 m/s the reference speed limit, so noise
-    at full speed is (1 + speed_gain) times the noise at rest. Encoder tick noise is rounded to
-    whole counts.
-    """
-
-    enabled: bool = True
-    speed: float = 0.002  # m/s, forward speed
-    yaw_rate: float = 0.005  # rad/s, all three gyro axes
-    acceleration: float = 0.02  # m/s^2, all three accelerometer axes
-    position: float = 0.002  # m, posX/posY/posZ
-    angle: float = 0.002  # rad, roll/pitch/yaw
-    ticks: float = 1.0  # counts, left/right encoders
-    heteroscedastic: bool = False
-    speed_gain: float = 2.0
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if f.name in ("enabled", "heteroscedastic"):
-                if not isinstance(value, bool):
-                    raise ManeuverError(f"noise.{f.name}", value, "must be true or false")
-            elif not _is_real(value) or not math.isfinite(value) or value < 0:
-                raise ManeuverError(f"noise.{f.name}", value, "must be a finite number >= 0")
-
-
-# (column, NoiseConfig field) in the fixed order noise is drawn: changing one std never changes the
-# noise drawn for another channel.
-_NOISE_CHANNELS = (
-    ("speed", "speed"),
-    ("angX", "yaw_rate"),
-    ("angY", "yaw_rate"),
-    ("angZ", "yaw_rate"),
-    ("accX", "acceleration"),
-    ("accY", "acceleration"),
-    ("accZ", "acceleration"),
-    ("posX", "position"),
-    ("posY", "position"),
-    ("posZ", "position"),
-    ("roll", "angle"),
-    ("pitch", "angle"),
-    ("yaw", "angle"),
-    ("leftTicks", "ticks"),
-    ("rightTicks", "ticks"),
-)
-
-
 class _Run:
     """Book-keeping of one maneuver during a collection."""
 
@@ -156,6 +100,19 @@ class _Run:
         self.yaw = 0.0
         self.turn_start = 0.0
         self.flip_sample: int | None = None
+        # closed-loop stop (StopRule): the run's first true pose, the sample whose pose triggered it
+        self.origin: tuple[float, float, float] | None = None
+        self.stopped_at: int | None = None
+
+    def extend(self, n: int, vehicle: Vehicle) -> None:
+        """Make room for n log samples (a stop runs on past the maneuver's end)."""
+        extra = n - len(self.throttle)
+        if extra > 0:
+            self.throttle = np.concatenate([self.throttle, np.zeros(extra)])
+            self.steering = np.concatenate([self.steering, np.zeros(extra)])
+            self.ctrl = np.concatenate([self.ctrl, np.zeros((extra, self.ctrl.shape[1]))])
+            self.sens = np.concatenate([self.sens, np.full((extra, self.sens.shape[1]), np.nan)])
+        self.n = n
 
     @property
     def kept(self) -> int:
@@ -194,6 +151,7 @@ def _check_args(
     threads: int | None,
     on_divergence: str,
     physics_rate: float,
+    stop: StopRule | None = None,
 ) -> list[Maneuver]:
     if isinstance(maneuvers, Maneuver | Replay | FamilyManeuver):
         maneuvers = [maneuvers]
@@ -202,21 +160,23 @@ def _check_args(
     for m in maneuvers:
         if not isinstance(m, Maneuver | Replay | FamilyManeuver):
             raise ManeuverError("maneuvers", m, "every item must be a Maneuver (a Replay, a FamilyManeuver)")
-    if not _is_real(rate_hz) or not math.isfinite(rate_hz):
+    if not is_real(rate_hz) or not math.isfinite(rate_hz):
         raise ManeuverError("rate_hz", rate_hz, "must be a finite number")
     if not 0.0 < rate_hz <= physics_rate + 1e-9:
         raise ManeuverError("rate_hz", rate_hz, f"must lie in (0, {physics_rate:g}] Hz (the physics rate)")
     for m in maneuvers:
         if isinstance(m, Replay) and m.rate_hz != rate_hz:
             raise ManeuverError("rate_hz", rate_hz, f"must equal replay {m.label!r}'s rate_hz {m.rate_hz:g}")
-    if not _is_int(seed) or seed < 0:
+    if not is_int(seed) or seed < 0:
         raise ManeuverError("seed", seed, "must be an integer >= 0")
     if noise is not None and not isinstance(noise, NoiseConfig):
         raise ManeuverError("noise", noise, "must be a NoiseConfig or None")
-    if threads is not None and (not _is_int(threads) or threads < 1):
+    if threads is not None and (not is_int(threads) or threads < 1):
         raise ManeuverError("threads", threads, "must be an integer >= 1")
     if on_divergence not in ("warn", "raise"):
         raise ManeuverError("on_divergence", on_divergence, "must be 'warn' or 'raise'")
+    if stop is not None and not isinstance(stop, StopRule):
+        raise ManeuverError("stop", stop, "must be a StopRule or None")
     return list(maneuvers)
 
 
@@ -235,11 +195,12 @@ def collect(
     *,
     rate_hz: float = 30.0,
     seed: int = 0,
-    noise: NoiseConfig | None = NoiseConfig(),  # frozen dataclass: a safe shared default
+    noise: NoiseConfig | None = NoiseConfig(),  # noqa: B008 (a frozen dataclass: a safe shared default)
     threads: int | None = None,
     progress: ProgressCallback | None = None,
     on_divergence: str = "warn",
     vehicle: Vehicle | None = None,
+    stop: StopRule | None = None,
 ) -> pd.DataFrame:
     """Simulate maneuvers in parallel and return their logs, one row per log sample, in COLUMNS order.
 
@@ -258,17 +219,25 @@ def collect(
     `FamilyManeuver` (simulator.families) runs its open-loop schedule, logged with `maneuver` = its
     family, `run_id` = its name (the parameters), `op_throttle` its median throttle and `op_steering`
     its largest |steering|.
+
+    `stop` (a `simulator.stop.StopRule`) closes a stop at the walls of an arena around every run: once
+    the run's true pose comes within `stop.distance` of the arena's boundary, the throttle is 0 (the
+    brake) from the next sample on and the log runs on, past the maneuver's end if need be, until
+    the car stands; a run that never comes that close is simulated as without it.
     """
     vehicle = vehicle if vehicle is not None else _default_vehicle()
     dt = vehicle.timestep
     physics_rate = 1.0 / dt
-    maneuvers = _check_args(maneuvers, rate_hz, seed, noise, threads, on_divergence, physics_rate)
+    maneuvers = _check_args(maneuvers, rate_hz, seed, noise, threads, on_divergence, physics_rate, stop)
     rate_hz = float(rate_hz)
     if not maneuvers:
         return _empty_table()
 
     runs = _make_runs(maneuvers, rate_hz, vehicle)
     n_max = max(run.n for run in runs)
+    settle = 0 if stop is None else max(1, math.ceil(stop.settle * rate_hz - 1e-9))
+    if stop is not None:
+        n_max += settle + 1  # a stopped run may log `settle` samples past its maneuver's end
     # physics step at which each log sample is taken (nearest step to k / rate_hz)
     sample_step = np.rint(np.arange(n_max + 1) * (physics_rate / rate_hz)).astype(np.int64)
     total = sum(run.n for run in runs)
@@ -296,14 +265,16 @@ def collect(
             chunk = int(min(chunk_cap, max(1, _CHUNK_BYTES // bytes_per_sample)))
             k1 = min(k + chunk, max(run.n for run in active))
             start = int(sample_step[k])
-            # the last sample of a run needs its own step; otherwise stop where sample k1 begins
-            end = int(sample_step[k1]) if any(run.n > k1 for run in active) else int(sample_step[k1 - 1]) + 1
+            # the last sample of a run needs its own step; otherwise stop where sample k1 begins (always
+            # there under a stop rule: a run stopped in this chunk may go on past its last sample)
+            more = stop is not None or any(run.n > k1 for run in active)
+            end = int(sample_step[k1]) if more else int(sample_step[k1 - 1]) + 1
             nstep = end - start
             # log sample that owns each physics step of the chunk (commands held between samples)
             owner = np.searchsorted(sample_step, np.arange(start, end), side="right") - 1
 
             for run in active:
-                if run.maneuver.kind == "eight":
+                if run.maneuver.kind == "eight" and run.stopped_at is None:
                     _plan_eight(run, k, min(k1, run.n), sample_step, dt, vehicle)
             control = buffers.get("control", (nb, nstep, nu))
             init = np.empty((nb, nstate))
@@ -312,11 +283,7 @@ def collect(
                 # actuation latency: step s applies the command owning step s - delay (brake before t=0)
                 lagged = np.searchsorted(sample_step, np.arange(start, end) - delay, side="right") - 1
             for b, run in enumerate(active):
-                if delay:
-                    control[b] = run.ctrl[np.clip(lagged, 0, run.n - 1)]
-                    control[b, lagged < 0] = idle
-                else:
-                    control[b] = run.ctrl[np.minimum(owner, run.n - 1)]
+                control[b] = _run_controls(run, owner, lagged if delay else None, idle)
                 init[b] = run.state
                 warm[b] = _warmstart(vehicle, scratch, run, control[b, 0])
             state_out = buffers.get("state", (nb, nstep, nstate))
@@ -340,10 +307,19 @@ def collect(
                 rows = local[: kk - k]
                 run.sens[k:kk] = sens_out[b, rows]
                 run.state = state_out[b, -1].copy()
+                times = state_out[b, rows, vehicle.state_time]
+                if stop is not None:
+                    n_before = run.n
+                    times = _apply_stop(
+                        stop, run, k, k1, times, state_out[b], start, end, sample_step, settle, vehicle,
+                        roller, datas, scratch, lagged if delay else None, idle,
+                    )
+                    total += run.n - n_before
+                    kk = min(k1, run.n)
                 # a MuJoCo instability (bad qacc) resets or freezes the state: time stops matching
                 expected = (sample_step[k:kk] + 1) * dt
-                _check_divergence(run, k, vehicle, state_out[b, rows, vehicle.state_time], expected, dt)
-                if run.maneuver.kind == "eight" and run.diverged_at is None:
+                _check_divergence(run, k, vehicle, times[: kk - k], expected, dt)
+                if run.maneuver.kind == "eight" and run.diverged_at is None and run.stopped_at is None:
                     _track_heading(run, k, kk, vehicle)
                 done += (kk - k) + (run.n - kk if run.diverged_at is not None else 0)
             if progress is not None:
@@ -361,6 +337,51 @@ def collect(
             raise DivergenceError(names, detail, data=table)
         warnings.warn(f"{len(diverged)} maneuver(s) diverged: {detail}", DivergenceWarning, stacklevel=2)
     return table
+
+
+def _run_controls(run: _Run, owner: np.ndarray, lagged: np.ndarray | None, idle: np.ndarray) -> np.ndarray:
+    """The run's actuator controls at the physics steps whose log samples are `owner` (commands held
+    between samples, the last one after the run's end); with a latency, `lagged` are the samples whose
+    commands the steps apply (< 0: before the run started, the brake `idle`)."""
+    if lagged is None:
+        return run.ctrl[np.minimum(owner, run.n - 1)]
+    control = run.ctrl[np.clip(lagged, 0, run.n - 1)]
+    control[lagged < 0] = idle
+    return control
+
+
+def _apply_stop(
+    stop: StopRule, run: _Run, k: int, k1: int, times: np.ndarray, states: np.ndarray, start: int, end: int,
+    sample_step: np.ndarray, settle: int, vehicle: Vehicle, roller: mujoco.rollout.Rollout,
+    datas: list[mujoco.MjData], scratch: mujoco.MjData, lagged: np.ndarray | None, idle: np.ndarray,
+) -> np.ndarray:  # fmt: skip
+    """Judge the stop rule on the run's samples k..k1-1 just simulated (states: the chunk's states,
+    steps start..end-1), brake and re-simulate from the sample after a trigger, end the log where
+    the braked car stands. Returns the physics times of the run's samples from k on."""
+    times = times.copy()
+    j = brake_on_trigger(stop, run, k, min(k1, run.n), settle, vehicle) if run.stopped_at is None else None
+    if j is not None and j + 1 < k1:  # the chunk drove on after the trigger: drive its rest again, braking
+        s0 = int(sample_step[j + 1])
+        steps = np.arange(s0, end)
+        owner = np.searchsorted(sample_step, steps, side="right") - 1
+        lag = None if lagged is None else lagged[s0 - start :]
+        control = _run_controls(run, owner, lag, idle)[None]
+        run.state = states[s0 - start - 1].copy()
+        warm = _warmstart(vehicle, scratch, run, control[0, 0])[None]
+        state_out = np.empty((1, len(steps), vehicle.nstate))
+        sens_out = np.empty((1, len(steps), vehicle.model.nsensordata))
+        roller.rollout(
+            [vehicle.model], datas, run.state[None].copy(), np.ascontiguousarray(control),
+            control_spec=mujoco.mjtState.mjSTATE_CTRL.value, skip_checks=True, nstep=len(steps),
+            initial_warmstart=warm, state=state_out, sensordata=sens_out,
+        )  # fmt: skip
+        kk = min(k1, run.n)
+        rows = sample_step[j + 1 : kk] - s0
+        run.sens[j + 1 : kk] = sens_out[0, rows]
+        run.state = state_out[0, -1].copy()
+        times = np.concatenate([times[: j + 1 - k], state_out[0, rows, vehicle.state_time]])
+    end_when_standing(stop, run, k, min(k1, run.n), vehicle)
+    return times
 
 
 def _make_runs(maneuvers: list[Maneuver], rate_hz: float, vehicle: Vehicle) -> list[_Run]:
@@ -459,11 +480,6 @@ def _check_divergence(
             break
 
 
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    """Wrap angles to (-pi, pi]."""
-    return np.pi - np.mod(np.pi - angle, 2.0 * np.pi)
-
-
 def _assemble(
     runs: list[_Run],
     vehicle: Vehicle,
@@ -487,7 +503,7 @@ def _assemble(
                 ticks = np.nan_to_num(ch[wheel] * (ENCODER_CPR / (2.0 * np.pi)))
                 cols[column] = np.rint(ticks).astype(np.int64)
         if noise is not None and noise.enabled:
-            _noisy(cols, noise, np.random.default_rng(children[run.index]))
+            noisy_columns(cols, noise, np.random.default_rng(children[run.index]))
         m = run.maneuver
         cols.update(
             timestamp=offset + time,
@@ -508,48 +524,6 @@ def _assemble(
     for c in ("maneuver", "direction", "run_id"):
         table[c] = table[c].astype("str")
     return table
-
-
-def _noisy(cols: dict[str, np.ndarray], noise: NoiseConfig, rng: np.random.Generator) -> None:
-    """Replace the sensor channels in `cols` by noisy copies (one stream, fixed channel order)."""
-    n = len(cols["speed"])
-    draws = rng.standard_normal((n, len(_NOISE_CHANNELS)))
-    scale = np.ones(n)
-    if noise.heteroscedastic:
-        scale = 1.0 + noise.speed_gain * np.abs(np.nan_to_num(cols["speed"])) / MAX_SPEED
-    for j, (column, field) in enumerate(_NOISE_CHANNELS):
-        delta = getattr(noise, field) * scale * draws[:, j]
-        if column in ("leftTicks", "rightTicks"):
-            cols[column] = cols[column] + np.rint(delta).astype(np.int64)
-        else:
-            cols[column] = cols[column] + delta
-    cols["yaw"] = _wrap(cols["yaw"])
-
-
-def add_noise(
-    frame: pd.DataFrame,
-    noise: NoiseConfig,
-    seed: int | np.random.SeedSequence | np.random.Generator,
-) -> pd.DataFrame:
-    """Copy of a noise-free log with seeded sensor noise added (the noise `collect` itself adds).
-
-    All rows form one noise stream drawn in a fixed channel order, so changing one channel's std
-    never changes another channel's noise. `collect(ms, seed=s, noise=cfg)` equals `add_noise` of
-    the noise-free log of run i with seed `SeedSequence(s).spawn(len(ms))[i]`. Encoder noise is
-    whole counts; yaw is re-wrapped to (-pi, pi]. Disabled noise returns an unchanged copy.
-    """
-    out = frame.copy()
-    if not noise.enabled or len(out) == 0:
-        return out
-    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-    cols = {
-        column: out[column].to_numpy(np.int64 if column.endswith("Ticks") else float)
-        for column, _ in _NOISE_CHANNELS
-    }
-    _noisy(cols, noise, rng)
-    for column, values in cols.items():
-        out[column] = values
-    return out
 
 
 def _empty_table() -> pd.DataFrame:

@@ -38,6 +38,7 @@ from activelearn.loop.safety import (
     live_stop,
     log_violation,
     monotone_steps,
+    stop_rule,
     turn_speed,
     violating,
 )
@@ -86,6 +87,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
         ({"arena": SQUARE, "delta": 1.0}, "safety.delta", "(0, 1)"),
         ({"arena": SQUARE, "stop": "never"}, "safety.stop", "'planned' or 'live'"),
         ({"arena": SQUARE, "stop_buffer": -0.1}, "safety.stop_buffer", "greater than or equal to 0"),
+        ({"arena": SQUARE, "stop": "live", "stop_buffer": 0.02}, "safety.stop_buffer", "needs to stop"),
     ],
 )
 def test_bad_safety_values_name_their_field(safety, field, words):
@@ -249,15 +251,21 @@ def test_a_live_stop_keeps_the_walls_at_run_time_and_leaves_the_limits_to_the_pl
     assert kinematic_bound(straight, live) == (0.0, 20.0, 0.0)
     slow = live.model_copy(update={"max_speed": 0.2})  # 0.287 m/s at full throttle breaks it at once
     assert kinematic_bound(straight, slow)[1] == 0.0
-    # In MuJoCo: the log ends before the wall (margin + stop_buffer), and what is left violates nothing.
+    # In MuJoCo, closed-loop: the car brakes (throttle 0) once its pose comes within margin + stop_buffer
+    # of the wall, the log runs on until it stands, and the whole of it, braking included, violates nothing.
     log = collect(straight, rate_hz=30.0, noise=None)
     assert log_violation(log, live, 30.0) == "arena"
-    stopped = live_stop(log, live)
-    assert 30 < len(stopped) < len(log)
-    assert log_violation(stopped, live, 30.0) == ""
-    x_end = stopped["posX"].iloc[-1] - stopped["posX"].iloc[0]
+    stopped = collect(straight, rate_hz=30.0, noise=None, stop=stop_rule(live))
+    cut = live_stop(log, live)  # a recorded log that cannot be driven again: cut at the trigger
+    assert 30 < len(cut) < len(stopped) < len(log)
+    assert log_violation(stopped, live, 30.0) == "" and log_violation(cut, live, 30.0) == ""
+    braked = stopped["throttle"].to_numpy() == 0.0
+    assert not braked[: len(cut) + 1].any() and braked[len(cut) + 1 :].all()
+    x = stopped["posX"].to_numpy() - stopped["posX"].iloc[0]
     wall = 1.5 - live.margin - live.stop_buffer  # from the start at the centre, facing +x
-    assert wall - 0.02 < x_end < wall  # the last sample before the trigger: one step (< 1 cm) short
+    assert wall < x[len(cut)] < wall + 0.01  # the pose that triggered: one step (< 1 cm) past the line
+    assert wall < x[-1] < 1.5 - live.margin  # it stood between the line and the margin
+    assert abs(stopped["speed"].iloc[-1]) < 0.002
     assert live_stop(log.iloc[:30], live) is not None and len(live_stop(log.iloc[:30], live)) == 30
 
 
@@ -336,9 +344,14 @@ def test_a_live_stop_campaign_drives_to_the_walls_without_a_violation(tmp_path):
     assert all(reason == "" for reason in state.violated.values()) and len(state.violated) == 5
     samples = pd.read_parquet(tmp_path / "c" / "samples.parquet")
     seconds = samples.groupby("pool_index")["time"].max()
-    # the straights and fast skidpads that the planned stop cuts in advance are driven until the wall
+    # the straights and fast skidpads that the planned stop cuts in advance are driven until the wall,
+    # where the car brakes (throttle 0, logged) until it stands
     stopped = [i for i in state.taken if str(i) not in state.cuts and seconds[i] < 19.0]
     assert stopped, "some maneuver ended at the wall"
+    for i in stopped:
+        log = samples[samples["pool_index"] == i]
+        throttle = log["throttle"].to_numpy()
+        assert throttle[0] != 0.0 and throttle[-1] == 0.0 and abs(log["speed"].iloc[-1]) < 0.02
     assert len(state.cuts) < len(state.taken)
 
 

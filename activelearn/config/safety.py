@@ -15,6 +15,17 @@ from activelearn.config.base import NonNegative, Positive, _Section
 from activelearn.config.geometry import boundary_distance, polygon_area, polygon_self_crossing
 from activelearn.errors import ConfigError
 
+# Braking in MuJoCo (tests/test_live_stop.py, experiments/results/bench_safety.txt): from the pose that
+# triggers a live stop Nigel travels 2.4 cm at 0.267 m/s (top speed), 1.2 cm at 0.165 and 0.4 cm at 0.085
+# before it stands: one 30-Hz pose sample at the trigger speed, then a mean deceleration of 1.9-3.9 m/s².
+BRAKE_DECELERATION = 1.9  # m/s²: the lowest measured
+POSE_LATENCY = 1.0 / 30.0  # s: the brake acts one 30-Hz pose sample after the pose that triggered it
+
+
+def braking_distance(speed: float) -> float:
+    """Distance (m) Nigel travels from the pose that triggers a live stop at `speed` until it stands."""
+    return speed * POSE_LATENCY + speed**2 / (2.0 * BRAKE_DECELERATION)
+
 
 class SafetyConfig(_Section):
     """A bounded arena, the car's limits and the risk a proposal may carry (`activelearn.loop.safety`).
@@ -89,17 +100,22 @@ class SafetyConfig(_Section):
         description="The kinematic worst case takes the speed the car kept in its own logged steady turns "
         "(`activelearn.loop.safety.turn_speed`); false assumes no speed is lost in turns",
     )
-    # Nigel stops within 1.7 cm and 0.17 s from any speed in MuJoCo (results/bench_safety.txt).
+    # Nigel stops within 1.7 cm and 0.17 s from any speed in MuJoCo (results/bench_safety.txt); 2.4 cm from
+    # the triggering pose at top speed with the 30-Hz pose's latency (BRAKE_DECELERATION above).
     stop: Literal["planned", "live"] = Field(
         "planned",
         description="`planned`: a proposal is admitted, or cut short in advance, by its fan's risk of a wall "
-        "or limit; `live`: the car brakes within `margin + stop_buffer` of a wall, the fan judges limits",
+        "or limit; `live`: the car brakes (throttle 0) once its measured pose comes within `margin + "
+        "stop_buffer` of a wall and the fan judges the limits only. Simulated campaigns drive the stop "
+        "closed-loop in MuJoCo: the log runs on, braking, until the car stands, and violations count it",
     )
-    # ~0.27 m/s x latency; 0.05 m is an automatic stop on a 30-Hz pose.
+    # ~0.27 m/s x latency + braking; 0.05 m is an automatic stop on a 30-Hz pose.
     stop_buffer: NonNegative = Field(
         0.05,
         description="`live` stop only: distance (m) the car travels between the pose that triggers the "
-        "stop and standing still (braking plus the pose's latency)",
+        "stop and standing still (braking plus the pose's latency). Refused below the braking distance "
+        "from `max_speed` (speed x 1/30 s + speed² / (2 x 1.9 m/s²), measured in MuJoCo: 0.034 m at "
+        "0.3 m/s); a buffer the car cannot stop in shows as arena violations",
     )
     enforce: bool = Field(
         True, description="False: measure risk and violations only, and pick from every candidate"
@@ -137,4 +153,12 @@ class SafetyConfig(_Section):
         if room <= self.margin:
             where = "outside the arena" if room <= 0 else f"within margin = {self.margin} m of a wall"
             raise ConfigError("start", list(self.start), f"the start lies {where}")
+        need = braking_distance(self.max_speed)
+        if self.stop == "live" and self.stop_buffer < need:
+            raise ConfigError(
+                "stop_buffer",
+                self.stop_buffer,
+                f"is below the {need:.3f} m the car needs to stop from max_speed = {self.max_speed:g} m/s "
+                "(one 30-Hz pose of latency, then braking at 1.9 m/s²)",
+            )
         return self

@@ -201,9 +201,10 @@ class Campaign:
         return self.label(self._stopped(self.oracle.answer(chosen, self.cfg.seed)), indices, batch)
 
     def _stopped(self, logs: list[pd.DataFrame]) -> list[pd.DataFrame]:
-        """The oracle's logs as a live stop at the walls leaves them ([safety] stop = "live")."""
+        """The oracle's logs as a live stop at the walls leaves them ([safety] stop = "live"): simulated
+        oracles drive the stop closed-loop themselves; recorded logs are cut at the trigger."""
         safety = self.cfg.safety
-        if safety is None or safety.stop != "live" or not safety.enforce:
+        if safety is None or safety.stop != "live" or not safety.enforce or self.oracle.drives_stop:
             return logs
         return [live_stop(log, safety) for log in logs]
 

@@ -45,16 +45,30 @@ class SimulationCache:
     """Noise-free maneuver logs, simulated on demand and kept as one Parquet file per maneuver.
 
     `vehicle` swaps in an edited model (a twin); `variant` names it in the cache path, so the logs of
-    different vehicles never mix.
+    different vehicles never mix. `stop` (a `simulator.StopRule`: a live stop at the walls, driven
+    closed-loop) simulates every maneuver under it, in a folder of its own named by the rule's digest,
+    so a stopped and an unstopped log of one maneuver never share an entry (`stopped`).
     """
 
     def __init__(
-        self, root: str | Path, settings: SimulationConfig, *, vehicle: Any = None, variant: str = ""
-    ) -> None:
+        self, root: str | Path, settings: SimulationConfig, *, vehicle: Any = None, variant: str = "",
+        stop: simulator.StopRule | None = None,
+    ) -> None:  # fmt: skip
         self.settings = settings
         self.vehicle = vehicle
+        self.variant = variant
+        self.stop = stop
+        self.base = Path(root)
         suffix = f"-{variant}" if variant else ""
-        self.root = Path(root) / f"sim-{simulator_fingerprint()}{suffix}-{settings.rate_hz:g}hz"
+        if stop is not None:
+            suffix += f"-stop-{stop.key()}"
+        self.root = self.base / f"sim-{simulator_fingerprint()}{suffix}-{settings.rate_hz:g}hz"
+
+    def stopped(self, stop: simulator.StopRule | None) -> SimulationCache:
+        """The same simulator's cache with every maneuver driven under `stop` (None: without a stop)."""
+        return SimulationCache(
+            self.base, self.settings, vehicle=self.vehicle, variant=self.variant, stop=stop
+        )
 
     def path(self, maneuver: Maneuver) -> Path:
         """Cache file of one maneuver."""
@@ -76,6 +90,7 @@ class SimulationCache:
                 threads=self.settings.threads,
                 progress=progress,
                 vehicle=self.vehicle,
+                stop=self.stop,
             )
             self.root.mkdir(parents=True, exist_ok=True)
             for m, (_, part) in zip(todo, frame.groupby("run_id", sort=False), strict=True):

@@ -45,6 +45,9 @@ class Oracle(ABC):
 
     kind: ClassVar[str]
     automatic: ClassVar[bool] = True  # answers by itself (False: a person drives, `ingest` answers)
+    # its answers already hold a live stop's braking (simulated closed-loop); False: a log that passes
+    # the trigger is cut there (`activelearn.loop.safety.live_stop`)
+    drives_stop: ClassVar[bool] = False
 
     @abstractmethod
     def candidates(self) -> list[Any]:
@@ -72,23 +75,33 @@ class Oracle(ABC):
 
 
 class SimulatorOracle(Oracle):
-    """The MuJoCo model (nominal, or a twin with overrides): simulated once per maneuver, noised per seed."""
+    """The MuJoCo model (nominal, or a twin with overrides): simulated once per maneuver, noised per seed.
+
+    Under an enforced live stop (`[safety] stop = "live"`) the answers are driven with the stop closed
+    in MuJoCo (`activelearn.loop.safety.stop_rule`): the car brakes near a wall and its log runs on
+    until it stands. The test set is simulated without it.
+    """
 
     kind = "simulator"
+    drives_stop = True
 
     def __init__(self, cfg: CampaignConfig, cache: SimulationCache) -> None:
+        from activelearn.loop.safety import stop_rule
+
         self.cfg = cfg
         self.cache = cache
+        rule = stop_rule(cfg.safety)
+        self.driven = cache if rule is None else cache.stopped(rule)  # the cache answers come from
         self._test: TestSet | None = None
 
     def candidates(self) -> list[Any]:
         return pool_maneuvers(self.cfg.pool)
 
     def answer(self, maneuvers: Sequence[Any], seed: int) -> list[pd.DataFrame]:
-        return noisy_logs(self.cache.get(maneuvers), maneuvers, self.cfg.simulation.noise, seed)
+        return noisy_logs(self.driven.get(maneuvers), maneuvers, self.cfg.simulation.noise, seed)
 
     def truth(self, maneuvers: Sequence[Any]) -> list[pd.DataFrame] | None:
-        return self.cache.get(maneuvers)
+        return self.driven.get(maneuvers)
 
     def test_maneuvers(self) -> list[Any]:
         if self.cfg.test.logs is not None:
@@ -125,6 +138,7 @@ class ExternalOracle(SimulatorOracle):
 
     kind = "external"
     automatic = False
+    drives_stop = False  # a person's log ends where the car's own log ends
 
     def answer(self, maneuvers: Sequence[Any], seed: int) -> list[pd.DataFrame]:
         names = ", ".join(m.name for m in maneuvers)

@@ -36,10 +36,15 @@ monotone part may be driven whole. From a later step t0 the car is somewhere wit
 start and the rest of its path within 2 (r + lever arm) of it: held where that stays off the walls
 (a fishhook whose ramp is quick).
 
-With `stop = "live"` the walls are kept at run time instead: the car brakes as soon as its measured
-pose comes within `margin + stop_buffer` of a wall (`live_stop` cuts a simulated log there, and a
-person's log ends there), so the fan and the worst case judge the limits only and a candidate is no
-longer cut in advance for the walls.
+With `stop = "live"` the walls are kept at run time instead: the car brakes (throttle 0) as soon as
+its measured pose comes within `margin + stop_buffer` of a wall, so the fan and the worst case judge
+the limits only and a candidate is no longer cut in advance for the walls. Simulated oracles drive
+the stop closed-loop in MuJoCo (`stop_rule` -> `simulator.StopRule`): from the log sample after the
+trigger the throttle is 0 and the log runs on until the car stands, so `violations` count the
+braking too (Nigel travels 2.4 cm from the triggering pose at top speed, 0.4 cm at 0.085 m/s; a
+`stop_buffer` below the braking distance from `max_speed` is refused by the config, one it cannot
+stop in shows as arena violations). A person's log ends where the car's own log ends; a recorded
+pool's log, which cannot be driven again, is cut at the trigger (`live_stop`).
 
 `violations` checks the logs that came back (simulated or driven) against the same arena and limits:
 what the benchmark counts. The fan is the rollout of the lead's dynamics issue too: one rollout
@@ -59,6 +64,7 @@ import numpy as np
 import pandas as pd
 import torch
 
+import simulator
 from activelearn.config import POSE_LEVER_ARM, SafetyConfig, boundary_distance, polygon_clearance
 from activelearn.loop.pool import maneuver_controls
 from activelearn.numerics.surrogate import Rollout, simulate
@@ -417,10 +423,21 @@ def placed_path(log: pd.DataFrame, cfg: SafetyConfig) -> tuple[np.ndarray, np.nd
     return x0 + c * dx - s * dy, y0 + s * dx + c * dy
 
 
+def stop_rule(cfg: SafetyConfig | None) -> simulator.StopRule | None:
+    """The live stop of an enforced `[safety] stop = "live"` as the simulator drives it (None otherwise):
+    brake once the pose, placed at the start pose, comes within `margin + stop_buffer` of a wall."""
+    if cfg is None or cfg.stop != "live" or not cfg.enforce:
+        return None
+    return simulator.StopRule(
+        polygon=tuple(cfg.arena), start=tuple(cfg.start), distance=cfg.margin + cfg.stop_buffer
+    )
+
+
 def live_stop(log: pd.DataFrame, cfg: SafetyConfig) -> pd.DataFrame:
-    """The log as a live stop leaves it: up to the sample before the first whose measured pose comes
-    within `margin + stop_buffer` of a wall (the car brakes there; its braking rows are not logged).
-    A log that never comes that close is returned whole."""
+    """A log that cannot be driven again (a recorded pool's) cut where a live stop would have braked: up
+    to the sample before the first whose measured pose comes within `margin + stop_buffer` of a wall
+    (the braking is not in it: simulated oracles drive it, `stop_rule`). A log that never comes that
+    close is returned whole."""
     x, y = placed_path(log, cfg)
     near = polygon_clearance(cfg.arena, x, y) < cfg.margin + cfg.stop_buffer
     if not near.any():

@@ -207,15 +207,22 @@ def compare(
         tracker = Tracker(cfg.tracking.uri, cfg.tracking.experiment)
     # Simulate the whole pool and the test set once, with every core, before the workers start.
     from activelearn.loop.collection import SimulationCache
+    from activelearn.loop.safety import stop_rule
 
     cache = SimulationCache(cache_dir, cfg.simulation)
-    todo = cache.missing(pool_maneuvers(cfg.pool) + test_maneuvers(cfg.test))
-    if todo:
-        progress({"event": "simulate", "n": len(todo)})
-        cache.get(
-            todo,
-            progress=lambda done, total: progress({"event": "sim_progress", "done": done, "total": total}),
-        )
+    # a live stop: the simulator drives the pool under it (cache entries of their own)
+    rule = stop_rule(cfg.safety) if cfg.oracle.kind == "simulator" else None
+    jobs = [(cache, test_maneuvers(cfg.test) + ([] if rule else pool_maneuvers(cfg.pool)))]
+    if rule is not None:
+        jobs.append((cache.stopped(rule), pool_maneuvers(cfg.pool)))
+    def sim_progress(done: int, total: int) -> None:
+        progress({"event": "sim_progress", "done": done, "total": total})
+
+    for store, maneuvers in jobs:
+        todo = store.missing(maneuvers)
+        if todo:
+            progress({"event": "simulate", "n": len(todo)})
+            store.get(todo, progress=sim_progress)
 
     manifest = directory / "compare.json"
     if tracker is not None:
