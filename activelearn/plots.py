@@ -388,13 +388,16 @@ def arena_figure(
     margin: float = 0.0,
     reach: float | None = None,
     title: str = "",
+    brake_line: tuple[np.ndarray, np.ndarray, np.ndarray, float] | None = None,
 ) -> Figure:
     """The arena, the start pose and each proposal's predicted path with its 95 % fan and risk.
 
     Each proposal is a dict with `label`, `risk` and, when a model predicted it, `x`, `y` (S, T)
-    sampled paths in the arena frame; the 5 % of paths farthest from the mean path are left out, so
-    the band drawn holds 95 % of the fan. `reach` (m) draws the circle the kinematic worst case keeps
-    the car in (before any model).
+    sampled paths in the arena frame (NaN after a path ends); the 5 % of paths farthest from the mean
+    path are left out, so the band drawn holds 95 % of the fan. `reach` (m) draws the circle the
+    kinematic worst case keeps the car in (before any model). Under a live stop, `brake_line` =
+    (grid x, grid y, clearance, level) draws where the car brakes, and a proposal's `brakes` (x, y)
+    marks the points where its paths would be braked (`n_paths`: how many paths it has).
     """
     fig = _new_figure(9.5, 6.0)
     ax = fig.add_subplot()
@@ -410,20 +413,31 @@ def arena_figure(
         circle = np.linspace(0, 2 * np.pi, 200)
         ax.plot(x0 + reach * np.cos(circle), y0 + reach * np.sin(circle), "k:", lw=1.0,
                 label="worst-case reach (no model yet)")  # fmt: skip
+    if brake_line is not None:
+        gx, gy, clearance, level = brake_line
+        ax.contour(gx, gy, clearance, levels=[level], colors="r", linestyles="--", linewidths=1.0)
+        ax.plot([], [], "r--", lw=1.0, label=f"live stop: brakes within {level:g} m of a wall")
     colors = [f"C{i % 10}" for i in range(len(proposals))]
     for proposal, color in zip(proposals, colors, strict=True):
         label = f"{proposal['label']}: risk {proposal['risk']:.3f}"
+        if "brakes" in proposal:
+            label += f", braked on {len(proposal['brakes'][0])} of {proposal['n_paths']} paths"
         if "x" not in proposal:
             ax.plot([], [], color=color, label=label)
             continue
         x, y = np.asarray(proposal["x"]), np.asarray(proposal["y"])
-        mx, my = x.mean(axis=0), y.mean(axis=0)
-        deviation = np.hypot(x - mx, y - my).max(axis=1)
+        # the mean over the paths still running at each step (a braked path ends early: NaN after)
+        mx = np.ma.masked_invalid(x).mean(axis=0).filled(np.nan)
+        my = np.ma.masked_invalid(y).mean(axis=0).filled(np.nan)
+        deviation = np.nanmax(np.hypot(x - mx, y - my), axis=1)
         keep = deviation <= np.quantile(deviation, 0.95)
         for xs, ys in zip(x[keep], y[keep], strict=True):
             ax.plot(xs, ys, color=color, lw=0.5, alpha=0.15)
         ax.plot(mx, my, color=color, lw=2.0, label=label)
-        ax.plot(mx[-1:], my[-1:], "s", color=color, ms=5)
+        last = np.flatnonzero(np.isfinite(mx))[-1:]
+        ax.plot(mx[last], my[last], "s", color=color, ms=5)
+        if "brakes" in proposal:
+            ax.plot(*proposal["brakes"], "x", color=color, ms=4, mew=1.0)
     ax.set_aspect("equal")
     span = ring.max(axis=0) - ring.min(axis=0)
     pad = 0.05 * float(span.max())

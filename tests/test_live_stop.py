@@ -13,12 +13,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from activelearn.config import SafetyConfig, SimulationConfig, load_config, validate_config
+from activelearn.config import SafetyConfig, SimulationConfig, load_config, polygon_clearance, validate_config
 from activelearn.config.safety import braking_distance
 from activelearn.errors import ConfigError
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import SimulationCache
-from activelearn.loop.safety import live_stop, log_violation, placed_path, stop_rule, violations
+from activelearn.loop.safety import braked_paths, live_stop, log_violation, placed_path, stop_rule, violations
+from activelearn.loop.state import CampaignState
 from simulator import Maneuver, NoiseConfig, StopRule, collect, twin_vehicle
 
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
@@ -249,3 +250,57 @@ def test_a_comparison_simulates_the_pool_under_the_live_stop_before_its_workers(
     assert oracle.driven.root != oracle.cache.root and oracle.driven.stop == stop_rule(cfg.safety)
     assert oracle.driven.missing(oracle.candidates()) == []  # the whole pool, braked, in its own entries
     assert oracle.cache.missing(oracle.test_maneuvers()) == []  # the test set without the stop
+
+
+# --- `campaign propose --plot` under the live stop (issue 35 point 6) --------------------------------
+
+
+def test_braked_paths_end_each_sampled_path_where_the_car_would_brake():
+    cfg = live_config()  # the 3 x 3 m square from the centre; brakes within 0.16 + 0.05 m of a wall
+    t = np.linspace(0.0, 2.0, 201) + 0.005  # 1-cm steps, none on the brake line itself
+    x = np.stack([t, 0.5 * t, np.zeros_like(t)])  # towards the wall at x = 1.5, half as far, standing
+    y = np.zeros_like(x)
+    cut_x, cut_y, trigger = braked_paths(x, y, cfg)
+    line = 1.5 - cfg.margin - cfg.stop_buffer
+    k = int(trigger[0])
+    assert k > 0 and x[0, k - 1] <= line < x[0, k] <= line + 0.01  # the first point past the line
+    assert np.isfinite(cut_x[0, : k + 1]).all() and np.isnan(cut_x[0, k + 1 :]).all()
+    assert np.isnan(cut_y[0, k + 1 :]).all()
+    assert (trigger[1:] == -1).all()  # 1 m and 0 m from the centre: never within the brake line
+    np.testing.assert_array_equal(cut_x[1:], x[1:])
+
+
+def test_propose_plot_draws_where_the_live_stop_brakes(tmp_path, monkeypatch):
+    import activelearn.plots as plots
+    from activelearn.loop.safety import proposal_figure
+
+    cfg = campaign_config(tmp_path, {"stop": "live", "arena": SMALL},
+                          design={"initial": 2, "per_round": 2, "max_maneuvers": 4})  # fmt: skip
+    campaign = Campaign(cfg, tmp_path / "c")
+    assert campaign.propose(figures=False)  # the initial design: no model yet
+    pending = CampaignState.load(campaign.directory).pending
+    logs = campaign.oracle.answer([campaign.driven(i) for i in pending], cfg.seed)
+    assert campaign.tell(logs, figures=False)  # round 0's model judges the next batch
+    drawn = {}
+    arena_figure = plots.arena_figure
+
+    def spy(*args, **kwargs):
+        drawn.update(proposals=args[2], brake_line=kwargs.get("brake_line"), title=kwargs.get("title"))
+        return arena_figure(*args, **kwargs)
+
+    monkeypatch.setattr(plots, "arena_figure", spy)
+    path = proposal_figure(campaign, tmp_path / "p.png")
+    assert path.stat().st_size > 10_000
+    assert drawn["brake_line"] is not None and drawn["brake_line"][3] == pytest.approx(0.21)
+    assert "live stop" in drawn["title"] and "limits only" in drawn["title"]
+    proposals = [p for p in drawn["proposals"] if "x" in p]
+    assert proposals, "a model judged the batch: its fans are drawn"
+    safety = cfg.safety
+    for proposal in proposals:
+        x, y = proposal["x"], proposal["y"]
+        # no drawn point lies past the brake line by more than one step of travel
+        inside = polygon_clearance(safety.arena, np.nan_to_num(x, nan=0.0), np.nan_to_num(y, nan=0.0))
+        assert inside.min() > safety.margin + safety.stop_buffer - 0.02
+        assert len(proposal["brakes"][0]) <= proposal["n_paths"]
+    # in the 1.2 x 1.2 m arena some fan reaches the brake line
+    assert sum(len(p["brakes"][0]) for p in proposals) > 0

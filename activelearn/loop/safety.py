@@ -465,6 +465,20 @@ def violations(logs: pd.DataFrame, cfg: SafetyConfig, rate_hz: float) -> dict[in
     }
 
 
+def braked_paths(
+    x: np.ndarray, y: np.ndarray, cfg: SafetyConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sampled paths (S, T) in the arena frame as a live stop leaves them: each path ends at its first
+    point within `margin + stop_buffer` of a wall (the car brakes there and stands within the buffer;
+    the rest is NaN, which figures leave out). Returns the cut x, y and the (S,) index of each path's
+    trigger point (-1: never braked)."""
+    near = polygon_clearance(cfg.arena, x, y) < cfg.margin + cfg.stop_buffer
+    braked = near.any(axis=-1)
+    trigger = np.where(braked, np.argmax(near, axis=-1), -1)
+    after = np.arange(x.shape[-1])[None, :] > np.where(braked, trigger, x.shape[-1])[:, None]
+    return np.where(after, np.nan, x), np.where(after, np.nan, y), trigger
+
+
 def proposal_figure(campaign: Any, path: str | Path) -> Path:
     """Draw the pending proposals of a campaign in its arena (`campaign propose --plot`); return the path.
 
@@ -486,15 +500,30 @@ def proposal_figure(campaign: Any, path: str | Path) -> Path:
     for i, m in zip(pending, maneuvers, strict=True):
         cut = " (cut)" if str(i) in state.cuts else ""
         proposals.append({"label": f"{m.name}{cut}", "risk": state.risks.get(str(i), float("nan"))})
+    live = safety.stop == "live" and safety.enforce
     if model is not None and maneuvers:
         rollout = fan(model, maneuvers, safety, cfg.simulation.rate_hz, cfg.seed * 10_007 + len(state.rounds))
         for j, proposal in enumerate(proposals):
             n = int(rollout.lengths[j])
-            proposal.update(x=rollout.x[:, j, :n], y=rollout.y[:, j, :n])
+            x, y = rollout.x[:, j, :n], rollout.y[:, j, :n]
+            if live:  # each path ends where the car would brake: a fan reaching a wall is stopped there
+                x, y, trigger = braked_paths(x, y, safety)
+                hit = trigger >= 0
+                proposal.update(brakes=(x[hit, trigger[hit]], y[hit, trigger[hit]]), n_paths=len(trigger))
+            proposal.update(x=x, y=y)
     reach = None
     if model is None:
         room = float(boundary_distance(safety.arena, safety.start[0], safety.start[1])) - safety.margin
         reach = max(room, 0.0)
     title = f"{cfg.name}: proposals of batch {len(state.batches)}, delta {safety.delta:g}"
-    fig = arena_figure(safety.arena, safety.start, proposals, margin=safety.margin, reach=reach, title=title)
+    brake_line = None
+    if live:
+        brake_at = safety.margin + safety.stop_buffer
+        title += (f"\nlive stop: the car brakes within margin + stop_buffer = {brake_at:g} m of a wall "
+                  "(dashed), so a path ends there (x); the risk counts the limits only")  # fmt: skip
+        lo, hi = np.min(safety.arena, axis=0), np.max(safety.arena, axis=0)
+        gx, gy = np.meshgrid(np.linspace(lo[0], hi[0], 240), np.linspace(lo[1], hi[1], 240))
+        brake_line = (gx, gy, polygon_clearance(safety.arena, gx, gy), safety.margin + safety.stop_buffer)
+    fig = arena_figure(safety.arena, safety.start, proposals, margin=safety.margin, reach=reach, title=title,
+                       brake_line=brake_line)  # fmt: skip
     return save_figure(fig, path, dpi=110)
