@@ -393,11 +393,12 @@ def arena_figure(
     """The arena, the start pose and each proposal's predicted path with its 95 % fan and risk.
 
     Each proposal is a dict with `label`, `risk` and, when a model predicted it, `x`, `y` (S, T)
-    sampled paths in the arena frame (NaN after a path ends); the 5 % of paths farthest from the mean
-    path are left out, so the band drawn holds 95 % of the fan. `reach` (m) draws the circle the
-    kinematic worst case keeps the car in (before any model). Under a live stop, `brake_line` =
-    (grid x, grid y, clearance, level) draws where the car brakes, and a proposal's `brakes` (x, y)
-    marks the points where its paths would be braked (`n_paths`: how many paths it has).
+    sampled paths in the arena frame (NaN after a path ends; then `mean` gives the mean path); the 5 %
+    of paths farthest from the mean path are left out, so the band drawn holds 95 % of the fan.
+    `reach` (m) draws the circle the kinematic worst case keeps the car in (before any model). Under
+    a live stop, `brake_line` = (grid x, grid y, clearance, level) draws where the car brakes, and a
+    proposal's `brakes` (x, y) marks the points where its paths would be braked (`n_paths`: how many
+    paths it has).
     """
     fig = _new_figure(9.5, 6.0)
     ax = fig.add_subplot()
@@ -421,14 +422,15 @@ def arena_figure(
     for proposal, color in zip(proposals, colors, strict=True):
         label = f"{proposal['label']}: risk {proposal['risk']:.3f}"
         if "brakes" in proposal:
-            label += f", braked on {len(proposal['brakes'][0])} of {proposal['n_paths']} paths"
+            label += f", braked {len(proposal['brakes'][0])}/{proposal['n_paths']}"
         if "x" not in proposal:
             ax.plot([], [], color=color, label=label)
             continue
         x, y = np.asarray(proposal["x"]), np.asarray(proposal["y"])
-        # the mean over the paths still running at each step (a braked path ends early: NaN after)
-        mx = np.ma.masked_invalid(x).mean(axis=0).filled(np.nan)
-        my = np.ma.masked_invalid(y).mean(axis=0).filled(np.nan)
+        if "mean" in proposal:  # given (under a live stop: the mean of the whole paths, itself braked)
+            mx, my = (np.asarray(a) for a in proposal["mean"])
+        else:
+            mx, my = x.mean(axis=0), y.mean(axis=0)
         deviation = np.nanmax(np.hypot(x - mx, y - my), axis=1)
         keep = deviation <= np.quantile(deviation, 0.95)
         for xs, ys in zip(x[keep], y[keep], strict=True):

@@ -507,6 +507,8 @@ def proposal_figure(campaign: Any, path: str | Path) -> Path:
             n = int(rollout.lengths[j])
             x, y = rollout.x[:, j, :n], rollout.y[:, j, :n]
             if live:  # each path ends where the car would brake: a fan reaching a wall is stopped there
+                mean_x, mean_y, _ = braked_paths(x.mean(axis=0)[None], y.mean(axis=0)[None], safety)
+                proposal.update(mean=(mean_x[0], mean_y[0]))  # the mean path, itself braked
                 x, y, trigger = braked_paths(x, y, safety)
                 hit = trigger >= 0
                 proposal.update(brakes=(x[hit, trigger[hit]], y[hit, trigger[hit]]), n_paths=len(trigger))
@@ -519,8 +521,8 @@ def proposal_figure(campaign: Any, path: str | Path) -> Path:
     brake_line = None
     if live:
         brake_at = safety.margin + safety.stop_buffer
-        title += (f"\nlive stop: the car brakes within margin + stop_buffer = {brake_at:g} m of a wall "
-                  "(dashed), so a path ends there (x); the risk counts the limits only")  # fmt: skip
+        title += (f"\nlive stop: the car brakes within margin + stop_buffer = {brake_at:g} m of a wall"
+                  "\n(dashed), so a path ends there (x); the risk counts the limits only")  # fmt: skip
         lo, hi = np.min(safety.arena, axis=0), np.max(safety.arena, axis=0)
         gx, gy = np.meshgrid(np.linspace(lo[0], hi[0], 240), np.linspace(lo[1], hi[1], 240))
         brake_line = (gx, gy, polygon_clearance(safety.arena, gx, gy), safety.margin + safety.stop_buffer)
