@@ -72,11 +72,7 @@ class StopRule:
         self, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, origin: tuple[float, float, float]
     ) -> tuple[np.ndarray, np.ndarray]:
         """Positions relative to `origin` (the run's first pose), placed at `start` (m)."""
-        x0, y0, yaw0 = self.start
-        turn = yaw0 - origin[2]
-        c, s = math.cos(turn), math.sin(turn)
-        dx, dy = np.asarray(x) - origin[0], np.asarray(y) - origin[1]
-        return x0 + c * dx - s * dy, y0 + s * dx + c * dy
+        return place(x, y, origin, self.start)
 
     def clearance(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Signed distance (m) of points to the polygon's boundary: > 0 inside, < 0 outside."""
@@ -91,6 +87,18 @@ class StopRule:
         crosses = ((ay > py) != (by > py)) & (px < ax + (py - ay) * ex / np.where(ey == 0, 1.0, ey))
         inside = np.sum(crosses, axis=1) % 2 == 1
         return np.where(inside, dist, -dist)
+
+
+def place(
+    x: np.ndarray, y: np.ndarray, origin: tuple[float, float, float], start: tuple[float, float, float]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (m) taken relative to the pose `origin` (x, y, yaw) and placed at the pose `start`:
+    how a run's path lies in an arena whatever frame its log was recorded in."""
+    x0, y0, yaw0 = start
+    turn = yaw0 - origin[2]
+    c, s = math.cos(turn), math.sin(turn)
+    dx, dy = np.asarray(x) - origin[0], np.asarray(y) - origin[1]
+    return x0 + c * dx - s * dy, y0 + s * dx + c * dy
 
 
 # Called by `collect` on its per-run book-keeping (`simulator.collect._Run`) after every chunk.

@@ -68,6 +68,7 @@ import simulator
 from activelearn.config import POSE_LEVER_ARM, SafetyConfig, boundary_distance, polygon_clearance
 from activelearn.loop.pool import maneuver_controls
 from activelearn.numerics.surrogate import Rollout, simulate
+from simulator.stop import place
 
 SPEED_PER_THROTTLE = 0.287  # m/s: above every point of the reference throttle -> speed table
 WHEELBASE = 0.1415  # m, Nigel (reference/nigel.md)
@@ -415,12 +416,8 @@ def circles_fit(
 
 def placed_path(log: pd.DataFrame, cfg: SafetyConfig) -> tuple[np.ndarray, np.ndarray]:
     """The log's path relative to its first pose, placed at the arena's start pose (m)."""
-    x0, y0, yaw0 = cfg.start
     px, py, yaw = (log[c].to_numpy(dtype=np.float64) for c in ("posX", "posY", "yaw"))
-    dx, dy = px - px[0], py - py[0]
-    turn = yaw0 - yaw[0]
-    c, s = math.cos(turn), math.sin(turn)
-    return x0 + c * dx - s * dy, y0 + s * dx + c * dy
+    return place(px, py, (px[0], py[0], yaw[0]), cfg.start)  # as the simulated live stop places it
 
 
 def stop_rule(cfg: SafetyConfig | None) -> simulator.StopRule | None:
@@ -525,7 +522,7 @@ def proposal_figure(campaign: Any, path: str | Path) -> Path:
                   "\n(dashed), so a path ends there (x); the risk counts the limits only")  # fmt: skip
         lo, hi = np.min(safety.arena, axis=0), np.max(safety.arena, axis=0)
         gx, gy = np.meshgrid(np.linspace(lo[0], hi[0], 240), np.linspace(lo[1], hi[1], 240))
-        brake_line = (gx, gy, polygon_clearance(safety.arena, gx, gy), safety.margin + safety.stop_buffer)
+        brake_line = (gx, gy, polygon_clearance(safety.arena, gx, gy), brake_at)
     fig = arena_figure(safety.arena, safety.start, proposals, margin=safety.margin, reach=reach, title=title,
                        brake_line=brake_line)  # fmt: skip
     return save_figure(fig, path, dpi=110)
