@@ -62,6 +62,13 @@ def test_smoke_campaign_logs_every_round_metric_to_sqlite(tmp_path):
     assert len(result.state.taken) == 5 and len(set(result.state.taken)) == 5
 
 
+def tiny_file(tmp_path: Path) -> Path:
+    """`tiny_config`'s sizes (two rounds, 25 epochs) as a config file for the CLI, writing under tmp_path."""
+    path = smoke_file(tmp_path, max_maneuvers=5)
+    path.write_text(path.read_text().replace("epochs = 60", "epochs = 25"))
+    return path
+
+
 def _run_cli(args, **kwargs):
     return subprocess.Popen([sys.executable, "-m", "activelearn.cli", *args], **kwargs)
 
@@ -112,7 +119,7 @@ def _run_cli_signalled(signal_name: str, at: tuple[str, int], args, **kwargs):
 
 @pytest.mark.slow
 def test_killed_campaign_resumes_to_identical_data(tmp_path):
-    common = ["campaign", "run", str(SMOKE), "--no-tracking", "--seed", "3"]
+    common = ["campaign", "run", str(tiny_file(tmp_path)), "--no-tracking", "--seed", "3"]
     reference = _run_cli([*common, "--out", str(tmp_path / "ref")])
     assert reference.wait(timeout=300) == 0
 
@@ -137,10 +144,10 @@ def test_killed_campaign_resumes_to_identical_data(tmp_path):
 @pytest.mark.slow
 def test_ctrl_c_marks_the_run_killed_and_leaves_a_resumable_directory(tmp_path):
     uri = f"sqlite:///{tmp_path}/mlruns/mlflow.db"
-    out = tmp_path / "c"
+    out, config = tmp_path / "c", tiny_file(tmp_path)
     # Ctrl-C as round 1 starts (after round 0's checkpoint), wherever the machine's load would put it.
     proc = _run_cli_signalled("SIGINT", ("fit", 1),
-                              ["campaign", "run", str(SMOKE), "--out", str(out), "--tracking-uri", uri],
+                              ["campaign", "run", str(config), "--out", str(out), "--tracking-uri", uri],
                               stderr=subprocess.PIPE, text=True)
     _, err = proc.communicate(timeout=300)
     assert proc.returncode == 130, err
@@ -149,7 +156,7 @@ def test_ctrl_c_marks_the_run_killed_and_leaves_a_resumable_directory(tmp_path):
     assert not state.finished
     assert len(state.rounds) == 1
     assert Tracker(uri).run_status(state.run_id) == "KILLED"
-    resumed = _run_cli(["campaign", "run", str(SMOKE), "--out", str(out), "--tracking-uri", uri, "--resume"])
+    resumed = _run_cli(["campaign", "run", str(config), "--out", str(out), "--tracking-uri", uri, "--resume"])
     assert resumed.wait(timeout=300) == 0
     assert CampaignState.load(out).finished
     assert Tracker(uri).run_status(state.run_id) == "FINISHED"
@@ -191,7 +198,7 @@ def test_cli_rejects_a_bad_config_with_exit_code_2(tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("command", ["campaign run", "compare"])
 def test_an_unreachable_tracking_server_is_one_error_within_5_s_and_nothing_runs(
-    tmp_path, capsys, silent_server, command
+    tmp_path, capsys, silent_server, command, default_cache
 ):
     config = smoke_file(tmp_path)
     extra = ["--strategies", "uniform", "--seeds", "1"] if command == "compare" else []

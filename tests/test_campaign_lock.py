@@ -1,9 +1,10 @@
 """One writer per campaign directory: real CLI processes racing for one campaign.
 
-The two writers of a race start behind a barrier: each imports the CLI (and what its command loads), says
-it is ready, and waits for a go-file the test makes once both are; then both call the CLI at once. Each
-race runs RACES times (ACTIVELEARN_RACES, default 5; the issue's check is 20 in a row). A race records
-every log exactly once, or the command that lost exits non-zero and says to retry; at least one wins.
+The two writers of a race start behind a barrier: each is forked from a server that has imported the CLI
+and what its commands load (tests/racers.py), says it is ready, and waits for a go-file the test makes once
+both are; then both call the CLI's `main` at once. Each race runs RACES times (ACTIVELEARN_RACES, default
+5; the issue's check is 20 in a row). A race records every log exactly once, or the command that lost
+exits non-zero and says to retry; at least one wins.
 The lease tests stall a holder whose OS lock does not reach the other process (as on a file system
 whose locks stay on one host) and check that a takeover stops it without writing.
 """
@@ -29,6 +30,7 @@ from activelearn.data import read_recorded_log
 from activelearn.loop.lock import HOLDER_FILE, LOCK_FILE, read_holder
 from activelearn.loop.state import CampaignState
 from activelearn.studies.tracking import Tracker
+from tests import racers
 from tests.test_asktell import _drive
 
 pytestmark = pytest.mark.slow  # processes racing for one campaign directory
@@ -81,41 +83,9 @@ with hold(sys.argv[1]):
 """
 
 
-# A racer: the CLI and the modules its commands load on demand (torch, MLflow, matplotlib) imported
-# first, so both racers reach the lock within a millisecond of the go-file appearing.
-_RACER = """
-import os, sys, time
-from activelearn.cli import main
-import activelearn.loop.asktell, activelearn.plots
-if "--no-tracking" not in sys.argv:
-    import activelearn.studies.tracking
-print("ready", flush=True)
-while not os.path.exists(sys.argv[1]):
-    time.sleep(0.001)
-sys.exit(main(sys.argv[2:]))
-"""
-
-
 def _cli(*args: str) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "activelearn.cli", *args],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
-
-
-def _race(go: Path, *commands: list[str]) -> list[tuple[int, str]]:
-    """Start a CLI process per command behind a barrier, release them together, and finish them."""
-    procs = [subprocess.Popen([sys.executable, "-c", _RACER, str(go), *command], stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, text=True) for command in commands]  # fmt: skip
-    try:
-        for proc in procs:
-            if proc.stdout.readline() != "ready\n":
-                pytest.fail(f"a racer died before the race: {proc.communicate(timeout=60)[1][-2000:]}")
-        go.touch()
-        return [_finish(proc) for proc in procs]
-    finally:
-        for proc in procs:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
 
 
 def _finish(proc: subprocess.Popen) -> tuple[int, str]:
@@ -155,7 +125,7 @@ def test_two_ingests_of_one_batch_record_both_logs(external, tmp_path, race, cap
     _, template, logs = external
     directory = tmp_path / "campaign"
     shutil.copytree(template, directory)
-    results = _race(tmp_path / "go", *(["campaign", "ingest", str(directory), str(log), "--no-tracking"]
+    results = racers.race(tmp_path / "go", *(["campaign", "ingest", str(directory), str(log), "--no-tracking"]
                                        for log in logs))  # fmt: skip
     _outcome("ingest+ingest", race, [code for code, _ in results])
     assert any(code == 0 for code, _ in results), results  # one of them got in, at least
@@ -180,7 +150,7 @@ def test_an_ingest_during_campaign_run_resume(simulated, tmp_path, race):
     directory = tmp_path / "campaign"
     shutil.copytree(template, directory)
     pending = CampaignState.load(directory).pending
-    (run_code, run_err), (code, err) = _race(
+    (run_code, run_err), (code, err) = racers.race(
         tmp_path / "go",
         ["campaign", "run", str(config), "--out", str(directory), "--resume", "--no-tracking"],
         ["campaign", "ingest", str(directory), str(logs[0]), "--no-tracking", "--wait", "1"],
@@ -208,7 +178,7 @@ def test_two_proposes_make_one_campaign_and_one_mlflow_run(simulated, tmp_path, 
     config.write_text(f'output_dir = "{runs_dir}"\n' + CONFIG + f'[tracking]\nuri = "{uri}"\n')
     tracker = Tracker(uri)  # the store exists before the race (its schema is not what is raced for)
     directory = tmp_path / "campaign"
-    results = _race(tmp_path / "go", *(["campaign", "propose", str(config), "--out", str(directory)]
+    results = racers.race(tmp_path / "go", *(["campaign", "propose", str(config), "--out", str(directory)]
                                        for _ in range(2)))  # fmt: skip
     _outcome("propose+propose", race, [code for code, _ in results])
     # One starts the campaign; the other, let in after it, finds the campaign and says so (exit 2, one

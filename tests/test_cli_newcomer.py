@@ -38,8 +38,9 @@ def rejected(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
 
 
 @pytest.fixture
-def cwd(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    """A fresh current directory holding one plain file, `afile`."""
+def cwd(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, default_cache: None) -> Path:
+    """A fresh current directory holding one plain file, `afile` (the simulation cache where a user's
+    would be: under it)."""
     monkeypatch.chdir(tmp_path)
     (tmp_path / "afile").write_text("not a folder")
     return tmp_path
@@ -133,6 +134,7 @@ def test_help_says_where_the_simulation_cache_goes(capsys: pytest.CaptureFixture
         assert run([*command, "--help"]) == 0
         text = " ".join(capsys.readouterr().out.split())
         assert "output_dir/cache (default ./runs/cache), whatever --out says" in text
+        assert "ACTIVELEARN_CACHE_DIR" in text
 
 
 # --- 5. no silent defaults for the steering ---------------------------------------------------------

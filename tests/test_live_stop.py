@@ -239,6 +239,7 @@ def test_a_bad_safety_value_on_the_command_line_is_one_line_exit_2_nothing_writt
 
 
 def test_a_comparison_simulates_the_pool_under_the_live_stop_before_its_workers(tmp_path):
+    from activelearn.loop.collection import cache_root
     from activelearn.loop.oracles import SimulatorOracle
     from activelearn.studies.compare import compare
 
@@ -246,7 +247,7 @@ def test_a_comparison_simulates_the_pool_under_the_live_stop_before_its_workers(
                           design={"initial": 2, "per_round": 1, "max_maneuvers": 2})  # fmt: skip
     result = compare(cfg, ["uniform"], [0], directory=tmp_path / "cmp", workers=1, tracking=False)
     assert len(result.table) >= 1
-    oracle = SimulatorOracle(cfg, SimulationCache(Path(cfg.output_dir) / "cache", cfg.simulation))
+    oracle = SimulatorOracle(cfg, SimulationCache(cache_root(cfg), cfg.simulation))
     assert oracle.driven.root != oracle.cache.root and oracle.driven.stop == stop_rule(cfg.safety)
     assert oracle.driven.missing(oracle.candidates()) == []  # the whole pool, braked, in its own entries
     assert oracle.cache.missing(oracle.test_maneuvers()) == []  # the test set without the stop

@@ -97,16 +97,16 @@ def _rounds(directory: Path, strategy: str, seeds: range) -> dict[int, list[floa
 
 @pytest.fixture(scope="module")
 def process_reference(tmp_path_factory):
-    """Per-round test RMSE of uniform, seeds 0-1, 4 rounds, run by two local processes."""
+    """Per-round test RMSE of uniform, seeds 0-1, 3 rounds, run by two local processes."""
     tmp_path = tmp_path_factory.mktemp("process")
-    cfg = load_config(smoke_file(tmp_path, max_maneuvers=9))
+    cfg = load_config(smoke_file(tmp_path, max_maneuvers=7))
     compare(cfg, ["uniform"], [0, 1], directory=tmp_path / "out", workers=2, tracking=False)
     return cfg, _rounds(tmp_path / "out", "uniform", range(2))
 
 
 def _ray_compare(tmp_path: Path, address: str, out: Path, seeds: int = 2) -> list[str]:
-    """The CLI command comparing uniform over seeds 0-1 (4 rounds) on the Ray cluster at `address`."""
-    config = smoke_file(tmp_path, max_maneuvers=9)
+    """The CLI command comparing uniform over seeds 0-1 (3 rounds) on the Ray cluster at `address`."""
+    config = smoke_file(tmp_path, max_maneuvers=7)
     return [str(ACTIVELEARN), "compare", str(config), "--strategies", "uniform", "--seeds", str(seeds),
             "--no-tracking", "--executor", "ray", "--ray-address", address, "--out", str(out)]
 
@@ -120,7 +120,7 @@ def test_ray_executor_gives_the_process_executors_numbers(tmp_path, ray_head, pr
     )  # fmt: skip
     assert done.returncode == 0, done.stderr[-2000:]
     assert _rounds(out, "uniform", range(2)) == reference
-    assert len(reference[0]) == 4
+    assert len(reference[0]) == 3
 
 
 def test_ray_address_local_starts_an_in_process_cluster_with_the_same_numbers(tmp_path, process_reference):
@@ -217,7 +217,7 @@ def _hash(frame: pd.DataFrame) -> int:
     return int(pd.util.hash_pandas_object(frame).sum())
 
 
-def test_ray_missing_or_unknown_executor_is_one_clear_error(tmp_path, monkeypatch, capsys):
+def test_ray_missing_or_unknown_executor_is_one_clear_error(tmp_path, monkeypatch, capsys, default_cache):
     path = smoke_file(tmp_path)
     common = ["compare", str(path), "--no-tracking", "--out"]
     assert main([*common, str(tmp_path / "a"), "--executor", "dask"]) == 2

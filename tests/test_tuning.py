@@ -144,7 +144,7 @@ def test_operating_points_separate_directions_of_autodrive_logs(tmp_path, mlflow
         load_dataset([tmp_path / "missing.parquet"], cfg)
 
 
-def test_dataset_from_the_config_pool_is_simulated_once_and_cached(tmp_path, mlflow_uri):
+def test_dataset_from_the_config_pool_is_simulated_once_and_cached(tmp_path, mlflow_uri, default_cache):
     extra = """
 [pool]
 kinds = ["skidpad"]

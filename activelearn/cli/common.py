@@ -77,7 +77,7 @@ def output_path(
 
 PLOT_SUFFIXES = (".png", ".pdf", ".svg")
 CACHE_NOTE = ("simulated maneuvers are cached in the config's output_dir/cache (default ./runs/cache), "
-              "whatever --out says")
+              "whatever --out says, or in $ACTIVELEARN_CACHE_DIR when set")
 
 
 def add_config_options(p: argparse.ArgumentParser, out_default: str) -> None:

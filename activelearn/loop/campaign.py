@@ -40,7 +40,7 @@ from activelearn.loop import lock
 from activelearn.loop.acquisition import Evidence, Pool, Strategy, greedy_maximin, make_strategy
 from activelearn.loop.admission import Admission
 from activelearn.loop.budget import Budget, total_rounds
-from activelearn.loop.collection import SimulationCache, TestSet, truth_rows
+from activelearn.loop.collection import SimulationCache, TestSet, cache_root, truth_rows
 from activelearn.loop.evaluation import Evaluation, applied_scale
 from activelearn.loop.fitting import Fitting
 from activelearn.loop.oracles import Oracle, make_oracle
@@ -134,9 +134,9 @@ class Campaign:
             penalty_length=acq.penalty_length,
             cost_aware=acq.cost_aware,
         )
-        cache_root = Path(cache_dir or Path(cfg.output_dir) / "cache")
-        self.nominal = SimulationCache(cache_root, cfg.simulation)  # prior grids: the nominal simulator
-        self.oracle: Oracle = make_oracle(cfg, cache_root)
+        cache = Path(cache_dir) if cache_dir else cache_root(cfg)
+        self.nominal = SimulationCache(cache, cfg.simulation)  # prior grids: the nominal simulator
+        self.oracle: Oracle = make_oracle(cfg, cache)
         self.progress: Progress = progress or (lambda event: None)
         self.run_log = RunLog(cfg, self.directory, tracker=tracker, parent_run_id=parent_run_id,
                               progress=lambda event: self.progress(event))  # fmt: skip

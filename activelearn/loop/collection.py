@@ -10,6 +10,7 @@ pays for each simulation once.
 from __future__ import annotations
 
 import hashlib
+import os
 import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -32,6 +33,16 @@ TARGETS: tuple[str, ...] = RATES  # every model's outputs
 RATE_FEATURES: tuple[str, ...] = PREVIOUS_RATES  # a Markov model's extra inputs
 
 Progress = Callable[[int, int], None]
+
+CACHE_ENV = "ACTIVELEARN_CACHE_DIR"
+
+
+def cache_root(cfg: CampaignConfig) -> Path:
+    """Where simulated logs (and tuning's datasets) are cached: `<output_dir>/cache`, or the folder
+    `$ACTIVELEARN_CACHE_DIR` names, so that many output directories share one cache (a cluster's shared
+    disk, the test suite's campaigns). Entries are keyed by the simulator, so sharing is always safe."""
+    shared = os.environ.get(CACHE_ENV)
+    return Path(shared) if shared else Path(cfg.output_dir) / "cache"
 
 
 def simulator_fingerprint() -> str:

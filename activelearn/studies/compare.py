@@ -196,7 +196,6 @@ def compare(
                     raise InputError(
                         "--out", str(directory), "holds campaigns already; pass --resume or another --out"
                     )
-    cache_dir = Path(cfg.output_dir) / "cache"
     workers = max(1, min(workers or os.cpu_count() or 1, len(strategies) * len(seeds)))
 
     tracker, parent_run_id = None, None
@@ -206,9 +205,10 @@ def compare(
 
         tracker = Tracker(cfg.tracking.uri, cfg.tracking.experiment)
     # Simulate the whole pool and the test set once, with every core, before the workers start.
-    from activelearn.loop.collection import SimulationCache
+    from activelearn.loop.collection import SimulationCache, cache_root
     from activelearn.loop.safety import stop_rule
 
+    cache_dir = cache_root(cfg)
     cache = SimulationCache(cache_dir, cfg.simulation)
     # a live stop: the simulator drives the pool under it (cache entries of their own)
     rule = stop_rule(cfg.safety) if cfg.oracle.kind == "simulator" else None

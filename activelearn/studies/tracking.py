@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import logging
 import os
+import shutil
+import sqlite3
 import tempfile
 import time
 import urllib.error
@@ -74,6 +76,54 @@ def artifact_root_for(tracking_uri: str) -> str | None:
     return (db_path.parent.resolve() / "artifacts").as_uri()
 
 
+def _store_template() -> Path:
+    """An empty SQLite store migrated by this MLflow version, made once per machine in the user's cache.
+
+    MLflow builds a new SQLite store by running its schema migrations (68 in 3.17: seconds); a copy of
+    an empty store it built takes milliseconds. Keyed by MLflow's version: an upgrade migrates afresh.
+    """
+    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "activelearn"
+    template = cache / f"mlflow-{mlflow.__version__}-empty.db"
+    if not template.exists():
+        cache.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(dir=cache) as scratch:
+            built = Path(scratch) / "mlflow.db"
+            MlflowClient(f"sqlite:///{built}").search_experiments()  # MLflow creates and migrates it
+            os.replace(built, template)  # atomic: concurrent builders leave one complete template
+    return template
+
+
+def create_sqlite_store(db_path: Path) -> None:
+    """Make the empty MLflow store `db_path` as a copy of the migrated template; keep one that exists.
+
+    The copy is what MLflow would have built, down to its "Default" experiment (artifacts under the
+    working directory's mlruns/0, created now). Anything unusual (no writable cache, no hard links)
+    leaves the path alone and MLflow builds the store itself.
+    """
+    if db_path.exists():
+        return
+    try:
+        template = _store_template()
+        partial = db_path.with_name(f".{db_path.name}.{os.getpid()}.partial")
+        shutil.copyfile(template, partial)
+        try:
+            now = int(time.time() * 1000)
+            default_artifacts = str(Path.cwd().resolve() / "mlruns" / "0")
+            connection = sqlite3.connect(partial)
+            with connection:
+                connection.execute(
+                    "UPDATE experiments SET artifact_location = ?, creation_time = ?, last_update_time = ?"
+                    " WHERE experiment_id = 0",
+                    (default_artifacts, now, now),
+                )
+            connection.close()
+            os.link(partial, db_path)  # never over a store another process made meanwhile
+        finally:
+            partial.unlink(missing_ok=True)
+    except (OSError, sqlite3.Error, MlflowException):
+        return
+
+
 def check_server(tracking_uri: str, timeout: float = SERVER_TIMEOUT) -> None:
     """Fail within `timeout` s with one clear error when an http(s) tracking server does not answer.
 
@@ -113,7 +163,9 @@ class Tracker:
         self, tracking_uri: str = DEFAULT_TRACKING_URI, experiment: str = DEFAULT_EXPERIMENT
     ) -> None:
         if tracking_uri.startswith("sqlite:///"):
-            Path(tracking_uri.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
+            db_path = Path(tracking_uri.removeprefix("sqlite:///"))
+            db_path.parent.mkdir(parents=True, exist_ok=True)
+            create_sqlite_store(db_path)
         self.tracking_uri = tracking_uri
         self._down = False  # the server stopped answering; each call checks it is back first
         check_server(tracking_uri)

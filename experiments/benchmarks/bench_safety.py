@@ -36,11 +36,13 @@ from quick import shrink
 
 from activelearn.config import load_config
 from activelearn.loop.campaign import Campaign
+from activelearn.loop.collection import cache_root
 from activelearn.loop.safety import Assessment, placed_path, violating
 from activelearn.loop.state import CampaignState
 from activelearn.studies.compare import compare
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+POSITION = "rollout_pos_err_30s"  # the free runs' position error after 30 s, beside the one-step RMSE
 
 
 def _sem(values: np.ndarray) -> float:
@@ -62,6 +64,7 @@ def summary(curves: pd.DataFrame, label: str, directory: Path) -> dict:
     last = curves.sort_values("round").groupby("seed").last()
     rounds = curves[curves["round"] > 0]
     cut, total = picks_cut(directory)
+    by_round = curves.groupby("round")["safe_set_size"].mean() if "safe_set_size" in curves else None
     return {
         "variant": label,
         "seeds": len(last),
@@ -69,7 +72,10 @@ def summary(curves: pd.DataFrame, label: str, directory: Path) -> dict:
         "campaigns_with_any": int((last["violations_total"] > 0).sum()),
         "final_rmse": float(last["test_rmse"].mean()),
         "final_rmse_sem": _sem(last["test_rmse"].to_numpy()),
+        "final_pos_err": float(last[POSITION].mean()) if POSITION in last else float("nan"),
+        "final_pos_err_sem": _sem(last[POSITION].to_numpy()) if POSITION in last else float("nan"),
         "safe_set_mean": float(curves["safe_set_size"].mean()) if "safe_set_size" in curves else float("nan"),
+        "safe_set_by_round": by_round.round(1).to_dict() if "safe_set_size" in curves else {},
         "safety_s_per_round": float(curves["safety_seconds"].mean()) if "safety_seconds" in curves else 0.0,
         "cut_share": cut / total if total else float("nan"),
         "violations_by_round": rounds.groupby("round")["violations"].sum().astype(int).to_dict(),
@@ -126,7 +132,7 @@ def clairvoyant(cfg: Any, seeds: list[int], directory: Path, resume: bool) -> pd
     for seed in seeds:
         seeded = cfg.model_copy(update={"seed": seed})  # no tracker: not tracked
         campaign = ClairvoyantCampaign(seeded, directory / cfg.strategy / f"seed{seed}",
-                                       cache_dir=Path(cfg.output_dir) / "cache")  # fmt: skip
+                                       cache_dir=cache_root(cfg))  # fmt: skip
         result = campaign.run(resume=resume, figures=False, log_model=False)
         records += [{"strategy": cfg.strategy, "seed": seed, **r} for r in result.state.rounds]
     return pd.DataFrame(records).sort_values(["seed", "round"]).reset_index(drop=True)
@@ -208,6 +214,8 @@ def main() -> None:
             f"{base_label}); safe set {row['safe_set_mean']:.1f} candidates per round; risk "
             f"computation {row['safety_s_per_round']:.2f} s per round; picks cut short {row['cut_share']:.0%}"
         )
+        print(f"{'':>16}  30-s position error {row['final_pos_err']:.4f} ± {row['final_pos_err_sem']:.4f} m; "
+              f"safe set by round {row['safe_set_by_round']}")
     print(f"wall time {time.perf_counter() - started:.0f} s")
     if len(curves) < 2:
         return

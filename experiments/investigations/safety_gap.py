@@ -24,6 +24,7 @@ import numpy as np
 
 from activelearn.config import load_config
 from activelearn.loop.campaign import Campaign
+from activelearn.loop.collection import cache_root
 from activelearn.loop.pool import maneuver_controls
 from activelearn.loop.safety import violating
 from activelearn.loop.state import MODEL_FILE, CampaignState
@@ -65,7 +66,7 @@ def main() -> None:
     parser.add_argument("--top", type=int, default=3)
     args = parser.parse_args()
     cfg = load_config(args.config)
-    campaign = Campaign(cfg, Path(args.bench) / "gap", cache_dir=Path(cfg.output_dir) / "cache")
+    campaign = Campaign(cfg, Path(args.bench) / "gap", cache_dir=cache_root(cfg))
     test, tests = campaign.test_set, campaign.oracle.test_maneuvers()
     parts = sorted({part(m) for m in tests})
     # test maneuvers whose true rates break a limit (arena aside: the test set is a map, not a drive)

@@ -22,6 +22,7 @@ from activelearn.loop.collection import (
     TARGETS,
     SimulationCache,
     arrays,
+    cache_root,
     control_rate_logs,
     noisy_logs,
     simulator_fingerprint,
@@ -179,10 +180,11 @@ def collect_dataset(
 ) -> TuningData:
     """All of the config's pool maneuvers, simulated with its noise and seed, as training rows.
 
-    Cached as Parquet under `<output_dir>/cache` keyed by `dataset_key`; the noise-free logs go
-    through the same `SimulationCache` as campaigns, so tuning and campaigns simulate each maneuver once.
+    Cached as Parquet under `cache_root(cfg)` (`<output_dir>/cache`) keyed by `dataset_key`; the
+    noise-free logs go through the same `SimulationCache` as campaigns, so tuning and campaigns simulate
+    each maneuver once.
     """
-    root = Path(cache_dir) if cache_dir is not None else Path(cfg.output_dir) / "cache"
+    root = Path(cache_dir) if cache_dir is not None else cache_root(cfg)
     key = dataset_key(cfg)
     path, log_path = root / f"tuning-data-{key}.parquet", root / f"tuning-logs-{key}.parquet"
     if path.exists() and log_path.exists():
