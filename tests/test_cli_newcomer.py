@@ -137,6 +137,22 @@ def test_help_says_where_the_simulation_cache_goes(capsys: pytest.CaptureFixture
         assert "ACTIVELEARN_CACHE_DIR" in text
 
 
+def test_a_campaign_caches_in_the_folder_activelearn_cache_dir_names(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from activelearn.config import load_config
+    from activelearn.loop.campaign import Campaign
+    from activelearn.loop.collection import CACHE_ENV, cache_root
+
+    cfg = load_config(SMOKE, overrides={"output_dir": str(tmp_path / "runs"), "tracking": {"enabled": False}})
+    monkeypatch.delenv(CACHE_ENV, raising=False)
+    assert cache_root(cfg) == tmp_path / "runs" / "cache"
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path / "shared"))
+    assert cache_root(cfg) == tmp_path / "shared"
+    campaign = Campaign(cfg, tmp_path / "c")
+    assert campaign.nominal.root.parent == campaign.oracle.cache.root.parent == tmp_path / "shared"
+
+
 # --- 5. no silent defaults for the steering ---------------------------------------------------------
 
 
