@@ -140,3 +140,20 @@ def test_twin_logs_have_their_own_cache_and_a_tiny_campaign_records_the_override
     for name, value in overrides.items():
         assert float(params[f"oracle_info.overrides.{name}"]) == value
         assert float(params[f"oracle.overrides.{name}"]) == value
+
+
+@pytest.mark.parametrize("kind", ["simulator", "twin", "external"])
+def test_a_comparison_simulates_beforehand_what_the_oracle_will_simulate(tmp_path, kind):
+    """compare asks the oracle: a twin's maneuvers in the twin's cache (not the nominal simulator's),
+    a person's candidates not at all (only the simulated test set)."""
+    from activelearn.loop.oracles import make_oracle
+    from activelearn.loop.pool import pool_maneuvers, test_maneuvers
+
+    overrides = {"oracle": {"kind": kind, **({"overrides": {"motor_gain": 0.9}} if kind == "twin" else {})}}
+    cfg = load_config(SMOKE, overrides={"output_dir": str(tmp_path / "runs"), **overrides})
+    oracle = make_oracle(cfg, tmp_path / "cache")
+    ((cache, maneuvers),) = oracle.simulations()
+    tests, pool = test_maneuvers(cfg.test), pool_maneuvers(cfg.pool)
+    assert maneuvers == (tests if kind == "external" else tests + pool)
+    nominal = SimulationCache(tmp_path / "cache", cfg.simulation)
+    assert cache.root == (twin_cache(tmp_path / "cache", cfg) if kind == "twin" else nominal).root

@@ -69,6 +69,11 @@ class Oracle(ABC):
         """Noise-free logs of `maneuvers` where the oracle knows them (simulated systems), else None."""
         return None
 
+    def simulations(self) -> list[tuple[SimulationCache, list[Any]]]:
+        """What this oracle will simulate, as (cache, maneuvers) pairs: a comparison simulates them
+        once, with every core, before its workers start. None for recorded logs."""
+        return []
+
     def params(self) -> dict[str, Any]:
         """What MLflow records about the oracle."""
         return {"kind": self.kind}
@@ -107,6 +112,16 @@ class SimulatorOracle(Oracle):
         if self.cfg.test.logs is not None:
             return _recorded_tests(self.cfg.test.logs)
         return test_maneuvers(self.cfg.test)
+
+    def simulations(self) -> list[tuple[SimulationCache, list[Any]]]:
+        tests = [] if self.cfg.test.logs is not None else test_maneuvers(self.cfg.test)
+        answers = self._simulated_candidates()
+        if self.driven is self.cache:  # no live stop: one batch
+            return [(self.cache, tests + answers)]
+        return [(self.cache, tests), (self.driven, answers)]  # under the stop: entries of their own
+
+    def _simulated_candidates(self) -> list[Any]:
+        return self.candidates()
 
     def test_set(self) -> TestSet:
         if self._test is None:
@@ -148,6 +163,9 @@ class ExternalOracle(SimulatorOracle):
 
     def truth(self, maneuvers: Sequence[Any]) -> list[pd.DataFrame] | None:
         return None
+
+    def _simulated_candidates(self) -> list[Any]:
+        return []  # a person drives them
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,6 @@ from activelearn.data import atomic_write_bytes
 from activelearn.errors import InputError
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.lock import DEFAULT_WAIT
-from activelearn.loop.pool import pool_maneuvers, test_maneuvers
 from activelearn.loop.state import STATE_FILE
 from activelearn.names import CURVE_METRICS, RANKING_METRICS, REFERENCE_STRATEGY
 from activelearn.studies.executors import check_executor, run_jobs
@@ -205,16 +204,13 @@ def compare(
 
         tracker = Tracker(cfg.tracking.uri, cfg.tracking.experiment)
     # Simulate the whole pool and the test set once, with every core, before the workers start.
-    from activelearn.loop.collection import SimulationCache, cache_root
-    from activelearn.loop.safety import stop_rule
+    # The oracle says what it simulates (the nominal simulator or a twin, the pool under a live stop).
+    from activelearn.loop.collection import cache_root
+    from activelearn.loop.oracles import make_oracle
 
     cache_dir = cache_root(cfg)
-    cache = SimulationCache(cache_dir, cfg.simulation)
-    # a live stop: the simulator drives the pool under it (cache entries of their own)
-    rule = stop_rule(cfg.safety) if cfg.oracle.kind == "simulator" else None
-    jobs = [(cache, test_maneuvers(cfg.test) + ([] if rule else pool_maneuvers(cfg.pool)))]
-    if rule is not None:
-        jobs.append((cache.stopped(rule), pool_maneuvers(cfg.pool)))
+    jobs = make_oracle(cfg, cache_dir).simulations()
+
     def sim_progress(done: int, total: int) -> None:
         progress({"event": "sim_progress", "done": done, "total": total})
 
