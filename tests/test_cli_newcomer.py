@@ -451,7 +451,7 @@ def test_an_mlflow_model_loads_without_leaving_files_behind(tmp_path: Path, monk
     from activelearn.config import ModelConfig
     from activelearn.errors import ConfigError
     from activelearn.numerics.models import build_model
-    from activelearn.studies.tracking import Tracker, load_model
+    from activelearn.studies.tracking import Tracker, load_model, model_requirements
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "scratch"))
     (tmp_path / "scratch").mkdir()
@@ -463,6 +463,8 @@ def test_an_mlflow_model_loads_without_leaving_files_behind(tmp_path: Path, monk
     x = np.array([[0.5, 0.1], [0.2, -0.3]])
     loaded = load_model(model_uri, uri)
     np.testing.assert_array_equal(loaded.predict(x, n_samples=4).mean, model.predict(x, n_samples=4).mean)
+    [requirements] = (tmp_path / "artifacts").rglob("requirements.txt")
+    assert requirements.read_text().split() == model_requirements()  # named, not inferred (~10 s)
     with pytest.raises(ConfigError, match="--model"):
         load_model("runs:/deadbeef/model", uri)
     assert list((tmp_path / "scratch").iterdir()) == []  # no activelearn-model-* folders left

@@ -29,6 +29,7 @@ from activelearn.numerics.models import (
 )
 from activelearn.numerics.models.base import CHUNK_ROWS
 from activelearn.numerics.training import fit
+from activelearn.studies.tracking import MODEL_PACKAGES
 
 KINDS = ["hybrid", "pbnn", "pnn", "bnn", "dnn", "ensemble"]
 SMALL = {"arch": "D8-V8-V", "ensemble_size": 3}
@@ -279,7 +280,8 @@ def test_markov_state_inputs():
 
 @pytest.mark.slow
 def test_mlflow_pytorch_round_trip(trained, data, tmp_path, monkeypatch):
-    """The module logs and loads through mlflow.pytorch with a real SQLite store (pickle format)."""
+    """The module logs and loads through mlflow.pytorch with a real SQLite store (pickle format), and
+    MLflow's own inference of its requirements finds the packages `Tracker.log_model` names itself."""
     mlflow_pytorch = pytest.importorskip("mlflow.pytorch")
     import mlflow
 
@@ -294,6 +296,9 @@ def test_mlflow_pytorch_round_trip(trained, data, tmp_path, monkeypatch):
     finally:
         mlflow.set_tracking_uri(None)
     assert isinstance(loaded, HybridPBNN)
+    [requirements] = (tmp_path / "artifacts").rglob("requirements.txt")
+    inferred = {line.split("==")[0] for line in requirements.read_text().split()}
+    assert inferred == set(MODEL_PACKAGES)
     x = data[0][:10]
     np.testing.assert_array_equal(loaded.predict(x, 8, seed=1).mean, m.predict(x, 8, seed=1).mean)
 

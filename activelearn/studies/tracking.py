@@ -6,6 +6,7 @@ nested runs written from several processes (a comparison's workers) cannot get m
 
 from __future__ import annotations
 
+import importlib.metadata
 import logging
 import os
 import shutil
@@ -53,6 +54,16 @@ T = TypeVar("T")
 # The pickle-format and "+cpu" version-label warnings of model logging are expected here.
 logging.getLogger("mlflow").setLevel(logging.ERROR)
 logging.getLogger("alembic").setLevel(logging.WARNING)
+
+
+# What a logged model needs to load: the packages MLflow's own inference finds for it (it loads the
+# model in a subprocess to see what gets imported, ~10 s per campaign), named here instead.
+MODEL_PACKAGES = ("mlflow", "activelearn", "cloudpickle", "numpy", "pandas", "scipy", "torch")
+
+
+def model_requirements() -> list[str]:
+    """`MODEL_PACKAGES` pinned to the installed versions, as the logged model's requirements.txt."""
+    return [f"{name}=={importlib.metadata.version(name)}" for name in MODEL_PACKAGES]
 
 
 def flatten_params(params: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
@@ -287,7 +298,9 @@ class Tracker:
         def log() -> Any:
             with self._active(run_id):
                 # pickle: MLflow 3's default "pt2" format needs a traced input example and drops our methods
-                return mlflow.pytorch.log_model(model, name=name, serialization_format="pickle")
+                return mlflow.pytorch.log_model(
+                    model, name=name, serialization_format="pickle", pip_requirements=model_requirements()
+                )
 
         return self._call(log).model_uri
 

@@ -18,7 +18,7 @@ misses the 1.2x target too, the arena and the pool, not the guards, are what is 
 campaigns run one after the other in this process.
 
 Usage: python experiments/benchmarks/bench_safety.py [--config FILE] [--strategy auto] [--seeds 10]
-       [--workers 2] [--delta 0.05] [--max-sim-seconds S] [--per-round K] [--setup-seconds S]
+       [--first-seed 0] [--workers 2] [--delta 0.05] [--max-sim-seconds S] [--per-round K] [--setup-seconds S]
        [--out DIR] [--resume] [--only safe|unconstrained] [--clairvoyant]
 """
 
@@ -78,6 +78,7 @@ def summary(curves: pd.DataFrame, label: str, directory: Path) -> dict:
         "safe_set_by_round": by_round.round(1).to_dict() if "safe_set_size" in curves else {},
         "safety_s_per_round": float(curves["safety_seconds"].mean()) if "safety_seconds" in curves else 0.0,
         "cut_share": cut / total if total else float("nan"),
+        "per_seed": last[POSITION].round(4).to_dict() if POSITION in last else {},
         "violations_by_round": rounds.groupby("round")["violations"].sum().astype(int).to_dict(),
     }
 
@@ -143,6 +144,8 @@ def main() -> None:
     parser.add_argument("--config", default=str(CONFIGS / "safe_track.toml"))
     parser.add_argument("--strategy", default=None, help="default: the config's")
     parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="seeds first-seed .. first-seed + seeds - 1 (a run split over sessions)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--delta", type=float, default=None, help="default: the config's")
     parser.add_argument("--max-sim-seconds", type=float, default=None,
@@ -177,7 +180,7 @@ def main() -> None:
         cfg = shrink(cfg, Path(args.out) / "runs")
     if cfg.safety is None:
         raise SystemExit(f"{args.config} has no [safety] section")
-    seeds = list(range(args.seeds))
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     variants = {
         f"safe (delta {cfg.safety.delta:g})": cfg,
         "unconstrained": cfg.model_copy(update={"safety": cfg.safety.model_copy(update={"enforce": False})}),
@@ -216,6 +219,7 @@ def main() -> None:
         )
         print(f"{'':>16}  30-s position error {row['final_pos_err']:.4f} ± {row['final_pos_err_sem']:.4f} m; "
               f"safe set by round {row['safe_set_by_round']}")
+        print(f"{'':>16}  per seed {row['per_seed']}")
     print(f"wall time {time.perf_counter() - started:.0f} s")
     if len(curves) < 2:
         return
