@@ -120,8 +120,7 @@ def _run_cli_signalled(signal_name: str, at: tuple[str, int], args, **kwargs):
 @pytest.mark.slow
 def test_killed_campaign_resumes_to_identical_data(tmp_path):
     common = ["campaign", "run", str(tiny_file(tmp_path)), "--no-tracking", "--seed", "3"]
-    reference = _run_cli([*common, "--out", str(tmp_path / "ref")])
-    assert reference.wait(timeout=300) == 0
+    assert main([*common, "--out", str(tmp_path / "ref")]) == 0  # in this process: only the victim is killed
 
     # Killed as round 1 starts: round 0 is checkpointed, round 1's work is lost and redone on resume.
     victim = _run_cli_signalled("SIGKILL", ("fit", 1), [*common, "--out", str(tmp_path / "kill")])
@@ -130,8 +129,7 @@ def test_killed_campaign_resumes_to_identical_data(tmp_path):
     assert not killed_state.finished, "the kill came too late to test anything"
     assert len(killed_state.rounds) == 1
 
-    resumed = _run_cli([*common, "--out", str(tmp_path / "kill"), "--resume"])
-    assert resumed.wait(timeout=300) == 0
+    assert main([*common, "--out", str(tmp_path / "kill"), "--resume"]) == 0
     ref_samples = pd.read_parquet(tmp_path / "ref" / "samples.parquet")
     resumed_samples = pd.read_parquet(tmp_path / "kill" / "samples.parquet")
     pd.testing.assert_frame_equal(ref_samples, resumed_samples)
@@ -156,8 +154,7 @@ def test_ctrl_c_marks_the_run_killed_and_leaves_a_resumable_directory(tmp_path):
     assert not state.finished
     assert len(state.rounds) == 1
     assert Tracker(uri).run_status(state.run_id) == "KILLED"
-    resumed = _run_cli(["campaign", "run", str(config), "--out", str(out), "--tracking-uri", uri, "--resume"])
-    assert resumed.wait(timeout=300) == 0
+    assert main(["campaign", "run", str(config), "--out", str(out), "--tracking-uri", uri, "--resume"]) == 0
     assert CampaignState.load(out).finished
     assert Tracker(uri).run_status(state.run_id) == "FINISHED"
 

@@ -26,7 +26,7 @@ from activelearn.numerics.paths import evenly_spaced_steps, path_inputs
 from activelearn.numerics.surrogate import simulate, steady_state_inputs
 from activelearn.numerics.training import fit
 from simulator import Maneuver
-from tests.conftest import predict_slalom_fan
+from tests.conftest import predict_slalom_fan, smoke_file
 from tests.test_campaign import SMOKE, _run_cli, _run_cli_signalled
 
 HISTORY = {"inputs": "history", "history": 3, "history_step": 2}
@@ -274,8 +274,8 @@ def test_a_history_campaign_logs_free_run_metrics_every_round(tmp_path):
 
 @pytest.mark.slow
 def test_compare_ranks_by_the_chosen_metric(tmp_path):
-    out = tmp_path / "cmp"
-    args = ["compare", str(SMOKE), "--strategies", "uniform,random", "--seeds", "1", "--workers", "1",
+    out, config = tmp_path / "cmp", smoke_file(tmp_path, max_maneuvers=5)  # two rounds
+    args = ["compare", str(config), "--strategies", "uniform,random", "--seeds", "1", "--workers", "1",
             "--no-tracking", "--out", str(out), "--metric", "rollout_pos_err_30s"]  # fmt: skip
     done = subprocess.run([sys.executable, "-m", "activelearn.cli", *args], capture_output=True, text=True,
                           timeout=600, cwd=tmp_path)  # fmt: skip
