@@ -27,6 +27,7 @@ STRATEGY_NAMES: tuple[str, ...] = (
     "max_total",
     "bald",
     "integrated_variance",
+    "igs",
     "auto",
     "oracle_error",
     "oracle_lookahead",

@@ -156,3 +156,28 @@ def test_bald_is_half_log_one_plus_ratio():
     samples = FunctionSamples(phi=phi, aleatoric=np.full((2, 2), 0.01))
     scores = BaldStrategy().point_scores(samples, np.eye(4))
     np.testing.assert_allclose(scores, [0.5 * np.log(1 + 9.0), 0.5 * np.log(1 + 1.0)])
+
+
+def test_igs_picks_the_largest_product_of_parameter_and_predicted_behaviour_distance(cfg, model):
+    from activelearn.loop.greedy_sampling import predicted_trajectories, trajectory_distances
+
+    pool = _pool(cfg, taken=[0, 5, 11])
+    picks = make_strategy("igs", n_samples=16).select(model, pool, 3, np.random.default_rng(7))
+    seed = int(np.random.default_rng(7).integers(2**31 - 1))  # the strategy's first draw from its rng
+    trajectories = predicted_trajectories(model, pool, 16, seed)
+    assert trajectories.shape == (len(pool.maneuvers), 32, 2) and np.isfinite(trajectories).all()
+    refs, open_ = [0, 5, 11], [int(i) for i in pool.available]
+    for pick in picks:  # each pick maximises min over collected and earlier picks of d_x * d_y
+        rows, to = np.array(open_), np.array(refs)
+        score = (pool.distances(rows, to) * trajectory_distances(trajectories, rows, to)).min(axis=1)
+        assert pick == open_[int(np.argmax(score))] and score.max() > 0
+        refs.append(pick)
+        open_.remove(pick)
+    # Predicted behaviour matters: the batch is not maximin's (the d_x half alone).
+    assert picks != greedy_maximin(pool, 3, np.random.default_rng(7))
+
+
+def test_igs_with_nothing_collected_is_greedy_maximin(cfg, model):
+    pool = _pool(cfg)
+    picks = make_strategy("igs").select(model, pool, 3, np.random.default_rng(1))
+    assert picks == greedy_maximin(pool, 3, np.random.default_rng(1))

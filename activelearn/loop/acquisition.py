@@ -27,6 +27,7 @@ from activelearn.loop.function_space import (
     MaxTotalStrategy,
     UncertaintyStrategy,
 )
+from activelearn.loop.greedy_sampling import GreedySamplingStrategy
 from activelearn.loop.space_filling import (
     GridStrategy,
     LatinHypercubeStrategy,
@@ -45,6 +46,7 @@ __all__ = [
     "EpistemicMaximinStrategy",
     "Evidence",
     "FunctionSamples",
+    "GreedySamplingStrategy",
     "GridStrategy",
     "IntegratedVarianceStrategy",
     "LatinHypercubeStrategy",
@@ -221,6 +223,7 @@ STRATEGIES: dict[str, type[Strategy]] = {
         MaxTotalStrategy,
         BaldStrategy,
         IntegratedVarianceStrategy,
+        GreedySamplingStrategy,
         AutoStrategy,
         OracleErrorStrategy,
         LookaheadOracleStrategy,
@@ -232,13 +235,13 @@ def make_strategy(name: str, **options: Any) -> Strategy:
     """Build a strategy by name with the acquisition options it uses (the others are ignored).
 
     Uncertainty strategies take batch, n_samples, fantasy_weight, penalty_length, seed and
-    cost_aware; the oracle takes penalty_length; `auto` and the lookahead oracle pass them on to the
-    strategies they use; space-filling designs take none.
+    cost_aware; `igs` takes n_samples and seed; the oracle takes penalty_length; `auto` and the
+    lookahead oracle pass them on to the strategies they use; space-filling designs take none.
     """
     if name not in STRATEGIES:
         raise InputError("strategy", name, f"unknown strategy; choose from {', '.join(STRATEGIES)}")
     cls = STRATEGIES[name]
-    if issubclass(cls, UncertaintyStrategy | AutoStrategy | LookaheadOracleStrategy):
+    if issubclass(cls, UncertaintyStrategy | AutoStrategy | LookaheadOracleStrategy | GreedySamplingStrategy):
         return cls(**options)
     if cls is OracleErrorStrategy:
         return cls(**{k: v for k, v in options.items() if k == "penalty_length"})
