@@ -235,7 +235,7 @@ def make_strategy(name: str, **options: Any) -> Strategy:
     """Build a strategy by name with the acquisition options it uses (the others are ignored).
 
     Uncertainty strategies take batch, n_samples, fantasy_weight, penalty_length, seed and
-    cost_aware; `igs` takes n_samples and seed; the oracle takes penalty_length; `auto` and the
+    cost_aware; `igs` takes n_samples; the oracle takes penalty_length; `auto` and the
     lookahead oracle pass them on to the strategies they use; space-filling designs take none.
     """
     if name not in STRATEGIES:

@@ -61,11 +61,11 @@ class GreedySamplingStrategy(Strategy):
     name = "igs"
     uses_model = True
 
-    def __init__(self, *, n_samples: int = 64, seed: int = 0, **_: Any) -> None:
+    def __init__(self, *, n_samples: int = 64, **_: Any) -> None:
+        # The draws' seed comes from the round's rng (`select`), as the uncertainty strategies' does.
         if n_samples < 1:
             raise InputError("acquisition.n_samples", n_samples, "must be at least 1")
         self.n_samples = n_samples
-        self.seed = seed
 
     def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
         open_ = list(check_k(pool, k))
