@@ -255,15 +255,21 @@ def _busy_controls() -> list[np.ndarray]:
     return out
 
 
-def test_free_runs_of_a_control_correction_agree_between_the_kernel_and_torch():
-    """physics_rollout.c and its torch twin draw the same free runs (float rounding apart)."""
+@pytest.mark.parametrize("weight", [1.0, 0.5, 0.0])
+def test_free_runs_of_a_control_correction_agree_between_the_kernel_and_torch(weight):
+    """physics_rollout.c and its torch twin draw the same free runs (float rounding apart), with the
+    gate at any share and the pose (headings, lever arm) integrated inside the kernel."""
     if native.library() is None:
         pytest.skip("no C compiler: the torch path is the only one")
     model, controls = _perturbed_control_model(), _busy_controls()
-    kernel = simulate(model, controls, n_samples=8, seed=3, backend="native")
-    torch_runs = simulate(model, controls, n_samples=8, seed=3, backend="reference")
+    model.correction_weight.fill_(weight)
+    headings = np.linspace(-2.0, 2.5, len(controls))
+    kwargs = dict(n_samples=8, seed=3, initial_yaw=headings, lever_arm=0.08)
+    kernel = simulate(model, controls, backend="native", **kwargs)
+    torch_runs = simulate(model, controls, backend="reference", **kwargs)
     assert kernel.epistemic_var.max() > 1e-4  # the draws do differ
-    for name in ("v", "w", "x", "y", "mean_rates", "aleatoric_var", "epistemic_var"):
+    assert np.abs(kernel.x).max() > 1.0 and np.abs(kernel.yaw[:, :, 0] - headings).max() < 1e-6
+    for name in ("v", "w", "x", "y", "yaw", "mean_rates", "aleatoric_var", "epistemic_var"):
         np.testing.assert_allclose(getattr(kernel, name), getattr(torch_runs, name), atol=2e-5, err_msg=name)
 
 

@@ -339,11 +339,12 @@ def simulate(
                 model, stacked, n_samples, gen, dt, start_yaw, backend, lever_arm
             )
         else:
-            (v, w), (mean_rates, aleatoric, epistemic) = _sequential_rollout(
-                model, stacked, n_samples, gen, initial_rates, lags, backend
+            (v, w), (mean_rates, aleatoric, epistemic), pose = _sequential_rollout(
+                model, stacked, n_samples, gen, initial_rates, lags, backend, pose=(dt, start_yaw, lever_arm)
             )
-            pose = _integrate(v, w, dt, torch.from_numpy(start_yaw)[:, None], lever_arm=lever_arm)
-            v, w, x, y, yaw = (p.numpy() for p in (v, w, *pose))
+            if pose is None:
+                pose = _integrate(v, w, dt, torch.from_numpy(start_yaw)[:, None], lever_arm=lever_arm)
+            v, w, x, y, yaw = (np.asarray(p) for p in (v, w, *pose))
     if fan_scale != 1.0:
         _widen_about_the_mean((x, y, yaw), fan_scale)
     return Rollout(
@@ -377,6 +378,7 @@ def _sequential_rollout(
     initial_rates,
     lags: Lags,
     backend: str = "auto",
+    pose: tuple[float, np.ndarray, float] | None = None,
 ):
     """Sequential rollout of a dynamic model: inputs are the lagged controls and rates of `lags`.
 
@@ -385,6 +387,8 @@ def _sequential_rollout(
     `initial_rates` and the past controls the first control. Moments are over the S trajectories per
     step. Maneuvers are independent, so each thread-pool task runs every step of its own block of
     maneuvers (no per-step synchronisation: 2 700 steps of hand-offs cost more than the kernel).
+    Returns the rates (v, w), the moments, and the pose (x, y, yaw) where a kind's whole-run kernel
+    integrated it for `pose` = (dt, headings, lever arm), else None.
     """
     n_maneuvers, n_steps, _ = controls.shape
     seed = int(torch.randint(2**31 - 1, (1,), generator=gen))
@@ -395,10 +399,10 @@ def _sequential_rollout(
     # A kind whose learnt part reads the controls alone computes its free runs whole (its noise from
     # the draws' seed, so `gen` is left as the step loop below finds it).
     whole_runs = getattr(model, "open_loop_free_runs", None)  # wrappers (residual models) have none
-    whole = None if whole_runs is None else whole_runs(n_samples, seed, controls, start, lags, backend)
+    whole = None if whole_runs is None else whole_runs(n_samples, seed, controls, start, lags, backend, pose)
     if whole is not None:
-        rates, moments = whole
-        return (rates[:, 0], rates[:, 1]), moments
+        rates, moments, paths = whole
+        return (rates[:, 0], rates[:, 1]), moments, paths
     sampled_model = model.draw(n_samples, seed=seed, backend=backend)
     step_controls = torch.as_tensor(controls, dtype=torch.float32).permute(1, 2, 0).contiguous()  # (T, 2, M)
     noise = torch.randn((n_steps, n_samples, n_maneuvers, 2), generator=gen).transpose(2, 3)
@@ -433,7 +437,7 @@ def _sequential_rollout(
     else:
         parallel_map(run, even_blocks(n_maneuvers, -(-n_maneuvers // torch.get_num_threads())))
     # (T, 2, M) → (M, T, 2); v and ω are (S, M, T) views of the rates.
-    return (rates[:, 0], rates[:, 1]), tuple(m.permute(2, 0, 1).contiguous() for m in moments)
+    return (rates[:, 0], rates[:, 1]), tuple(m.permute(2, 0, 1).contiguous() for m in moments), None
 
 
 def estimate_lever_arm(logs: Sequence, *, rate_hz: float = 30.0, min_yaw_rate: float = 0.2) -> float:

@@ -335,7 +335,8 @@ class Model(nn.Module, ABC):
         start: Tensor,
         lags: Lags,
         backend: str,
-    ) -> tuple[Tensor, tuple[Tensor, Tensor, Tensor]] | None:
+        pose: tuple[float, np.ndarray, float] | None = None,
+    ) -> tuple[Tensor, tuple[Tensor, Tensor, Tensor], tuple[np.ndarray, ...] | None] | None:
         """Sampled free runs computed whole, for a kind whose learnt part reads the controls alone (its
         past rates enter through fixed physics only), or None: a network reads its own past rates, so
         free runs step it (`surrogate._sequential_rollout`). Arguments and results as the physics

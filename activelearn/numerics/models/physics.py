@@ -40,7 +40,7 @@ from torch import Tensor
 
 from activelearn.config import ModelConfig
 from activelearn.errors import InputError
-from activelearn.numerics import counter_noise, native
+from activelearn.numerics import buffers, counter_noise, native
 from activelearn.numerics.lags import N_CONTROLS, N_RATES, Lags, model_lags
 from activelearn.numerics.models.base import Model, draw_spread
 from activelearn.numerics.models.networks import NETWORK_CLASSES
@@ -351,7 +351,8 @@ class PhysicsModel(Model):
         bound = self.config.residual_bound
         values = [self.dt, *self.theta.tolist(), datasheet.WHEELBASE, datasheet.THROTTLE_LIMIT]
         values += [bound * datasheet.MAX_SPEED, bound * datasheet.MAX_YAW_RATE, YAW_CAP, math.log(LAG_FACTOR)]
-        values += [*self.y_std.tolist(), *self._variance_cap().tolist(), spread, *datasheet.REFERENCE_SPEED]
+        values += [*self.y_std.tolist(), *self._variance_cap().tolist(), spread]
+        values += [float(self.correction_weight), *datasheet.REFERENCE_SPEED]
         return np.array(values, dtype=np.float32)
 
     @torch.no_grad()
@@ -363,7 +364,8 @@ class PhysicsModel(Model):
         start: Tensor,
         lags: Lags,
         backend: str,
-    ) -> tuple[Tensor, tuple[Tensor, Tensor, Tensor]] | None:
+        pose: tuple[float, np.ndarray, float] | None = None,
+    ) -> tuple[Tensor, tuple[Tensor, Tensor, Tensor], tuple[np.ndarray, ...] | None] | None:
         """Free runs of a model whose correction reads the control alone (else None).
 
         The correction is then a function of the operating point: its S draws of `seed` (those of
@@ -371,12 +373,13 @@ class PhysicsModel(Model):
         the single track's recurrence from the rates of the newest lag of `lags` (`start`, (S, 2, M),
         before that), with the control of its newest control lag, from the log's controls (M, T, 2).
         Each draw's counter-based noise (`counter_noise`) has a key drawn from `seed`. Returns the
-        sampled rates (S, 2, M, T) and the moments over draws per step, each (M, T, 2). The compiled
-        kernel (physics_rollout.c) where `backend` allows, else torch, drawing the same numbers.
+        sampled rates (S, 2, M, T), the moments over draws per step, each (M, T, 2), and the pose
+        (x, y, yaw), each (S, M, T), where the compiled kernel (physics_rollout.c) integrated it for
+        `pose` = (dt, headings (M,), lever arm), else None (the caller integrates). The kernel runs
+        where `backend` allows, else torch, drawing the same numbers.
         """
         if self.config.correction_inputs != "control" or not self.corrected:
             return None
-        gated = float(self.correction_weight) != 1.0
         correction = self.correction.draw(n_samples, seed=seed, backend=backend)
         spread = draw_spread(self.epistemic_scale, n_samples)
         keys = torch.randint(2**62, (n_samples,), generator=torch.Generator().manual_seed(seed)).tolist()
@@ -384,9 +387,15 @@ class PhysicsModel(Model):
         newest = np.maximum(np.arange(n_steps) - lags.control_lags[0], 0)  # the control each step reads
         controls = np.ascontiguousarray(controls[:, newest], dtype=np.float32)
         n_maneuvers, n_steps, _ = controls.shape
-        rates = torch.empty((n_samples, 2, n_maneuvers, n_steps))
-        moments = tuple(torch.empty((n_maneuvers, n_steps, 2)) for _ in range(3))
-        if correction.kernel is not None and not gated:  # the kernel applies the whole correction
+        if correction.kernel is not None:  # the kernel applies the gated correction and the pose
+            # Reused memory (`buffers`): first-touch page faults of the fans cost a third of a run.
+            rates = buffers.empty((n_samples, 2, n_maneuvers, n_steps))
+            moments = tuple(buffers.empty((n_maneuvers, n_steps, 2)) for _ in range(3))
+            paths = None
+            if pose is not None:
+                dt, yaw0, arm = pose
+                paths = tuple(buffers.empty((n_samples, n_maneuvers, n_steps)) for _ in range(3))
+                native_pose = (dt, arm, np.ascontiguousarray(yaw0, dtype=np.float32), paths)
             native.physics_rollout(
                 correction.kernel,
                 self.native_parameters(spread),
@@ -394,13 +403,16 @@ class PhysicsModel(Model):
                 start.contiguous().numpy(),
                 np.array(keys, dtype=np.uint64),
                 rate_lag,
-                rates.numpy(),
-                tuple(m.numpy() for m in moments),
+                rates,
+                moments,
+                pose=native_pose if pose is not None else None,
                 threads=torch.get_num_threads(),
             )
-            return rates, moments
+            return torch.from_numpy(rates), tuple(torch.from_numpy(m) for m in moments), paths
+        rates = torch.empty((n_samples, 2, n_maneuvers, n_steps))
+        moments = tuple(torch.empty((n_maneuvers, n_steps, 2)) for _ in range(3))
         self._torch_free_runs(correction, controls, start, keys, rate_lag, spread, rates, moments)
-        return rates, moments
+        return rates, moments, None
 
     def _torch_free_runs(self, correction, controls, start, keys, rate_lag, spread, rates, moments) -> None:
         """`open_loop_free_runs` in torch: the reference physics_rollout.c is tested against."""

@@ -119,6 +119,8 @@ SIGNATURES = {
     "al_physics_rollout": (
         [ctypes.POINTER(_Network), _ptr, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64]
         + [_ptr] * 7
+        + [ctypes.c_float, ctypes.c_float]
+        + [_ptr] * 4
         + [ctypes.c_int64],
         ctypes.c_int,
     ),
@@ -406,6 +408,7 @@ def physics_rollout(
     rates: np.ndarray,
     moments: tuple[np.ndarray, np.ndarray, np.ndarray],
     *,
+    pose: tuple[float, float, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
     threads: int = 1,
 ) -> None:
     """Fill S sampled free runs of M maneuvers with `al_physics_rollout` on up to `threads` threads.
@@ -414,16 +417,24 @@ def physics_rollout(
     (`activelearn.numerics.models.physics.native_parameters`); `controls` (M, T, 2) the control each
     step reads; `start` (S, 2, M) the rates before the first step; `keys` (S,) uint64 the noise
     keys. `rates` (S, 2, M, T) and `moments` (centre, aleatoric, epistemic), each (M, T, 2), are
-    written; all float32 and contiguous.
+    written; all float32 and contiguous. `pose` = (dt, lever arm, headings (M,), (x, y, yaw) each
+    (S, M, T)) also integrates each draw's pose (`surrogate._integrate`'s) into x, y, yaw.
     """
     n_maneuvers, n_steps, _ = controls.shape
-    arrays = (controls, start, rates, *moments)
+    dt, arm, yaw0, paths = pose if pose is not None else (0.0, 0.0, None, (None, None, None))
+    arrays = (controls, start, rates, *moments) + ((yaw0, *paths) if pose is not None else ())
     if any(a.dtype != np.float32 or not a.flags.c_contiguous for a in arrays):
-        raise ValueError("controls, start, rates and moments must be contiguous float32")
+        raise ValueError("controls, start, rates, moments and the pose must be contiguous float32")
     if rates.shape != (len(keys), 2, n_maneuvers, n_steps) or start.shape != (len(keys), 2, n_maneuvers):
         raise ValueError("rates must be (S, 2, M, T) and start (S, 2, M)")
     if any(m.shape != (n_maneuvers, n_steps, 2) for m in moments):
         raise ValueError("moments must be (M, T, 2)")
+    if pose is not None and (
+        yaw0.shape != (n_maneuvers,) or any(p.shape != (len(keys), n_maneuvers, n_steps) for p in paths)
+    ):
+        raise ValueError("the pose's headings must be (M,) and its paths (S, M, T)")
+    if rate_lag < 1:
+        raise ValueError("rate_lag must be at least 1")
     parameters = np.ascontiguousarray(parameters, dtype=np.float32)
     if len(parameters) != kernel.lib.al_physics_parameter_count():
         raise ValueError("parameters do not match physics_rollout.c's layout")
@@ -435,6 +446,9 @@ def physics_rollout(
         n_steps,
         int(rate_lag),
         *(_address(a) for a in (controls, start, keys, rates, *moments)),
+        float(dt),
+        float(arm),
+        *(_address(a) for a in (yaw0, *paths)),
         threads,
     )
     if status != 0:

@@ -75,4 +75,9 @@ int32_t al_tile_rows(const float *u, int64_t n, float *rows_x, int32_t *row);
  * (static_rollout.c; the NumPy reference is activelearn/numerics/counter_noise.py). */
 void al_tile_noise(uint32_t tile, uint32_t m, uint32_t key0, uint32_t key1, float *zv, float *zw);
 
+/* The planar pose of one draw over one tile of n <= 512 steps from its rates vt, wt (512 each, zero
+ * beyond n), `sums` (w, v cos yaw, v sin yaw) carried from tile to tile (static_rollout.c). */
+void al_pose_tile(int64_t n, float dt, float arm, float start_yaw, const float *vt, const float *wt,
+                  double sums[3], float *x, float *y, float *yaw);
+
 #endif

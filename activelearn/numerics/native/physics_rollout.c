@@ -3,8 +3,9 @@
  * The twin of PhysicsModel's torch path (activelearn/numerics/models/physics.py): the correction is a
  * function of the operating point (throttle, steering), so, per tile of TILE steps of a maneuver, the
  * sampled correction network (network.c) is evaluated once on the tile's distinct control rows; each
- * draw's bounded steady states, lags and noise level follow per row, and the recurrence left per
- * step and draw is the single track's few flops:
+ * draw's bounded steady states, lags and noise level follow per row (the gate first moves every
+ * draw's raw output towards their mean: z - (1 - weight) mean_s z), and the recurrence left per step
+ * and draw is the single track's few flops:
  *
  *   v' = v_ss + (v - v_ss) a_v             (throttle 0 brakes: |v| falls by brake_decel dt)
  *   w' = w_ss + (w - w_ss) a_w,            w_ss = clip(v' tan(delta) / (L understeer) + r_w, +-cap)
@@ -12,10 +13,16 @@
  * from the rates `rate_lag` steps back. The per-step spread over draws (the epistemic scale), the
  * moments over draws and each draw's aleatoric noise (the counter-based noise of static_rollout.c,
  * so a draw's noise depends only on its key, the maneuver and the step) are added per step.
+ *
+ * Layout: per tile, every per-draw quantity is stored step-major with the S draws contiguous
+ * ([row or step][S]), so each step's recurrence is one vectorised pass over the draws; the draws'
+ * rates are then turned back to (S, 2, M, T) and, when asked, integrated to a pose while the tile is
+ * in cache (al_pose_tile, the static kernel's integration).
  */
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "network.h"
 
@@ -43,6 +50,7 @@ enum {
     P_VAR_CAP_V, /* the largest standardised aleatoric variances */
     P_VAR_CAP_W,
     P_SPREAD,
+    P_GATE, /* the share of the correction's mean over draws kept (1: all) */
     P_TABLE, /* N_TABLE speeds follow */
     P_COUNT = P_TABLE + N_TABLE
 };
@@ -67,17 +75,31 @@ typedef struct {
     const float *controls, *start;
     const uint64_t *keys;
     float *rates, *centre, *aleatoric, *epistemic;
+    /* the pose (NULL x: none): dt of the log, the lever arm, each maneuver's heading */
+    float pose_dt, arm;
+    const float *yaw0;
+    float *x, *y, *yaw;
 } physics_context;
+
+/* Per-draw coefficients of a tile's distinct rows, step-major with the draws contiguous. */
+enum { C_VSS, C_AV, C_RW, C_AW, C_SDV, C_SDW, N_COEF };
 
 typedef struct {
     al_scratch *network;
-    float *rows_x;  /* a tile's distinct control rows, column layout (2, TILE) */
-    float *draws;   /* (2 [mean, var], S, 4, TILE): the correction's raw outputs */
-    float *coef;    /* (7, S, TILE): v_ss, a_v, 1/(L f) tan(delta), r_w, a_w, noise std v, w */
-    float *noise;   /* (S, 2, TILE) */
-    float *step;    /* (4, S): means v, w this step */
-    int32_t *row;   /* each step's distinct row */
-    uint8_t *brake; /* each distinct row: throttle 0 */
+    float *rows_x;     /* a tile's distinct control rows, column layout (2, TILE) */
+    float *draws;      /* (2 [mean, var], S, 4, TILE): the correction's raw outputs */
+    float *by_draw;    /* (N_COEF, S, TILE): coefficients as computed, draw-major */
+    float *coef;       /* (N_COEF, TILE, S): the same, row-major with the draws contiguous */
+    float *per_row;    /* (3, TILE): 1/(L f) tan(delta), mean aleatoric variance of v, of w */
+    float *noise;      /* (2, S, TILE) as drawn, then (2, TILE, S) */
+    float *noise_t;
+    float *hist;       /* (2, lag + TILE, S): sampled v, w from `lag` steps before the tile on */
+    float *step;       /* (2, S): this step's means of v, w */
+    float *path;       /* (2, TILE): one draw's v, w of the tile (zero-padded), for the pose */
+    double *sums;      /* (S, 3) the pose's running sums */
+    int32_t *row;      /* each step's distinct row */
+    uint8_t *brake;    /* each distinct row: throttle 0 */
+    int64_t rate_lag;
 } physics_scratch;
 
 static void physics_free(void *scratch) {
@@ -86,61 +108,112 @@ static void physics_free(void *scratch) {
     al_scratch_free(r->network);
     free(r->rows_x);
     free(r->draws);
+    free(r->by_draw);
     free(r->coef);
+    free(r->per_row);
     free(r->noise);
+    free(r->noise_t);
+    free(r->hist);
     free(r->step);
+    free(r->path);
+    free(r->sums);
     free(r->row);
     free(r->brake);
     free(r);
 }
 
 static void *physics_scratch_new(void *context) {
-    const al_network *net = ((physics_context *)context)->net;
-    const int64_t S = net->n_samples;
+    const physics_context *c = context;
+    const int64_t S = c->net->n_samples, lag = c->rate_lag;
     physics_scratch *r = calloc(1, sizeof(physics_scratch));
     if (!r) return NULL;
-    r->network = al_scratch_new(net);
+    r->rate_lag = lag;
+    r->network = al_scratch_new(c->net);
     r->rows_x = malloc(2 * TILE * sizeof(float));
     r->draws = malloc((size_t)(2 * S * 4 * TILE) * sizeof(float));
-    r->coef = malloc((size_t)(7 * S * TILE) * sizeof(float));
+    r->by_draw = malloc((size_t)(N_COEF * S * TILE) * sizeof(float));
+    r->coef = malloc((size_t)(N_COEF * S * TILE) * sizeof(float));
+    r->per_row = malloc(3 * TILE * sizeof(float));
     r->noise = malloc((size_t)(2 * S * TILE) * sizeof(float));
-    r->step = malloc((size_t)(4 * S) * sizeof(float));
+    r->noise_t = malloc((size_t)(2 * S * TILE) * sizeof(float));
+    r->hist = malloc((size_t)(2 * (lag + TILE) * S) * sizeof(float));
+    r->step = malloc((size_t)(2 * S) * sizeof(float));
+    r->path = calloc(2 * TILE, sizeof(float));
+    r->sums = malloc((size_t)(3 * S) * sizeof(double));
     r->row = malloc(TILE * sizeof(int32_t));
     r->brake = malloc(TILE);
-    if (!r->network || !r->rows_x || !r->draws || !r->coef || !r->noise || !r->step || !r->row || !r->brake) {
+    if (!r->network || !r->rows_x || !r->draws || !r->by_draw || !r->coef || !r->per_row || !r->noise ||
+        !r->noise_t || !r->hist || !r->step || !r->path || !r->sums || !r->row || !r->brake) {
         physics_free(r);
         return NULL;
     }
     return r;
 }
 
-/* Each draw's coefficients of the tile's n_rows distinct rows from the correction's outputs. */
+/* (S, TILE) -> (TILE, S) for the first n_rows columns. */
+static void to_row_major(const float *restrict from, float *restrict to, int64_t S, int64_t n_rows) {
+    for (int64_t j = 0; j < n_rows; ++j)
+        for (int64_t s = 0; s < S; ++s) to[j * S + s] = from[s * TILE + j];
+}
+
+/* Each draw's coefficients of the tile's n_rows distinct rows from the correction's outputs, gated. */
 static void row_coefficients(const physics_context *c, physics_scratch *r, int64_t n_rows) {
     const float *p = c->p;
     const int64_t S = c->net->n_samples;
-    const float *z = r->draws, *zvar = r->draws + S * 4 * TILE;
-    float *vss = r->coef, *av = vss + S * TILE, *turn = av + S * TILE, *rw = turn + S * TILE;
-    float *aw = rw + S * TILE, *sdv = aw + S * TILE, *sdw = sdv + S * TILE;
+    float *z = r->draws;
+    const float *zvar = r->draws + S * 4 * TILE;
+    const float keep = p[P_GATE];
+    if (keep != 1.0f) { /* each output moves by -(1 - keep) x its mean over draws */
+        float *mean = r->by_draw;  /* (4, TILE) scratch, overwritten below */
+        for (int64_t k = 0; k < 4 * TILE; ++k) mean[k] = 0.0f;
+        for (int64_t s = 0; s < S; ++s)
+            for (int64_t k = 0; k < 4; ++k)
+                for (int64_t j = 0; j < n_rows; ++j) mean[k * TILE + j] += z[(s * 4 + k) * TILE + j];
+        const float shift = (1.0f - keep) / (float)S;
+        for (int64_t s = 0; s < S; ++s)
+            for (int64_t k = 0; k < 4; ++k)
+                for (int64_t j = 0; j < n_rows; ++j) z[(s * 4 + k) * TILE + j] -= shift * mean[k * TILE + j];
+    }
+    float *phys = r->path; /* (TILE) the bare steady speed per row; the path buffer is free here */
+    float *turn = r->per_row, *ale_v = turn + TILE, *ale_w = ale_v + TILE;
     for (int64_t j = 0; j < n_rows; ++j) {
         const float tau = r->rows_x[j], delta = r->rows_x[TILE + j];
         const float tan_d = tanf(delta);
         const float gain = tau >= 0.0f ? p[P_SPEED_GAIN] : p[P_REVERSE_GAIN];
         const float sign = (float)((tau > 0.0f) - (tau < 0.0f));
-        const float v_phys = sign * gain * table_speed(p, tau) / (1.0f + p[P_SCRUB] * tan_d * tan_d);
-        const float per_speed = tan_d / (p[P_WHEELBASE] * p[P_UNDERSTEER]);
+        phys[j] = sign * gain * table_speed(p, tau) / (1.0f + p[P_SCRUB] * tan_d * tan_d);
+        turn[j] = tan_d / (p[P_WHEELBASE] * p[P_UNDERSTEER]);
         r->brake[j] = tau == 0.0f;
-        for (int64_t s = 0; s < S; ++s) {
-            const float *zs = z + s * 4 * TILE, *vs = zvar + s * 4 * TILE;
-            const int64_t o = s * TILE + j;
-            vss[o] = v_phys + p[P_SPEED_BOUND] * tanhf(zs[j]);
-            rw[o] = p[P_YAW_BOUND] * tanhf(zs[TILE + j]);
-            av[o] = expf(-p[P_DT] / (p[P_SPEED_LAG] * expf(p[P_LOG_LAG_FACTOR] * tanhf(zs[2 * TILE + j]))));
-            aw[o] = expf(-p[P_DT] / (p[P_YAW_LAG] * expf(p[P_LOG_LAG_FACTOR] * tanhf(zs[3 * TILE + j]))));
-            turn[o] = per_speed;
-            sdv[o] = sqrtf(fminf(vs[j], p[P_VAR_CAP_V])) * p[P_STD_V];
-            sdw[o] = sqrtf(fminf(vs[TILE + j], p[P_VAR_CAP_W])) * p[P_STD_W];
+        ale_v[j] = ale_w[j] = 0.0f;
+    }
+    const float inv_tv = -p[P_DT] / p[P_SPEED_LAG], inv_tw = -p[P_DT] / p[P_YAW_LAG];
+    const float log_factor = p[P_LOG_LAG_FACTOR];
+    const float cap_v = p[P_VAR_CAP_V], cap_w = p[P_VAR_CAP_W], std_v = p[P_STD_V], std_w = p[P_STD_W];
+    for (int64_t s = 0; s < S; ++s) { /* vectorised over rows */
+        const float *zs = z + s * 4 * TILE, *vs = zvar + s * 4 * TILE;
+        float *vss = r->by_draw + (C_VSS * S + s) * TILE, *av = r->by_draw + (C_AV * S + s) * TILE;
+        float *rw = r->by_draw + (C_RW * S + s) * TILE, *aw = r->by_draw + (C_AW * S + s) * TILE;
+        float *sdv = r->by_draw + (C_SDV * S + s) * TILE, *sdw = r->by_draw + (C_SDW * S + s) * TILE;
+        for (int64_t j = 0; j < n_rows; ++j) {
+            vss[j] = phys[j] + p[P_SPEED_BOUND] * tanhf(zs[j]);
+            rw[j] = p[P_YAW_BOUND] * tanhf(zs[TILE + j]);
+            /* a_v = exp(-dt / (t_v exp(log_factor tanh z))) */
+            av[j] = expf(inv_tv * expf(-log_factor * tanhf(zs[2 * TILE + j])));
+            aw[j] = expf(inv_tw * expf(-log_factor * tanhf(zs[3 * TILE + j])));
+            sdv[j] = sqrtf(fminf(vs[j], cap_v)) * std_v;
+            sdw[j] = sqrtf(fminf(vs[TILE + j], cap_w)) * std_w;
+        }
+        for (int64_t j = 0; j < n_rows; ++j) {
+            ale_v[j] += sdv[j] * sdv[j];
+            ale_w[j] += sdw[j] * sdw[j];
         }
     }
+    const float inv_s = 1.0f / (float)S;
+    for (int64_t j = 0; j < n_rows; ++j) {
+        ale_v[j] *= inv_s;
+        ale_w[j] *= inv_s;
+    }
+    for (int k = 0; k < N_COEF; ++k) to_row_major(r->by_draw + k * S * TILE, r->coef + k * S * TILE, S, n_rows);
 }
 
 /* All S free runs of maneuver m, tile by tile. */
@@ -156,9 +229,16 @@ static void physics_maneuver(void *context, void *scratch, int64_t m) {
     out.variances = r->draws + S * 4 * TILE;
     out.ld_draws = TILE;
     out.spread = 1.0f;
-    const float *vss = r->coef, *av = vss + S * TILE, *turn = av + S * TILE, *rw = turn + S * TILE;
-    const float *aw = rw + S * TILE, *sdv = aw + S * TILE, *sdw = sdv + S * TILE;
+    float *hist_v = r->hist, *hist_w = r->hist + (lag + TILE) * S;
+    for (int64_t b = 0; b < lag; ++b) /* before the first step: the start rates */
+        for (int64_t s = 0; s < S; ++s) {
+            hist_v[b * S + s] = c->start[(s * 2) * M + m];
+            hist_w[b * S + s] = c->start[(s * 2 + 1) * M + m];
+        }
+    for (int64_t k = 0; k < 3 * S; ++k) r->sums[k] = 0.0;
+    const float *turn = r->per_row, *ale_v = turn + TILE, *ale_w = ale_v + TILE;
     float *mv = r->step, *mw = mv + S;
+    const float *noise_v = r->noise_t, *noise_w = r->noise_t + S * TILE;
     for (int64_t t0 = 0; t0 < T; t0 += TILE) {
         const int64_t n = T - t0 < TILE ? T - t0 : TILE;
         const int32_t n_rows = al_tile_rows(c->controls + 2 * (m * T + t0), n, r->rows_x, r->row);
@@ -167,51 +247,72 @@ static void physics_maneuver(void *context, void *scratch, int64_t m) {
         for (int64_t s = 0; s < S; ++s) {
             const uint64_t key = c->keys[s];
             al_tile_noise((uint32_t)(t0 / TILE), (uint32_t)m, (uint32_t)key, (uint32_t)(key >> 32),
-                          r->noise + 2 * s * TILE, r->noise + (2 * s + 1) * TILE);
+                          r->noise + s * TILE, r->noise + (S + s) * TILE);
         }
+        to_row_major(r->noise, r->noise_t, S, n);
+        to_row_major(r->noise + S * TILE, r->noise_t + S * TILE, S, n);
         for (int64_t i = 0; i < n; ++i) {
-            const int64_t k = t0 + i;
             const int32_t j = r->row[i];
-            float sum_v = 0.0f, sum_w = 0.0f, var_v = 0.0f, var_w = 0.0f;
-            for (int64_t s = 0; s < S; ++s) {
-                const float *v_at = c->rates + (s * 2 * M + m) * T, *w_at = v_at + M * T;
-                const float v = k >= lag ? v_at[k - lag] : c->start[(s * 2) * M + m];
-                const float w = k >= lag ? w_at[k - lag] : c->start[(s * 2 + 1) * M + m];
-                const int64_t o = s * TILE + j;
-                float v1;
-                if (r->brake[j]) {
-                    const float fall = fminf(fabsf(v), brake_step);
-                    v1 = v - (v > 0.0f ? fall : (v < 0.0f ? -fall : 0.0f));
-                } else {
-                    v1 = vss[o] + (v - vss[o]) * av[o];
+            const float *restrict vss = r->coef + (C_VSS * TILE + j) * S, *restrict av = r->coef + (C_AV * TILE + j) * S;
+            const float *restrict rw = r->coef + (C_RW * TILE + j) * S, *restrict aw = r->coef + (C_AW * TILE + j) * S;
+            const float *restrict sdv = r->coef + (C_SDV * TILE + j) * S, *restrict sdw = r->coef + (C_SDW * TILE + j) * S;
+            const float *restrict pv = hist_v + i * S, *restrict pw = hist_w + i * S;
+            float *restrict nv = hist_v + (i + lag) * S, *restrict nw = hist_w + (i + lag) * S;
+            const float tj = turn[j];
+            if (r->brake[j]) {
+                for (int64_t s = 0; s < S; ++s) {
+                    const float fall = fminf(fabsf(pv[s]), brake_step);
+                    mv[s] = pv[s] - copysignf(fall, pv[s]);
                 }
-                const float w_ss = fmaxf(-cap, fminf(cap, v1 * turn[o] + rw[o]));
-                mv[s] = v1;
-                mw[s] = w_ss + (w - w_ss) * aw[o];
+            } else {
+                for (int64_t s = 0; s < S; ++s) mv[s] = vss[s] + (pv[s] - vss[s]) * av[s];
+            }
+            float sum_v = 0.0f, sum_w = 0.0f;
+            for (int64_t s = 0; s < S; ++s) {
+                const float w_ss = fmaxf(-cap, fminf(cap, mv[s] * tj + rw[s]));
+                mw[s] = w_ss + (pw[s] - w_ss) * aw[s];
+            }
+            for (int64_t s = 0; s < S; ++s) {
                 sum_v += mv[s];
                 sum_w += mw[s];
-                var_v += sdv[o] * sdv[o];
-                var_w += sdw[o] * sdw[o];
             }
             const float cv = sum_v * inv_s, cw = sum_w * inv_s;
             float epi_v = 0.0f, epi_w = 0.0f;
+            const float *restrict zv = noise_v + i * S, *restrict zw = noise_w + i * S;
             for (int64_t s = 0; s < S; ++s) {
                 const float dv = spread * (mv[s] - cv), dw = spread * (mw[s] - cw);
                 epi_v += dv * dv;
                 epi_w += dw * dw;
-                const int64_t o = s * TILE + j;
-                float *v_at = c->rates + (s * 2 * M + m) * T, *w_at = v_at + M * T;
-                v_at[k] = cv + dv + sdv[o] * r->noise[2 * s * TILE + i];
-                w_at[k] = cw + dw + sdw[o] * r->noise[(2 * s + 1) * TILE + i];
+                nv[s] = cv + dv + sdv[s] * zv[s];
+                nw[s] = cw + dw + sdw[s] * zw[s];
             }
-            const int64_t at = 2 * (m * T + k);
+            const int64_t at = 2 * (m * T + t0 + i);
             c->centre[at] = cv;
             c->centre[at + 1] = cw;
-            c->aleatoric[at] = var_v * inv_s;
-            c->aleatoric[at + 1] = var_w * inv_s;
+            c->aleatoric[at] = ale_v[j];
+            c->aleatoric[at + 1] = ale_w[j];
             c->epistemic[at] = epi_v * inv_s;
             c->epistemic[at + 1] = epi_w * inv_s;
         }
+        float *path_v = r->path, *path_w = r->path + TILE;
+        for (int64_t s = 0; s < S; ++s) { /* each draw's tile back to (S, 2, M, T), and its pose */
+            float *v_at = c->rates + (s * 2 * M + m) * T + t0, *w_at = v_at + M * T;
+            for (int64_t i = 0; i < n; ++i) {
+                path_v[i] = hist_v[(i + lag) * S + s];
+                path_w[i] = hist_w[(i + lag) * S + s];
+            }
+            for (int64_t i = n; i < TILE; ++i) path_v[i] = path_w[i] = 0.0f;
+            memcpy(v_at, path_v, (size_t)n * sizeof(float));
+            memcpy(w_at, path_w, (size_t)n * sizeof(float));
+            if (c->x) {
+                const int64_t o = (s * M + m) * T + t0;
+                al_pose_tile(n, c->pose_dt, c->arm, c->yaw0[m], path_v, path_w, r->sums + 3 * s, c->x + o,
+                             c->y + o, c->yaw + o);
+            }
+        }
+        /* the last `lag` steps become the next tile's past */
+        memmove(hist_v, hist_v + n * S, (size_t)(lag * S) * sizeof(float));
+        memmove(hist_w, hist_w + n * S, (size_t)(lag * S) * sizeof(float));
     }
 }
 
@@ -221,13 +322,17 @@ static void physics_maneuver(void *context, void *scratch, int64_t m) {
  * controls (n_maneuvers, n_steps, 2) float32 that each step's model reads; `p` holds P_COUNT
  * parameters (see the enum). start (S, 2, n_maneuvers) holds the rates before the first step, read
  * until `rate_lag` steps have run; keys[s] is draw s's noise key. Writes the sampled rates
- * (S, 2, n_maneuvers, n_steps) and the per-step moments over draws (n_maneuvers, n_steps, 2).
+ * (S, 2, n_maneuvers, n_steps) and the per-step moments over draws (n_maneuvers, n_steps, 2). With
+ * x not NULL, also each draw's pose x, y, yaw (S, n_maneuvers, n_steps) integrated at pose_dt from
+ * the headings yaw0 (n_maneuvers), x and y those of the point `arm` ahead of the rear axle.
  * Returns 0, or -1 when out of memory. */
 int al_physics_rollout(const al_network *net, const float *p, int64_t n_maneuvers, int64_t n_steps,
                        int64_t rate_lag, const float *controls, const float *start, const uint64_t *keys,
-                       float *rates, float *centre, float *aleatoric, float *epistemic, int64_t n_threads) {
-    physics_context context = {net,   p,     n_maneuvers, n_steps, rate_lag,  controls,
-                               start, keys,  rates,       centre,  aleatoric, epistemic};
+                       float *rates, float *centre, float *aleatoric, float *epistemic, float pose_dt, float arm,
+                       const float *yaw0, float *x, float *y, float *yaw, int64_t n_threads) {
+    if (rate_lag < 1) return -1;
+    physics_context context = {net,   p,    n_maneuvers, n_steps,   rate_lag, controls, start, keys, rates,
+                               centre, aleatoric, epistemic, pose_dt, arm, yaw0, x, y, yaw};
     al_job job = {physics_scratch_new, physics_free, physics_maneuver, &context, n_maneuvers, 0, 0};
     return al_run_parallel(&job, n_threads);
 }

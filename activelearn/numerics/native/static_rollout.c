@@ -119,33 +119,17 @@ static double exclusive_prefix(const float *restrict values, double *restrict su
     return offset;
 }
 
-/* Sampled rates and pose of one draw over one tile of `n` steps of a maneuver (zero-padded to TILE).
- *
- * mean_v/var_v/mean_w/var_w hold this draw's mean and aleatoric variance per distinct control row
- * and row[i] is the row of step i. `sums` carries the running sums of w, v cos(yaw) and v sin(yaw)
- * from tile to tile. Writes n steps at v, w, x, y, yaw. The pose is torch's reference
- * (`_integrate`): yaw[t] = yaw0 + dt * sum(w[:t]), x[t] = dt * sum(v cos yaw [:t]) + arm * (cos yaw[t]
- * - cos yaw0), likewise y with sin, with the sums in double: the sums move the rear axle, which does not
- * slip sideways, and the logged point sits `arm` ahead of it. */
-static void trajectory_tile(int64_t n, uint32_t tile, uint32_t m, uint32_t k0, uint32_t k1, float dt,
-                            float arm, float start_yaw, const float *restrict mean_v, const float *restrict var_v,
-                            const float *restrict mean_w, const float *restrict var_w,
-                            const int32_t *restrict row, double sums_carried[3], float *restrict v,
-                            float *restrict w, float *restrict x, float *restrict y, float *restrict yaw) {
-    float zv[TILE], zw[TILE], vt[TILE], wt[TILE], var_vt[TILE], var_wt[TILE], yt[TILE], c[TILE], s[TILE];
-    float cos_yaw[TILE], sin_yaw[TILE];
+/* The planar pose of one draw over one tile of `n` steps from its sampled rates vt, wt (TILE each,
+ * zero beyond n). `sums` carries the running sums of w, v cos(yaw) and v sin(yaw) from tile to tile.
+ * Writes n steps at x, y, yaw. The pose is torch's reference (`_integrate`): yaw[t] = yaw0 + dt *
+ * sum(w[:t]), x[t] = dt * sum(v cos yaw [:t]) + arm * (cos yaw[t] - cos yaw0), likewise y with sin,
+ * with the sums in double: the sums move the rear axle, which does not slip sideways, and the logged
+ * point sits `arm` ahead of it. */
+void al_pose_tile(int64_t n, float dt, float arm, float start_yaw, const float *restrict vt,
+                  const float *restrict wt, double sums_carried[3], float *restrict x, float *restrict y,
+                  float *restrict yaw) {
+    float yt[TILE], c[TILE], s[TILE], cos_yaw[TILE], sin_yaw[TILE];
     double sums[TILE];
-    tile_noise(tile, m, k0, k1, zv, zw);
-    for (int64_t i = 0; i < n; ++i) { /* gather this draw's moments of each step's row */
-        const int32_t r = row[i];
-        vt[i] = mean_v[r];
-        wt[i] = mean_w[r];
-        var_vt[i] = var_v[r];
-        var_wt[i] = var_w[r];
-    }
-    for (int64_t i = n; i < TILE; ++i) vt[i] = wt[i] = var_vt[i] = var_wt[i] = 0.0f;
-    for (int i = 0; i < TILE; ++i) vt[i] += sqrtf(var_vt[i]) * zv[i];
-    for (int i = 0; i < TILE; ++i) wt[i] += sqrtf(var_wt[i]) * zw[i];
     const double total_w = exclusive_prefix(wt, sums);
     for (int i = 0; i < TILE; ++i) yt[i] = start_yaw + dt * (float)(sums_carried[0] + sums[i]);
     sums_carried[0] += total_w;
@@ -160,9 +144,33 @@ static void trajectory_tile(int64_t n, uint32_t tile, uint32_t m, uint32_t k0, u
     const double total_y = exclusive_prefix(s, sums);
     for (int64_t i = 0; i < n; ++i) y[i] = (float)(sums_carried[2] + sums[i]) * dt + (arm * sin_yaw[i] - sin0);
     sums_carried[2] += total_y;
+    memcpy(yaw, yt, (size_t)n * sizeof(float));
+}
+
+/* Sampled rates and pose of one draw over one tile of `n` steps of a maneuver (zero-padded to TILE).
+ *
+ * mean_v/var_v/mean_w/var_w hold this draw's mean and aleatoric variance per distinct control row
+ * and row[i] is the row of step i. Writes n steps at v, w and the pose (`al_pose_tile`). */
+static void trajectory_tile(int64_t n, uint32_t tile, uint32_t m, uint32_t k0, uint32_t k1, float dt,
+                            float arm, float start_yaw, const float *restrict mean_v, const float *restrict var_v,
+                            const float *restrict mean_w, const float *restrict var_w,
+                            const int32_t *restrict row, double sums_carried[3], float *restrict v,
+                            float *restrict w, float *restrict x, float *restrict y, float *restrict yaw) {
+    float zv[TILE], zw[TILE], vt[TILE], wt[TILE], var_vt[TILE], var_wt[TILE];
+    tile_noise(tile, m, k0, k1, zv, zw);
+    for (int64_t i = 0; i < n; ++i) { /* gather this draw's moments of each step's row */
+        const int32_t r = row[i];
+        vt[i] = mean_v[r];
+        wt[i] = mean_w[r];
+        var_vt[i] = var_v[r];
+        var_wt[i] = var_w[r];
+    }
+    for (int64_t i = n; i < TILE; ++i) vt[i] = wt[i] = var_vt[i] = var_wt[i] = 0.0f;
+    for (int i = 0; i < TILE; ++i) vt[i] += sqrtf(var_vt[i]) * zv[i];
+    for (int i = 0; i < TILE; ++i) wt[i] += sqrtf(var_wt[i]) * zw[i];
+    al_pose_tile(n, dt, arm, start_yaw, vt, wt, sums_carried, x, y, yaw);
     memcpy(v, vt, (size_t)n * sizeof(float));
     memcpy(w, wt, (size_t)n * sizeof(float));
-    memcpy(yaw, yt, (size_t)n * sizeof(float));
 }
 
 typedef struct {
