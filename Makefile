@@ -1,6 +1,8 @@
 # Two entry points for a fresh machine: `make demo` (the main job) and `make test` (the suite and the docs).
 # Both create or reuse .venv, install the CPU build of torch first (a bare `torch` requirement would
-# pull a multi-GB CUDA build), then the project with its dev extra.
+# pull a multi-GB CUDA build), then the project with its dev extra, then bmdal_reg (the `lcmd` strategy)
+# with --no-deps: its selection code needs torch, numpy and dill only, while its install_requires pull
+# its benchmark's openml, seaborn, mat4py and more (pyproject.toml says the same).
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -14,6 +16,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet torch==2.13.0 || \
 		$(BIN)/python -m pip install --quiet torch --index-url https://download.pytorch.org/whl/cpu
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(BIN)/python -m pip install --quiet --no-deps bmdal_reg==3.0.2 dill==0.4.1
 	touch $(STAMP)
 
 setup: $(STAMP)
