@@ -28,9 +28,22 @@ STRATEGY_NAMES: tuple[str, ...] = (
     "bald",
     "integrated_variance",
     "igs",
+    "lcmd",
     "auto",
+    "switch",
     "oracle_error",
     "oracle_lookahead",
+)
+# The model-based rules `switch` can hand over to after its maximin maneuvers (`[acquisition]
+# switch_to`): every strategy that reads the model, but the deciders and the benchmark-only oracles.
+SWITCH_TARGETS: tuple[str, ...] = (
+    "max_epistemic",
+    "epistemic_maximin",
+    "max_total",
+    "bald",
+    "integrated_variance",
+    "igs",
+    "lcmd",
 )
 # What a comparison measures every strategy against: greedy maximin, the strong space-filling baseline.
 REFERENCE_STRATEGY = "uniform"

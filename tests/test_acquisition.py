@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+import torch
 
 from activelearn.config import CampaignConfig, ModelConfig, TrainingConfig
 from activelearn.errors import InputError
@@ -181,3 +182,91 @@ def test_igs_with_nothing_collected_is_greedy_maximin(cfg, model):
     pool = _pool(cfg)
     picks = make_strategy("igs").select(model, pool, 3, np.random.default_rng(1))
     assert picks == greedy_maximin(pool, 3, np.random.default_rng(1))
+
+
+def test_lcmd_picks_are_bmdal_regs_lcmd_on_the_predicted_trajectories_and_coordinates(cfg, model):
+    from activelearn.loop.lcmd import _bmdal, lcmd_features
+
+    pool = _pool(cfg, taken=[0, 5, 11])
+    picks = make_strategy("lcmd", n_samples=16).select(model, pool, 4, np.random.default_rng(7))
+    assert len(set(picks)) == 4 and not pool.taken[picks].any()
+    # The same features handed to bmdal-reg's select_batch directly give the same batch.
+    seed = int(np.random.default_rng(7).integers(2**31 - 1))  # the strategy's first draw from its rng
+    features = torch.from_numpy(lcmd_features(model, pool, 16, seed))
+    assert features.shape == (len(pool.maneuvers), 64 + pool.features.shape[1] + 2)
+    select_batch, tensor_data = _bmdal()
+    open_, collected = pool.available, np.flatnonzero(pool.taken)
+    direct, results = select_batch(
+        batch_size=4, models=[torch.nn.Identity()], y_train=None, base_kernel="linear",
+        kernel_transforms=[], selection_method="lcmd", sel_with_train=True, verbosity=0,
+        data={"train": tensor_data(features[collected]), "pool": tensor_data(features[open_])},
+    )  # fmt: skip
+    assert results["selection_status"] is None  # LCMD itself picked, no random fill-up
+    assert picks == [int(open_[i]) for i in direct.tolist()]
+    # The model's predictions matter: the batch is not maximin's, and it is deterministic.
+    assert picks != greedy_maximin(pool, 4, np.random.default_rng(7))
+    assert picks == make_strategy("lcmd", n_samples=16).select(model, pool, 4, np.random.default_rng(7))
+
+
+def test_lcmd_with_nothing_collected_is_greedy_maximin(cfg, model):
+    pool = _pool(cfg)
+    picks = make_strategy("lcmd").select(model, pool, 3, np.random.default_rng(1))
+    assert picks == greedy_maximin(pool, 3, np.random.default_rng(1))
+
+
+def test_switch_is_maximin_before_switch_after_and_the_target_rule_from_then_on(cfg, model):
+    strategy = make_strategy("switch", switch_after=5, switch_to="max_epistemic", n_samples=16)
+    before = _pool(cfg, taken=[0, 5])
+    assert strategy.select(model, before, 3, np.random.default_rng(2)) == greedy_maximin(
+        before, 3, np.random.default_rng(2)
+    )
+    assert strategy.round_metrics() == {"switch_model_based": 0.0}
+    after = _pool(cfg, taken=[0, 5, 11, 17, 23])
+    target = make_strategy("max_epistemic", n_samples=16)
+    assert strategy.select(model, after, 3, np.random.default_rng(2)) == target.select(
+        model, after, 3, np.random.default_rng(2)
+    )
+    assert strategy.round_metrics() == {"switch_model_based": 1.0}
+    # A batch straddling the switch: maximin fills the two maneuvers left before it, the rule the rest.
+    straddle = _pool(cfg, taken=[0, 5, 11])
+    picks = strategy.select(model, straddle, 3, np.random.default_rng(2))
+    rng = np.random.default_rng(2)
+    first = greedy_maximin(straddle, 2, rng)
+    assert picks == first + target.select(model, straddle.with_taken(first), 1, rng)
+    assert strategy.round_metrics() == {"switch_model_based": pytest.approx(1 / 3)}
+    assert len(set(picks)) == 3 and not straddle.taken[picks].any()
+
+
+def test_switch_takes_its_options_from_the_config_and_rejects_bad_ones(tmp_path):
+    from activelearn.config import load_config
+    from activelearn.errors import ConfigError
+    from activelearn.loop.acquisition import SwitchStrategy
+    from activelearn.names import SWITCH_TARGETS
+
+    # Every model-based rule but the deciders and oracles, and nothing else, is a target.
+    deciders = {"auto", "switch", "oracle_error", "oracle_lookahead"}
+    assert set(SWITCH_TARGETS) == {n for n, c in STRATEGIES.items() if c.uses_model} - deciders
+
+    def load(acquisition: str):
+        path = tmp_path / "c.toml"
+        path.write_text(f'strategy = "switch"\n[acquisition]\n{acquisition}\n')
+        return load_config(path)
+
+    acq = load("").acquisition
+    assert (acq.switch_after, acq.switch_to) == (10, "bald")
+    acq = load("switch_after = 0\nswitch_to = \"lcmd\"").acquisition
+    strategy = make_strategy("switch", switch_after=acq.switch_after, switch_to=acq.switch_to)
+    assert isinstance(strategy, SwitchStrategy) and strategy.target.name == "lcmd"
+    for bad, field in [
+        ("switch_after = -1", "acquisition.switch_after"),
+        ("switch_after = 2.5", "acquisition.switch_after"),
+        ('switch_after = "3"', "acquisition.switch_after"),
+        ('switch_to = "uniform"', "acquisition.switch_to"),
+        ('switch_to = "auto"', "acquisition.switch_to"),
+        ("switch_too = 3", "acquisition.switch_too"),
+    ]:
+        with pytest.raises(ConfigError) as info:
+            load(bad)
+        assert info.value.field == field and field in str(info.value), bad
+    with pytest.raises(InputError, match=r"acquisition\.switch_to"):
+        make_strategy("switch", switch_to="switch")

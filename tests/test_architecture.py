@@ -38,7 +38,9 @@ _CAMPAIGN_ROOMS = (
     "campaign", "fitting", "evaluation", "budget", "run_log", "proposals", "admission", "round_figure",
     "oracles", "collection", "prior", "state", "lock", "asktell", "safety",
 )  # fmt: skip
-_STRATEGY_ROOMS = ("strategy", "space_filling", "function_space", "greedy_sampling", "acquisition")
+_STRATEGY_ROOMS = (
+    "strategy", "space_filling", "function_space", "greedy_sampling", "lcmd", "acquisition",
+)  # fmt: skip
 
 
 def _imports(name: str, path: Path) -> Iterator[tuple[str, int]]:

@@ -23,6 +23,7 @@ from activelearn.config.base import (
     _unique,
 )
 from activelearn.errors import ConfigError
+from activelearn.names import SWITCH_TARGETS
 
 
 class PoolConfig(_Section):
@@ -426,4 +427,14 @@ class AcquisitionConfig(_Section):
         False,
         description="Score information per second of track time: score / (duration + "
         "design.setup_seconds)",
+    )
+    switch_after: Annotated[int, Field(ge=0, strict=True)] = Field(
+        10,
+        description="`switch`: maneuvers collected, the initial design included, that greedy maximin picks "
+        "before `switch_to` takes over",
+    )
+    switch_to: Literal[SWITCH_TARGETS] = Field(  # type: ignore[valid-type]
+        "bald",
+        description="`switch`: the model-based strategy that picks once `switch_after` maneuvers are "
+        "collected",
     )

@@ -5,7 +5,8 @@ through `pick`), so the campaign loop treats them alike. Space-filling designs
 (`activelearn.loop.space_filling`) ignore the model; uncertainty strategies
 (`activelearn.loop.function_space`) score each candidate along the controls that maneuver would apply,
 in the function space of the model's posterior draws. `auto` decides between them each round; the
-oracles are yardsticks that read what no real campaign knows. The names are `activelearn.names`'.
+oracles are yardsticks that read what no real campaign knows. `switch` spends a fixed number of
+maneuvers on greedy maximin, then hands over to a model-based rule. The names are `activelearn.names`'.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from activelearn.loop.function_space import (
     UncertaintyStrategy,
 )
 from activelearn.loop.greedy_sampling import GreedySamplingStrategy
+from activelearn.loop.lcmd import LcmdStrategy
 from activelearn.loop.space_filling import (
     GridStrategy,
     LatinHypercubeStrategy,
@@ -37,6 +39,7 @@ from activelearn.loop.space_filling import (
     greedy_maximin,
 )
 from activelearn.loop.strategy import Evidence, Pool, Strategy, check_k, per_candidate, proximity_penalty
+from activelearn.names import SWITCH_TARGETS
 
 __all__ = [
     "STRATEGIES",
@@ -50,6 +53,7 @@ __all__ = [
     "GridStrategy",
     "IntegratedVarianceStrategy",
     "LatinHypercubeStrategy",
+    "LcmdStrategy",
     "LookaheadOracleStrategy",
     "MaxEpistemicStrategy",
     "MaxTotalStrategy",
@@ -59,6 +63,7 @@ __all__ = [
     "RandomStrategy",
     "SobolStrategy",
     "Strategy",
+    "SwitchStrategy",
     "UncertaintyStrategy",
     "greedy_maximin",
     "make_strategy",
@@ -210,6 +215,45 @@ class AutoStrategy(Strategy):
         return {"auto_model_based": float(self.last_choice != "uniform")}
 
 
+class SwitchStrategy(Strategy):
+    """`switch`: greedy maximin (`uniform`) for the first `switch_after` maneuvers, then `switch_to`.
+
+    A budget switch for cold starts: the first maneuvers cover the domain while the model knows too
+    little for its uncertainty to rank candidates; from the `switch_after`-th collected maneuver on
+    (the initial design counts) the model-based rule `switch_to` picks. A round whose batch straddles
+    the switch has maximin fill the maneuvers left before it, then the rule the rest (it sees
+    maximin's picks as taken). `switch_model_based` logs the share of the round's picks the rule made.
+    """
+
+    name = "switch"
+    uses_model = True
+
+    def __init__(self, *, switch_after: int = 10, switch_to: str = "bald", **options: Any) -> None:
+        integer = isinstance(switch_after, int | np.integer) and not isinstance(switch_after, bool)
+        if not integer or switch_after < 0:
+            raise InputError("acquisition.switch_after", switch_after, "must be an integer of at least 0")
+        if switch_to not in SWITCH_TARGETS:
+            choices = ", ".join(SWITCH_TARGETS)
+            raise InputError("acquisition.switch_to", switch_to, f"must be one of {choices}")
+        self.switch_after = int(switch_after)
+        self.target = make_strategy(switch_to, **options)
+        self.last_model_share = 0.0
+
+    def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
+        check_k(pool, k)
+        n_maximin = min(k, max(0, self.switch_after - int(pool.taken.sum())))
+        picks = greedy_maximin(pool, n_maximin, rng) if n_maximin else []
+        if n_maximin < k:
+            later = pool.with_taken(picks) if picks else pool
+            picks += self.target.select(model, later, k - n_maximin, rng)
+        self.last_model_share = (k - n_maximin) / k
+        return picks
+
+    def round_metrics(self) -> dict[str, float]:
+        """`switch_model_based`: the share of this round's picks the model-based rule made (0 to 1)."""
+        return {"switch_model_based": self.last_model_share}
+
+
 STRATEGIES: dict[str, type[Strategy]] = {
     cls.name: cls
     for cls in (
@@ -224,24 +268,40 @@ STRATEGIES: dict[str, type[Strategy]] = {
         BaldStrategy,
         IntegratedVarianceStrategy,
         GreedySamplingStrategy,
+        LcmdStrategy,
         AutoStrategy,
+        SwitchStrategy,
         OracleErrorStrategy,
         LookaheadOracleStrategy,
     )
 }
 
 
+_SWITCH_OPTIONS = ("switch_after", "switch_to")  # read by `switch` alone
+
+
 def make_strategy(name: str, **options: Any) -> Strategy:
     """Build a strategy by name with the acquisition options it uses (the others are ignored).
 
     Uncertainty strategies take batch, n_samples, fantasy_weight, penalty_length, seed and
-    cost_aware; `igs` takes n_samples; the oracle takes penalty_length; `auto` and the
-    lookahead oracle pass them on to the strategies they use; space-filling designs take none.
+    cost_aware; `igs` and `lcmd` take n_samples; the oracle takes penalty_length; `switch` takes
+    switch_after and switch_to; `auto`, `switch` and the lookahead oracle pass the others on to the
+    strategies they use; space-filling designs take none.
     """
     if name not in STRATEGIES:
         raise InputError("strategy", name, f"unknown strategy; choose from {', '.join(STRATEGIES)}")
     cls = STRATEGIES[name]
-    if issubclass(cls, UncertaintyStrategy | AutoStrategy | LookaheadOracleStrategy | GreedySamplingStrategy):
+    switch = {key: options.pop(key) for key in _SWITCH_OPTIONS if key in options}
+    if cls is SwitchStrategy:
+        return cls(**switch, **options)
+    if issubclass(
+        cls,
+        UncertaintyStrategy
+        | AutoStrategy
+        | LookaheadOracleStrategy
+        | GreedySamplingStrategy
+        | LcmdStrategy,
+    ):
         return cls(**options)
     if cls is OracleErrorStrategy:
         return cls(**{k: v for k, v in options.items() if k == "penalty_length"})

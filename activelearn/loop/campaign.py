@@ -133,6 +133,8 @@ class Campaign:
             fantasy_weight=acq.fantasy_weight,
             penalty_length=acq.penalty_length,
             cost_aware=acq.cost_aware,
+            switch_after=acq.switch_after,
+            switch_to=acq.switch_to,
         )
         cache = Path(cache_dir) if cache_dir else cache_root(cfg)
         self.nominal = SimulationCache(cache, cfg.simulation)  # prior grids: the nominal simulator
