@@ -15,7 +15,7 @@ from simulator.maneuvers import (
     nominal_turn,
     sample_times,
 )
-from simulator.noise import NoiseConfig, add_noise
+from simulator.noise import NoiseConfig, add_noise, noise_std
 from simulator.schedules import check_schedule, member_from_name, schedule_maneuver
 from simulator.stop import StopRule
 from simulator.twin import TWIN_PARAMETERS, TwinParameter, check_overrides, twin_vehicle
@@ -69,6 +69,7 @@ __all__ = [
     "family",
     "member_from_name",
     "model_xml",
+    "noise_std",
     "nominal_controls",
     "nominal_turn",
     "reference_speed",

@@ -80,15 +80,24 @@ def wrap_angle(angle: np.ndarray) -> np.ndarray:
     return np.pi - np.mod(np.pi - angle, 2.0 * np.pi)
 
 
+def noise_std(noise: NoiseConfig, field: str, speed: np.ndarray) -> np.ndarray:
+    """Per row, the std of `field`'s noise (a NoiseConfig field, e.g. "position") at forward speeds
+    `speed` (m/s): scaled by 1 + speed_gain |v| / MAX_SPEED when heteroscedastic. Zero when disabled."""
+    speed = np.asarray(speed, dtype=float)
+    if not noise.enabled:
+        return np.zeros(speed.shape)
+    scale = np.ones(speed.shape)
+    if noise.heteroscedastic:
+        scale = 1.0 + noise.speed_gain * np.abs(np.nan_to_num(speed)) / MAX_SPEED
+    return getattr(noise, field) * scale
+
+
 def noisy_columns(cols: dict[str, np.ndarray], noise: NoiseConfig, rng: np.random.Generator) -> None:
     """Replace the sensor channels in `cols` by noisy copies (one stream, fixed channel order)."""
     n = len(cols["speed"])
     draws = rng.standard_normal((n, len(_NOISE_CHANNELS)))
-    scale = np.ones(n)
-    if noise.heteroscedastic:
-        scale = 1.0 + noise.speed_gain * np.abs(np.nan_to_num(cols["speed"])) / MAX_SPEED
     for j, (column, field) in enumerate(_NOISE_CHANNELS):
-        delta = getattr(noise, field) * scale * draws[:, j]
+        delta = noise_std(noise, field, cols["speed"]) * draws[:, j]
         if column in ("leftTicks", "rightTicks"):
             cols[column] = cols[column] + np.rint(delta).astype(np.int64)
         else:

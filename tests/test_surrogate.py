@@ -17,7 +17,7 @@ from activelearn.errors import InputError
 from activelearn.loop.benchmark import against_simulator
 from activelearn.loop.collection import arrays, training_rows
 from activelearn.loop.fitting import load_model_copy
-from activelearn.numerics.diagnostics import calibrate_fan, free_run_metrics, relative_pose
+from activelearn.numerics.diagnostics import calibrate_fan, fan_scale_needed, free_run_metrics, relative_pose
 from activelearn.numerics.models import build_model, load_model, save_model
 from activelearn.numerics.surrogate import _integrate, estimate_lever_arm, path_from_rates, simulate
 from activelearn.numerics.training import fit
@@ -346,6 +346,31 @@ def test_simulate_places_the_path_by_the_models_lever_arm(skidpad_model):
     for bad in (5.0, float("nan")):
         with pytest.raises(InputError, match="lever_arm"):
             simulate(skidpad_model, controls, lever_arm=bad, **call)
+
+
+def test_a_fan_calibrated_on_noisy_logs_is_the_one_the_truth_needs(skidpad_model):
+    """Logged positions are measurements: with their sensor noise allowed for, the scale fitted on
+    noisy logs is the one the noise-free truth needs; taken as truth, the noise widens the fan."""
+    maneuvers = [
+        Maneuver("skidpad", 0.4, 0.22, "ccw", 12.0),
+        Maneuver("skidpad", 0.8, 0.38, "cw", 12.0),
+        Maneuver("slalom", 0.6, 0.3, "ccw", 12.0),
+    ]
+    truth = simulator.collect(maneuvers, seed=7, noise=None)
+    noise = simulator.NoiseConfig(heteroscedastic=True)
+    noisy = simulator.add_noise(truth, noise, 11)
+    clean_logs, noisy_logs = (
+        [part.reset_index(drop=True) for _, part in table.groupby("run_id", sort=False)]
+        for table in (truth, noisy)
+    )
+    needed = fan_scale_needed(skidpad_model, clean_logs, n_samples=32)
+    allowed = fan_scale_needed(skidpad_model, noisy_logs, n_samples=32, noise=noise)
+    naive = fan_scale_needed(skidpad_model, noisy_logs, n_samples=32)
+    assert naive > 1.2 * needed, (naive, needed)  # the noise alone reads as misses
+    assert allowed == pytest.approx(needed, rel=0.1), (allowed, needed, naive)
+    # disabled noise allows for nothing
+    off = simulator.NoiseConfig(enabled=False)
+    assert fan_scale_needed(skidpad_model, noisy_logs, n_samples=32, noise=off) == naive
 
 
 def test_calibrated_fan_holds_the_asked_share_of_true_positions(tmp_path, skidpad_model):

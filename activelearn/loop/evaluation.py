@@ -17,7 +17,7 @@ import pandas as pd
 import torch
 
 from activelearn.config import CampaignConfig
-from activelearn.loop.collection import TestSet
+from activelearn.loop.collection import TestSet, noise_config
 from activelearn.loop.oracles import Oracle
 from activelearn.loop.pool import evaluation_grid
 from activelearn.loop.state import CampaignState
@@ -167,8 +167,11 @@ class Evaluation:
             checks["prequential_scale"] = self.prequential_scale(model, new)
         if self.cfg.design.fan_calibration == "prequential":
             logs = [part.reset_index(drop=True) for _, part in new.groupby("pool_index", sort=False)]
+            # The batch's logs are measurements: their pose noise is allowed for (the config's sensor
+            # noise; for recorded logs, the stated one), else it reads as misses and widens every fan.
             checks["prequential_fan_scale"] = fan_scale_needed(
                 model, logs, rate_hz=self.cfg.simulation.rate_hz,
                 n_samples=self.cfg.test.rollout_samples or FAN_SAMPLES, seed=0,
+                noise=noise_config(self.cfg.simulation.noise),
             )  # fmt: skip
         return checks
