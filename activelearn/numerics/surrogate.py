@@ -431,7 +431,13 @@ def _sequential_rollout(
         # thread pool, one intra-op thread each. Torch's own intra-op threads sync at every one of
         # the thousands of small ops: 13x slower on a busy 2-core machine (recurrent model, measured).
         # A model whose step is many small ops (the physics kind) amortises them over wider blocks.
-        parallel_map(run, even_blocks(n_maneuvers, getattr(model, "rollout_block", TORCH_BLOCK)))
+        # A lone block (at most `rollout_block` maneuvers: a quick run's fans, a round's new maneuvers)
+        # runs on the calling thread, also on one intra-op thread: with two, its small ops spun and
+        # stalled (physics model, 18 maneuvers x 10 s, S = 8, busy 2-core machine: 0.2-8 s against
+        # 0.08-0.15 s; the same numbers bit for bit).
+        workers = torch.get_num_threads()  # read before the block sets it to 1
+        with intra_op_threads(1):
+            parallel_map(run, even_blocks(n_maneuvers, getattr(model, "rollout_block", TORCH_BLOCK)), workers)
     else:
         parallel_map(run, even_blocks(n_maneuvers, -(-n_maneuvers // torch.get_num_threads())))
     # (T, 2, M) → (M, T, 2); v and ω are (S, M, T) views of the rates.
