@@ -15,7 +15,7 @@ from activelearn.loop.collection import arrays, control_rate_logs, training_rows
 from activelearn.numerics import correction_gate, native
 from activelearn.numerics.models import PhysicsModel, build_model, load_model, physics, save_model
 from activelearn.numerics.models.base import Model
-from activelearn.numerics.surrogate import simulate
+from activelearn.numerics.surrogate import STEADY_STATES, model_inputs, simulate, steady_state_inputs
 from activelearn.numerics.training import fit
 from simulator import Maneuver, datasheet
 from tests.conftest import SMOKE, predict_slalom_fan
@@ -229,10 +229,10 @@ def test_a_campaign_scores_along_paths_with_it_and_predict_draws_its_fans(tmp_pa
     assert (tmp_path / "fan.png").stat().st_size > 10_000
 
 
-def _perturbed_control_model() -> PhysicsModel:
-    """An untrained physics model whose correction reads the control alone, its weights shaken so the
-    correction and its spread over draws are far from zero."""
-    model = build_model(_config(correction_inputs="control"), seed=0)
+def _perturbed_control_model(correction_inputs: str = "control") -> PhysicsModel:
+    """An untrained physics model whose correction reads the control alone (or the whole window), its
+    weights shaken so the correction and its spread over draws are far from zero."""
+    model = build_model(_config(correction_inputs=correction_inputs), seed=0)
     rng = np.random.default_rng(0)
     model.set_scalers(rng.normal(size=(400, 16)), 0.3 * rng.normal(size=(400, 2)))
     generator = torch.Generator().manual_seed(1)
@@ -363,3 +363,40 @@ def test_fit_gates_the_correction_and_the_choice_is_saved(forward_grid: pd.DataF
     fresh.correction_weight.fill_(0.0)
     fresh.load_state_dict(state)
     assert float(fresh.correction_weight) == 1.0
+
+
+def test_steady_state_inputs_are_the_held_control_loop_and_computed_once_per_model_state(tmp_path):
+    """The quasi-steady inputs: each control held from standstill for 60 steps, the posterior-mean rates
+    fed back (written out here on the model's own draws). Asked again for the same model state and
+    controls (a round asks for its grid twice, its target twice with [safety] cuts), they are not
+    recomputed; a model changed in place, or other controls, are."""
+    model = _perturbed_control_model("history").eval()  # its correction reads the window, as in safe_track
+    throttles, steerings = np.meshgrid(np.linspace(-1.0, 1.0, 9), np.linspace(-0.5236, 0.5236, 7))
+    controls = np.column_stack([throttles.ravel(), steerings.ravel()])  # throttle 0 (the brake) included
+    sampled = model.draw(8, seed=0)
+    rates = np.zeros((len(controls), 2), dtype=np.float32)
+    window = lambda: np.hstack([np.tile(controls, 4), np.tile(rates, 4)]).astype(np.float32)  # noqa: E731
+    for _ in range(60):
+        rates = sampled(window())[0].mean(axis=0)
+    reference = window()
+    assert np.abs(reference[:, 8:10]).max() > 0.05  # the rates did move off standstill
+
+    before = STEADY_STATES.misses
+    first = model_inputs(model, controls)
+    np.testing.assert_allclose(first, reference, rtol=0, atol=1e-6)
+    assert STEADY_STATES.misses == before + 1
+    computed, first[:] = first.copy(), np.nan  # a caller's changes stay its own
+    again = steady_state_inputs(model, controls.copy())
+    assert STEADY_STATES.misses == before + 1  # not computed again
+    np.testing.assert_array_equal(again, computed)
+    save_model(model, tmp_path / "m.pt")  # the same state in another object: the same key
+    np.testing.assert_array_equal(steady_state_inputs(load_model(tmp_path / "m.pt"), controls), again)
+    assert STEADY_STATES.misses == before + 1
+
+    with torch.no_grad():
+        model.theta[0] *= 0.8  # the forward gain, in place
+    slower = steady_state_inputs(model, controls)
+    assert STEADY_STATES.misses == before + 2
+    assert np.abs(slower - again).max() > 1e-3
+    steady_state_inputs(model, controls[:5])
+    assert STEADY_STATES.misses == before + 3

@@ -63,11 +63,12 @@ class SafetyConfig(_Section):
         "so its body stays inside too",
     )
     # Free runs integrate the rear axle and place the logged point `pose_lever_arm` ahead of it, so the CG's
-    # side slip is in the fan (true rates retrace the logged path to ~1 cm). Measured on safe_track.toml
-    # (experiments/investigations/safety_guards.py, results/safety_guards.txt): beside the kinematic guard no
-    # admitted true path hit a wall at 0 either, but the nearest came within 8 mm (fan_scale 1) and 28 mm (3)
-    # of the margin in the first round; at 0.04, within 43 mm there and 10 mm after 8 maneuvers (a trusted fan
-    # 1-2 % off a 2.9-m circle), for 0.4 % fewer admitted seconds (0.16: 1.5 %).
+    # side slip is in the fan (true rates retrace the logged path to ~1 cm). Measured on the static map's
+    # safe_track_static.toml (experiments/investigations/safety_guards.py, results/safety_guards.txt):
+    # beside the kinematic guard no admitted true path hit a wall at 0 either, but the nearest came within
+    # 8 mm (fan_scale 1) and 28 mm (3) of the margin in the first round; at 0.04, within 43 mm there and
+    # 10 mm after 8 maneuvers (a trusted fan 1-2 % off a 2.9-m circle), for 0.4 % fewer admitted seconds
+    # (0.16: 1.5 %).
     path_tolerance: NonNegative = Field(
         0.04,
         description="What a predicted path may still miss of the car's (m): added to `margin` where the "
@@ -80,12 +81,12 @@ class SafetyConfig(_Section):
         64, description="Trajectories of the rollout fan (posterior draws with aleatoric noise)"
     )
     # The model's own epistemic std ranks errors but is 2-4x too small on campaign designs
-    # (docs/results/calibration.md; z spread 2.9-5.6 on safe_track.toml), and a fan too narrow drives the
-    # car into the wall.
+    # (docs/results/calibration.md; z spread 2.9-5.6 on safe_track_static.toml), and a fan too narrow
+    # drives the car into the wall.
     fan_scale: Annotated[float, Field(ge=1)] = Field(
         3.0, description="Factor on the fan's epistemic std over the model's own"
     )
-    # Measured on safe_track.toml's prior model: 0.001-0.013 on the prior's forward operating points,
+    # Measured on safe_track_static.toml's prior model: 0.001-0.013 on the prior's forward operating points,
     # 0.03-0.08 in reverse, where the fan missed the true speed.
     trust_std: Positive = Field(
         0.02,

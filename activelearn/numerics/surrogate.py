@@ -32,6 +32,8 @@ How far these free runs drift and how wide their fans must be: `activelearn.nume
 
 from __future__ import annotations
 
+import hashlib
+from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -42,7 +44,7 @@ from activelearn.errors import InputError
 from activelearn.numerics import buffers, counter_noise, native
 from activelearn.numerics.lags import Lags, model_lags
 from activelearn.numerics.models.base import BACKENDS, CHUNK_ROWS
-from activelearn.numerics.threads import even_blocks, parallel_map
+from activelearn.numerics.threads import even_blocks, intra_op_threads, parallel_map
 from simulator import Maneuver, nominal_controls
 
 N_CONTROLS = 2
@@ -433,7 +435,13 @@ def _sequential_rollout(
         # thread pool, one intra-op thread each. Torch's own intra-op threads sync at every one of
         # the thousands of small ops: 13x slower on a busy 2-core machine (recurrent model, measured).
         # A model whose step is many small ops (the physics kind) amortises them over wider blocks.
-        parallel_map(run, even_blocks(n_maneuvers, getattr(model, "rollout_block", TORCH_BLOCK)))
+        # A lone block (at most `rollout_block` maneuvers: a quick run's fans, a round's new maneuvers)
+        # runs on the calling thread, also on one intra-op thread: with two, its small ops spun and
+        # stalled (physics model, 18 maneuvers x 10 s, S = 8, busy 2-core machine: 0.2-8 s against
+        # 0.08-0.15 s; the same numbers bit for bit).
+        workers = torch.get_num_threads()  # read before the block sets it to 1
+        with intra_op_threads(1):
+            parallel_map(run, even_blocks(n_maneuvers, getattr(model, "rollout_block", TORCH_BLOCK)), workers)
     else:
         parallel_map(run, even_blocks(n_maneuvers, -(-n_maneuvers // torch.get_num_threads())))
     # (T, 2, M) → (M, T, 2); v and ω are (S, M, T) views of the rates.
@@ -464,6 +472,54 @@ def estimate_lever_arm(logs: Sequence, *, rate_hz: float = 30.0, min_yaw_rate: f
     return float(np.dot(w_all, np.concatenate(lateral)) / np.dot(w_all, w_all))
 
 
+class SteadyStates:
+    """The last few `steady_state_inputs` results, by model state, controls and settings.
+
+    A round asks for the same steady states more than once: the evaluation grid for the round's
+    metrics and again for its figure, the target region for the pool and again for the pool [safety]
+    rebuilds with cut candidates. The key is the model's content (its state dict, its configuration
+    and the plain attributes of each of its modules, such as the physics kind's `corrected`), not the
+    object, so a model changed in place is computed anew. A hit returns a copy of the very array the
+    miss computed: the same numbers, bit for bit. `misses` counts the computations (tests read it).
+    """
+
+    def __init__(self, size: int = 16) -> None:
+        self.size = size
+        self.misses = 0
+        self._entries: OrderedDict[bytes, np.ndarray] = OrderedDict()
+
+    @staticmethod
+    def key(model, controls: np.ndarray, steps: int, n_samples: int) -> bytes:
+        """A digest of everything the steady state depends on."""
+        digest = hashlib.blake2b(digest_size=20)
+        for module in model.modules():
+            plain = sorted((k, v) for k, v in vars(module).items() if isinstance(v, bool | int | float | str))
+            digest.update(f"{type(module).__qualname__}{getattr(module, 'config', None)!r}{plain!r}".encode())
+        for name, tensor in model.state_dict().items():
+            digest.update(name.encode())
+            digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
+        digest.update(f"{controls.shape}{steps},{n_samples}".encode())
+        digest.update(controls.tobytes())
+        return digest.digest()
+
+    def get(self, key: bytes) -> np.ndarray | None:
+        """A copy of the stored result, or None."""
+        found = self._entries.get(key)
+        if found is None:
+            return None
+        self._entries.move_to_end(key)
+        return found.copy()
+
+    def put(self, key: bytes, value: np.ndarray) -> None:
+        """Store a result (the oldest is dropped beyond `size`)."""
+        self.misses += 1
+        self._entries[key] = value.copy()
+        while len(self._entries) > self.size:
+            self._entries.popitem(last=False)
+
+
+STEADY_STATES = SteadyStates()
+
 
 def steady_state_inputs(model, controls: np.ndarray, *, steps: int = 60, n_samples: int = 8) -> np.ndarray:
     """Inputs of a dynamic model at the rates it settles to under constant `controls`.
@@ -472,22 +528,35 @@ def steady_state_inputs(model, controls: np.ndarray, *, steps: int = 60, n_sampl
     in. Holding each control for `steps` iterations from standstill and feeding back the
     posterior-mean rates (every lag of the history holds the same control and rates once settled)
     gives the quasi-steady state, a fair stand-in for slowly varying maneuvers (fishhook, skidpad,
-    straight) and an approximation for slalom and eight.
+    straight) and an approximation for slalom and eight. Results are kept (`STEADY_STATES`): the same
+    model state and controls are computed once.
     """
+    controls = np.asarray(controls, dtype=np.float32)
+    key = STEADY_STATES.key(model, controls, steps, n_samples)
+    found = STEADY_STATES.get(key)
+    if found is not None:
+        return found
     lags = model_lags(model)
     history = 1 if lags is None else lags.history
-    controls = np.asarray(controls, dtype=np.float32)
-    sampled = model.draw(n_samples, seed=0)
-    ctrl = torch.as_tensor(controls).repeat(1, history)
-    rates = torch.zeros((len(controls), 2))
+    # One intra-op thread: the steps are small ops (S x rows elements, below torch's grain size), and
+    # on a busy 2-core machine torch's second OpenMP thread only spins and stalls them. Measured with
+    # safe_track.toml's physics model, 225 rows, 15 calls each: 2 threads median 0.09 s, worst 7.4 s
+    # (spikes of 2-10 s in every round of a campaign); 1 thread median 0.025 s, worst 0.06 s; the same
+    # numbers bit for bit (element-wise ops, and GEMMs of the same shapes).
+    with torch.no_grad(), intra_op_threads(1):
+        sampled = model.draw(n_samples, seed=0)
+        ctrl = torch.as_tensor(controls).repeat(1, history)
+        rates = torch.zeros((len(controls), 2))
 
-    def window() -> torch.Tensor:
-        return torch.cat([ctrl, rates.repeat(1, history)], dim=-1)
+        def window() -> torch.Tensor:
+            return torch.cat([ctrl, rates.repeat(1, history)], dim=-1)
 
-    for _ in range(steps):
-        means, _ = sampled(window())
-        rates = means.mean(dim=0)
-    return window().numpy().astype(np.float64)
+        for _ in range(steps):
+            means, _ = sampled(window())
+            rates = means.mean(dim=0)
+        out = window().numpy().astype(np.float64)
+    STEADY_STATES.put(key, out)
+    return out
 
 
 def model_inputs(model, controls: np.ndarray) -> np.ndarray:
