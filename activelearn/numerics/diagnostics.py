@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -18,7 +19,7 @@ import torch
 from activelearn.errors import InputError
 from activelearn.names import CONTROLS, RATES, ROLLOUT_METRICS, TRUTH_COLUMNS
 from activelearn.numerics.surrogate import Rollout, simulate
-from simulator import NoiseConfig, noise_std
+from simulator import noise_std
 
 FAN_SCALE_RANGE = (1e-2, 1e3)  # free-run fan scales beyond these mean a broken model, not a fan
 
@@ -104,22 +105,23 @@ def free_runs(
 
 
 def fan_widening_needed(
-    rollout: Rollout, truth_logs: Sequence, noise: NoiseConfig | None = None
+    rollout: Rollout, truth_logs: Sequence, noise: Any | None = None
 ) -> np.ndarray:
     """Per step of every run: the factor by which the 95 % position fan must widen about the mean
     path to hold the true position (x and y band both; <= 1 where it already does; inf where the
     fan has no width yet).
 
-    With `noise` (the logs' sensor noise), the logged positions are measurements, not the truth: the
-    relative position of step k carries the position noise of step k and of the start, and the start
-    heading's noise turned through the distance driven (variance σ²). The fan is for the true
-    position, so the squared error is taken less that variance, its unbiased estimate of the true
-    squared error (errors in variables): the need is sqrt(max(e² − σ², 0)) / gap. Without it a noisy
-    log's first steps (no fan yet, 2-6 mm of noise) and every step's noise read as misses. Measured
-    (the truth's need, noise allowed for, naive): a physics model on dynamics.toml's test set 1.85,
-    2.15, 2.55; on 12 held-out pool signals 2.27, 2.57, 2.90; a static skidpad model on 12-s
-    maneuvers 12.3, 12.8, 16.5. The rest of the overshoot comes from the first steps, where fan and
-    error are both smaller than the noise. Subtracting the 95 % band's z² σ² instead came closer on
+    With `noise` (the logs' sensor noise, a `simulator.NoiseConfig`), the logged positions are
+    measurements, not the truth: the relative position of step k carries the position noise of step
+    k and of the start, and the start heading's noise turned through the distance driven (variance
+    σ²). The fan is for the true position, so the squared error is taken less that variance, its
+    unbiased estimate of the true squared error (errors in variables): the need is
+    sqrt(max(e² − σ², 0)) / gap. Without it a noisy log's first steps (no fan yet, 2-6 mm of noise)
+    and every step's noise read as misses. Measured (the truth's need, noise allowed for, naive): a
+    physics model on dynamics.toml's test set 1.85, 2.15, 2.55; on 12 held-out pool signals 2.27,
+    2.57, 2.90; a static skidpad model on 12-s maneuvers 12.3, 12.8, 16.5. The rest of the overshoot
+    comes from the first steps, where fan and error are both smaller than the noise. Subtracting the
+    95 % band's z² σ² instead came closer on
     the first two (1.84, 2.20) but fell 40 % short on the third (7.5): fans too narrow.
     """
     band_x, band_y = (np.quantile(getattr(rollout, a), (0.025, 0.975), axis=0) for a in ("x", "y"))
@@ -160,7 +162,7 @@ def fan_scale_needed(
     rate_hz: float = 30.0,
     n_samples: int = 32,
     seed: int = 0,
-    noise: NoiseConfig | None = None,
+    noise: Any | None = None,
 ) -> float:
     """The free-run fan scale under which `level` of the true positions of `logs` lie inside the
     95 % fan (split-conformal on held-out maneuvers). Leaves the model as it was. `noise` is the
