@@ -28,7 +28,7 @@ from activelearn.loop.function_space import (
     MaxTotalStrategy,
     UncertaintyStrategy,
 )
-from activelearn.loop.greedy_sampling import GreedySamplingStrategy
+from activelearn.loop.greedy_sampling import GreedySamplingStrategy, TrajectoryStrategy
 from activelearn.loop.lcmd import LcmdStrategy
 from activelearn.loop.space_filling import (
     GridStrategy,
@@ -299,8 +299,7 @@ def make_strategy(name: str, **options: Any) -> Strategy:
         UncertaintyStrategy
         | AutoStrategy
         | LookaheadOracleStrategy
-        | GreedySamplingStrategy
-        | LcmdStrategy,
+        | TrajectoryStrategy,
     ):
         return cls(**options)
     if cls is OracleErrorStrategy:

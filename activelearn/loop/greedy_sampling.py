@@ -55,10 +55,10 @@ def trajectory_distances(trajectories: np.ndarray, rows: np.ndarray, to: np.ndar
     return np.sqrt((diff**2).mean(axis=(2, 3)))
 
 
-class GreedySamplingStrategy(Strategy):
-    """`igs`: maximise min over collected maneuvers of (parameter distance × predicted-behaviour distance)."""
+class TrajectoryStrategy(Strategy):
+    """A strategy that compares candidates by their predicted rate trajectories (`predicted_trajectories`,
+    the mean of `n_samples` posterior draws): `igs` and `lcmd`."""
 
-    name = "igs"
     uses_model = True
 
     def __init__(self, *, n_samples: int = 64, **_: Any) -> None:
@@ -66,6 +66,12 @@ class GreedySamplingStrategy(Strategy):
         if n_samples < 1:
             raise InputError("acquisition.n_samples", n_samples, "must be at least 1")
         self.n_samples = n_samples
+
+
+class GreedySamplingStrategy(TrajectoryStrategy):
+    """`igs`: maximise min over collected maneuvers of (parameter distance × predicted-behaviour distance)."""
+
+    name = "igs"
 
     def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
         open_ = list(check_k(pool, k))

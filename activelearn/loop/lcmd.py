@@ -49,9 +49,9 @@ import numpy as np
 import torch
 
 from activelearn.errors import InputError
-from activelearn.loop.greedy_sampling import predicted_trajectories
+from activelearn.loop.greedy_sampling import TrajectoryStrategy, predicted_trajectories
 from activelearn.loop.space_filling import greedy_maximin
-from activelearn.loop.strategy import Pool, Strategy, check_k
+from activelearn.loop.strategy import Pool, check_k
 
 BMDAL_INSTALL = "pip install --no-deps bmdal_reg==3.0.2 dill==0.4.1"
 
@@ -89,16 +89,10 @@ def lcmd_features(model: Any, pool: Pool, n_samples: int, seed: int) -> np.ndarr
     return np.hstack(parts).astype(np.float64)
 
 
-class LcmdStrategy(Strategy):
+class LcmdStrategy(TrajectoryStrategy):
     """`lcmd`: bmdal-reg's LCMD in TP-mode, linear kernel on predicted trajectories and coordinates."""
 
     name = "lcmd"
-    uses_model = True
-
-    def __init__(self, *, n_samples: int = 64, **_: Any) -> None:
-        if n_samples < 1:
-            raise InputError("acquisition.n_samples", n_samples, "must be at least 1")
-        self.n_samples = n_samples
 
     def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
         open_ = check_k(pool, k)
