@@ -29,7 +29,7 @@ from activelearn.numerics.models import (
 )
 from activelearn.numerics.models.base import CHUNK_ROWS
 from activelearn.numerics.training import fit
-from activelearn.studies.tracking import MODEL_PACKAGES
+from activelearn.studies.tracking import model_packages
 
 KINDS = ["hybrid", "pbnn", "pnn", "bnn", "dnn", "ensemble"]
 SMALL = {"arch": "D8-V8-V", "ensemble_size": 3}
@@ -298,7 +298,7 @@ def test_mlflow_pytorch_round_trip(trained, data, tmp_path, monkeypatch):
     assert isinstance(loaded, HybridPBNN)
     [requirements] = (tmp_path / "artifacts").rglob("requirements.txt")
     inferred = {line.split("==")[0] for line in requirements.read_text().split()}
-    assert inferred == set(MODEL_PACKAGES)
+    assert inferred == set(model_packages())
     x = data[0][:10]
     np.testing.assert_array_equal(loaded.predict(x, 8, seed=1).mean, m.predict(x, 8, seed=1).mean)
 

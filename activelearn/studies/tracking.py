@@ -7,6 +7,7 @@ nested runs written from several processes (a comparison's workers) cannot get m
 from __future__ import annotations
 
 import importlib.metadata
+import importlib.util
 import logging
 import os
 import shutil
@@ -59,11 +60,21 @@ logging.getLogger("alembic").setLevel(logging.WARNING)
 # What a logged model needs to load: the packages MLflow's own inference finds for it (it loads the
 # model in a subprocess to see what gets imported, ~10 s per campaign), named here instead.
 MODEL_PACKAGES = ("mlflow", "activelearn", "cloudpickle", "numpy", "pandas", "scipy", "torch")
+# Imported by torch itself whenever installed (its data pipes), so MLflow's inference lists them then;
+# the set-up installs dill for bmdal_reg (the `lcmd` strategy).
+IMPORTED_WHEN_INSTALLED = ("dill",)
+
+
+def model_packages() -> tuple[str, ...]:
+    """What MLflow's inference finds for a logged model here: `MODEL_PACKAGES` and those of
+    `IMPORTED_WHEN_INSTALLED` that are installed."""
+    present = tuple(name for name in IMPORTED_WHEN_INSTALLED if importlib.util.find_spec(name) is not None)
+    return MODEL_PACKAGES + present
 
 
 def model_requirements() -> list[str]:
-    """`MODEL_PACKAGES` pinned to the installed versions, as the logged model's requirements.txt."""
-    return [f"{name}=={importlib.metadata.version(name)}" for name in MODEL_PACKAGES]
+    """`model_packages()` pinned to the installed versions, as the logged model's requirements.txt."""
+    return [f"{name}=={importlib.metadata.version(name)}" for name in model_packages()]
 
 
 def flatten_params(params: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
