@@ -94,10 +94,10 @@ def noise_std(noise: NoiseConfig, field: str, speed: np.ndarray) -> np.ndarray:
 
 def noisy_columns(cols: dict[str, np.ndarray], noise: NoiseConfig, rng: np.random.Generator) -> None:
     """Replace the sensor channels in `cols` by noisy copies (one stream, fixed channel order)."""
-    n = len(cols["speed"])
-    draws = rng.standard_normal((n, len(_NOISE_CHANNELS)))
+    true_speed = cols["speed"].copy()  # every channel's std follows the true speed, not the noisy one
+    draws = rng.standard_normal((len(true_speed), len(_NOISE_CHANNELS)))
     for j, (column, field) in enumerate(_NOISE_CHANNELS):
-        delta = noise_std(noise, field, cols["speed"]) * draws[:, j]
+        delta = noise_std(noise, field, true_speed) * draws[:, j]
         if column in ("leftTicks", "rightTicks"):
             cols[column] = cols[column] + np.rint(delta).astype(np.int64)
         else:

@@ -14,6 +14,7 @@ import pytest
 from simulator import (
     COLUMNS,
     ENCODER_CPR,
+    MAX_SPEED,
     MAX_YAW_RATE,
     STEERING_LIMIT,
     DivergenceError,
@@ -257,6 +258,20 @@ def test_noise_is_seeded_per_maneuver_and_add_noise_reproduces_it() -> None:
     # heteroscedastic: the fast run is noisier
     residual = (noisy["speed"] - clean["speed"]).groupby(noisy["run_id"]).std()
     assert residual[maneuvers[1].name] > 1.5 * residual[maneuvers[0].name]
+
+
+def test_every_channels_noise_follows_the_true_speed() -> None:
+    """Heteroscedastic noise scales with the true speed for every channel, the speed's own noise not
+    feeding into the others' (a change that read the already noised speed altered every dataset)."""
+    clean = collect([Maneuver("skidpad", 0.9, 0.3, "ccw", 3.0)], seed=0, noise=None)
+    config = NoiseConfig(heteroscedastic=True)
+    noisy = add_noise(clean, config, 5)
+    draws = np.random.default_rng(5).standard_normal((len(clean), 15))
+    scale = 1.0 + config.speed_gain * np.abs(clean["speed"].to_numpy()) / MAX_SPEED
+    channels = (("speed", 0, config.speed), ("posX", 7, config.position), ("accY", 5, config.acceleration))
+    for column, j, std in channels:
+        expected = clean[column].to_numpy() + std * scale * draws[:, j]
+        np.testing.assert_array_equal(noisy[column].to_numpy(), expected, err_msg=column)
 
 
 def test_rates_that_do_not_divide_the_physics_rate_sample_the_nearest_step() -> None:
