@@ -119,7 +119,7 @@ def fan_widening_needed(
     sqrt(max(e² − σ², 0)) / gap. Without it a noisy log's first steps (no fan yet, 2-6 mm of noise)
     and every step's noise read as misses. Measured (the truth's need, noise allowed for, naive): a
     physics model on dynamics.toml's test set 1.85, 2.15, 2.55; on 12 held-out pool signals 2.27,
-    2.56, 2.90; a static skidpad model on 12-s maneuvers 12.3, 12.8, 16.5. The rest of the overshoot
+    2.56, 2.90; a static skidpad model on 12-s maneuvers 12.3, 12.9, 16.5. The rest of the overshoot
     comes from the first steps, where fan and error are both smaller than the noise. Subtracting the
     95 % band's z² σ² instead came closer on
     the first two (1.84, 2.20) but fell 40 % short on the third (7.5): fans too narrow.
