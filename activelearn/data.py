@@ -93,7 +93,9 @@ def read_table(path: str | Path) -> pd.DataFrame:
     if not path.is_file():
         raise InputError("path", str(path), "no such file")
     if suffix == ".parquet":
-        return pd.read_parquet(path)
+        # One open, then parse: pyarrow opens the path more than once (size, then pages), so a table
+        # replaced by a writer's atomic rename in between read as a torn file (seen in test_ray).
+        return pd.read_parquet(io.BytesIO(path.read_bytes()))
     dtypes: dict[str, object] = {c: "float64" for c in FLOAT_COLUMNS}
     dtypes.update({c: "int64" for c in INT_COLUMNS})
     dtypes.update({c: "str" for c in TEXT_COLUMNS})
