@@ -391,7 +391,7 @@ class PhysicsModel(Model):
             # Reused memory (`buffers`): first-touch page faults of the fans cost a third of a run.
             rates = buffers.empty((n_samples, 2, n_maneuvers, n_steps))
             moments = tuple(buffers.empty((n_maneuvers, n_steps, 2)) for _ in range(3))
-            paths = None
+            paths = native_pose = None
             if pose is not None:
                 dt, yaw0, arm = pose
                 paths = tuple(buffers.empty((n_samples, n_maneuvers, n_steps)) for _ in range(3))
@@ -405,7 +405,7 @@ class PhysicsModel(Model):
                 rate_lag,
                 rates,
                 moments,
-                pose=native_pose if pose is not None else None,
+                pose=native_pose,
                 threads=torch.get_num_threads(),
             )
             return torch.from_numpy(rates), tuple(torch.from_numpy(m) for m in moments), paths
