@@ -121,8 +121,8 @@ def fan_widening_needed(
     physics model on dynamics.toml's test set 1.85, 2.15, 2.55; on 12 held-out pool signals 2.27,
     2.56, 2.90; a static skidpad model on 12-s maneuvers 12.3, 12.9, 16.5. The rest of the overshoot
     comes from the first steps, where fan and error are both smaller than the noise. Subtracting the
-    95 % band's z² σ² instead came closer on
-    the first two (1.84, 2.20) but fell 40 % short on the third (7.5): fans too narrow.
+    95 % band's z² σ² instead came closer on the first two (1.84, 2.20) but fell 40 % short on the
+    third (7.5): fans too narrow.
     """
     band_x, band_y = (np.quantile(getattr(rollout, a), (0.025, 0.975), axis=0) for a in ("x", "y"))
     mean_x, mean_y = rollout.mean_path()
@@ -130,8 +130,7 @@ def fan_widening_needed(
     for i, table in enumerate(truth_logs):
         n = int(rollout.lengths[i])
         tx, ty, _ = relative_pose({c: table[c].to_numpy(dtype=np.float64) for c in TRUTH_COLUMNS}, n)
-        zero = np.zeros(n)
-        noise_x = noise_y = zero  # σ² of the logged relative position, per axis
+        noise_x = noise_y = np.zeros(n)  # σ² of the logged relative position, per axis
         if noise is not None and noise.enabled:
             speed = table["speed"].to_numpy(dtype=np.float64)[:n]
             position, heading = (noise_std(noise, field, speed) for field in ("position", "angle"))
