@@ -11,6 +11,7 @@ whose locks stay on one host) and check that a takeover stops it without writing
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
 import os
@@ -19,6 +20,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -27,7 +29,7 @@ import pytest
 
 from activelearn.cli import main
 from activelearn.data import read_recorded_log
-from activelearn.loop.lock import HOLDER_FILE, LOCK_FILE, read_holder
+from activelearn.loop.lock import HOLDER_FILE, LOCK_FILE, DirectoryLock, lease_file, read_holder
 from activelearn.loop.state import CampaignState
 from activelearn.studies.tracking import Tracker
 from tests import racers
@@ -404,3 +406,43 @@ def test_a_stalled_holder_whose_taker_came_and_went_stops_without_writing(tmp_pa
     finally:
         stalled.kill()
         stalled.wait()
+
+
+def test_a_renewer_stalled_between_its_check_and_its_write_leaves_the_takers_record(tmp_path):
+    """The stall falls where no check can see it: the renewer has found its record its own and is stopped
+    before it writes. Woken after a taker has taken the stale lease over, its write must not replace the
+    taker's record, and its release must not remove it."""
+    directory, lease = tmp_path / "d", 0.3
+    stalled = DirectoryLock(directory, lease=lease)
+    stalled.acquire(wait=0)
+    fcntl.flock(stalled._fd, fcntl.LOCK_UN)  # a file system whose locks do not reach the taker
+    checked, wake = threading.Event(), threading.Event()
+    really_held = stalled.held
+
+    def held_then_stall() -> bool:
+        answer = really_held()
+        if threading.current_thread() is stalled._renewer and not checked.is_set():
+            checked.set()  # the renewer's check passed ...
+            wake.wait(60)  # ... and it stalls before its write
+        return answer
+
+    stalled.held = held_then_stall  # type: ignore[method-assign]
+    taker = DirectoryLock(directory, lease=60.0)
+    try:
+        assert checked.wait(60) and really_held()
+        taker.acquire(wait=10 * lease)  # its lease runs out while the renewer is stopped
+        taken = read_holder(directory)
+        assert taken is not None and taken.token == taker._holder.token
+        wake.set()
+        stalled._stop.set()
+        stalled._renewer.join(60)  # it renewed once more, and found out at its next turn, or not at all
+        assert read_holder(directory).token == taken.token and taker.held() and not really_held()
+        stalled.release()
+        record = read_holder(directory)
+        assert record is not None and (record.token, record.since) == (taken.token, taken.since)
+        assert not lease_file(directory, stalled._holder.token).exists()
+    finally:
+        wake.set()
+        stalled.release()
+        taker.release()
+    assert sorted(p.name for p in directory.iterdir()) == [LOCK_FILE]

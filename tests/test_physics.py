@@ -339,6 +339,16 @@ def test_the_gate_keeps_the_correction_only_where_held_out_maneuvers_want_it(mon
         weight, errors = chosen
         assert weight == expected, errors
         assert errors[weight] < 0.5 * max(errors.values())
+        # Two held out of six: judged with at least two; closed (the core, no probe) when three are asked.
+        trained_on.clear()
+        two = correction_gate.choose_correction_weight(
+            probe, groups=np.repeat(ids, 10), logs=logs, log_groups=ids, windows=None, seed=0, min_held_out=2
+        )
+        assert two == chosen and trained_on == [len(controls) - 2]
+        closed = correction_gate.choose_correction_weight(
+            probe, groups=np.repeat(ids, 10), logs=logs, log_groups=ids, windows=None, seed=0, min_held_out=3
+        )
+        assert closed == (0.0, {}) and trained_on == [len(controls) - 2]
 
 
 def test_fit_gates_the_correction_and_the_choice_is_saved(forward_grid: pd.DataFrame, tmp_path):

@@ -117,6 +117,17 @@ class ModelConfig(_Section):
         description="kind = 'physics': keep the correction's mean only as far as it beats the identified "
         "core on held-out maneuvers (a probe fit without a quarter of them)",
     )
+    # One held-out maneuver is a noisy judge: in the cold start's first round (4 maneuvers, 1 held out)
+    # the probe kept a correction that dragged the free runs to 0.05-0.07 m where the core alone ended
+    # at 0.04 (experiments/results/physics.txt, session 13).
+    correction_gate_min_held_out: int = Field(
+        1,
+        ge=1,
+        le=100,
+        description="kind = 'physics' with correction_gate: the fewest held-out maneuvers the gate judges "
+        "on; with fewer (a quarter of the training maneuvers, rounded) the correction's mean is left out "
+        "and only its epistemic band kept",
+    )
 
     @model_validator(mode="after")
     def _check_kinematic_feature(self) -> ModelConfig:

@@ -3,13 +3,16 @@
 Every command that writes a campaign (`campaign run`, `propose`, `ingest`, a comparison's workers) holds
 the directory's lock while it works. The lock is an exclusive `flock` on DIR/.lock: the kernel (or the
 NFS server) drops it when its process dies, so a lock left by a dead process is taken over at once. Beside
-it, DIR/lock.json records the holder (host, pid, command, since when) for the message a second writer
-gets, and a lease the holder renews every LEASE_SECONDS / 3: a record from another host that was not
-renewed for LEASE_SECONDS is stale (its holder is gone, or its file system's locks did not reach this
-host), one from this host is stale once its pid is gone. A holder stalled past its lease and taken over
-finds out from the record at its next commit (`check`) and stops without writing; its renewer does not
-write its record back. A second writer waits up to `wait` seconds, then raises CampaignLocked naming the
-holder. Re-entering the lock in the same thread (`tell` proposes, `ingest` tells) only counts.
+it, DIR/lock.json records the holder (host, pid, command, since when, a random token) for the message a
+second writer gets, and the holder renews a lease every LEASE_SECONDS / 3 in a file of its own token,
+DIR/lock.<token>.lease: a record from another host whose lease was not renewed for LEASE_SECONDS is stale
+(its holder is gone, or its file system's locks did not reach this host), one from this host is stale
+once its pid is gone. A holder stalled past its lease and taken over finds out from the record at its
+next commit (`check`) and stops without writing. The record is written once, when the lock is taken, and
+a renewal writes only the holder's own lease file: a renewer stopped between its check and its write
+(a stall can fall anywhere) cannot write its record back over a taker's. A second writer waits up to
+`wait` seconds, then raises CampaignLocked naming the holder. Re-entering the lock in the same thread
+(`tell` proposes, `ingest` tells) only counts.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ from activelearn.errors import ActiveLearnError, CampaignStopped, InputError
 
 LOCK_FILE = ".lock"
 HOLDER_FILE = "lock.json"
+LEASE_SUFFIX = ".lease"  # DIR/lock.<token>.lease: one holder's renewals
 COMMIT_FILE = "state.json"  # a campaign's commit point (activelearn.loop.state.STATE_FILE is this name)
 LEASE_SECONDS = 60.0
 DEFAULT_WAIT = 120.0  # s a second writer waits before it gives up
@@ -82,12 +86,23 @@ def _alive(pid: int) -> bool:
     return True
 
 
+def lease_file(directory: str | Path, token: str) -> Path:
+    """The file in which the holder with `token` renews its lease."""
+    return Path(directory) / f"lock.{token}{LEASE_SUFFIX}"
+
+
 def read_holder(directory: str | Path) -> Holder | None:
-    """The record of a directory's lock holder, or None (no record, or one being written)."""
+    """The record of a directory's lock holder with its latest renewal, or None (no record, or one being
+    written)."""
     try:
-        return Holder(**json.loads((Path(directory) / HOLDER_FILE).read_text()))
+        holder = Holder(**json.loads((Path(directory) / HOLDER_FILE).read_text()))
     except (OSError, ValueError, TypeError):
         return None
+    try:
+        renewed = float(json.loads(lease_file(directory, holder.token).read_text())["renewed"])
+    except (OSError, ValueError, TypeError, KeyError):
+        return holder  # not renewed yet (or a renewal being written): the record's own time
+    return Holder(**{**asdict(holder), "renewed": max(holder.renewed, renewed)})
 
 
 class DirectoryLock:
@@ -100,7 +115,7 @@ class DirectoryLock:
         self._fd: int | None = None
         self._created: list[Path] = []
         self._holder: Holder | None = None
-        self._written = 0.0  # Unix time of the last renewal written to the record
+        self._written = 0.0  # Unix time of the record's taking or of the last renewal written
         self._stop = threading.Event()
         self._renewer: threading.Thread | None = None
 
@@ -139,10 +154,14 @@ class DirectoryLock:
         self._holder = Holder(socket.gethostname(), os.getpid(), command, now, now, self.lease,
                               secrets.token_hex(8))  # fmt: skip
         try:
-            self._write()
+            atomic_write_bytes(self.directory / HOLDER_FILE, json.dumps(asdict(self._holder)).encode())
         except OSError:
             self.release()
             raise
+        self._written = now
+        for stale in self.directory.glob(f"lock.*{LEASE_SUFFIX}"):  # left by holders gone or taken over
+            if stale != lease_file(self.directory, self._holder.token):
+                stale.unlink(missing_ok=True)
         self._stop.clear()
         self._renewer = threading.Thread(target=self._renew, name="campaign-lock", daemon=True)
         self._renewer.start()
@@ -176,10 +195,13 @@ class DirectoryLock:
             return None
         return fd
 
-    def _write(self) -> None:
+    def _renew_lease(self) -> None:
+        """Write the renewal into this holder's own lease file (never the record: see the module)."""
         assert self._holder is not None
-        atomic_write_bytes(self.directory / HOLDER_FILE, json.dumps(asdict(self._holder)).encode())
-        self._written = self._holder.renewed
+        now = time.time()
+        renewal = json.dumps({"renewed": now}).encode()
+        atomic_write_bytes(lease_file(self.directory, self._holder.token), renewal)
+        self._written = now
 
     def held(self) -> bool:
         """Whether this process still holds the lock, by its record: no other holder's token in it.
@@ -197,13 +219,11 @@ class DirectoryLock:
 
     def _renew(self) -> None:
         while not self._stop.wait(self.lease / 3):
-            assert self._holder is not None
-            if not self.held():  # taken over: writing again would overwrite the new holder's record
+            if not self.held():  # taken over: renewing would only leave a file behind
                 self.lost = True
                 return
-            self._holder = Holder(**{**asdict(self._holder), "renewed": time.time()})
             with contextlib.suppress(OSError):  # a full disk: the next renewal tries again
-                self._write()
+                self._renew_lease()
 
     def release(self) -> None:
         """Drop the record and the lock; remove the directory again if the lock made it and it is empty."""
@@ -212,9 +232,11 @@ class DirectoryLock:
             self._renewer.join()
         if self._fd is None:
             return
-        holder = read_holder(self.directory)
-        if holder is not None and self._holder is not None and holder.token == self._holder.token:
-            (self.directory / HOLDER_FILE).unlink(missing_ok=True)
+        if self._holder is not None:
+            holder = read_holder(self.directory)
+            if not self.lost and holder is not None and holder.token == self._holder.token:
+                (self.directory / HOLDER_FILE).unlink(missing_ok=True)
+            lease_file(self.directory, self._holder.token).unlink(missing_ok=True)
         if self._created and [p.name for p in self.directory.iterdir()] == [LOCK_FILE]:
             (self.directory / LOCK_FILE).unlink()  # waiters see the inode change and try again
             os.close(self._fd)

@@ -7,8 +7,10 @@ and the training loss cannot tell: it sees the same maneuvers. So, with `[model]
 probe copy of the model is trained as the model is but without a quarter of the training maneuvers,
 and the held-out maneuvers' free runs (their recorded controls, from their first recorded rates)
 pick the share of the correction's posterior mean a prediction keeps: 0, 1/2 or all of it
-(`GATE_WEIGHTS`, ties to the smaller). Each posterior draw's deviation from that mean, the epistemic
-band, is kept whatever the choice, so a gated model still knows where its data end.
+(`GATE_WEIGHTS`, ties to the smaller). With fewer held-out maneuvers than `[model]
+correction_gate_min_held_out` the gate stays closed (share 0) without a probe. Each posterior draw's
+deviation from that mean, the epistemic band, is kept whatever the choice, so a gated model still knows
+where its data end.
 """
 
 from __future__ import annotations
@@ -31,11 +33,15 @@ Log = tuple[np.ndarray, np.ndarray]  # (controls (T, 2), rates (T, 2)) at the lo
 ProbeTrainer = Callable[[np.ndarray, list[Log], Windows | None], torch.nn.Module]
 
 
+def held_out_count(n_maneuvers: int) -> int:
+    """How many of `n_maneuvers` the probe leaves out: a quarter, rounded, at least one."""
+    return max(1, round(HELD_OUT_SHARE * n_maneuvers))
+
+
 def held_out_groups(log_groups: Sequence, seed: int) -> np.ndarray:
     """The maneuver ids held out from the probe: a seeded quarter (at least one) of the distinct ids."""
     distinct = np.unique(np.asarray(log_groups))
-    n_held = max(1, round(HELD_OUT_SHARE * len(distinct)))
-    return np.random.default_rng(seed).choice(distinct, size=n_held, replace=False)
+    return np.random.default_rng(seed).choice(distinct, size=held_out_count(len(distinct)), replace=False)
 
 
 def free_run_error(model, logs: Sequence[Log], *, seed: int = 0) -> float:
@@ -65,16 +71,21 @@ def choose_correction_weight(
     log_groups: Sequence,
     windows: Windows | None,
     seed: int,
+    min_held_out: int = 1,
 ) -> tuple[float, dict[float, float]] | None:
     """The share of the correction's mean to keep and each share's held-out error (m).
 
     `groups` are the training rows' maneuver ids, `log_groups` each log's (the same ids). None when
-    there are fewer than two maneuvers or no row is left for the probe.
+    there are fewer than two maneuvers or no row is left for the probe; (0, {}) without a probe when
+    fewer than `min_held_out` maneuvers would be held out.
     """
     if len(log_groups) != len(logs):
         raise InputError("log_groups", len(log_groups), f"needs one id per log ({len(logs)})")
-    if len(np.unique(np.asarray(log_groups))) < 2:
+    n_maneuvers = len(np.unique(np.asarray(log_groups)))
+    if n_maneuvers < 2:
         return None
+    if held_out_count(n_maneuvers) < min_held_out:
+        return 0.0, {}
     held = held_out_groups(log_groups, seed)
     rows = ~np.isin(groups, held)
     in_probe = ~np.isin(np.asarray(log_groups), held)

@@ -355,8 +355,9 @@ def fit(
         )  # fmt: skip
         if gate:
             chosen = choose_correction_weight(
-                train_probe, groups=groups, logs=logs, log_groups=log_groups, windows=windows, seed=seed
-            )
+                train_probe, groups=groups, logs=logs, log_groups=log_groups, windows=windows, seed=seed,
+                min_held_out=model.config.correction_gate_min_held_out,
+            )  # fmt: skip
             if chosen is not None:
                 history.correction_weight, history.gate_errors = chosen
                 with torch.no_grad():
