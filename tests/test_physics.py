@@ -373,6 +373,15 @@ def test_fit_gates_the_correction_and_the_choice_is_saved(forward_grid: pd.DataF
     fresh.correction_weight.fill_(0.0)
     fresh.load_state_dict(state)
     assert float(fresh.correction_weight) == 1.0
+    # Asked to judge on more held-out maneuvers than a quarter of these: closed, no probe trained.
+    closed = build_model(_config(correction_gate=True, correction_gate_min_held_out=100), seed=0)
+    history = fit(
+        closed, x, y, TrainingConfig(epochs=4, batch_size=64, patience=None), seed=0,
+        groups=rows["run_id"].to_numpy(), logs=_logs(forward_grid),
+        log_groups=[g["run_id"].iloc[0] for g in frames],
+    )  # fmt: skip
+    assert (history.correction_weight, history.gate_errors) == (0.0, {})
+    assert float(closed.correction_weight) == 0.0
 
 
 def test_steady_state_inputs_are_the_held_control_loop_and_computed_once_per_model_state(tmp_path):
