@@ -157,3 +157,13 @@ def test_a_comparison_simulates_beforehand_what_the_oracle_will_simulate(tmp_pat
     assert maneuvers == (tests if kind == "external" else tests + pool)
     nominal = SimulationCache(tmp_path / "cache", cfg.simulation)
     assert cache.root == (twin_cache(tmp_path / "cache", cfg) if kind == "twin" else nominal).root
+
+
+def test_the_twins_dynamics_config_is_dynamics_toml_answered_by_sim_to_reals_twin():
+    """dynamics_twin.toml repeats dynamics.toml (issue 35's cold-start comparison runs on both): every
+    section but the name and the oracle equal, the oracle sim_to_real's twin."""
+    configs = SMOKE.parent
+    twin, nominal = (load_config(configs / f"{n}.toml") for n in ("dynamics_twin", "dynamics"))
+    real = load_config(configs / "sim_to_real.toml")
+    assert twin.oracle == real.oracle and twin.oracle.kind == "twin" and nominal.oracle.kind == "simulator"
+    assert twin.model_copy(update={"name": nominal.name, "oracle": nominal.oracle}) == nominal

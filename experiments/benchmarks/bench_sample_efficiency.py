@@ -37,6 +37,9 @@ from activelearn.studies.compare import compare
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 LOOKAHEAD = "oracle_lookahead"
+# The cold start's comparison (issue 35): the uncertainty rules, a saturating information score along the
+# path (bald: OpAx), diversity in predicted behaviour (igs), LCMD (bmdal_reg) and maximin-then-bald (switch).
+COLD_START = ("uniform", "random", "max_epistemic", "integrated_variance", "auto", "bald", "igs", "lcmd", "switch")
 # What each pool compares (uniform is the control everywhere; grid and random for reference).
 POOLS: dict[str, tuple[str, ...]] = {
     "skidpad": ("uniform", "random", "max_epistemic", "integrated_variance", "auto"),
@@ -45,7 +48,8 @@ POOLS: dict[str, tuple[str, ...]] = {
     "odd_expansion": ("uniform", "grid", "random", "max_epistemic", "integrated_variance", "auto"),
     "odd_costs": ("uniform", "integrated_variance", "auto"),
     "sim_to_real": ("uniform", "max_epistemic", "integrated_variance", "auto"),
-    "dynamics": ("uniform", "random", "max_epistemic", "integrated_variance", "auto"),
+    "dynamics": COLD_START,
+    "dynamics_twin": COLD_START,
     "dynamics_warm": ("uniform", "random", "max_epistemic", "integrated_variance", "auto"),
 }
 
