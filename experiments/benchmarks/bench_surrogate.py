@@ -66,7 +66,8 @@ MODELS: dict[str, tuple[dict, dict]] = {
         {"inputs": "history", "history": 4, "history_step": 3},
         {"kind": "physics", "arch": "D32-D32-V16-V", "activation": "softplus"},
     ),
-    # the same with the correction on the control alone: free runs computed whole (physics_rollout.c)
+    # the same with the correction on the control alone, as dynamics.toml sets it: free runs computed whole
+    # (physics_rollout.c)
     "physics-control": (
         {"inputs": "history", "history": 4, "history_step": 3},
         {"kind": "physics", "arch": "D32-D32-V16-V", "activation": "softplus",

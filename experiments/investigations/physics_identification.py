@@ -33,7 +33,9 @@ def main() -> None:
     parser.add_argument("--signals", default="4,8,16")
     args = parser.parse_args()
     params = args.run / "physics_params.toml"
-    params.write_text('[model]\nkind = "physics"\nkinematic_feature = false\n')
+    # The window correction: its free runs step `_physical_step`, which the bare core below replaces (a
+    # control-only correction's free runs are computed whole, by the compiled kernel, and would not see it).
+    params.write_text('[model]\nkind = "physics"\nkinematic_feature = false\ncorrection_inputs = "history"\n')
     cfg = load_config("experiments/configs/dynamics.toml", params=str(params))
     campaign = Campaign(cfg, args.run / "identification", cache_dir=Path("runs/cache"))
     test = campaign.test_set
