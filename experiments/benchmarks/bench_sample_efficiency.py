@@ -39,7 +39,9 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 LOOKAHEAD = "oracle_lookahead"
 # The cold start's comparison (issue 35): the uncertainty rules, a saturating information score along the
 # path (bald: OpAx), diversity in predicted behaviour (igs), LCMD (bmdal_reg) and maximin-then-bald (switch).
-COLD_START = ("uniform", "random", "max_epistemic", "integrated_variance", "auto", "bald", "igs", "lcmd", "switch")
+COLD_START = (
+    "uniform", "random", "max_epistemic", "integrated_variance", "auto", "bald", "igs", "lcmd", "switch",
+)  # fmt: skip
 # What each pool compares (uniform is the control everywhere; grid and random for reference).
 POOLS: dict[str, tuple[str, ...]] = {
     "skidpad": ("uniform", "random", "max_epistemic", "integrated_variance", "auto"),
