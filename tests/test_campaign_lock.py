@@ -243,9 +243,17 @@ with hold({str(directory)!r}, wait=0):
     (directory / HOLDER_FILE).write_text(json.dumps(record))
     blocked = subprocess.run([sys.executable, "-c", taker], capture_output=True, text=True)
     assert blocked.returncode != 0 and "other-host" in blocked.stderr and "pid 4242" in blocked.stderr
+    # Its renewals live in a lease file of its token: a fresh one keeps the record alive ...
+    lease = lease_file(directory, record["token"])
     record["renewed"] = time.time() - 61
     (directory / HOLDER_FILE).write_text(json.dumps(record))
+    lease.write_text(json.dumps({"renewed": time.time()}))
+    blocked = subprocess.run([sys.executable, "-c", taker], capture_output=True, text=True)
+    assert blocked.returncode != 0 and "other-host" in blocked.stderr
+    # ... an expired one does not, and the taker clears it away with the record
+    lease.write_text(json.dumps({"renewed": time.time() - 61}))
     assert subprocess.run([sys.executable, "-c", taker], capture_output=True, text=True).stdout == "taken\n"
+    assert not lease.exists() and not (directory / HOLDER_FILE).exists()
 
 
 # A process holding DIR's lock with a short lease, for the lease tests. It drops its OS lock first: on a
