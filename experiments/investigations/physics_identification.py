@@ -8,7 +8,7 @@ error of the free runs of the 72 test maneuvers (noise-free truth) with:
   * the single track identified on those signals' logs (`identify_from_logs`), no learnt correction.
 The campaign's own `rollout_pos_err_30s` per round (state.json) is the model with its correction.
 
-Usage: python experiments/investigations/physics_identification.py DIR [--signals 4,8,16]
+Usage: python experiments/investigations/physics_identification.py DIR [--signals 4,8,16] [--config TOML]
 """
 
 from __future__ import annotations
@@ -31,12 +31,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run", type=Path, help="a physics campaign directory")
     parser.add_argument("--signals", default="4,8,16")
+    parser.add_argument("--config", default="experiments/configs/dynamics.toml",
+                        help="the campaign's config (its oracle drives the test set)")  # fmt: skip
     args = parser.parse_args()
     params = args.run / "physics_params.toml"
     # The window correction: its free runs step `_physical_step`, which the bare core below replaces (a
     # control-only correction's free runs are computed whole, by the compiled kernel, and would not see it).
     params.write_text('[model]\nkind = "physics"\nkinematic_feature = false\ncorrection_inputs = "history"\n')
-    cfg = load_config("experiments/configs/dynamics.toml", params=str(params))
+    cfg = load_config(args.config, params=str(params))
     campaign = Campaign(cfg, args.run / "identification", cache_dir=Path("runs/cache"))
     test = campaign.test_set
     samples = pd.read_parquet(args.run / "samples.parquet")
