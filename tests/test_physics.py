@@ -229,10 +229,10 @@ def test_a_campaign_scores_along_paths_with_it_and_predict_draws_its_fans(tmp_pa
     assert (tmp_path / "fan.png").stat().st_size > 10_000
 
 
-def _perturbed_control_model(correction_inputs: str = "control") -> PhysicsModel:
+def _perturbed_control_model(correction_inputs: str = "control", symmetry: str = "none") -> PhysicsModel:
     """An untrained physics model whose correction reads the control alone (or the whole window), its
     weights shaken so the correction and its spread over draws are far from zero."""
-    model = build_model(_config(correction_inputs=correction_inputs), seed=0)
+    model = build_model(_config(correction_inputs=correction_inputs, correction_symmetry=symmetry), seed=0)
     rng = np.random.default_rng(0)
     model.set_scalers(rng.normal(size=(400, 16)), 0.3 * rng.normal(size=(400, 2)))
     generator = torch.Generator().manual_seed(1)
@@ -255,13 +255,16 @@ def _busy_controls() -> list[np.ndarray]:
     return out
 
 
-@pytest.mark.parametrize("weight", [1.0, 0.5, 0.0])
-def test_free_runs_of_a_control_correction_agree_between_the_kernel_and_torch(weight):
+@pytest.mark.parametrize(
+    ("weight", "symmetry"), [(1.0, "none"), (0.5, "none"), (0.0, "none"), (1.0, "mirror"), (0.5, "mirror")]
+)
+def test_free_runs_of_a_control_correction_agree_between_the_kernel_and_torch(weight, symmetry):
     """physics_rollout.c and its torch twin draw the same free runs (float rounding apart), with the
-    gate at any share and the pose (headings, lever arm) integrated inside the kernel."""
+    gate at any share, the correction mirror-symmetric or not, and the pose (headings, lever arm)
+    integrated inside the kernel."""
     if native.library() is None:
         pytest.skip("no C compiler: the torch path is the only one")
-    model, controls = _perturbed_control_model(), _busy_controls()
+    model, controls = _perturbed_control_model(symmetry=symmetry), _busy_controls()
     model.correction_weight.fill_(weight)
     headings = np.linspace(-2.0, 2.5, len(controls))
     kwargs = dict(n_samples=8, seed=3, initial_yaw=headings, lever_arm=0.08)
@@ -283,6 +286,51 @@ def test_free_runs_computed_whole_are_the_step_loops(monkeypatch):
     monkeypatch.setattr(PhysicsModel, "open_loop_free_runs", Model.open_loop_free_runs)
     stepped = simulate(model, controls, n_samples=8, seed=3)
     assert np.abs(whole.v).max() > 0.1 and whole.epistemic_var.max() > 1e-4
+    for name in ("v", "w", "mean_rates", "epistemic_var"):
+        np.testing.assert_allclose(getattr(whole, name), getattr(stepped, name), atol=2e-5, err_msg=name)
+
+
+@pytest.mark.parametrize("inputs", ["control", "history"])
+def test_a_mirror_symmetric_correction_mirrors_every_draw(inputs):
+    """With `correction_symmetry = "mirror"` every draw's next rates at the mirror image of its inputs
+    (every steering and yaw rate negated) are the same speed and the opposite yaw rate, and at zero
+    steering and yaw rate the draws' yaw rate is 0; without it, a shaken correction is not symmetric."""
+    rng = np.random.default_rng(4)
+    x = rng.normal(size=(64, 16)) * 0.3
+    x[:, 0:8:2] = rng.uniform(-1.0, 1.0, size=(64, 4))  # throttles
+    mirror = x.copy()
+    mirror[:, 1::2] *= -1.0
+    straight = x.copy()
+    straight[:, 1::2] = 0.0
+    for symmetry in ("mirror", "none"):
+        model = _perturbed_control_model(inputs, symmetry)
+        sampled = model.draw(8, seed=0, backend="reference")
+        (means, var), (mirrored, mirrored_var) = sampled(x), sampled(mirror)
+        asymmetry = np.abs(means[..., 1] + mirrored[..., 1]).max()
+        if symmetry == "none":
+            assert asymmetry > 1e-2  # the shaken correction is far from symmetric on its own
+            continue
+        assert asymmetry < 1e-5
+        np.testing.assert_allclose(means[..., 0], mirrored[..., 0], atol=1e-5)
+        np.testing.assert_allclose(var, mirrored_var, atol=1e-6)
+        assert np.abs(sampled(straight)[0][..., 1]).max() < 1e-5
+        assert np.abs(means[..., 1]).max() > 0.1  # not symmetric by being zero
+
+
+def test_mirror_symmetric_free_runs_computed_whole_are_the_step_loops(monkeypatch):
+    """The whole-run path (torch) of a mirror-symmetric correction equals the generic step loop, and
+    a free run of mirrored controls from mirrored rates is the mirror image of the free run."""
+    monkeypatch.setattr(physics, "NOISE_CAP", 0.0)
+    model, controls = _perturbed_control_model(symmetry="mirror"), _busy_controls()
+    start = np.tile([0.3, 0.5], (len(controls), 1))
+    whole = simulate(model, controls, n_samples=8, seed=3, initial_rates=start)
+    mirrored = [c * [1.0, -1.0] for c in controls]
+    image = simulate(model, mirrored, n_samples=8, seed=3, initial_rates=start * [1.0, -1.0])
+    np.testing.assert_allclose(image.v, whole.v, atol=2e-5)
+    np.testing.assert_allclose(image.w, -whole.w, atol=2e-5)
+    monkeypatch.setattr(PhysicsModel, "open_loop_free_runs", Model.open_loop_free_runs)
+    stepped = simulate(model, controls, n_samples=8, seed=3, initial_rates=start)
+    assert np.abs(whole.w).max() > 0.1 and whole.epistemic_var.max() > 1e-5  # the draws do differ
     for name in ("v", "w", "mean_rates", "epistemic_var"):
         np.testing.assert_allclose(getattr(whole, name), getattr(stepped, name), atol=2e-5, err_msg=name)
 

@@ -107,6 +107,15 @@ class ModelConfig(_Section):
         description="kind = 'physics': what the correction reads: the newest control (the operating "
         "point; free runs then evaluate it once per distinct control) or the whole input window",
     )
+    # Nigel is mirror-symmetric: steering the other way (δ, ω → −δ, −ω) mirrors the yaw rate and leaves
+    # the speed. The identified core is; a free correction is not, and with 40 maneuvers its yaw residual
+    # at δ = 0 bent the straights (30-s error 0.013 m → 0.056 with it, experiments/results/physics.txt).
+    correction_symmetry: Literal["none", "mirror"] = Field(
+        "none",
+        description="kind = 'physics': 'mirror' makes the correction mirror-symmetric, as the car is: its "
+        "yaw-rate residual odd and every other output even under steering the other way (each output is "
+        "averaged with the output at the mirrored inputs)",
+    )
     # Where the logs allow, a probe trained without a quarter of the training maneuvers decides how
     # much of the correction's mean to keep (0, 1/2 or all) by free runs of the held-out ones; its
     # posterior spread (the epistemic band) is kept whatever the choice. The correction fits one-step

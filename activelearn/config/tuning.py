@@ -37,10 +37,11 @@ SPACE_PARAMS: dict[str, tuple[SpaceKind, tuple[Any, ...] | None]] = {
     # the physics kind's correction (read by kind = "physics" only)
     "correction": ("choice", ("ensemble", "hybrid")),
     "correction_inputs": ("choice", ("control", "history")),
+    "correction_symmetry": ("choice", ("none", "mirror")),
     "residual_bound": ("float", None),
 }
 # Search-space parameters that may be left unset: trials then keep the config's [model] value.
-OPTIONAL_SPACE_PARAMS = ("correction", "correction_inputs", "residual_bound")
+OPTIONAL_SPACE_PARAMS = ("correction", "correction_inputs", "correction_symmetry", "residual_bound")
 # Upper bounds that keep a sampled network buildable and trainable in reasonable time (and the
 # physics correction's bound within ModelConfig's range).
 _SPACE_MAX = {"n_layers": 8, "width": 1024, "variational_width": 1024, "hidden_size": 512}
@@ -174,6 +175,11 @@ class SearchSpace(_Section):
         None,
         description="kind = 'physics': what the correction reads ([model] correction_inputs); unset: not "
         "searched",
+    )
+    correction_symmetry: Any = Field(
+        None,
+        description="kind = 'physics': whether the correction is mirror-symmetric ([model] "
+        "correction_symmetry); unset: not searched",
     )
     residual_bound: Any = Field(
         None,

@@ -47,6 +47,9 @@ from activelearn.numerics.models.networks import NETWORK_CLASSES
 from simulator import datasheet
 
 N_CORRECTIONS = 4  # steady-state residuals (v, ω) and lag factors (v, ω)
+# Under the mirror (δ, ω → −δ, −ω) the steady yaw-rate residual changes sign; the speed residual, both
+# lag factors and the aleatoric variances do not.
+MIRROR_PARITY = (1.0, -1.0, 1.0, 1.0)
 LAG_FACTOR = 3.0  # the correction scales each lag within [1/3, 3]
 YAW_CAP = 1.25 * datasheet.MAX_YAW_RATE  # rad/s: a steady yaw rate beyond the datasheet's limit + 25 %
 LAST_LAYER_SCALE = 0.1  # the correction starts near zero: an untrained model is the datasheet's physics
@@ -293,6 +296,11 @@ class PhysicsModel(Model):
         super().__init__(config)
         # The correction reads the newest control (τ, δ) alone, or every input of the window.
         self.n_correction_inputs = N_CONTROLS if config.correction_inputs == "control" else config.n_inputs
+        self.mirror = config.correction_symmetry == "mirror"
+        # Inputs alternate (τ, δ) pairs then (v, ω) pairs, so every odd one is a steering or a yaw rate.
+        flip = torch.ones(self.n_correction_inputs)
+        flip[1::2] = -1.0
+        self.register_buffer("_mirror_sign", flip, persistent=False)
         inner = config.model_copy(
             update={
                 "kind": config.correction,
@@ -352,7 +360,7 @@ class PhysicsModel(Model):
         values = [self.dt, *self.theta.tolist(), datasheet.WHEELBASE, datasheet.THROTTLE_LIMIT]
         values += [bound * datasheet.MAX_SPEED, bound * datasheet.MAX_YAW_RATE, YAW_CAP, math.log(LAG_FACTOR)]
         values += [*self.y_std.tolist(), *self._variance_cap().tolist(), spread]
-        values += [float(self.correction_weight), *datasheet.REFERENCE_SPEED]
+        values += [float(self.correction_weight), float(self.mirror), *datasheet.REFERENCE_SPEED]
         return np.array(values, dtype=np.float32)
 
     @torch.no_grad()
@@ -419,7 +427,12 @@ class PhysicsModel(Model):
         _, _, n_maneuvers, n_steps = rates.shape
         flat = controls.reshape(-1, N_CONTROLS)
         unique, index = np.unique(flat, axis=0, return_inverse=True)
-        z, z_var = correction.columns(torch.as_tensor(unique.T.copy()))  # (S, 4, U)
+        rows = torch.as_tensor(unique.T.copy())  # (2, U)
+        if self.mirror:
+            z, z_var = correction.columns(torch.cat([rows, rows * self._mirror_sign[:, None]], dim=-1))
+            z, z_var = _symmetrise(z, z_var, -2)
+        else:
+            z, z_var = correction.columns(rows)  # (S, 4, U)
         z = self._gate(z)
         cap = self._variance_cap()[None, :, None]
         noise_std = torch.minimum(z_var[:, :N_RATES], cap).sqrt_() * self.y_std[None, :, None]
@@ -465,7 +478,12 @@ class PhysicsModel(Model):
 
     def train_forward(self, x: Tensor) -> tuple[Tensor, Tensor | None]:
         """Stochastic pass on standardised x (N, d) or (K, N, d): the correction, then the physics."""
-        z_mean, z_var = self.correction.train_forward(x.narrow(-1, 0, self.n_correction_inputs))
+        inputs = x.narrow(-1, 0, self.n_correction_inputs)
+        if self.mirror:  # both halves in one pass: one weight draw for a row and its mirror image
+            z_mean, z_var = self.correction.train_forward(torch.cat([inputs, self._mirrored(inputs, -1)], dim=-2))
+            z_mean, z_var = _symmetrise(z_mean, z_var, -1)
+        else:
+            z_mean, z_var = self.correction.train_forward(inputs)
         if z_var is None:
             z_var = torch.ones_like(z_mean)
         return self._physical_step(x, -1, z_mean, z_var)
@@ -489,11 +507,25 @@ class PhysicsModel(Model):
     def columns_forward(self, x: Tensor, params: list, n_samples: int) -> tuple[Tensor, Tensor]:
         """Standardised (S, 2, N) means and variances for standardised x (d, N) or (S, d, N)."""
         inputs = x.narrow(-2, 0, self.n_correction_inputs)
-        z_mean, z_var = self.correction.columns_forward(inputs, params, n_samples)
+        if self.mirror:
+            both = torch.cat([inputs, self._mirrored(inputs, -2)], dim=-1)
+            z_mean, z_var = _symmetrise(*self.correction.columns_forward(both, params, n_samples), -2)
+        else:
+            z_mean, z_var = self.correction.columns_forward(inputs, params, n_samples)
         z_mean = self._gate(z_mean)
         if x.dim() == 2:
             x = x.expand(n_samples, *x.shape)
         return self._physical_step(x, -2, z_mean, z_var)
+
+    def _mirrored(self, x: Tensor, dim: int) -> Tensor:
+        """Standardised correction inputs (along `dim`) of the mirror image: every steering and yaw rate
+        negated in physical units, x' = sign x + (sign - 1) mean / std."""
+        shape = [1] * x.dim()
+        shape[dim] = -1
+        n = self.n_correction_inputs
+        sign = self._mirror_sign.view(shape)
+        offset = ((self._mirror_sign - 1.0) * self.x_mean[:n] / self.x_std[:n]).view(shape)
+        return x * sign + offset
 
     def _gate(self, z: Tensor) -> Tensor:
         """Draws (S, 4, N) of the correction with `correction_weight` of their mean over draws kept."""
@@ -514,6 +546,21 @@ class PhysicsModel(Model):
         for name in ("weight", "bias", "weight_mu", "bias_mu"):
             if hasattr(last, name):
                 getattr(last, name).mul_(LAST_LAYER_SCALE)
+
+
+def _symmetrise(z: Tensor, z_var: Tensor | None, dim: int) -> tuple[Tensor, Tensor | None]:
+    """Outputs at rows then their mirror images (two halves along the last axis, outputs along `dim`)
+    made mirror-symmetric: the yaw-rate residual's odd part, every other output's even part."""
+    shape = [1] * z.dim()
+    shape[dim] = -1
+    parity = torch.tensor(MIRROR_PARITY, dtype=z.dtype).view(shape)
+    axis = -2 if dim == -1 else -1  # rows: the batch axis of (N, 4) rows, the last of (S, 4, N) columns
+    half = z.shape[axis] // 2
+    a, b = z.narrow(axis, 0, half), z.narrow(axis, half, half)
+    z = 0.5 * (a + parity * b)
+    if z_var is not None:
+        z_var = 0.5 * (z_var.narrow(axis, 0, half) + z_var.narrow(axis, half, half))
+    return z, z_var
 
 
 def _default_correction_weight(module, state_dict, prefix, *args) -> None:

@@ -24,7 +24,7 @@ from activelearn.config import (
 # Params of the [model] and [training] tables a trial sets (the rest come from the config).
 MODEL_KEYS: tuple[str, ...] = (
     "arch", "activation", "posterior", "kl", "prior_scale", "hidden_size",
-    "correction", "correction_inputs", "residual_bound",
+    "correction", "correction_inputs", "correction_symmetry", "residual_bound",
 )  # fmt: skip
 
 TRAINING_KEYS: tuple[str, ...] = ("lr", "epochs", "batch_size", "optimizer", "loss")
