@@ -480,8 +480,8 @@ class PhysicsModel(Model):
         """Stochastic pass on standardised x (N, d) or (K, N, d): the correction, then the physics."""
         inputs = x.narrow(-1, 0, self.n_correction_inputs)
         if self.mirror:  # both halves in one pass: one weight draw for a row and its mirror image
-            z_mean, z_var = self.correction.train_forward(torch.cat([inputs, self._mirrored(inputs, -1)], dim=-2))
-            z_mean, z_var = _symmetrise(z_mean, z_var, -1)
+            both = torch.cat([inputs, self._mirrored(inputs, -1)], dim=-2)
+            z_mean, z_var = _symmetrise(*self.correction.train_forward(both), -1)
         else:
             z_mean, z_var = self.correction.train_forward(inputs)
         if z_var is None:
