@@ -17,7 +17,7 @@ and over all, mean ± s.e.m. over training seeds, the 95 % fan's share of true p
 paired ratio physics / black box per seed.
 
 Usage: python experiments/benchmarks/bench_physics.py [--seeds 5] [--train-maneuvers 40]
-       [--oracles nominal,twin] [--epochs 150] [--quick]
+       [--oracles nominal,twin] [--epochs 150] [--params P.toml] [--quick]
 `--quick` (what the test runs): 1 seed, 4 training maneuvers, 3 epochs, the test set at quick.py's sizes.
 """
 
@@ -33,6 +33,7 @@ import pandas as pd
 from quick import shrink
 
 from activelearn.config import load_config
+from activelearn.errors import ActiveLearnError
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import arrays, control_rate_logs, training_rows, training_windows
 from activelearn.numerics.diagnostics import free_run_metrics, free_runs, relative_pose
@@ -47,12 +48,14 @@ PHYSICS = {"kind": "physics", "kinematic_feature": False}
 BLACK_BOX = {"kind": "ensemble", "ensemble_size": 5, "kinematic_feature": True}
 
 
-def campaign_for(oracle: str, scratch: Path, epochs: int | None, quick: bool = False) -> Campaign:
+def campaign_for(
+    oracle: str, scratch: Path, epochs: int | None, quick: bool = False, params: str | None = None
+) -> Campaign:
     """dynamics.toml against the nominal simulator or the twin (its test set cached in runs/cache; at
-    quick.py's sizes with `quick`: a few short test maneuvers instead of 72 of 30 s)."""
-    params = scratch / f"{oracle}_params.toml"
-    params.write_text("" if epochs is None else f"[training]\nepochs = {epochs}\n")
-    cfg = load_config(ORACLE_CONFIGS[oracle], params=str(params))
+    quick.py's sizes with `quick`: a few short test maneuvers instead of 72 of 30 s), with `params`'
+    [model] and [training] tables over it (as `campaign run --params`)."""
+    overrides = {} if epochs is None else {"training": {"epochs": epochs}}
+    cfg = load_config(ORACLE_CONFIGS[oracle], params=params, overrides=overrides)
     if quick:
         cfg = shrink(cfg).model_copy(update={"training": cfg.training})
     return Campaign(cfg, scratch / oracle, cache_dir=Path("runs/cache"))
@@ -107,6 +110,12 @@ def main() -> None:
     parser.add_argument("--epochs", type=int, default=None, help="default: dynamics.toml's")
     parser.add_argument("--test-maneuvers", type=int, default=None, help="default: all 72")
     parser.add_argument("--variants", default=",".join(VARIANTS), help=f"a subset of {', '.join(VARIANTS)}")
+    parser.add_argument(
+        "--params",
+        default=None,
+        help="a TOML file of [model]/[training] tables over dynamics.toml (as `campaign run --params`): "
+        "what the physics variants inherit",
+    )
     parser.add_argument("--quick", action="store_true", help="a few seconds per oracle: checks it runs")
     args = parser.parse_args()
     if args.quick:
@@ -123,7 +132,10 @@ def main() -> None:
     pd.set_option("display.width", 160)
     with tempfile.TemporaryDirectory() as scratch:
         for oracle in oracles:
-            campaign = campaign_for(oracle, Path(scratch), args.epochs, args.quick)
+            try:
+                campaign = campaign_for(oracle, Path(scratch), args.epochs, args.quick, args.params)
+            except ActiveLearnError as error:
+                parser.error(str(error))
             test = campaign.test_set
             kinds = [m.kind for m in campaign.oracle.test_maneuvers()]
             n_test = args.test_maneuvers or len(test.logs)

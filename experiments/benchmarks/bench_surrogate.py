@@ -73,11 +73,17 @@ MODELS: dict[str, tuple[dict, dict]] = {
         {"kind": "physics", "arch": "D32-D32-V16-V", "activation": "softplus",
          "correction_inputs": "control"},
     ),
+    # and mirror-symmetric: the kernel evaluates each distinct control row's image too
+    "physics-mirror": (
+        {"inputs": "history", "history": 4, "history_step": 3},
+        {"kind": "physics", "arch": "D32-D32-V16-V", "activation": "softplus",
+         "correction_inputs": "control", "correction_symmetry": "mirror"},
+    ),
 }
 
 
 # Kinds with no deep-ensemble or kinematic-feature form here (the GRU's tokens, the physics kinds' own)
-NO_ENSEMBLE = ("recurrent", "physics", "physics-control")
+NO_ENSEMBLE = ("recurrent", "physics", "physics-control", "physics-mirror")
 
 
 def maneuver_set(n: int, seed: int, duration: float = 90.0) -> list[Maneuver]:
