@@ -55,16 +55,22 @@ def forward_grid() -> pd.DataFrame:
 
 @pytest.fixture(
     scope="module",
-    params=[("ensemble", "history"), ("hybrid", "history"), ("hybrid", "control")],
-    ids=["ensemble", "hybrid", "hybrid-on-control"],
+    params=[
+        ("ensemble", "history", "none"),
+        ("hybrid", "history", "none"),
+        ("hybrid", "control", "none"),
+        ("hybrid", "control", "mirror"),
+    ],
+    ids=["ensemble", "hybrid", "hybrid-on-control", "mirror-on-control"],
 )
 def forward_model(request, forward_grid: pd.DataFrame) -> PhysicsModel:
     """The physics model of each correction kind (and the correction on the control alone, whose free
-    runs are computed whole), trained on the forward grid alone."""
+    runs are computed whole, also mirror-symmetric), trained on the forward grid alone."""
     rows = pd.concat([training_rows(g, DATA) for _, g in forward_grid.groupby("run_id", sort=False)])
     x, y = arrays(rows, DATA)
-    kind, inputs = request.param
-    model = build_model(_config(correction=kind, correction_inputs=inputs, ensemble_size=3), seed=0)
+    kind, inputs, symmetry = request.param
+    knobs = {"correction": kind, "correction_inputs": inputs, "correction_symmetry": symmetry}
+    model = build_model(_config(**knobs, ensemble_size=3), seed=0)
     fit(
         model, x, y, TrainingConfig(epochs=30, batch_size=64, patience=None), seed=0, logs=_logs(forward_grid)
     )

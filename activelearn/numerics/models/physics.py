@@ -297,6 +297,10 @@ class PhysicsModel(Model):
         # The correction reads the newest control (τ, δ) alone, or every input of the window.
         self.n_correction_inputs = N_CONTROLS if config.correction_inputs == "control" else config.n_inputs
         self.mirror = config.correction_symmetry == "mirror"
+        # A control-only correction is mirror-symmetric by construction, in one network pass: it reads
+        # (τ, δ²) and its yaw residual is multiplied by δ / δ_max. A window correction is averaged with
+        # its output at the mirrored window (two passes): its inputs' parities are not one feature's.
+        self.even_features = self.mirror and config.correction_inputs == "control"
         # Inputs alternate (τ, δ) pairs then (v, ω) pairs, so every odd one is a steering or a yaw rate.
         flip = torch.ones(self.n_correction_inputs)
         flip[1::2] = -1.0
@@ -352,6 +356,11 @@ class PhysicsModel(Model):
         n = self.n_correction_inputs
         self.correction.x_mean.copy_(self.x_mean[:n])
         self.correction.x_std.copy_(self.x_std[:n])
+        if self.even_features:  # the correction reads δ², standardised as itself
+            square = torch.as_tensor(x, dtype=torch.float32)[:, 1].square()
+            std = square.std(unbiased=False)
+            self.correction.x_mean[1] = square.mean()
+            self.correction.x_std[1] = std if std > 1e-8 else 1.0
 
     # ----- free runs computed whole (correction_inputs = "control") ---------------------------
     def native_parameters(self, spread: float) -> np.ndarray:
@@ -360,7 +369,8 @@ class PhysicsModel(Model):
         values = [self.dt, *self.theta.tolist(), datasheet.WHEELBASE, datasheet.THROTTLE_LIMIT]
         values += [bound * datasheet.MAX_SPEED, bound * datasheet.MAX_YAW_RATE, YAW_CAP, math.log(LAG_FACTOR)]
         values += [*self.y_std.tolist(), *self._variance_cap().tolist(), spread]
-        values += [float(self.correction_weight), float(self.mirror), *datasheet.REFERENCE_SPEED]
+        mirror = 1.0 / datasheet.STEERING_LIMIT if self.even_features else 0.0
+        values += [float(self.correction_weight), mirror, *datasheet.REFERENCE_SPEED]
         return np.array(values, dtype=np.float32)
 
     @torch.no_grad()
@@ -428,9 +438,9 @@ class PhysicsModel(Model):
         flat = controls.reshape(-1, N_CONTROLS)
         unique, index = np.unique(flat, axis=0, return_inverse=True)
         rows = torch.as_tensor(unique.T.copy())  # (2, U)
-        if self.mirror:
-            z, z_var = correction.columns(torch.cat([rows, rows * self._mirror_sign[:, None]], dim=-1))
-            z, z_var = _symmetrise(z, z_var, -2)
+        if self.even_features:
+            z, z_var = correction.columns(torch.stack([rows[0], rows[1].square()]))
+            z = _odd_yaw(z, rows[1], -2)
         else:
             z, z_var = correction.columns(rows)  # (S, 4, U)
         z = self._gate(z)
@@ -479,7 +489,11 @@ class PhysicsModel(Model):
     def train_forward(self, x: Tensor) -> tuple[Tensor, Tensor | None]:
         """Stochastic pass on standardised x (N, d) or (K, N, d): the correction, then the physics."""
         inputs = x.narrow(-1, 0, self.n_correction_inputs)
-        if self.mirror:  # both halves in one pass: one weight draw for a row and its mirror image
+        if self.even_features:
+            features, delta = self._even_features(inputs, -1)
+            z_mean, z_var = self.correction.train_forward(features)
+            z_mean = _odd_yaw(z_mean, delta, -1)
+        elif self.mirror:  # both halves in one pass: one weight draw for a row and its mirror image
             both = torch.cat([inputs, self._mirrored(inputs, -1)], dim=-2)
             z_mean, z_var = _symmetrise(*self.correction.train_forward(both), -1)
         else:
@@ -507,7 +521,11 @@ class PhysicsModel(Model):
     def columns_forward(self, x: Tensor, params: list, n_samples: int) -> tuple[Tensor, Tensor]:
         """Standardised (S, 2, N) means and variances for standardised x (d, N) or (S, d, N)."""
         inputs = x.narrow(-2, 0, self.n_correction_inputs)
-        if self.mirror:
+        if self.even_features:
+            features, delta = self._even_features(inputs, -2)
+            z_mean, z_var = self.correction.columns_forward(features, params, n_samples)
+            z_mean = _odd_yaw(z_mean, delta, -2)
+        elif self.mirror:
             both = torch.cat([inputs, self._mirrored(inputs, -2)], dim=-1)
             z_mean, z_var = _symmetrise(*self.correction.columns_forward(both, params, n_samples), -2)
         else:
@@ -516,6 +534,13 @@ class PhysicsModel(Model):
         if x.dim() == 2:
             x = x.expand(n_samples, *x.shape)
         return self._physical_step(x, -2, z_mean, z_var)
+
+    def _even_features(self, x: Tensor, dim: int) -> tuple[Tensor, Tensor]:
+        """A control-only correction's standardised inputs (τ, δ²) from the model's standardised (τ, δ)
+        along `dim`, and the physical steering δ."""
+        delta = x.select(dim, 1) * self.x_std[1] + self.x_mean[1]
+        square = (delta.square() - self.correction.x_mean[1]) / self.correction.x_std[1]
+        return torch.stack([x.select(dim, 0), square], dim=dim), delta
 
     def _mirrored(self, x: Tensor, dim: int) -> Tensor:
         """Standardised correction inputs (along `dim`) of the mirror image: every steering and yaw rate
@@ -546,6 +571,12 @@ class PhysicsModel(Model):
         for name in ("weight", "bias", "weight_mu", "bias_mu"):
             if hasattr(last, name):
                 getattr(last, name).mul_(LAST_LAYER_SCALE)
+
+
+def _odd_yaw(z: Tensor, delta: Tensor, dim: int) -> Tensor:
+    """Raw outputs (along `dim`) with the yaw residual's times δ / δ_max: odd in the steering δ."""
+    yaw = z.select(dim, 1) * (delta / datasheet.STEERING_LIMIT)
+    return torch.cat([z.narrow(dim, 0, 1), yaw.unsqueeze(dim), z.narrow(dim, 2, z.shape[dim] - 2)], dim=dim)
 
 
 def _symmetrise(z: Tensor, z_var: Tensor | None, dim: int) -> tuple[Tensor, Tensor | None]:

@@ -51,7 +51,8 @@ enum {
     P_VAR_CAP_W,
     P_SPREAD,
     P_GATE, /* the share of the correction's mean over draws kept (1: all) */
-    P_MIRROR, /* 1: the correction is made mirror-symmetric (averaged with its output at (tau, -delta)) */
+    P_MIRROR, /* 0, or 1 / the steering limit: the correction reads (tau, delta^2) and its yaw residual is
+                 multiplied by delta times this (mirror-symmetric by construction) */
     P_TABLE, /* N_TABLE speeds follow */
     P_COUNT = P_TABLE + N_TABLE
 };
@@ -88,9 +89,8 @@ enum { C_VSS, C_AV, C_RW, C_AW, C_SDV, C_SDW, N_COEF };
 typedef struct {
     al_scratch *network;
     float *rows_x;     /* a tile's distinct control rows, column layout (2, TILE) */
-    float *rows_m;     /* their mirror images (tau, -delta), with P_MIRROR */
+    float *rows_m;     /* with P_MIRROR: the rows as the correction reads them, (tau, delta^2) */
     float *draws;      /* (2 [mean, var], S, 4, TILE): the correction's raw outputs */
-    float *draws_m;    /* the same at the mirror images, with P_MIRROR */
     float *by_draw;    /* (N_COEF, S, TILE): coefficients as computed, draw-major */
     float *coef;       /* (N_COEF, TILE, S): the same, row-major with the draws contiguous */
     float *per_row;    /* (3, TILE): 1/(L f) tan(delta), mean aleatoric variance of v, of w */
@@ -112,7 +112,6 @@ static void physics_free(void *scratch) {
     free(r->rows_x);
     free(r->rows_m);
     free(r->draws);
-    free(r->draws_m);
     free(r->by_draw);
     free(r->coef);
     free(r->per_row);
@@ -136,13 +135,9 @@ static void *physics_scratch_new(void *context) {
     r->network = al_scratch_new(c->net);
     r->rows_x = malloc(2 * TILE * sizeof(float));
     r->draws = malloc((size_t)(2 * S * 4 * TILE) * sizeof(float));
-    if (c->p[P_MIRROR] != 0.0f) {
-        r->rows_m = malloc(2 * TILE * sizeof(float));
-        r->draws_m = malloc((size_t)(2 * S * 4 * TILE) * sizeof(float));
-        if (!r->rows_m || !r->draws_m) {
-            physics_free(r);
-            return NULL;
-        }
+    if (c->p[P_MIRROR] != 0.0f && !(r->rows_m = malloc(2 * TILE * sizeof(float)))) {
+        physics_free(r);
+        return NULL;
     }
     r->by_draw = malloc((size_t)(N_COEF * S * TILE) * sizeof(float));
     r->coef = malloc((size_t)(N_COEF * S * TILE) * sizeof(float));
@@ -196,27 +191,21 @@ static void draw_coefficients(int64_t n, const float *p, const float *restrict z
     }
 }
 
-/* The correction at the tile's n_rows distinct rows made mirror-symmetric: each output averaged with
- * its value at (tau, -delta), the steady yaw-rate residual (output 1) with the opposite sign. */
-static void mirror_outputs(const al_network *net, physics_scratch *r, int64_t n_rows) {
+/* The mirror-symmetric correction at the tile's n_rows distinct rows: the network on (tau, delta^2), each
+ * draw's yaw residual (output 1) times delta / the steering limit. */
+static void symmetric_outputs(const al_network *net, physics_scratch *r, const float *p, int64_t n_rows,
+                              al_outputs *out) {
     const int64_t S = net->n_samples;
+    const float *delta = r->rows_x + TILE;
     for (int64_t j = 0; j < n_rows; ++j) {
         r->rows_m[j] = r->rows_x[j];
-        r->rows_m[TILE + j] = -r->rows_x[TILE + j];
+        r->rows_m[TILE + j] = delta[j] * delta[j];
     }
-    al_outputs out = {0};
-    out.means = r->draws_m;
-    out.variances = r->draws_m + S * 4 * TILE;
-    out.ld_draws = TILE;
-    out.spread = 1.0f;
-    al_network_rows(net, r->network, 0, n_rows, r->rows_m, TILE, 0, &out);
-    for (int64_t q = 0; q < 2 * S; ++q) /* means, then variances: (2, S, 4, TILE) */
-        for (int64_t k = 0; k < 4; ++k) {
-            const float sign = (q < S && k == 1) ? -1.0f : 1.0f;
-            float *restrict z = r->draws + (q * 4 + k) * TILE;
-            const float *restrict zm = r->draws_m + (q * 4 + k) * TILE;
-            for (int64_t j = 0; j < n_rows; ++j) z[j] = 0.5f * (z[j] + sign * zm[j]);
-        }
+    al_network_rows(net, r->network, 0, n_rows, r->rows_m, TILE, 0, out);
+    for (int64_t s = 0; s < S; ++s) {
+        float *restrict z = r->draws + (s * 4 + 1) * TILE;
+        for (int64_t j = 0; j < n_rows; ++j) z[j] *= delta[j] * p[P_MIRROR];
+    }
 }
 
 /* Each draw's coefficients of the tile's n_rows distinct rows from the correction's outputs, gated. */
@@ -289,8 +278,10 @@ static void physics_maneuver(void *context, void *scratch, int64_t m) {
     for (int64_t t0 = 0; t0 < T; t0 += TILE) {
         const int64_t n = T - t0 < TILE ? T - t0 : TILE;
         const int32_t n_rows = al_tile_rows(c->controls + 2 * (m * T + t0), n, r->rows_x, r->row);
-        al_network_rows(c->net, r->network, 0, n_rows, r->rows_x, TILE, 0, &out);
-        if (p[P_MIRROR] != 0.0f) mirror_outputs(c->net, r, n_rows);
+        if (p[P_MIRROR] != 0.0f)
+            symmetric_outputs(c->net, r, p, n_rows, &out);
+        else
+            al_network_rows(c->net, r->network, 0, n_rows, r->rows_x, TILE, 0, &out);
         row_coefficients(c, r, n_rows);
         for (int64_t s = 0; s < S; ++s) {
             const uint64_t key = c->keys[s];
