@@ -139,6 +139,31 @@ def test_killed_campaign_resumes_to_identical_data(tmp_path):
         assert a["test_rmse"] == b["test_rmse"] and a["test_nll"] == b["test_nll"]
 
 
+def test_a_checkpoint_from_before_a_new_config_field_resumes_and_a_changed_config_does_not(tmp_path, capsys):
+    """An upgrade that adds a config field (at a default that keeps the old behaviour) changes the
+    whole config's hash: the checkpoint is still resumed, since its own config read by this version is
+    this config. A checkpoint whose config really differs is refused, naming --resume."""
+    out = tmp_path / "c"
+    common = ["campaign", "run", str(tiny_file(tmp_path)), "--no-tracking", "--seed", "3", "--out", str(out)]
+    assert main(common) == 0
+    samples = pd.read_parquet(tmp_path / "c" / "samples.parquet")
+    stored = json.loads((tmp_path / "c" / CONFIG_FILE).read_text())
+    del stored["model"]["correction_symmetry"]  # as a version before the field wrote it
+    (tmp_path / "c" / CONFIG_FILE).write_text(json.dumps(stored))
+    state_file = tmp_path / "c" / "state.json"
+    state = json.loads(state_file.read_text())
+    state["config_hash"] = "0" * 16  # that version's hash of its (smaller) config
+    state_file.write_text(json.dumps(state))
+    assert main([*common, "--resume"]) == 0
+    pd.testing.assert_frame_equal(pd.read_parquet(tmp_path / "c" / "samples.parquet"), samples)
+
+    stored["training"]["epochs"] += 1  # a checkpoint of another campaign
+    (tmp_path / "c" / CONFIG_FILE).write_text(json.dumps(stored))
+    capsys.readouterr()
+    assert main([*common, "--resume"]) == 2
+    assert "--resume" in capsys.readouterr().err
+
+
 @pytest.mark.slow
 def test_ctrl_c_marks_the_run_killed_and_leaves_a_resumable_directory(tmp_path):
     uri = f"sqlite:///{tmp_path}/mlruns/mlflow.db"

@@ -33,9 +33,9 @@ import numpy as np
 import pandas as pd
 import torch
 
-from activelearn.config import CampaignConfig
+from activelearn.config import CampaignConfig, validate_config
 from activelearn.data import atomic_write_bytes, read_table, write_table
-from activelearn.errors import InputError
+from activelearn.errors import ActiveLearnError, InputError
 from activelearn.loop import lock
 from activelearn.loop.acquisition import Evidence, Pool, Strategy, greedy_maximin, make_strategy
 from activelearn.loop.admission import Admission
@@ -334,6 +334,18 @@ class Campaign:
 
     # ------------------------------------------------------------------ checkpoints
 
+    def _stored_config_hash(self) -> str | None:
+        """The hash of the checkpoint's own config as this version reads it, None where it cannot.
+
+        A field added since the checkpoint (with a default that keeps the old behaviour) changes the
+        hash of the whole config but not this one, so such a campaign still resumes after an upgrade.
+        """
+        try:
+            stored = json.loads((self.directory / CONFIG_FILE).read_text())
+            return config_hash(validate_config(stored))
+        except (OSError, ValueError, ActiveLearnError):
+            return None
+
     def _load(self, resume: bool) -> tuple[CampaignState, pd.DataFrame]:
         expected = config_hash(self.cfg)
         if (self.directory / STATE_FILE).exists():
@@ -344,11 +356,8 @@ class Campaign:
                     "holds a campaign already; pass --resume or choose another --out",
                 )
             state = CampaignState.load(self.directory)
-            if (state.config_hash, state.strategy, state.seed) != (
-                expected,
-                self.cfg.strategy,
-                self.cfg.seed,
-            ):
+            same_config = state.config_hash == expected or self._stored_config_hash() == expected
+            if not same_config or (state.strategy, state.seed) != (self.cfg.strategy, self.cfg.seed):
                 raise InputError(
                     "--resume",
                     str(self.directory),
