@@ -146,19 +146,19 @@ def test_a_checkpoint_from_before_a_new_config_field_resumes_and_a_changed_confi
     out = tmp_path / "c"
     common = ["campaign", "run", str(tiny_file(tmp_path)), "--no-tracking", "--seed", "3", "--out", str(out)]
     assert main(common) == 0
-    samples = pd.read_parquet(tmp_path / "c" / "samples.parquet")
-    stored = json.loads((tmp_path / "c" / CONFIG_FILE).read_text())
+    samples = pd.read_parquet(out / "samples.parquet")
+    stored = json.loads((out / CONFIG_FILE).read_text())
     del stored["model"]["correction_symmetry"]  # as a version before the field wrote it
-    (tmp_path / "c" / CONFIG_FILE).write_text(json.dumps(stored))
-    state_file = tmp_path / "c" / "state.json"
+    (out / CONFIG_FILE).write_text(json.dumps(stored))
+    state_file = out / "state.json"
     state = json.loads(state_file.read_text())
     state["config_hash"] = "0" * 16  # that version's hash of its (smaller) config
     state_file.write_text(json.dumps(state))
     assert main([*common, "--resume"]) == 0
-    pd.testing.assert_frame_equal(pd.read_parquet(tmp_path / "c" / "samples.parquet"), samples)
+    pd.testing.assert_frame_equal(pd.read_parquet(out / "samples.parquet"), samples)
 
     stored["training"]["epochs"] += 1  # a checkpoint of another campaign
-    (tmp_path / "c" / CONFIG_FILE).write_text(json.dumps(stored))
+    (out / CONFIG_FILE).write_text(json.dumps(stored))
     capsys.readouterr()
     assert main([*common, "--resume"]) == 2
     assert "--resume" in capsys.readouterr().err

@@ -113,8 +113,9 @@ class ModelConfig(_Section):
     correction_symmetry: Literal["none", "mirror"] = Field(
         "none",
         description="kind = 'physics': 'mirror' makes the correction mirror-symmetric, as the car is: its "
-        "yaw-rate residual odd and every other output even under steering the other way (each output is "
-        "averaged with the output at the mirrored inputs)",
+        "yaw-rate residual odd and every other output even under steering the other way (a control-only "
+        "correction reads (throttle, steering²) and its yaw residual is multiplied by the steering; a "
+        "window correction is averaged with its output at the mirrored window)",
     )
     # Where the logs allow, a probe trained without a quarter of the training maneuvers decides how
     # much of the correction's mean to keep (0, 1/2 or all) by free runs of the held-out ones; its

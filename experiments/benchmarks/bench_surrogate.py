@@ -73,7 +73,7 @@ MODELS: dict[str, tuple[dict, dict]] = {
         {"kind": "physics", "arch": "D32-D32-V16-V", "activation": "softplus",
          "correction_inputs": "control"},
     ),
-    # and mirror-symmetric: the kernel evaluates each distinct control row's image too
+    # and mirror-symmetric: the correction reads (throttle, steering²), its yaw residual times the steering
     "physics-mirror": (
         {"inputs": "history", "history": 4, "history_step": 3},
         {"kind": "physics", "arch": "D32-D32-V16-V", "activation": "softplus",

@@ -93,6 +93,12 @@ def draw_moments(means: Tensor, var: Tensor, moments: tuple[Tensor, Tensor, Tens
     torch.mean((means - centre).square_(), dim=0, out=epistemic)
 
 
+def column_scalers(t: Tensor) -> tuple[Tensor, Tensor]:
+    """Mean and standard deviation of each column of rows t (N, d); a constant column gets std 1."""
+    std = t.std(dim=0, unbiased=False)
+    return t.mean(dim=0), torch.where(std > 1e-8, std, torch.ones_like(std))
+
+
 def draw_spread(epistemic_scale: float, n_samples: int) -> float:
     """Factor on each of `n_samples` draws' deviation from their average: √(epistemic scale)."""
     return float(epistemic_scale) ** 0.5 if n_samples > 1 else 1.0
@@ -369,9 +375,9 @@ class Model(nn.Module, ABC):
         xt = self.expand_inputs(torch.as_tensor(x, dtype=torch.float32))
         yt = torch.as_tensor(y, dtype=torch.float32)
         for mean_buf, std_buf, t in ((self.x_mean, self.x_std, xt), (self.y_mean, self.y_std, yt)):
-            mean_buf.copy_(t.mean(dim=0))
-            std = t.std(dim=0, unbiased=False)
-            std_buf.copy_(torch.where(std > 1e-8, std, torch.ones_like(std)))
+            mean, std = column_scalers(t)
+            mean_buf.copy_(mean)
+            std_buf.copy_(std)
 
     def draw(self, n_samples: int, *, seed: int = 0, backend: str = "auto") -> SampledModel:
         """Draw `n_samples` posterior weight sets, fixed across calls (same seed → same draws).

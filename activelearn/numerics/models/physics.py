@@ -42,7 +42,7 @@ from activelearn.config import ModelConfig
 from activelearn.errors import InputError
 from activelearn.numerics import buffers, counter_noise, native
 from activelearn.numerics.lags import N_CONTROLS, N_RATES, Lags, model_lags
-from activelearn.numerics.models.base import Model, draw_spread
+from activelearn.numerics.models.base import Model, column_scalers, draw_spread
 from activelearn.numerics.models.networks import NETWORK_CLASSES
 from simulator import datasheet
 
@@ -301,10 +301,6 @@ class PhysicsModel(Model):
         # (τ, δ²) and its yaw residual is multiplied by δ / δ_max. A window correction is averaged with
         # its output at the mirrored window (two passes): its inputs' parities are not one feature's.
         self.even_features = self.mirror and config.correction_inputs == "control"
-        # Inputs alternate (τ, δ) pairs then (v, ω) pairs, so every odd one is a steering or a yaw rate.
-        flip = torch.ones(self.n_correction_inputs)
-        flip[1::2] = -1.0
-        self.register_buffer("_mirror_sign", flip, persistent=False)
         inner = config.model_copy(
             update={
                 "kind": config.correction,
@@ -357,10 +353,8 @@ class PhysicsModel(Model):
         self.correction.x_mean.copy_(self.x_mean[:n])
         self.correction.x_std.copy_(self.x_std[:n])
         if self.even_features:  # the correction reads δ², standardised as itself
-            square = torch.as_tensor(x, dtype=torch.float32)[:, 1].square()
-            std = square.std(unbiased=False)
-            self.correction.x_mean[1] = square.mean()
-            self.correction.x_std[1] = std if std > 1e-8 else 1.0
+            square = torch.as_tensor(x, dtype=torch.float32)[:, 1:2].square()
+            self.correction.x_mean[1:2], self.correction.x_std[1:2] = column_scalers(square)
 
     # ----- free runs computed whole (correction_inputs = "control") ---------------------------
     def native_parameters(self, spread: float) -> np.ndarray:
@@ -545,12 +539,14 @@ class PhysicsModel(Model):
     def _mirrored(self, x: Tensor, dim: int) -> Tensor:
         """Standardised correction inputs (along `dim`) of the mirror image: every steering and yaw rate
         negated in physical units, x' = sign x + (sign - 1) mean / std."""
+        n = self.n_correction_inputs
+        # Inputs alternate (τ, δ) pairs then (v, ω) pairs, so every odd one is a steering or a yaw rate.
+        sign = torch.ones(n)
+        sign[1::2] = -1.0
+        offset = (sign - 1.0) * self.x_mean[:n] / self.x_std[:n]
         shape = [1] * x.dim()
         shape[dim] = -1
-        n = self.n_correction_inputs
-        sign = self._mirror_sign.view(shape)
-        offset = ((self._mirror_sign - 1.0) * self.x_mean[:n] / self.x_std[:n]).view(shape)
-        return x * sign + offset
+        return x * sign.view(shape) + offset.view(shape)
 
     def _gate(self, z: Tensor) -> Tensor:
         """Draws (S, 4, N) of the correction with `correction_weight` of their mean over draws kept."""
