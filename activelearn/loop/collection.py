@@ -198,8 +198,9 @@ def feature_columns(cfg: DataConfig) -> list[str]:
 
 def arrays(rows: pd.DataFrame, cfg: DataConfig) -> tuple[np.ndarray, np.ndarray]:
     """Inputs and targets of sample rows as float arrays."""
-    x = rows[feature_columns(cfg)].to_numpy(dtype=np.float64)
-    y = rows[list(TARGETS)].to_numpy(dtype=np.float64)
+    # copy=True: a frame read from parquet can hand out read-only views, which torch warns about sharing
+    x = rows[feature_columns(cfg)].to_numpy(dtype=np.float64, copy=True)
+    y = rows[list(TARGETS)].to_numpy(dtype=np.float64, copy=True)
     return x, y
 
 

@@ -372,9 +372,8 @@ class Model(nn.Module, ABC):
     @torch.no_grad()
     def set_scalers(self, x: np.ndarray | Tensor, y: np.ndarray | Tensor) -> None:
         """Fit the input and output standardisation to data (constant columns get std 1)."""
-        # A copy: logs read from parquet arrive as read-only arrays, which torch warns about sharing.
-        xt = self.expand_inputs(torch.tensor(np.asarray(x, dtype=np.float32)))
-        yt = torch.tensor(np.asarray(y, dtype=np.float32))
+        xt = self.expand_inputs(torch.as_tensor(x, dtype=torch.float32))
+        yt = torch.as_tensor(y, dtype=torch.float32)
         for mean_buf, std_buf, t in ((self.x_mean, self.x_std, xt), (self.y_mean, self.y_std, yt)):
             mean, std = column_scalers(t)
             mean_buf.copy_(mean)
