@@ -408,8 +408,8 @@ def test_prequential_fan_calibration_widens_each_rounds_fans_by_the_measured_nee
     needs = [r["prequential_fan_scale"] for r in rounds[:-1]]  # each model against the next batch
     assert all(np.isfinite(n) and n > 0 for n in needs) and "prequential_fan_scale" not in rounds[-1]
     assert rounds[0]["fan_scale"] == 1.0  # nothing measured yet
-    for k in range(1, 4):  # the geometric mean of the last two needs measured before round k's fit
-        expected = float(np.exp(np.mean(np.log(needs[max(0, k - 2) : k]))))
+    for k in range(1, 4):  # the geometric mean of every need measured before round k's fit
+        expected = float(np.exp(np.mean(np.log(needs[:k]))))
         assert rounds[k]["fan_scale"] == pytest.approx(expected)
     assert max(needs) / min(needs) > 1.05 or abs(np.log(needs[0])) > 0.1  # the check measured something
     final = load_model(tmp_path / "c" / "model.pt")

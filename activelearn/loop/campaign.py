@@ -432,7 +432,7 @@ class Campaign:
         model = self.fitting.fit(samples, round_index, scale, previous=previous)
         fans: dict[str, float] = {}
         if self.cfg.design.fan_calibration == "prequential":
-            fans["fan_scale"] = applied_scale(state, "prequential_fan_scale")
+            fans["fan_scale"] = applied_scale(state, "prequential_fan_scale", recent=None)
             with torch.no_grad():
                 model.fan_scale.fill_(fans["fan_scale"])
         x, _, _ = self.fitting.training_data(samples)
