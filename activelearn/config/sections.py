@@ -363,8 +363,9 @@ class DesignConfig(_Section):
     # calibrate on. The safety fan ignores it ([safety] fan_scale is its margin).
     fan_calibration: Literal["none", "prequential"] = Field(
         "prequential",
-        description="`prequential`: widen or narrow each round's free-run fans until 95 % of the true "
-        "positions of the maneuvers collected after the last two models lie inside; `none`: the model's own",
+        description="`prequential`: widen or narrow each round's free-run fans by the geometric mean of "
+        "the widenings every earlier model needed to hold 95 % of the true positions of the maneuvers "
+        "collected after it; `none`: the model's own",
     )
     setup_seconds: NonNegative = Field(
         0.0,
