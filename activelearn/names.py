@@ -40,6 +40,9 @@ STRATEGY_NAMES: tuple[str, ...] = (
 SWITCH_TARGETS: tuple[str, ...] = STRATEGY_NAMES[
     STRATEGY_NAMES.index("max_epistemic") : STRATEGY_NAMES.index("lcmd") + 1
 ]
+# What `switch` can run on either side of its switch (`switch_first`, `switch_to`): greedy maximin or
+# one of those rules.
+SWITCH_RULES: tuple[str, ...] = ("uniform", *SWITCH_TARGETS)
 # What a comparison measures every strategy against: greedy maximin, the strong space-filling baseline.
 REFERENCE_STRATEGY = "uniform"
 

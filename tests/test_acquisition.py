@@ -237,6 +237,29 @@ def test_switch_is_maximin_before_switch_after_and_the_target_rule_from_then_on(
     assert len(set(picks)) == 3 and not straddle.taken[picks].any()
 
 
+def test_switch_runs_a_rule_first_and_maximin_after_when_asked(cfg, model):
+    strategy = make_strategy("switch", switch_after=5, switch_first="max_epistemic", switch_to="uniform",
+                             n_samples=16)  # fmt: skip
+    rule = make_strategy("max_epistemic", n_samples=16)
+    before = _pool(cfg, taken=[0, 5])
+    assert strategy.select(model, before, 3, np.random.default_rng(2)) == rule.select(
+        model, before, 3, np.random.default_rng(2)
+    )
+    assert strategy.round_metrics() == {"switch_model_based": 1.0}
+    after = _pool(cfg, taken=[0, 5, 11, 17, 23])
+    assert strategy.select(model, after, 3, np.random.default_rng(2)) == greedy_maximin(
+        after, 3, np.random.default_rng(2)
+    )
+    assert strategy.round_metrics() == {"switch_model_based": 0.0}
+    # Straddling: the rule fills the two maneuvers left before the switch, maximin the rest.
+    straddle = _pool(cfg, taken=[0, 5, 11])
+    picks = strategy.select(model, straddle, 3, np.random.default_rng(2))
+    rng = np.random.default_rng(2)
+    first = rule.select(model, straddle, 2, rng)
+    assert picks == first + greedy_maximin(straddle.with_taken(first), 1, rng)
+    assert strategy.round_metrics() == {"switch_model_based": pytest.approx(2 / 3)}
+
+
 def test_switch_takes_its_options_from_the_config_and_rejects_bad_ones(tmp_path):
     from activelearn.config import load_config
     from activelearn.errors import ConfigError
@@ -253,16 +276,21 @@ def test_switch_takes_its_options_from_the_config_and_rejects_bad_ones(tmp_path)
         return load_config(path)
 
     acq = load("").acquisition
-    assert (acq.switch_after, acq.switch_to) == (10, "bald")
+    assert (acq.switch_after, acq.switch_first, acq.switch_to) == (10, "uniform", "bald")
     acq = load("switch_after = 0\nswitch_to = \"lcmd\"").acquisition
     strategy = make_strategy("switch", switch_after=acq.switch_after, switch_to=acq.switch_to)
     assert isinstance(strategy, SwitchStrategy) and strategy.target.name == "lcmd"
+    acq = load('switch_first = "bald"\nswitch_to = "uniform"').acquisition
+    strategy = make_strategy("switch", switch_first=acq.switch_first, switch_to=acq.switch_to)
+    assert (strategy.first.name, strategy.target.name) == ("bald", "uniform")
     for bad, field in [
         ("switch_after = -1", "acquisition.switch_after"),
         ("switch_after = 2.5", "acquisition.switch_after"),
         ('switch_after = "3"', "acquisition.switch_after"),
-        ('switch_to = "uniform"', "acquisition.switch_to"),
+        ('switch_to = "uniform"', "acquisition.switch_to"),  # the same as switch_first: no switch
+        ('switch_first = "bald"', "acquisition.switch_to"),
         ('switch_to = "auto"', "acquisition.switch_to"),
+        ('switch_first = "random"', "acquisition.switch_first"),
         ("switch_too = 3", "acquisition.switch_too"),
     ]:
         with pytest.raises(ConfigError) as info:
@@ -270,3 +298,7 @@ def test_switch_takes_its_options_from_the_config_and_rejects_bad_ones(tmp_path)
         assert info.value.field == field and field in str(info.value), bad
     with pytest.raises(InputError, match=r"acquisition\.switch_to"):
         make_strategy("switch", switch_to="switch")
+    with pytest.raises(InputError, match=r"acquisition\.switch_first"):
+        make_strategy("switch", switch_first="oracle_error")
+    with pytest.raises(InputError, match=r"acquisition\.switch_to"):
+        make_strategy("switch", switch_first="lcmd", switch_to="lcmd")

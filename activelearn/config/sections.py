@@ -23,7 +23,7 @@ from activelearn.config.base import (
     _unique,
 )
 from activelearn.errors import ConfigError
-from activelearn.names import SWITCH_TARGETS
+from activelearn.names import SWITCH_RULES
 
 
 class PoolConfig(_Section):
@@ -431,11 +431,23 @@ class AcquisitionConfig(_Section):
     )
     switch_after: Annotated[int, Field(ge=0, strict=True)] = Field(
         10,
-        description="`switch`: maneuvers collected, the initial design included, that greedy maximin picks "
+        description="`switch`: maneuvers collected, the initial design included, that `switch_first` picks "
         "before `switch_to` takes over",
     )
-    switch_to: Literal[SWITCH_TARGETS] = Field(  # type: ignore[valid-type]
-        "bald",
-        description="`switch`: the model-based strategy that picks once `switch_after` maneuvers are "
-        "collected",
+    switch_first: Literal[SWITCH_RULES] = Field(  # type: ignore[valid-type]
+        "uniform",
+        description="`switch`: the strategy that picks until `switch_after` maneuvers are collected "
+        "(greedy maximin, or a model-based rule)",
     )
+    switch_to: Literal[SWITCH_RULES] = Field(  # type: ignore[valid-type]
+        "bald",
+        description="`switch`: the strategy that picks once `switch_after` maneuvers are collected "
+        "(a model-based rule, or greedy maximin); must differ from `switch_first`",
+    )
+
+    @model_validator(mode="after")
+    def _switch_changes_rule(self) -> AcquisitionConfig:
+        if self.switch_first == self.switch_to:
+            reason = "must differ from switch_first: a switch changes the rule"
+            raise ConfigError("switch_to", self.switch_to, reason)
+        return self

@@ -39,7 +39,7 @@ from activelearn.loop.space_filling import (
     greedy_maximin,
 )
 from activelearn.loop.strategy import Evidence, Pool, Strategy, check_k, per_candidate, proximity_penalty
-from activelearn.names import SWITCH_TARGETS
+from activelearn.names import SWITCH_RULES
 
 __all__ = [
     "STRATEGIES",
@@ -216,41 +216,56 @@ class AutoStrategy(Strategy):
 
 
 class SwitchStrategy(Strategy):
-    """`switch`: greedy maximin (`uniform`) for the first `switch_after` maneuvers, then `switch_to`.
+    """`switch`: `switch_first` (greedy maximin by default) for the first `switch_after` maneuvers,
+    then `switch_to` (a model-based rule by default).
 
-    A budget switch for cold starts: the first maneuvers cover the domain while the model knows too
-    little for its uncertainty to rank candidates; from the `switch_after`-th collected maneuver on
-    (the initial design counts) the model-based rule `switch_to` picks. A round whose batch straddles
-    the switch has maximin fill the maneuvers left before it, then the rule the rest (it sees
-    maximin's picks as taken). `switch_model_based` logs the share of the round's picks the rule made.
+    A budget switch. Maximin first, then a rule: the first maneuvers cover the domain while the model
+    knows too little for its uncertainty to rank candidates. A rule first, then maximin: the rule's
+    early picks pay (on the twin `bald` reached uniform's final error after half the signals) but
+    its later ones pile up where the model's uncertainty stays large, so maximin spreads the rest.
+    From the `switch_after`-th collected maneuver on (the initial design counts) `switch_to` picks; a
+    round whose batch straddles the switch has `switch_first` fill the maneuvers left before it, then
+    `switch_to` the rest (it sees the first picks as taken). `switch_model_based` logs the share of
+    the round's picks a model-based rule made.
     """
 
     name = "switch"
     uses_model = True
 
-    def __init__(self, *, switch_after: int = 10, switch_to: str = "bald", **options: Any) -> None:
+    def __init__(
+        self,
+        *,
+        switch_after: int = 10,
+        switch_to: str = "bald",
+        switch_first: str = "uniform",
+        **options: Any,
+    ) -> None:
         integer = isinstance(switch_after, int | np.integer) and not isinstance(switch_after, bool)
         if not integer or switch_after < 0:
             raise InputError("acquisition.switch_after", switch_after, "must be an integer of at least 0")
-        if switch_to not in SWITCH_TARGETS:
-            choices = ", ".join(SWITCH_TARGETS)
-            raise InputError("acquisition.switch_to", switch_to, f"must be one of {choices}")
+        for field, rule in (("switch_first", switch_first), ("switch_to", switch_to)):
+            if rule not in SWITCH_RULES:
+                raise InputError(f"acquisition.{field}", rule, f"must be one of {', '.join(SWITCH_RULES)}")
+        if switch_first == switch_to:
+            raise InputError("acquisition.switch_to", switch_to, "must differ from switch_first")
         self.switch_after = int(switch_after)
+        self.first = make_strategy(switch_first, **options)
         self.target = make_strategy(switch_to, **options)
         self.last_model_share = 0.0
 
     def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
         check_k(pool, k)
-        n_maximin = min(k, max(0, self.switch_after - int(pool.taken.sum())))
-        picks = greedy_maximin(pool, n_maximin, rng) if n_maximin else []
-        if n_maximin < k:
+        n_first = min(k, max(0, self.switch_after - int(pool.taken.sum())))
+        picks = self.first.select(model, pool, n_first, rng) if n_first else []
+        if n_first < k:
             later = pool.with_taken(picks) if picks else pool
-            picks += self.target.select(model, later, k - n_maximin, rng)
-        self.last_model_share = (k - n_maximin) / k
+            picks += self.target.select(model, later, k - n_first, rng)
+        by_model = n_first * self.first.uses_model + (k - n_first) * self.target.uses_model
+        self.last_model_share = by_model / k
         return picks
 
     def round_metrics(self) -> dict[str, float]:
-        """`switch_model_based`: the share of this round's picks the model-based rule made (0 to 1)."""
+        """`switch_model_based`: the share of this round's picks a model-based rule made (0 to 1)."""
         return {"switch_model_based": self.last_model_share}
 
 
@@ -277,7 +292,7 @@ STRATEGIES: dict[str, type[Strategy]] = {
 }
 
 
-_SWITCH_OPTIONS = ("switch_after", "switch_to")  # read by `switch` alone
+_SWITCH_OPTIONS = ("switch_after", "switch_first", "switch_to")  # read by `switch` alone
 
 
 def make_strategy(name: str, **options: Any) -> Strategy:
@@ -285,8 +300,8 @@ def make_strategy(name: str, **options: Any) -> Strategy:
 
     Uncertainty strategies take batch, n_samples, fantasy_weight, penalty_length, seed and
     cost_aware; `igs` and `lcmd` take n_samples; the oracle takes penalty_length; `switch` takes
-    switch_after and switch_to; `auto`, `switch` and the lookahead oracle pass the others on to the
-    strategies they use; space-filling designs take none.
+    switch_after, switch_first and switch_to; `auto`, `switch` and the lookahead oracle pass the others
+    on to the strategies they use; space-filling designs take none.
     """
     if name not in STRATEGIES:
         raise InputError("strategy", name, f"unknown strategy; choose from {', '.join(STRATEGIES)}")

@@ -134,6 +134,7 @@ class Campaign:
             penalty_length=acq.penalty_length,
             cost_aware=acq.cost_aware,
             switch_after=acq.switch_after,
+            switch_first=acq.switch_first,
             switch_to=acq.switch_to,
         )
         cache = Path(cache_dir) if cache_dir else cache_root(cfg)
