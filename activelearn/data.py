@@ -12,6 +12,7 @@ import io
 import math
 import os
 import re
+import uuid
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -49,16 +50,19 @@ def _suffix(path: Path, field: str) -> str:
     return suffix
 
 
-def _tmp_path(path: Path) -> Path:
-    """Hidden temporary name beside `path` (same file system, so the final rename is atomic)."""
-    return path.with_name(f".{path.name}.tmp-{os.getpid()}")
+def temporary_sibling(path: Path) -> Path:
+    """A hidden name beside `path` (same file system, so the final rename is atomic), unique to this
+    call: two writers of one path, in two processes or two threads, never share a temporary file. It
+    keeps `path`'s suffix for writers that infer the format from the name (matplotlib). Not created
+    here, so the file gets the usual permissions (the umask's), as `path` would."""
+    return path.with_name(f".{path.name}.{os.getpid()}-{uuid.uuid4().hex[:12]}.tmp{path.suffix}")
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
     """Write bytes to `path` atomically: temporary file in the same directory, then rename."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _tmp_path(path)
+    tmp = temporary_sibling(path)
     try:
         tmp.write_bytes(data)
         os.replace(tmp, path)
@@ -74,7 +78,7 @@ def write_table(df: pd.DataFrame, path: str | Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     extra = [c for c in df.columns if c not in SAMPLE_COLUMNS]
     df = df[[c for c in SAMPLE_COLUMNS if c in df.columns] + extra]
-    tmp = _tmp_path(path)
+    tmp = temporary_sibling(path)
     try:
         if suffix == ".csv":
             df.to_csv(tmp, index=False)

@@ -12,6 +12,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import FormatStrFormatter, LogLocator, MaxNLocator, NullFormatter
 
+from activelearn.data import temporary_sibling
 from activelearn.names import REFERENCE_STRATEGY, metric_label
 
 _MAX_LEGEND = 8
@@ -28,9 +29,12 @@ def save_figure(fig: Figure, path: str | Path, *, dpi: int) -> Path:
     reader (a browser, MLflow, a second command) never finds half a figure."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=dpi)
-    tmp.replace(path)
+    tmp = temporary_sibling(path)  # unique: two writers of one figure must not rename each other's file
+    try:
+        fig.savefig(tmp, dpi=dpi)
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
     return path
 
 

@@ -136,3 +136,25 @@ def test_writes_are_atomic_and_leave_no_temporary_files(tmp_path: Path) -> None:
 def test_read_table_of_a_missing_file(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="no such file"):
         read_table(tmp_path / "nope.csv")
+
+
+def test_concurrent_writers_of_one_path_never_share_a_temporary_file(tmp_path: Path) -> None:
+    """Two benchmark processes summarising one comparison wrote its figure at once; with one fixed
+    temporary name, one renamed the other's file away and crashed. Threads share a pid, so they race
+    harder: every write must land whole and leave nothing behind."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from activelearn.plots import _new_figure, save_figure
+
+    fig = _new_figure(2.0, 2.0)
+    fig.add_subplot().plot([0, 1], [0, 1])
+    figure = tmp_path / "comparison.png"
+
+    def write(_: int) -> None:
+        save_figure(fig, figure, dpi=40)
+        atomic_write_bytes(tmp_path / "state.json", b"{}")
+
+    with ThreadPoolExecutor(8) as pool:
+        list(pool.map(write, range(48)))
+    assert figure.read_bytes().startswith(b"\x89PNG")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["comparison.png", "state.json"]
