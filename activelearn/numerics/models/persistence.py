@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from activelearn.config import ModelConfig
+from activelearn.data import temporary_sibling
 from activelearn.errors import DataFormatError
 from activelearn.numerics.models.base import Model
 from activelearn.numerics.models.registry import build_model
@@ -48,14 +48,12 @@ def save_model(model: Model | ResidualModel, path: str | Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     payload = {"format_version": FORMAT_VERSION, **_payload(model)}
     # Write to a temporary name in the same directory, then rename: readers never see half a file.
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    os.close(fd)
+    tmp = temporary_sibling(path)
     try:
         torch.save(payload, tmp)
         os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def load_model(path: str | Path) -> Model | ResidualModel:
