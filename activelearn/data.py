@@ -13,6 +13,7 @@ import math
 import os
 import re
 import uuid
+from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -50,44 +51,37 @@ def _suffix(path: Path, field: str) -> str:
     return suffix
 
 
-def temporary_sibling(path: Path) -> Path:
-    """A hidden name beside `path` (same file system, so the final rename is atomic), unique to this
-    call: two writers of one path, in two processes or two threads, never share a temporary file. It
-    keeps `path`'s suffix for writers that infer the format from the name (matplotlib). Not created
-    here, so the file gets the usual permissions (the umask's), as `path` would."""
-    return path.with_name(f".{path.name}.{os.getpid()}-{uuid.uuid4().hex[:12]}.tmp{path.suffix}")
+def write_atomically(path: str | Path, write: Callable[[Path], object]) -> Path:
+    """Have `write` fill a hidden temporary file beside `path`, then rename it to `path` in one step, so
+    a reader never finds half a file. The temporary name is unique to the call (two writers of one
+    path, in two processes or two threads, never share it), keeps `path`'s suffix for writers that
+    infer the format from the name (matplotlib), and is left to `write` to create, so the file gets
+    the umask's permissions as `path` would. Nothing is left behind if `write` fails."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}-{uuid.uuid4().hex[:12]}.tmp{path.suffix}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
-    """Write bytes to `path` atomically: temporary file in the same directory, then rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temporary_sibling(path)
-    try:
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
+    """Write bytes to `path` atomically (`write_atomically`)."""
+    return write_atomically(path, lambda tmp: tmp.write_bytes(data))
 
 
 def write_table(df: pd.DataFrame, path: str | Path) -> Path:
-    """Write a sample table to .csv (with header) or .parquet atomically: temporary file, then rename."""
+    """Write a sample table to .csv (with header) or .parquet atomically (`write_atomically`)."""
     path = Path(path)
     suffix = _suffix(path, "path")
-    path.parent.mkdir(parents=True, exist_ok=True)
     extra = [c for c in df.columns if c not in SAMPLE_COLUMNS]
     df = df[[c for c in SAMPLE_COLUMNS if c in df.columns] + extra]
-    tmp = temporary_sibling(path)
-    try:
-        if suffix == ".csv":
-            df.to_csv(tmp, index=False)
-        else:
-            df.to_parquet(tmp, index=False)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
+    if suffix == ".csv":
+        return write_atomically(path, lambda tmp: df.to_csv(tmp, index=False))
+    return write_atomically(path, lambda tmp: df.to_parquet(tmp, index=False))
 
 
 def read_table(path: str | Path) -> pd.DataFrame:

@@ -12,7 +12,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import FormatStrFormatter, LogLocator, MaxNLocator, NullFormatter
 
-from activelearn.data import temporary_sibling
+from activelearn.data import write_atomically
 from activelearn.names import REFERENCE_STRATEGY, metric_label
 
 _MAX_LEGEND = 8
@@ -27,15 +27,7 @@ def _new_figure(width: float, height: float) -> Figure:
 def save_figure(fig: Figure, path: str | Path, *, dpi: int) -> Path:
     """Write `fig` to `path` atomically: under a hidden temporary name beside it, then renamed, so a
     reader (a browser, MLflow, a second command) never finds half a figure."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temporary_sibling(path)  # unique: two writers of one figure must not rename each other's file
-    try:
-        fig.savefig(tmp, dpi=dpi)
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
+    return write_atomically(path, lambda tmp: fig.savefig(tmp, dpi=dpi))
 
 
 def plot_log(table: pd.DataFrame, title: str | None = None) -> Figure:

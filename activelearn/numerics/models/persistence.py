@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from activelearn.config import ModelConfig
-from activelearn.data import temporary_sibling
+from activelearn.data import write_atomically
 from activelearn.errors import DataFormatError
 from activelearn.numerics.models.base import Model
 from activelearn.numerics.models.registry import build_model
@@ -44,16 +43,8 @@ def save_model(model: Model | ResidualModel, path: str | Path) -> None:
 
     A `ResidualModel` is written as its base and its residual, each in the same form.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     payload = {"format_version": FORMAT_VERSION, **_payload(model)}
-    # Write to a temporary name in the same directory, then rename: readers never see half a file.
-    tmp = temporary_sibling(path)
-    try:
-        torch.save(payload, tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    write_atomically(path, lambda tmp: torch.save(payload, tmp))
 
 
 def load_model(path: str | Path) -> Model | ResidualModel:
