@@ -144,9 +144,11 @@ def test_concurrent_writers_of_one_path_never_share_a_temporary_file(tmp_path: P
     harder: every write must land whole and leave nothing behind."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from activelearn.plots import _new_figure, save_figure
+    from matplotlib.figure import Figure
 
-    fig = _new_figure(2.0, 2.0)
+    from activelearn.plots import save_figure
+
+    fig = Figure(figsize=(2.0, 2.0))  # no layout engine: eight threads draw the one figure at once
     fig.add_subplot().plot([0, 1], [0, 1])
     figure = tmp_path / "comparison.png"
 
