@@ -31,6 +31,7 @@ from activelearn.loop.pool import maneuver_controls
 from activelearn.loop.safety import (
     REASONS,
     SPEED_PER_THROTTLE,
+    Assessment,
     admissible_duration,
     circles_fit,
     fan,
@@ -140,6 +141,23 @@ def test_admissible_duration_keeps_cuts_or_drops():
     early = never.copy()
     early[:5] = [1.0, 2.0, 3.0, 4.0, 5.0]
     assert admissible_duration(early, 30.0, cfg)[1] == 0.0
+
+
+def test_the_safe_set_shares_count_open_candidates_and_their_seconds():
+    # four candidates of 30 s: one taken (not assessed), one whole, one cut to 12 s, one refused
+    nan = float("nan")
+    safe = Assessment(
+        risk=np.array([nan, 0.0, 0.25, 0.5]), duration=np.array([0.0, 30.0, 12.0, 0.0]),
+        cut_risk=np.array([nan, 0.0, 0.1, nan]), full=np.full(4, 30.0),
+    )  # fmt: skip
+    assert safe.size == 2 and safe.cut.sum() == 1
+    assert safe.share == pytest.approx(2 / 3)  # the taken one counts in neither share
+    assert safe.time_share == pytest.approx(42 / 90)
+    # the cut one trusted whole: the count stays, the seconds grow
+    grown = dataclasses.replace(safe, duration=np.array([0.0, 30.0, 30.0, 0.0]))
+    assert grown.share == safe.share and grown.time_share == pytest.approx(60 / 90)
+    none = dataclasses.replace(safe, risk=np.full(4, nan))
+    assert np.isnan(none.share) and np.isnan(none.time_share)
 
 
 def test_a_skidpad_whose_every_circle_fits_is_driven_whole_before_the_model_knows_it():
@@ -331,6 +349,8 @@ def test_safe_campaign_drives_admissible_cuts_and_logs_safety(tmp_path):
     history = result.history
     assert {"safe_set_size", "violations", "violations_total"} <= set(history)
     assert (history["safe_set_size"].dropna() > 0).all()
+    shares = history[["safe_set_share", "safe_time_share"]].dropna()
+    assert len(shares) and ((shares > 0) & (shares <= 1)).all().all()
     for name in ("safe_set_size", "violations", "violations_total", "safety_seconds"):
         assert len(tracker.metric_history(state.run_id, name)) >= 1, name
     assert history["violations_total"].iloc[-1] == sum(1 for r in state.violated.values() if r)

@@ -79,6 +79,8 @@ class Admission:
             metrics.update(
                 safe_set_size=float(safe.size),
                 safe_set_cut=float(safe.cut.sum()),
+                safe_set_share=safe.share,
+                safe_time_share=safe.time_share,
                 risk_min=float(np.nanmin(safe.risk)) if assessed.any() else float("nan"),
                 safety_seconds=seconds,
             )

@@ -114,6 +114,26 @@ class Assessment:
         """Number of admissible candidates (the safe set)."""
         return int(self.admissible.sum())
 
+    @property
+    def share(self) -> float:
+        """Admissible share of the assessed candidates (NaN: none assessed).
+
+        Unlike `size` it does not shrink as picks leave the pool, so it shows the set growing.
+        """
+        assessed = np.isfinite(self.risk)
+        return float(self.admissible[assessed].mean()) if assessed.any() else float("nan")
+
+    @property
+    def time_share(self) -> float:
+        """Admissible share of the assessed candidates' driving seconds (NaN: none assessed).
+
+        A candidate admissible only when cut counts its cut seconds: the share grows when the model
+        comes to trust a candidate's later seconds, which the count of candidates does not show.
+        """
+        assessed = np.isfinite(self.risk)
+        total = float(self.full[assessed].sum())
+        return float(self.duration[assessed].sum()) / total if total > 0 else float("nan")
+
 
 def _smooth(values: np.ndarray, steps: int) -> np.ndarray:
     """Trailing moving average over `steps` along the last axis (the first steps average fewer)."""

@@ -6,7 +6,8 @@ once enforcing it (every pick admissible at risk level delta, cut short where ne
 and the limits). Same seeds, so both share the prior, the test set and the noise streams. Prints per
 variant: violations (maneuvers whose true MuJoCo path left the arena or broke a limit) in total and
 per round, campaigns with any, final test RMSE (mean ± s.e.m.) and its ratio to the unconstrained
-one, the safe-set size and the seconds the risk computation cost per round, and the share of picks
+one, the safe-set size (and its admissible share of the open candidates and of their seconds, which show
+whether it grows) and the seconds the risk computation cost per round, and the share of picks
 that were cut short.
 
 `--clairvoyant` adds a yardstick, as the lookahead oracle is one for the strategies: the same strategy
@@ -59,6 +60,20 @@ def picks_cut(directory: Path) -> tuple[int, int]:
     return cut, total
 
 
+def _by_round(curves: pd.DataFrame, column: str) -> dict:
+    """Mean of `column` per round over the seeds ({} where the campaigns did not log it)."""
+    return curves.groupby("round")[column].mean().dropna().round(4).to_dict() if column in curves else {}
+
+
+def _grew(curves: pd.DataFrame, column: str) -> str:
+    """"k of n": the seeds whose last assessed round logged more of `column` than their first."""
+    if column not in curves:
+        return "-"
+    logged = curves.dropna(subset=[column]).sort_values("round").groupby("seed")[column]
+    grew = (logged.last() > logged.first()).sum()
+    return f"{int(grew)} of {logged.ngroups}"
+
+
 def summary(curves: pd.DataFrame, label: str, directory: Path) -> dict:
     """One line of the table for one variant."""
     last = curves.sort_values("round").groupby("seed").last()
@@ -76,6 +91,9 @@ def summary(curves: pd.DataFrame, label: str, directory: Path) -> dict:
         "final_pos_err_sem": _sem(last[POSITION].to_numpy()) if POSITION in last else float("nan"),
         "safe_set_mean": float(curves["safe_set_size"].mean()) if "safe_set_size" in curves else float("nan"),
         "safe_set_by_round": by_round.round(1).to_dict() if "safe_set_size" in curves else {},
+        "safe_share_by_round": _by_round(curves, "safe_set_share"),
+        "safe_time_share_by_round": _by_round(curves, "safe_time_share"),
+        "safe_time_share_grew": _grew(curves, "safe_time_share"),
         "safety_s_per_round": float(curves["safety_seconds"].mean()) if "safety_seconds" in curves else 0.0,
         "cut_share": cut / total if total else float("nan"),
         "per_seed": last[POSITION].round(4).to_dict() if POSITION in last else {},
@@ -219,6 +237,10 @@ def main() -> None:
         )
         print(f"{'':>16}  30-s position error {row['final_pos_err']:.4f} ± {row['final_pos_err_sem']:.4f} m; "
               f"safe set by round {row['safe_set_by_round']}")
+        if row["safe_share_by_round"]:
+            print(f"{'':>16}  admissible share of the open candidates by round {row['safe_share_by_round']}; "
+                  f"of their seconds {row['safe_time_share_by_round']} (grew on "
+                  f"{row['safe_time_share_grew']} seeds)")  # fmt: skip
         print(f"{'':>16}  per seed {row['per_seed']}")
     print(f"wall time {time.perf_counter() - started:.0f} s")
     if len(curves) < 2:
