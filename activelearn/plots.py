@@ -18,7 +18,8 @@ from activelearn.names import REFERENCE_STRATEGY, metric_label
 _MAX_LEGEND = 8
 
 
-def _new_figure(width: float, height: float) -> Figure:
+def new_figure(width: float, height: float) -> Figure:
+    """An empty figure of `width` x `height` inches, laid out by matplotlib, drawn off-screen."""
     fig = Figure(figsize=(width, height), layout="constrained")
     FigureCanvasAgg(fig)  # render off-screen whatever the global matplotlib backend is
     return fig
@@ -37,7 +38,7 @@ def plot_log(table: pd.DataFrame, title: str | None = None) -> Figure:
     right the rate variables (speed, angZ), the state (unwrapped yaw) and the controls (throttle,
     steering), each against the time since the run started.
     """
-    fig = _new_figure(13.0, 9.0)
+    fig = new_figure(13.0, 9.0)
     grid = fig.add_gridspec(5, 2, width_ratios=(1.0, 1.3))
     ax_xy = fig.add_subplot(grid[:, 0])
     ax_v = fig.add_subplot(grid[0, 1])
@@ -107,7 +108,7 @@ def epistemic_map(
     `plans` = (names, control signals (T, 2), their predicted rollout) of the chosen maneuvers adds,
     beside the map, the throttle and steering each one applies and the path the model predicts.
     """
-    fig = _new_figure(6.4 if plans is None else 15.0, 5.2)
+    fig = new_figure(6.4 if plans is None else 15.0, 5.2)
     panel: Any = fig
     if plans is not None:
         panel, right = fig.subfigures(1, 2, width_ratios=(1.2, 1.6))
@@ -202,7 +203,7 @@ def comparison_figure(
     same metrics against the track seconds spent (`track_seconds`, averaged over seeds per round).
     """
     budgets = ["n_maneuvers", *(["track_seconds"] if seconds else [])]
-    fig = _new_figure(3.4 * len(metrics), 3.0 * len(budgets) + 0.6)
+    fig = new_figure(3.4 * len(metrics), 3.0 * len(budgets) + 0.6)
     grid = fig.subplots(len(budgets), len(metrics), squeeze=False)
     strategies = list(dict.fromkeys(curves["strategy"]))
     n_seeds = int(curves.groupby("strategy")["seed"].nunique().max()) if "seed" in curves else 1
@@ -257,7 +258,7 @@ def surrogate_figure(rollout: Any, index: int, truth: pd.DataFrame, *, title: st
     """
     n = int(rollout.lengths[index])
     t = rollout.time[:n]
-    fig = _new_figure(13.0, 6.5)
+    fig = new_figure(13.0, 6.5)
     grid = fig.add_gridspec(2, 2, width_ratios=(1.0, 1.3))
     ax_xy = fig.add_subplot(grid[:, 0])
     x0, y0, yaw0 = (truth[c].to_numpy()[0] for c in ("posX", "posY", "yaw"))
@@ -297,7 +298,7 @@ def paths_figure(
     """Free-run paths of several models side by side: one row per case (a label and a maneuver index
     into every rollout and `truths`), one column per model. Each panel: the sampled paths faintly (the
     fan), their mean and the true path, over the first `seconds`."""
-    fig = _new_figure(3.2 * len(rollouts) + 0.6, 2.9 * len(cases) + 0.6)
+    fig = new_figure(3.2 * len(rollouts) + 0.6, 2.9 * len(cases) + 0.6)
     grid = fig.subplots(len(cases), len(rollouts), squeeze=False)
     for row, (label, index) in enumerate(cases):
         truth = truths[index]
@@ -336,7 +337,7 @@ def fidelity_figure(points: pd.DataFrame, title: str = "") -> Figure:
 
     `points` is `FidelityReport.points`; one colour per throttle.
     """
-    fig = _new_figure(14.5, 4.2)
+    fig = new_figure(14.5, 4.2)
     axes = fig.subplots(1, 3)
     panels = (
         ("v", "steady speed (m/s)"),
@@ -396,7 +397,7 @@ def arena_figure(
     proposal's `brakes` (x, y) marks the points where its paths would be braked (`n_paths`: how many
     paths it has).
     """
-    fig = _new_figure(9.5, 6.0)
+    fig = new_figure(9.5, 6.0)
     ax = fig.add_subplot()
     ring = np.vstack([np.asarray(arena, dtype=float), np.asarray(arena[:1], dtype=float)])
     ax.fill(ring[:, 0], ring[:, 1], color="0.95", zorder=0)

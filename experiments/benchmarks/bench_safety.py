@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from matplotlib.ticker import MaxNLocator
 from quick import shrink
 
 from activelearn.config import load_config
@@ -40,6 +41,7 @@ from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import cache_root
 from activelearn.loop.safety import Assessment, placed_path, violating
 from activelearn.loop.state import CampaignState
+from activelearn.plots import new_figure, save_figure
 from activelearn.studies.compare import compare
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -72,6 +74,30 @@ def _grew(curves: pd.DataFrame, column: str) -> str:
     logged = curves.dropna(subset=[column]).sort_values("round").groupby("seed")[column]
     grew = (logged.last() > logged.first()).sum()
     return f"{int(grew)} of {logged.ngroups}"
+
+
+def plot_safe_set(curves: list[pd.DataFrame], labels: list[str], path: Path) -> Path | None:
+    """safe_set.png: the admitted share of the open candidates and of their seconds by round, per variant
+    (mean ± s.e.m. over the seeds); None where no variant logged it."""
+    columns = {"safe_time_share": "admitted share of the open candidates' seconds",
+               "safe_set_share": "admitted share of the open candidates"}  # fmt: skip
+    if not any("safe_time_share" in c for c in curves):
+        return None
+    fig = new_figure(10, 3.8)
+    axes = fig.subplots(1, 2)
+    for ax, (column, title) in zip(axes, columns.items(), strict=True):
+        for frame, label in zip(curves, labels, strict=True):
+            if column not in frame:
+                continue
+            by_round = frame.dropna(subset=[column]).groupby("round")[column]
+            mean, sem = by_round.mean(), by_round.sem().fillna(0.0)
+            ax.errorbar(mean.index, mean.to_numpy(), yerr=sem.to_numpy(), marker="o", capsize=3, label=label)
+        ax.set(title=title, xlabel="round", ylabel="share")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.grid(alpha=0.3)
+    axes[0].legend()
+    fig.suptitle("Safe set by round (mean ± s.e.m. over seeds)")
+    return save_figure(fig, path, dpi=120)
 
 
 def summary(curves: pd.DataFrame, label: str, directory: Path) -> dict:
@@ -242,6 +268,9 @@ def main() -> None:
                   f"of their seconds {row['safe_time_share_by_round']} (grew on "
                   f"{row['safe_time_share_grew']} seeds)")  # fmt: skip
         print(f"{'':>16}  per seed {row['per_seed']}")
+    figure = plot_safe_set(curves, [row["variant"] for row in rows], Path(args.out) / "safe_set.png")
+    if figure is not None:
+        print(f"figure: {figure}")
     print(f"wall time {time.perf_counter() - started:.0f} s")
     if len(curves) < 2:
         return
