@@ -262,16 +262,19 @@ def _busy_controls() -> list[np.ndarray]:
 
 
 @pytest.mark.parametrize(
-    ("weight", "symmetry"), [(1.0, "none"), (0.5, "none"), (0.0, "none"), (1.0, "mirror"), (0.5, "mirror")]
-)
-def test_free_runs_of_a_control_correction_agree_between_the_kernel_and_torch(weight, symmetry):
+    ("weight", "symmetry", "scale"),
+    [(1.0, "none", 1.0), (0.5, "none", 1.0), (0.0, "none", 1.0), (1.0, "mirror", 1.0), (0.5, "mirror", 1.0),
+     (1.0, "none", 9.0), (0.5, "mirror", 9.0)],
+)  # fmt: skip
+def test_free_runs_of_a_control_correction_agree_between_the_kernel_and_torch(weight, symmetry, scale):
     """physics_rollout.c and its torch twin draw the same free runs (float rounding apart), with the
-    gate at any share, the correction mirror-symmetric or not, and the pose (headings, lever arm)
-    integrated inside the kernel."""
+    gate at any share, the correction mirror-symmetric or not, the draws widened (the [safety] fan's
+    epistemic scale of 9) or not, and the pose (headings, lever arm) integrated inside the kernel."""
     if native.library() is None:
         pytest.skip("no C compiler: the torch path is the only one")
     model, controls = _perturbed_control_model(symmetry=symmetry), _busy_controls()
     model.correction_weight.fill_(weight)
+    model.epistemic_scale.fill_(scale)
     headings = np.linspace(-2.0, 2.5, len(controls))
     kwargs = dict(n_samples=8, seed=3, initial_yaw=headings, lever_arm=0.08)
     kernel = simulate(model, controls, backend="native", **kwargs)
@@ -282,12 +285,36 @@ def test_free_runs_of_a_control_correction_agree_between_the_kernel_and_torch(we
         np.testing.assert_allclose(getattr(kernel, name), getattr(torch_runs, name), atol=2e-5, err_msg=name)
 
 
+@pytest.mark.parametrize(("inputs", "backend"), [("history", "reference"), ("control", "reference"),
+                                               ("control", "native")])  # fmt: skip
+def test_a_widened_fan_stays_as_bounded_as_its_draws(inputs, backend):
+    """The [safety] fan widens the draws' epistemic spread (scale 9, a std x 3). Widening each draw's
+    whole deviation from the average at every step compounded the deviations its past already
+    carried (the aleatoric noise fed back), and the free runs ran to infinity; widened as a
+    correction, they stay within the physical bounds of the unwidened draws."""
+    if backend == "native" and native.library() is None:
+        pytest.skip("no C compiler")
+    model, controls = _perturbed_control_model(inputs), _busy_controls()
+    plain = simulate(model, controls, n_samples=16, seed=3, backend=backend)
+    model.epistemic_scale.fill_(9.0)
+    wide = simulate(model, controls, n_samples=16, seed=3, backend=backend)
+    for name, limit in (("v", datasheet.MAX_SPEED), ("w", datasheet.MAX_YAW_RATE)):
+        bound = max(1.5, np.abs(getattr(plain, name)).max() / limit)
+        assert np.isfinite(getattr(wide, name)).all(), name
+        assert np.abs(getattr(wide, name)).max() <= bound * limit, name
+    assert np.isfinite(wide.epistemic_var).all()
+    # the widening widens: the draws' spread at the end of each run is at least the unwidened one
+    assert (wide.epistemic_var.mean(axis=1) >= plain.epistemic_var.mean(axis=1) * 0.99).all()
+
+
 @pytest.mark.slow
-def test_free_runs_computed_whole_are_the_step_loops(monkeypatch):
+@pytest.mark.parametrize("scale", [1.0, 9.0])
+def test_free_runs_computed_whole_are_the_step_loops(monkeypatch, scale):
     """Without noise, the whole-run path and the generic step loop through `columns_forward` give the
-    same free runs: the shortcut is exact, not an approximation."""
+    same free runs, the draws widened or not: the shortcut is exact, not an approximation."""
     monkeypatch.setattr(physics, "NOISE_CAP", 0.0)
     model, controls = _perturbed_control_model(), _busy_controls()
+    model.epistemic_scale.fill_(scale)
     whole = simulate(model, controls, n_samples=8, seed=3)
     monkeypatch.setattr(PhysicsModel, "open_loop_free_runs", Model.open_loop_free_runs)
     stepped = simulate(model, controls, n_samples=8, seed=3)

@@ -43,7 +43,7 @@ import torch
 from activelearn.errors import InputError
 from activelearn.numerics import buffers, counter_noise, native
 from activelearn.numerics.lags import Lags, model_lags
-from activelearn.numerics.models.base import BACKENDS, CHUNK_ROWS
+from activelearn.numerics.models.base import BACKENDS, CHUNK_ROWS, draw_moments
 from activelearn.numerics.threads import even_blocks, intra_op_threads, parallel_map
 from simulator import Maneuver, nominal_controls
 
@@ -413,6 +413,7 @@ def _sequential_rollout(
     rates = torch.empty((n_samples, 2, n_maneuvers, n_steps))
     moments = tuple(torch.empty((n_steps, 2, n_maneuvers)) for _ in range(3))
     n_ctrl = N_CONTROLS * lags.history  # rate inputs start here
+    spread = sampled_model.spread
 
     @torch.no_grad()  # grad mode is per thread: the pool's threads do not inherit the caller's
     def run(block: slice) -> None:
@@ -425,9 +426,11 @@ def _sequential_rollout(
             for j, back in enumerate(lags.rate_lags):
                 past = rates[:, :, block, k - back] if k >= back else start[..., block]
                 inputs[:, n_ctrl + 2 * j : n_ctrl + 2 * j + 2] = past
-            sampled_model.block(
-                inputs, out=(means, variances), moments=tuple(m[k, :, block] for m in moments)
-            )
+            step_moments = tuple(m[k, :, block] for m in moments)
+            if spread == 1.0:
+                sampled_model.block(inputs, out=(means, variances), moments=step_moments)
+            else:
+                widened_step(sampled_model, inputs, (means, variances), step_moments, spread)
             torch.addcmul(means, noise[k, ..., block], variances.sqrt_(), out=rates[:, :, block, k])
 
     if sampled_model.kernel is None:
@@ -446,6 +449,28 @@ def _sequential_rollout(
         parallel_map(run, even_blocks(n_maneuvers, -(-n_maneuvers // torch.get_num_threads())))
     # (T, 2, M) → (M, T, 2); v and ω are (S, M, T) views of the rates.
     return (rates[:, 0], rates[:, 1]), tuple(m.permute(2, 0, 1).contiguous() for m in moments), None
+
+
+def widened_step(
+    sampled_model, inputs: torch.Tensor, out: tuple[torch.Tensor, torch.Tensor],
+    moments: tuple[torch.Tensor, torch.Tensor, torch.Tensor], spread: float,
+) -> None:  # fmt: skip
+    """One free-run step with each draw's epistemic deviation widened by `spread`, into `out`.
+
+    Each draw steps from its own past, and only the deviation of its *function* from the average
+    draw's is widened: that deviation is read at the draws' common input (their inputs' average), so
+    the draws' differing pasts are carried forward as they are, not widened again at every step.
+    Widening every draw's whole deviation instead compounds: a draw ahead of the others by d one step
+    is ahead by spread · a · d the next (a: how much of its past a step keeps), which diverges once
+    spread · a > 1 (the [safety] fan's spread of 3 drove a physics model's yaw rate to 10^8-10^31
+    rad/s over 30-90 s of reverse driving, where its draws unwidened stayed within 0.6 rad/s).
+    """
+    means, variances = out
+    sampled_model.block(inputs, out=out, spread=1.0)
+    common = inputs.mean(dim=0, keepdim=True).expand_as(inputs).contiguous()
+    at_common, _ = sampled_model.block(common, spread=1.0)
+    means.add_(at_common - at_common.mean(dim=0, keepdim=True), alpha=spread - 1.0)
+    draw_moments(means, variances, moments)
 
 
 def estimate_lever_arm(logs: Sequence, *, rate_hz: float = 30.0, min_yaw_rate: float = 0.2) -> float:

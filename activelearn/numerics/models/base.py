@@ -151,23 +151,27 @@ class SampledModel:
         x: Tensor,
         out: tuple[Tensor, Tensor] | None = None,
         moments: tuple[Tensor, Tensor, Tensor] | None = None,
+        *,
+        spread: float | None = None,
     ) -> tuple[Tensor, Tensor]:
         """Physical (S, n_outputs, n) means and variances for one block of inputs (d, n) or (S, d, n).
 
         `out`, when given, receives the means and the variances (slices of larger tensors, say, with
         unit stride along n). `moments`, when given, receives the (n_outputs, n) mean, aleatoric and
-        epistemic variance over these draws. Runs on the calling thread.
+        epistemic variance over these draws. `spread` overrides the factor on each draw's deviation
+        from the average draw (default: `self.spread`). Runs on the calling thread.
         """
         m = self.model
+        spread = self.spread if spread is None else float(spread)
         if self.kernel is not None:
             if out is None:
                 out = tuple(torch.empty((self.n_samples, m.n_outputs, x.shape[-1])) for _ in range(2))
-            self._kernel_forward(x, 1, draws=out, moments=moments)
+            self._kernel_forward(x, 1, draws=out, moments=moments, spread=spread)
             return out
         means, var = self.standardised(x)
-        if self.spread != 1.0:
+        if spread != 1.0:
             centre = means.mean(dim=0, keepdim=True)
-            means = (means - centre).mul_(self.spread).add_(centre)
+            means = (means - centre).mul_(spread).add_(centre)
         out_means, out_var = (None, None) if out is None else out
         means = torch.addcmul(m.y_mean[:, None], means, m.y_std[:, None], out=out_means)
         var = torch.mul(var, m.y_std.square()[:, None], out=out_var)
@@ -185,6 +189,7 @@ class SampledModel:
         threads: int,
         draws: tuple[Tensor, Tensor],
         moments: tuple[Tensor, Tensor, Tensor] | None = None,
+        spread: float | None = None,
     ) -> None:
         """Physical draws (and their moments) from the compiled kernel, written into the given tensors."""
         m = self.model
@@ -194,7 +199,7 @@ class SampledModel:
             moments=None if moments is None else tuple(t.numpy() for t in moments),
             out_mean=m.y_mean.numpy(),
             out_std=m.y_std.numpy(),
-            spread=self.spread,
+            spread=self.spread if spread is None else spread,
             threads=threads,
         )
 

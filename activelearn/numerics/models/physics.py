@@ -451,8 +451,13 @@ class PhysicsModel(Model):
             tau, delta, bound = u[:, k, 0], u[:, k, 1], self.config.residual_bound
             v1, w1 = single_track_step(tau, delta, past[:, 0], past[:, 1], self.theta, self.dt, zs, bound)
             means = torch.stack([v1, w1], dim=1)  # (S, 2, M)
+            if spread != 1.0:  # widen each draw's correction, not its past (surrogate.widened_step)
+                common = past.mean(dim=0)
+                vc, wc = single_track_step(tau, delta, common[0], common[1], self.theta, self.dt, zs, bound)
+                at_common = torch.stack([vc, wc], dim=1)
+                means = means + (spread - 1.0) * (at_common - at_common.mean(dim=0))
             centre = means.mean(dim=0)
-            deviation = (means - centre) * spread
+            deviation = means - centre
             std = noise_std[..., rows]
             rates[..., k] = centre + deviation + std * noise[..., k]
             moments[0][:, k] = centre.t()

@@ -10,8 +10,8 @@
  *   v' = v_ss + (v - v_ss) a_v             (throttle 0 brakes: |v| falls by brake_decel dt)
  *   w' = w_ss + (w - w_ss) a_w,            w_ss = clip(v' tan(delta) / (L understeer) + r_w, +-cap)
  *
- * from the rates `rate_lag` steps back. The per-step spread over draws (the epistemic scale), the
- * moments over draws and each draw's aleatoric noise (the counter-based noise of static_rollout.c,
+ * from the rates `rate_lag` steps back. The per-step spread over draws (the epistemic scale: each draw's
+ * correction widened, read from the draws' common past, `widen_draws`), the moments over draws and each draw's aleatoric noise (the counter-based noise of static_rollout.c,
  * so a draw's noise depends only on its key, the maneuver and the step) are added per step.
  *
  * Layout: per tile, every per-draw quantity is stored step-major with the S draws contiguous
@@ -252,6 +252,38 @@ static void row_coefficients(const physics_context *c, physics_scratch *r, int64
     for (int k = 0; k < N_COEF; ++k) to_row_major(r->by_draw + k * S * TILE, r->coef + k * S * TILE, S, n_rows);
 }
 
+/* The step of every draw from the draws' common past (their average), as the step proper computes
+ * it from each draw's own: a draw's deviation there from the average draw is its correction's alone.
+ * Adds (spread - 1) times that deviation to each draw's next rates (mv, mw): the draws' differing
+ * pasts are carried forward as they are, not widened again at every step. */
+static void widen_draws(int64_t S, const float *pv, const float *pw, const float *vss, const float *av,
+                        const float *rw, const float *aw, int brake, float brake_step, float tj, float cap,
+                        float spread, float *mv, float *mw) {
+    double past_v = 0.0, past_w = 0.0;
+    for (int64_t s = 0; s < S; ++s) {
+        past_v += pv[s];
+        past_w += pw[s];
+    }
+    const float cpv = (float)(past_v / (double)S), cpw = (float)(past_w / (double)S);
+    double mean_v = 0.0, mean_w = 0.0;
+    for (int pass = 0; pass < 2; ++pass) { /* the first pass averages, the second widens */
+        const float off_v = (float)(mean_v / (double)S), off_w = (float)(mean_w / (double)S);
+        for (int64_t s = 0; s < S; ++s) {
+            const float v = brake ? cpv - copysignf(fminf(fabsf(cpv), brake_step), cpv)
+                                  : vss[s] + (cpv - vss[s]) * av[s];
+            const float w_ss = fmaxf(-cap, fminf(cap, v * tj + rw[s]));
+            const float w = w_ss + (cpw - w_ss) * aw[s];
+            if (pass == 0) {
+                mean_v += v;
+                mean_w += w;
+            } else {
+                mv[s] += (spread - 1.0f) * (v - off_v);
+                mw[s] += (spread - 1.0f) * (w - off_w);
+            }
+        }
+    }
+}
+
 /* All S free runs of maneuver m, tile by tile. */
 static void physics_maneuver(void *context, void *scratch, int64_t m) {
     const physics_context *c = context;
@@ -311,6 +343,8 @@ static void physics_maneuver(void *context, void *scratch, int64_t m) {
                 const float w_ss = fmaxf(-cap, fminf(cap, mv[s] * tj + rw[s]));
                 mw[s] = w_ss + (pw[s] - w_ss) * aw[s];
             }
+            if (spread != 1.0f) /* widen each draw's correction, not its past (surrogate.widened_step) */
+                widen_draws(S, pv, pw, vss, av, rw, aw, r->brake[j], brake_step, tj, cap, spread, mv, mw);
             for (int64_t s = 0; s < S; ++s) {
                 sum_v += mv[s];
                 sum_w += mw[s];
@@ -319,7 +353,7 @@ static void physics_maneuver(void *context, void *scratch, int64_t m) {
             float epi_v = 0.0f, epi_w = 0.0f;
             const float *restrict zv = noise_v + i * S, *restrict zw = noise_w + i * S;
             for (int64_t s = 0; s < S; ++s) {
-                const float dv = spread * (mv[s] - cv), dw = spread * (mw[s] - cw);
+                const float dv = mv[s] - cv, dw = mw[s] - cw;
                 epi_v += dv * dv;
                 epi_w += dw * dw;
                 nv[s] = cv + dv + sdv[s] * zv[s];
