@@ -396,6 +396,12 @@ def test_a_residual_models_free_run_adds_the_base_mean(history_models, slalom_lo
         means, _ = draws(inputs)
         np.testing.assert_allclose(rollout.mean_rates[0, t], means[:, 0].mean(axis=0), rtol=1e-4, atol=1e-6)
     assert np.abs(rollout.mean_rates[0]).max() > 0
+    # widened (the [safety] fan's scale): the residual's draws widen about the same base mean
+    with torch.no_grad():
+        model.epistemic_scale.fill_(9.0)
+    wide = simulate(model, controls, n_samples=4, seed=2)
+    assert np.isfinite(wide.v).all() and np.isfinite(wide.w).all()
+    assert wide.epistemic_var[0, 1:].sum() > rollout.epistemic_var[0, 1:].sum()
 
 
 @pytest.mark.slow

@@ -34,9 +34,11 @@ class ResidualDraws:
         x: Tensor,
         out: tuple[Tensor, Tensor] | None = None,
         moments: tuple[Tensor, Tensor, Tensor] | None = None,
+        *,
+        spread: float | None = None,
     ) -> tuple[Tensor, Tensor]:
         """`SampledModel.block` of base + residual: columns x (d, n) or (S, d, n), physical units."""
-        means, var = self.draws.block(x, out=out)
+        means, var = self.draws.block(x, out=out, spread=spread)
         rows = x.t() if x.dim() == 2 else x.transpose(1, 2).reshape(-1, x.shape[1])
         shift = torch.as_tensor(self.owner.base_mean(rows.numpy()), dtype=means.dtype)
         if x.dim() == 2:
@@ -46,6 +48,11 @@ class ResidualDraws:
         if moments is not None:
             draw_moments(means, var, moments)
         return means, var
+
+    @property
+    def spread(self) -> float:
+        """The residual's factor on each draw's deviation from the average draw (the base has none)."""
+        return self.draws.spread
 
     def __call__(self, x: np.ndarray | Tensor) -> tuple[np.ndarray | Tensor, np.ndarray | Tensor]:
         """(means, variances), each (S, N, n_outputs), physical units; numpy in → numpy out."""
