@@ -118,7 +118,7 @@ class Assessment:
     def share(self) -> float:
         """Admissible share of the assessed candidates (NaN: none assessed).
 
-        Unlike `size` it does not shrink as picks leave the pool, so it shows the set growing.
+        Unlike `size` it does not shrink as picks leave the pool, so it shows whether the set grows.
         """
         assessed = np.isfinite(self.risk)
         return float(self.admissible[assessed].mean()) if assessed.any() else float("nan")

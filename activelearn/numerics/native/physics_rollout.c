@@ -10,9 +10,10 @@
  *   v' = v_ss + (v - v_ss) a_v             (throttle 0 brakes: |v| falls by brake_decel dt)
  *   w' = w_ss + (w - w_ss) a_w,            w_ss = clip(v' tan(delta) / (L understeer) + r_w, +-cap)
  *
- * from the rates `rate_lag` steps back. The per-step spread over draws (the epistemic scale: each draw's
- * correction widened, read from the draws' common past, `widen_draws`), the moments over draws and each draw's aleatoric noise (the counter-based noise of static_rollout.c,
- * so a draw's noise depends only on its key, the maneuver and the step) are added per step.
+ * from the rates `rate_lag` steps back. The per-step spread over draws (the epistemic scale: each
+ * draw's correction widened, read from the draws' common past, `widen_draws`), the moments over draws
+ * and each draw's aleatoric noise (the counter-based noise of static_rollout.c, so a draw's noise
+ * depends only on its key, the maneuver and the step) are added per step.
  *
  * Layout: per tile, every per-draw quantity is stored step-major with the S draws contiguous
  * ([row or step][S]), so each step's recurrence is one vectorised pass over the draws; the draws'
