@@ -70,18 +70,17 @@ class Admission:
 
     @staticmethod
     def metrics(state: CampaignState, safe: Assessment | None, seconds: float) -> dict[str, float]:
-        """What a round logs of [safety]: safe-set size, risk, violations of its batch and in total."""
+        """What a round logs of [safety]: safe-set size and shares, risk, violations (batch and total)."""
         total = sum(1 for reason in state.violated.values() if reason)
         before = next((r["violations_total"] for r in reversed(state.rounds) if "violations_total" in r), 0)
         metrics = {"violations": float(total - before), "violations_total": float(total)}
         if safe is not None:
-            assessed = np.isfinite(safe.risk)
             metrics.update(
                 safe_set_size=float(safe.size),
                 safe_set_cut=float(safe.cut.sum()),
                 safe_set_share=safe.share,
                 safe_time_share=safe.time_share,
-                risk_min=float(np.nanmin(safe.risk)) if assessed.any() else float("nan"),
+                risk_min=float(np.nanmin(safe.risk)) if safe.assessed.any() else float("nan"),
                 safety_seconds=seconds,
             )
         return metrics

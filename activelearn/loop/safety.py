@@ -115,12 +115,17 @@ class Assessment:
         return int(self.admissible.sum())
 
     @property
+    def assessed(self) -> np.ndarray:
+        """(n,) True where the candidate was assessed (an open one; the rest have risk NaN)."""
+        return np.isfinite(self.risk)
+
+    @property
     def share(self) -> float:
         """Admissible share of the assessed candidates (NaN: none assessed).
 
         Unlike `size` it does not shrink as picks leave the pool, so it shows whether the set grows.
         """
-        assessed = np.isfinite(self.risk)
+        assessed = self.assessed
         return float(self.admissible[assessed].mean()) if assessed.any() else float("nan")
 
     @property
@@ -130,7 +135,7 @@ class Assessment:
         A candidate admissible only when cut counts its cut seconds: the share grows when the model
         comes to trust a candidate's later seconds, which the count of candidates does not show.
         """
-        assessed = np.isfinite(self.risk)
+        assessed = self.assessed
         total = float(self.full[assessed].sum())
         return float(self.duration[assessed].sum()) / total if total > 0 else float("nan")
 
