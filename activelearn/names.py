@@ -27,6 +27,7 @@ STRATEGY_NAMES: tuple[str, ...] = (
     "max_total",
     "bald",
     "integrated_variance",
+    "safe_expander",
     "igs",
     "lcmd",
     "auto",

@@ -121,6 +121,31 @@ def test_max_epistemic_prefers_the_unseen_region(cfg, model):
     assert pool.maneuvers[first[0]].throttle < 0
 
 
+def test_safe_expander_aims_its_data_where_safety_withholds_seconds(cfg, model):
+    """Picks among the admitted candidates those that teach the model where [safety] withholds seconds."""
+    from activelearn.loop.admission import withhold
+    from activelearn.loop.safety import Assessment
+
+    pool = _pool(cfg)
+    throttle = np.array([m.throttle for m in pool.maneuvers])
+    full = np.array([m.duration for m in pool.maneuvers])
+
+    def picks(name: str, refused: np.ndarray) -> list[int]:
+        risk, duration = np.where(refused, 1.0, 0.0), np.where(refused, 0.0, full)
+        safe = Assessment(risk, duration, np.zeros(len(full)), full)
+        withheld = dataclasses.replace(withhold(pool, safe), affordable=~refused)
+        return make_strategy(name, n_samples=32).select(model, withheld, 2, np.random.default_rng(0))
+
+    # the model knows forward throttle: refusing the hardest reverse maneuvers, it asks for the mildest
+    # reverse ones; refusing full forward throttle, the next throttle down (integrated_variance on the
+    # test maneuvers picks forward, then reverse -0.6)
+    assert all(throttle[p] == -0.2 for p in picks("safe_expander", throttle <= -0.6))
+    assert all(throttle[p] == 0.8 for p in picks("safe_expander", throttle >= 1.0))
+    # with nothing refused it is integrated_variance on the [target]
+    nothing = np.zeros(len(full), dtype=bool)
+    assert picks("safe_expander", nothing) == picks("integrated_variance", nothing)
+
+
 def test_sample_space_epistemic_matches_the_model(cfg, model):
     pool = _pool(cfg)
     samples = FunctionSamples.from_model(model, pool.points, pool.output_scale, n_samples=32, seed=4)

@@ -399,6 +399,12 @@ def test_a_cut_candidate_is_scored_as_it_would_be_driven(tmp_path):
     kept = np.flatnonzero(~safe.cut)
     same = pool.points[np.isin(pool.owner, kept)], whole.points[np.isin(whole.owner, kept)]
     np.testing.assert_array_equal(*same)
+    # what [safety] withholds (safe_expander's target): a refused candidate's points whole, a cut one's
+    # by the share of its seconds after the cut, nothing of one admitted whole
+    withheld = 1.0 - safe.duration / safe.full
+    expected = sum(whole.weights[whole.owner == i].sum() * withheld[i] for i in range(len(withheld)))
+    assert (~safe.admissible).any() and pool.withheld_weights.sum() == pytest.approx(expected)
+    assert len(pool.withheld) == np.isin(whole.owner, np.flatnonzero(withheld > 1e-9)).sum()
 
 
 def test_every_strategy_picks_among_admissible_candidates_only(tmp_path):
@@ -413,7 +419,7 @@ def test_every_strategy_picks_among_admissible_candidates_only(tmp_path):
     assert 2 <= len(admissible) < len(campaign.maneuvers) and safe.cut.any()
     assert set(pool.available.tolist()) == admissible
     for name in ("grid", "random", "sobol", "lhs", "uniform", "max_epistemic", "max_total", "bald",
-                 "epistemic_maximin", "integrated_variance", "auto"):  # fmt: skip
+                 "epistemic_maximin", "integrated_variance", "safe_expander", "auto"):  # fmt: skip
         picks = make_strategy(name, n_samples=16).select(model, pool, 2, np.random.default_rng(0))
         assert set(picks) <= admissible, name
 

@@ -26,6 +26,7 @@ from activelearn.loop.function_space import (
     IntegratedVarianceStrategy,
     MaxEpistemicStrategy,
     MaxTotalStrategy,
+    SafeExpanderStrategy,
     UncertaintyStrategy,
 )
 from activelearn.loop.greedy_sampling import GreedySamplingStrategy, TrajectoryStrategy
@@ -61,6 +62,7 @@ __all__ = [
     "OracleErrorStrategy",
     "Pool",
     "RandomStrategy",
+    "SafeExpanderStrategy",
     "SobolStrategy",
     "Strategy",
     "SwitchStrategy",
@@ -282,6 +284,7 @@ STRATEGIES: dict[str, type[Strategy]] = {
         MaxTotalStrategy,
         BaldStrategy,
         IntegratedVarianceStrategy,
+        SafeExpanderStrategy,
         GreedySamplingStrategy,
         LcmdStrategy,
         AutoStrategy,

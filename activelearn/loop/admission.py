@@ -49,6 +49,7 @@ class Admission:
         if safety is None:
             return pool, None
         safe = self.assess(model, round_index, ~pool.taken, samples)
+        pool = withhold(pool, safe)
         if not safety.enforce:
             return pool, safe
         if safe.cut.any():  # score each candidate as it would be driven: a cut one by its first seconds
@@ -91,3 +92,16 @@ class Admission:
             state.risks[str(i)] = float(safe.cut_risk[i] if safe.admissible[i] else safe.risk[i])
             if safe.cut[i] and self.cfg.safety.enforce:  # type: ignore[union-attr]
                 state.cuts[str(i)] = float(safe.duration[i])
+
+
+def withhold(pool: Pool, safe: Assessment) -> Pool:
+    """`pool` with the points of the seconds `safe` withholds from its open candidates (`Pool.withheld`).
+
+    A refused candidate's points count whole; a cut one's weigh by the share of its seconds after the
+    cut (a pool's points need not be in time order: a candidate's distinct controls are scored once).
+    """
+    kept = np.where(safe.admissible, safe.duration, 0.0) / np.maximum(safe.full, 1e-9)
+    share = np.where(safe.assessed & ~pool.taken, np.clip(1.0 - kept, 0.0, 1.0), 0.0)
+    rows = np.flatnonzero(share[pool.owner] > 1e-9)
+    weights = pool.weights[rows] * share[pool.owner[rows]]
+    return dataclasses.replace(pool, withheld=pool.points[rows], withheld_weights=weights)

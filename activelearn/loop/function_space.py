@@ -235,13 +235,18 @@ class IntegratedVarianceStrategy(UncertaintyStrategy):
     def point_scores(self, samples: FunctionSamples, cov: np.ndarray) -> np.ndarray:  # pragma: no cover
         raise NotImplementedError("integrated_variance scores whole candidates")
 
+    def target_of(self, pool: Pool) -> tuple[np.ndarray, np.ndarray | None]:
+        """The points whose epistemic variance the picks should lower, and their weights (None: equal)."""
+        return pool.target, pool.target_weights
+
     def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
         available = list(check_k(pool, k))
         seed = int(rng.integers(2**31 - 1))
-        stacked = np.concatenate([pool.points, pool.target])
+        target, target_weights = self.target_of(pool)
+        stacked = np.concatenate([pool.points, target])
         samples = FunctionSamples.from_model(model, stacked, pool.output_scale, self.n_samples, seed)
         cand = FunctionSamples(samples.phi[: len(pool.points)], samples.aleatoric[: len(pool.points)])
-        m = _target_moment(samples.phi[len(pool.points) :], pool.target_weights)
+        m = _target_moment(samples.phi[len(pool.points) :], target_weights)
         weights = pool.weights * self.fantasy_weight
         precisions = {c: cand.precision(np.flatnonzero(pool.owner == c), weights) for c in available}
         cov = np.eye(cand.n_samples)
@@ -259,6 +264,27 @@ class IntegratedVarianceStrategy(UncertaintyStrategy):
         """Integrated epistemic variance over the target (standardised units, weighted)."""
         samples = FunctionSamples.from_model(model, pool.target, pool.output_scale, self.n_samples, seed)
         return float(np.trace(_target_moment(samples.phi, pool.target_weights)))
+
+
+class SafeExpanderStrategy(IntegratedVarianceStrategy):
+    """Grow the safe set: among the admitted candidates, drive those whose data most lower the epistemic
+    variance where [safety] withholds seconds (`Pool.withheld`: refused candidates, cut ones' rest).
+
+    SafeOpt's expanders (Sui et al., ICML 2015) are the safe points whose data could make unsafe ones
+    safe; this aims at the withheld points directly, as transductive active learning does (Hübotter et
+    al., NeurIPS 2024: variance reduction on a target set outside the sampling set). Under a physics
+    model a candidate is withheld for its limits by the fan, or because the model extrapolates there
+    (`trust_std`) and the kinematic worst case does not hold: lowering the variance there is what lets
+    the fan judge it. The reduction is integrated_variance's, exact in the sample-space posterior.
+    Without [safety], or when nothing open is withheld, the target is `[target]`'s (integrated_variance).
+    """
+
+    name = "safe_expander"
+
+    def target_of(self, pool: Pool) -> tuple[np.ndarray, np.ndarray | None]:
+        if pool.withheld is None or not len(pool.withheld):
+            return super().target_of(pool)
+        return pool.withheld, pool.withheld_weights
 
 
 def _target_moment(phi: np.ndarray, weights: np.ndarray | None) -> np.ndarray:

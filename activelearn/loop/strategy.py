@@ -44,6 +44,9 @@ class Pool:
     context: what the campaign measured about its model so far (e.g. `prequential_spearman`, the rank
         correlation of the last models' epistemic std with their errors on the maneuvers collected
         after them), for strategies that decide from it (`auto`).
+    withheld / withheld_weights: (W, n_inputs) points of the open candidates [safety] does not admit
+        whole (refused, or cut short) and the training rows each stands for, times the share of its
+        candidate's seconds withheld; None without [safety]. `safe_expander` aims its data there.
     """
 
     maneuvers: tuple[Any, ...]
@@ -66,6 +69,8 @@ class Pool:
     truth_y: np.ndarray | None = None
     truth_owner: np.ndarray | None = None
     context: Mapping[str, float] | None = None
+    withheld: np.ndarray | None = None
+    withheld_weights: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.maneuvers)
@@ -81,6 +86,10 @@ class Pool:
             raise ValueError("Pool.target_weights needs one weight per target point")
         if (self.prior_features is None) != (self.prior_kinds is None):
             raise ValueError("Pool.prior_features and prior_kinds go together")
+        if (self.withheld is None) != (self.withheld_weights is None) or (
+            self.withheld is not None and len(self.withheld) != len(self.withheld_weights)  # type: ignore[arg-type]
+        ):
+            raise ValueError("Pool.withheld needs one weight per point in withheld_weights")
 
     @property
     def available(self) -> np.ndarray:
