@@ -6,7 +6,6 @@ Real MuJoCo, real models and a real SQLite MLflow store, on a tiny skidpad-and-s
 from __future__ import annotations
 
 import dataclasses
-import math
 import subprocess
 import sys
 from pathlib import Path
@@ -34,16 +33,12 @@ from activelearn.loop.safety import (
     SPEED_PER_THROTTLE,
     Assessment,
     admissible_duration,
-    assess,
-    calibrated,
     circles_fit,
     fan,
     kinematic_bound,
-    limit_calibration,
     live_stop,
     log_violation,
     monotone_steps,
-    peak_rates,
     stop_rule,
     turn_speed,
     violating,
@@ -163,34 +158,6 @@ def test_the_safe_set_shares_count_open_candidates_and_their_seconds():
     assert grown.share == safe.share and grown.time_share == pytest.approx(60 / 90)
     none = dataclasses.replace(safe, risk=np.full(4, nan))
     assert np.isnan(none.share) and np.isnan(none.time_share)
-
-
-def test_limit_calibration_is_the_largest_rise_of_a_logged_peak_over_its_predicted_one():
-    cfg = SafetyConfig(arena=SQUARE, start=(0.0, 0.0, 0.0), max_lateral_acceleration=0.12)
-    rate = 30.0
-    t = np.arange(300) / rate  # a 10-s log whose rates settle: speed 0.2 m/s, yaw rate 0.55 rad/s
-    speed, yaw = 0.2 * np.minimum(t, 1.0), 0.55 * np.minimum(t, 1.0)
-    running = peak_rates(speed, yaw, cfg, rate)
-    assert running[:, -1] == pytest.approx([0.2, 0.55, 0.11])  # |v|, |w|, |v w| as `violating` reads them
-    assert (np.diff(running, axis=-1) >= 0).all()
-    log = pd.DataFrame({"pool_index": 7, "speed": speed, "angZ": yaw})
-    # the fan predicted the lateral acceleration 0.1 (its peak 10 % low), speed and yaw rate right
-    profile = np.tile([[0.2], [0.55], [0.1]], (1, 30))
-    assert limit_calibration({"7": profile.tolist()}, log, cfg, rate) == pytest.approx(1.1)
-    # read at the log's length (10 s), not at the profile's end
-    later = profile.copy()
-    later[2, 10:] = 0.2
-    assert limit_calibration({"7": later.tolist()}, log, cfg, rate) == pytest.approx(1.1)
-    # a fan that predicted high is not a reason to loosen; a rate far below its limit does not count
-    assert limit_calibration({"7": (profile * 1.2).tolist()}, log, cfg, rate) == 1.0
-    slow = log.assign(speed=speed / 4)  # 0.05 m/s, lateral 0.0275: both far below their limits,
-    low = profile * np.array([[0.0625], [1.0], [0.0625]])  # predicted 4x lower; the yaw rate right
-    assert limit_calibration({"7": low.tolist()}, slow, cfg, rate) == pytest.approx(1.0)
-    # no prediction of that pick (a prior run, a pick the kinematic worst case judged): nothing to learn
-    assert limit_calibration({"8": profile.tolist()}, log, cfg, rate) == 1.0
-    held = calibrated(cfg, 1.1)
-    assert held.max_lateral_acceleration == pytest.approx(0.12 / 1.1)
-    assert held.max_speed == pytest.approx(0.3 / 1.1) and held.max_yaw_rate == pytest.approx(0.9 / 1.1)
 
 
 def test_a_skidpad_whose_every_circle_fits_is_driven_whole_before_the_model_knows_it():
@@ -387,12 +354,6 @@ def test_safe_campaign_drives_admissible_cuts_and_logs_safety(tmp_path):
     for name in ("safe_set_size", "violations", "violations_total", "safety_seconds"):
         assert len(tracker.metric_history(state.run_id, name)) >= 1, name
     assert history["violations_total"].iloc[-1] == sum(1 for r in state.violated.values() if r)
-    # the fan's predicted peaks of each pick a model judged, second by second over its driven duration
-    judged = [i for i in state.taken if str(i) in state.peaks]
-    assert judged and (history["limit_factor"].dropna() == 1.0).all()  # calibrate_limits is off
-    for index in judged:
-        profile = np.asarray(state.peaks[str(index)])
-        assert profile.shape == (3, math.ceil(state.cuts.get(str(index), 20.0)))
 
 
 def test_a_live_stop_campaign_drives_to_the_walls_without_a_violation(tmp_path):
@@ -461,23 +422,6 @@ def test_every_strategy_picks_among_admissible_candidates_only(tmp_path):
                  "epistemic_maximin", "integrated_variance", "safe_expander", "auto"):  # fmt: skip
         picks = make_strategy(name, n_samples=16).select(model, pool, 2, np.random.default_rng(0))
         assert set(picks) <= admissible, name
-
-
-def test_calibrated_limits_admit_less_and_the_fan_predicts_each_candidates_peaks(tmp_path):
-    cfg = safe_config(tmp_path, {"stop": "live"}, tracking={"enabled": False})
-    campaign = Campaign(cfg, tmp_path / "c")
-    model = build_model(cfg.model)
-    test = campaign.test_set
-    fit(model, test.x, test.y_noisy, cfg.training, groups=test.groups, seed=0)
-    plain = assess(model, campaign.maneuvers, cfg.safety, seed=3)
-    held = assess(model, campaign.maneuvers, cfg.safety, seed=3, limit_factor=2.5)
-    assert held.limit_factor == 2.5 and plain.limit_factor == 1.0
-    assert (held.duration <= plain.duration).all() and held.time_share < plain.time_share
-    # peaks: (n, 3, seconds), non-decreasing in time, NaN past each candidate's end
-    assert plain.peaks.shape == (len(campaign.maneuvers), 3, 20)
-    assert (np.diff(plain.peaks, axis=-1) >= -1e-12).all() and np.isfinite(plain.peaks).all()
-    fast = int(np.argmax([abs(m.throttle) for m in campaign.maneuvers]))
-    assert plain.peaks[fast, 0, -1] > 0.5 * SPEED_PER_THROTTLE * abs(campaign.maneuvers[fast].throttle)
 
 
 def test_unconstrained_campaign_counts_its_violations(tmp_path):

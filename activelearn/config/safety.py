@@ -93,12 +93,6 @@ class SafetyConfig(_Section):
         description="The fan is trusted alone where the model's epistemic std of the speed stays within "
         "this share of the speed along the maneuver; beyond, the kinematic worst case must hold as well",
     )
-    calibrate_limits: bool = Field(
-        False,
-        description="Hold the fan to the limits divided by the largest ratio of a driven maneuver's logged "
-        "peak rate to the peak its fan predicted when it was picked (rates within half their limit; "
-        "`activelearn.loop.safety.limit_calibration`): a fan that proved low near a limit keeps away from it",
-    )
     limit_window: NonNegative = Field(
         0.5, description="Window (s) the rates are averaged over before the limits apply"
     )

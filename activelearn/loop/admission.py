@@ -7,7 +7,6 @@ the campaign's `assess` hook calls it (a benchmark's clairvoyant safe set replac
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -82,7 +81,6 @@ class Admission:
                 safe_set_cut=float(safe.cut.sum()),
                 safe_set_share=safe.share,
                 safe_time_share=safe.time_share,
-                limit_factor=safe.limit_factor,
                 risk_min=float(np.nanmin(safe.risk)) if safe.assessed.any() else float("nan"),
                 safety_seconds=seconds,
             )
@@ -94,9 +92,6 @@ class Admission:
             state.risks[str(i)] = float(safe.cut_risk[i] if safe.admissible[i] else safe.risk[i])
             if safe.cut[i] and self.cfg.safety.enforce:  # type: ignore[union-attr]
                 state.cuts[str(i)] = float(safe.duration[i])
-            if safe.peaks is not None and np.isfinite(safe.peaks[i, :, 0]).all():
-                seconds = max(1, math.ceil(safe.duration[i] if safe.admissible[i] else safe.full[i]))
-                state.peaks[str(i)] = np.round(safe.peaks[i, :, :seconds], 6).tolist()
 
 
 def withhold(pool: Pool, safe: Assessment) -> Pool:

@@ -187,7 +187,7 @@ def ingest(campaign: Campaign, paths: Sequence[str | Path], *, resume: bool = Fa
     """
     directory = campaign.directory
     state = CampaignState.load(directory)
-    campaign.adopt(state)  # [safety]: proposals cut short are driven (and matched) short
+    campaign.cuts = dict(state.cuts)  # [safety]: proposals cut short are driven (and matched) short
     if state.finished:
         raise InputError("DIR", str(directory), f"the campaign has finished ({state.stop_reason})")
     if state.pending is None:

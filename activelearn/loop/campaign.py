@@ -49,7 +49,7 @@ from activelearn.loop.prior import PRIOR_FILE, Prior, load_prior, prior_from_row
 from activelearn.loop.proposals import proposal_path, write_proposals
 from activelearn.loop.round_figure import draw_round
 from activelearn.loop.run_log import CampaignInterrupted, Progress, RunLog
-from activelearn.loop.safety import Assessment, assess, limit_calibration, live_stop, turn_speed, violations
+from activelearn.loop.safety import Assessment, assess, live_stop, turn_speed, violations
 from activelearn.loop.state import (
     CONFIG_FILE,
     MODEL_FILE,
@@ -161,7 +161,6 @@ class Campaign:
         self._clock = (0.0, time.perf_counter())
         self._truth: dict[str, np.ndarray] | None = None
         self.cuts: dict[str, float] = {}  # the state's [safety] cuts (pool index -> seconds)
-        self.peaks: dict[str, list[list[float]]] = {}  # and the picks' predicted peak rates
 
     # Set after construction by commands and scripts; the rooms that use them read them here.
     @property
@@ -224,10 +223,6 @@ class Campaign:
             for i in state.pending
         ]
         return self.label(frames, state.pending, len(state.batches))
-
-    def adopt(self, state: CampaignState) -> None:
-        """Keep what later rounds read of `state`: [safety]'s cuts and the picks' predicted peaks."""
-        self.cuts, self.peaks = dict(state.cuts), dict(state.peaks)
 
     def driven(self, index: int) -> Any:
         """Candidate `index` as it is driven: cut to a shorter duration where [safety] said so."""
@@ -327,9 +322,8 @@ class Campaign:
         turn = None
         if safety.measured_turn_speed:
             turn = turn_speed(self.fitting.known_logs(samples), rate, safety.limit_window)
-        factor = limit_calibration(self.peaks, samples, safety, rate) if safety.calibrate_limits else 1.0
         return assess(model, self.maneuvers, safety, rate_hz=rate, seed=self.cfg.seed * 10_007 + round_index,
-                      which=open_, turn=turn, limit_factor=factor)  # fmt: skip
+                      which=open_, turn=turn)  # fmt: skip
 
     def _set_pending(self, state: CampaignState, picks: list[int], safe: Assessment | None) -> None:
         """Propose `picks`; with [safety], record their risks and the shorter durations of those cut."""
@@ -337,7 +331,7 @@ class Campaign:
         if safe is None:
             return
         self.admission.record(state, picks, safe)
-        self.adopt(state)
+        self.cuts = dict(state.cuts)
 
     # ------------------------------------------------------------------ checkpoints
 
@@ -531,7 +525,7 @@ class Campaign:
             if state.rounds and "test_rmse" in state.rounds[-1]:
                 state.rounds.pop()
             state.logged = min(state.logged, len(state.rounds))
-        self.adopt(state)
+        self.cuts = dict(state.cuts)
         self._clock = (state.wall_seconds, time.perf_counter())
         self.run_log.start(state, self._params)
         if state.rounds:  # a resumed run may hold rounds that never reached MLflow

@@ -55,7 +55,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -81,9 +81,6 @@ UNDERSTEER_MAX = 2.0
 # directions the logs did not hold (the envelope lies 0-7 % above the reference speed table).
 TURN_SPEED_MARGIN = 0.02
 TURN_SPEED_MIN_SECONDS = 5.0  # s: a run shorter than this may not have settled to its turn speed
-# A rate counts in `limit_calibration` only where its logged peak came within this share of its limit:
-# far below a limit the ratio says nothing about the fan at the limit (and small rates are noisy).
-PEAK_NEAR = 0.5
 CHUNK = 16  # maneuvers per rollout: S x 16 x 2 700 steps x 5 arrays of float32 stay near 60 MB
 REASONS = ("arena", "speed", "yaw_rate", "lateral", "diverged")  # diverged: a fan's NaN or inf
 
@@ -101,10 +98,6 @@ class Assessment:
     duration: np.ndarray
     cut_risk: np.ndarray
     full: np.ndarray  # (n,) the candidates' full durations
-    # (n, 3, K): the fan's predicted peak rates (`peak_rates`: |v|, |ω|, |v ω|) up to each whole second,
-    # their (1 - delta) quantile over its trajectories; NaN past a candidate's end or where no fan ran
-    peaks: np.ndarray | None = None
-    limit_factor: float = 1.0  # the fan was held to the limits divided by this (`limit_calibration`)
 
     @property
     def admissible(self) -> np.ndarray:
@@ -185,61 +178,6 @@ def violating(x: np.ndarray, y: np.ndarray, v: np.ndarray, w: np.ndarray, cfg: S
     return code
 
 
-def peak_rates(v: np.ndarray, w: np.ndarray, cfg: SafetyConfig, rate_hz: float) -> np.ndarray:
-    """(..., 3, T) running maxima of the window-averaged |v|, |ω| and |v ω| (as `violating` reads them)."""
-    window = max(1, round(cfg.limit_window * rate_hz))
-    with np.errstate(invalid="ignore", over="ignore"):
-        v_avg, w_avg = _smooth(v, window), _smooth(w, window)
-        rates = np.stack([np.abs(v_avg), np.abs(w_avg), np.abs(v_avg * w_avg)], axis=-2)
-    return np.maximum.accumulate(np.where(np.isfinite(rates), rates, np.inf), axis=-1)
-
-
-def limits(cfg: SafetyConfig) -> np.ndarray:
-    """(3,) the limits `peak_rates` are held to: speed, yaw rate, lateral acceleration."""
-    return np.array([cfg.max_speed, cfg.max_yaw_rate, cfg.max_lateral_acceleration])
-
-
-def limit_calibration(
-    predicted: Mapping[str, Sequence[Sequence[float]]], logs: pd.DataFrame | None, cfg: SafetyConfig,
-    rate_hz: float,
-) -> float:  # fmt: skip
-    """How far the driven maneuvers' peak rates rose above what their fans predicted (>= 1).
-
-    `predicted`: pool index -> the (3, K) peaks its assessment predicted (`Assessment.peaks`) when it
-    was picked; `logs`: the collected rows (tagged with `pool_index`). For each such log and each rate
-    that came within PEAK_NEAR of its limit, the ratio of the logged peak to the predicted one at the
-    log's length; the largest, or 1. A prequential (split-conformal) check: each maneuver was predicted
-    by a model that had not seen it. The fan then judges the limits divided by it
-    (`[safety] calibrate_limits`).
-    """
-    if not predicted or logs is None or logs.empty or "pool_index" not in logs.columns:
-        return 1.0
-    factor = 1.0
-    for index, part in logs.groupby("pool_index", sort=False):
-        profile = predicted.get(str(int(index)))
-        if profile is None:
-            continue
-        profile = np.asarray(profile, dtype=np.float64)
-        speed, yaw = part["speed"].to_numpy(np.float64), part["angZ"].to_numpy(np.float64)
-        observed = peak_rates(speed, yaw, cfg, rate_hz)[:, -1]
-        second = min(max(int(len(part) / rate_hz), 1), profile.shape[1]) - 1  # the log's last whole second
-        expected = profile[:, second]
-        near = (observed >= PEAK_NEAR * limits(cfg)) & np.isfinite(expected) & (expected > 0)
-        if near.any():
-            factor = max(factor, float(np.max(observed[near] / expected[near])))
-    return factor
-
-
-def calibrated(cfg: SafetyConfig, factor: float) -> SafetyConfig:
-    """`cfg` with its limits divided by `factor` (the fan's measured under-prediction)."""
-    if factor <= 1.0:
-        return cfg
-    return cfg.model_copy(update={
-        "max_speed": cfg.max_speed / factor, "max_yaw_rate": cfg.max_yaw_rate / factor,
-        "max_lateral_acceleration": cfg.max_lateral_acceleration / factor,
-    })  # fmt: skip
-
-
 def fan(model: Any, maneuvers: Sequence[Any], cfg: SafetyConfig, rate_hz: float, seed: int) -> Rollout:
     """The model's rollout of `maneuvers` from the start pose (epistemic spread widened by `fan_scale`).
 
@@ -294,19 +232,15 @@ def assess(
     seed: int = 0,
     which: np.ndarray | None = None,
     turn: TurnSpeed | None = None,
-    limit_factor: float = 1.0,
 ) -> Assessment:
     """Admissibility of every candidate in `maneuvers` (only those in `which`; the rest are not admissible).
 
-    With a model: from its rollout fans, in chunks of CHUNK maneuvers, held to the limits divided by
-    `limit_factor` (`limit_calibration`). Without one: the kinematic worst case alone (see the module
-    docstring), with the speed kept in turns `turn` where given.
+    With a model: from its rollout fans, in chunks of CHUNK maneuvers. Without one: the kinematic
+    worst case alone (see the module docstring), with the speed kept in turns `turn` where given.
     """
     n = len(maneuvers)
     full = np.array([float(m.duration) for m in maneuvers])
     risk, duration, cut_risk = np.full(n, np.nan), np.zeros(n), np.full(n, np.nan)
-    seconds = math.ceil(float(full.max(initial=0.0)) - 1e-9)
-    peaks = np.full((n, len(limits(cfg)), seconds), np.nan)
     todo = np.arange(n) if which is None else np.flatnonzero(which)
     arm = float(getattr(getattr(model, "config", None), "pose_lever_arm", POSE_LEVER_ARM))
     if model is None:
@@ -316,8 +250,7 @@ def assess(
     for block in range(0, len(todo), CHUNK):
         rows = todo[block : block + CHUNK]
         rollout = fan(model, [maneuvers[i] for i in rows], cfg, rate_hz, seed + block)
-        times = first_violations(rollout, calibrated(cfg, limit_factor), rate_hz)
-        peaks[rows] = predicted_peaks(rollout, cfg, rate_hz, seconds)
+        times = first_violations(rollout, cfg, rate_hz)
         untrusted = relative_speed_std(rollout) / cfg.fan_scale > cfg.trust_std
         for j, i in enumerate(rows):
             risk[i], duration[i], cut_risk[i] = admissible_duration(times[:, j], full[i], cfg)
@@ -326,18 +259,7 @@ def assess(
                 risk[i] = max(risk[i], bound[0])
                 if bound[1] < duration[i]:
                     duration[i], cut_risk[i] = bound[1], bound[2] if bound[1] > 0 else float("nan")
-    return Assessment(risk, duration, cut_risk, full, peaks, limit_factor)
-
-
-def predicted_peaks(rollout: Rollout, cfg: SafetyConfig, rate_hz: float, seconds: int) -> np.ndarray:
-    """(M, 3, seconds) the fan's (1 - delta) quantile of the peak rates up to each whole second."""
-    running = peak_rates(rollout.v, rollout.w, cfg, rate_hz)  # (S, M, 3, T)
-    ends = np.minimum(np.round(np.arange(1, seconds + 1) * rate_hz).astype(int), running.shape[-1]) - 1
-    with np.errstate(invalid="ignore"):
-        quantile = np.quantile(running[..., ends], 1.0 - cfg.delta, axis=0)
-    past = ends[None, :] >= rollout.lengths[:, None]  # a second past the maneuver's end
-    quantile[np.broadcast_to(past[:, None, :], quantile.shape)] = np.nan
-    return quantile
+    return Assessment(risk, duration, cut_risk, full)
 
 
 def relative_speed_std(rollout: Rollout) -> np.ndarray:
@@ -591,7 +513,7 @@ def proposal_figure(campaign: Any, path: str | Path) -> Path:
 
     cfg, safety = campaign.cfg, campaign.cfg.safety
     state = CampaignState.load(campaign.directory)
-    campaign.adopt(state)
+    campaign.cuts = dict(state.cuts)
     pending = state.pending or []
     model_file = campaign.directory / MODEL_FILE
     model = load_model(model_file) if state.rounds and model_file.exists() else campaign.fitting.prior_model()

@@ -54,9 +54,6 @@ class CampaignState:
     cuts: dict[str, float] = field(default_factory=dict)
     risks: dict[str, float] = field(default_factory=dict)
     violated: dict[str, str] = field(default_factory=dict)
-    # the fan's predicted peak rates (|v|, |ω|, |v ω|) of each pick up to each second of its driven
-    # duration, for `[safety] calibrate_limits` (pool index -> 3 lists)
-    peaks: dict[str, list[list[float]]] = field(default_factory=dict)
 
     @property
     def taken(self) -> list[int]:

@@ -120,7 +120,6 @@ def summary(curves: pd.DataFrame, label: str, directory: Path) -> dict:
         "safe_share_by_round": _by_round(curves, "safe_set_share"),
         "safe_time_share_by_round": _by_round(curves, "safe_time_share"),
         "safe_time_share_grew": _grew(curves, "safe_time_share"),
-        "limit_factor_by_round": _by_round(curves, "limit_factor"),
         "safety_s_per_round": float(curves["safety_seconds"].mean()) if "safety_seconds" in curves else 0.0,
         "cut_share": cut / total if total else float("nan"),
         "per_seed": last[POSITION].round(4).to_dict() if POSITION in last else {},
@@ -198,8 +197,6 @@ def main() -> None:
     parser.add_argument("--per-round", type=int, default=None, help="default: the config's")
     parser.add_argument("--setup-seconds", type=float, default=None,
                         help="track seconds each maneuver costs besides its duration (default: the config's)")
-    parser.add_argument("--calibrate-limits", action="store_true",
-                        help="[safety] calibrate_limits = true (default: the config's)")
     parser.add_argument("--out", default="runs/bench_safety")
     parser.add_argument("--resume", action="store_true")
     parser.add_argument("--no-tracking", action="store_true")
@@ -218,8 +215,6 @@ def main() -> None:
         overrides["strategy"] = args.strategy
     if args.max_sim_seconds is not None:  # a track day: the safe variant drives more, shorter maneuvers
         overrides["design"] = {"max_sim_seconds": args.max_sim_seconds, "max_maneuvers": None}
-    if args.calibrate_limits:
-        overrides.setdefault("safety", {})["calibrate_limits"] = True
     if args.per_round is not None:
         overrides.setdefault("design", {})["per_round"] = args.per_round
     if args.setup_seconds is not None:
@@ -272,8 +267,6 @@ def main() -> None:
             print(f"{'':>16}  admissible share of the open candidates by round {row['safe_share_by_round']}; "
                   f"of their seconds {row['safe_time_share_by_round']} (grew on "
                   f"{row['safe_time_share_grew']} seeds)")  # fmt: skip
-        if row["limit_factor_by_round"] and max(row["limit_factor_by_round"].values()) > 1.0:
-            print(f"{'':>16}  calibrated limits: mean factor by round {row['limit_factor_by_round']}")
         print(f"{'':>16}  per seed {row['per_seed']}")
     figure = plot_safe_set(curves, [row["variant"] for row in rows], Path(args.out) / "safe_set.png")
     if figure is not None:
