@@ -211,6 +211,7 @@ BAD_SAFETY = {
     "n_samples": ("n_samples = 4", "greater than or equal to 8"),
     "fan_scale": ("fan_scale = 0.5", "greater than or equal to 1"),
     "trust_std": ("trust_std = 0", "greater than 0"),
+    "trust_rates": ('trust_rates = ["speed", "lateral"]', "'speed' or 'yaw_rate'"),
     "limit_window": ("limit_window = -0.5", "greater than or equal to 0"),
     "measured_turn_speed": ('measured_turn_speed = "sometimes"', "boolean"),
     "stop": ('stop = "never"', "'planned' or 'live'"),

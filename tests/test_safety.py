@@ -39,12 +39,13 @@ from activelearn.loop.safety import (
     live_stop,
     log_violation,
     monotone_steps,
+    relative_std,
     stop_rule,
     turn_speed,
     violating,
 )
 from activelearn.numerics.models import build_model
-from activelearn.numerics.surrogate import simulate
+from activelearn.numerics.surrogate import Rollout, simulate
 from activelearn.numerics.training import fit
 from activelearn.studies.tracking import Tracker
 from simulator import FamilyManeuver, Maneuver, collect
@@ -158,6 +159,24 @@ def test_the_safe_set_shares_count_open_candidates_and_their_seconds():
     assert grown.share == safe.share and grown.time_share == pytest.approx(60 / 90)
     none = dataclasses.replace(safe, risk=np.full(4, nan))
     assert np.isnan(none.share) and np.isnan(none.time_share)
+
+
+def test_the_fan_is_trusted_by_the_relative_std_of_the_rates_trust_rates_names():
+    # two maneuvers of 4 steps, the second only 3 long (its 4th step is padding)
+    mean = np.zeros((2, 4, 2))
+    mean[..., 0], mean[..., 1] = 0.2, 0.5  # m/s, rad/s
+    mean[0, 0] = 0.0  # standing: the floors (0.02 m/s, 0.05 rad/s) stand in
+    var = np.zeros((2, 4, 2))
+    var[0, :, 0] = 0.002**2  # speed std 2 mm/s: 10 % of the floor at standstill, 1 % of 0.2 m/s
+    var[1, 1, 1] = 0.02**2  # yaw-rate std 0.02 rad/s: 4 % of 0.5 rad/s
+    var[1, 3, :] = 1.0  # padding: never read
+    empty = np.zeros((1, 2, 4))
+    rollout = Rollout(1 / 30, empty, empty, empty, empty, empty, mean, var, var, np.array([4, 3]))
+    assert relative_std(rollout) == pytest.approx([0.1, 0.0])
+    assert relative_std(rollout, ("yaw_rate",)) == pytest.approx([0.0, 0.04])
+    assert relative_std(rollout, ("speed", "yaw_rate")) == pytest.approx([0.1, 0.04])
+    with pytest.raises(ConfigError, match=r"safety\.trust_rates"):
+        validate_config({"safety": {"arena": SQUARE, "trust_rates": ["lateral"]}})
 
 
 def test_a_skidpad_whose_every_circle_fits_is_driven_whole_before_the_model_knows_it():

@@ -93,6 +93,15 @@ class SafetyConfig(_Section):
         description="The fan is trusted alone where the model's epistemic std of the speed stays within "
         "this share of the speed along the maneuver; beyond, the kinematic worst case must hold as well",
     )
+    # The yaw rate as well: measured on safe_track_twin.toml with safe_expander (experiments/results/
+    # bench_safety.txt), the staircase that broke the lateral limit had a yaw-rate std of 7 % and a speed
+    # std of 1.8 % (under trust_std) along its fan.
+    trust_rates: tuple[Literal["speed", "yaw_rate"], ...] = Field(
+        ("speed",),
+        min_length=1,
+        description="The rates whose epistemic std (relative to the rate: at least 0.02 m/s, 0.05 rad/s) "
+        "must stay within `trust_std` for the fan to be trusted alone: `speed`, `yaw_rate`",
+    )
     limit_window: NonNegative = Field(
         0.5, description="Window (s) the rates are averaged over before the limits apply"
     )

@@ -16,8 +16,9 @@ risk over a duration T is the share of trajectories that violated before T:
   * else not admissible.
 
 Before the first model (a cold start's initial design without a prior model), and wherever the
-model extrapolates (its epistemic std of the speed along the maneuver exceeds `trust_std` of the
-speed: there its fan missed the true speed, measured in reverse after a forward-only prior), a
+model extrapolates (its epistemic std of the speed, and of the yaw rate where `trust_rates` says so,
+along the maneuver exceeds `trust_std` of the rate: there its fan missed the true speed, measured in
+reverse after a forward-only prior, and the true yaw rate of a staircase on the twin), a
 kinematic worst case stands in for the fan, or must hold beside it. It reads the candidate's control
 schedule step by step (a reference kind or any family member): speed at most SPEED_PER_THROTTLE x
 the largest |throttle| so far (the reference throttle table lies below that line) x the share of it
@@ -251,7 +252,7 @@ def assess(
         rows = todo[block : block + CHUNK]
         rollout = fan(model, [maneuvers[i] for i in rows], cfg, rate_hz, seed + block)
         times = first_violations(rollout, cfg, rate_hz)
-        untrusted = relative_speed_std(rollout) / cfg.fan_scale > cfg.trust_std
+        untrusted = relative_std(rollout, cfg.trust_rates) / cfg.fan_scale > cfg.trust_std
         for j, i in enumerate(rows):
             risk[i], duration[i], cut_risk[i] = admissible_duration(times[:, j], full[i], cfg)
             if untrusted[j]:  # the model extrapolates: the kinematic worst case must hold as well
@@ -262,12 +263,22 @@ def assess(
     return Assessment(risk, duration, cut_risk, full)
 
 
-def relative_speed_std(rollout: Rollout) -> np.ndarray:
-    """(M,) largest epistemic std of the speed along each maneuver, relative to the speed (>= 0.02 m/s)."""
-    std = np.sqrt(rollout.epistemic_var[..., 0])
-    relative = std / np.maximum(np.abs(rollout.mean_rates[..., 0]), 0.02)
-    relative[np.arange(relative.shape[1])[None, :] >= rollout.lengths[:, None]] = 0.0
-    return relative.max(axis=1)
+# The smallest rate a relative std is taken of (speed m/s, yaw rate rad/s): ~7 % of Nigel's top speed and
+# of its largest yaw rate, so a standing or straight-driving car does not divide by ~0.
+RATE_FLOORS = {"speed": 0.02, "yaw_rate": 0.05}
+
+
+def relative_std(rollout: Rollout, rates: Sequence[str] = ("speed",)) -> np.ndarray:
+    """(M,) largest epistemic std of `rates` along each maneuver, each relative to its rate (RATE_FLOORS)."""
+    worst = np.zeros(len(rollout.lengths))
+    past = np.arange(rollout.epistemic_var.shape[1])[None, :] >= rollout.lengths[:, None]
+    for name in rates:
+        column = ("speed", "yaw_rate").index(name)
+        std = np.sqrt(rollout.epistemic_var[..., column])
+        relative = std / np.maximum(np.abs(rollout.mean_rates[..., column]), RATE_FLOORS[name])
+        relative[past] = 0.0
+        worst = np.maximum(worst, relative.max(axis=1))
+    return worst
 
 
 @dataclass(frozen=True)

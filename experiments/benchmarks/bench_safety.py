@@ -197,6 +197,8 @@ def main() -> None:
     parser.add_argument("--per-round", type=int, default=None, help="default: the config's")
     parser.add_argument("--setup-seconds", type=float, default=None,
                         help="track seconds each maneuver costs besides its duration (default: the config's)")
+    parser.add_argument("--trust-yaw-rate", action="store_true",
+                        help="[safety] trust_rates = [speed, yaw_rate] (default: the config's)")
     parser.add_argument("--out", default="runs/bench_safety")
     parser.add_argument("--resume", action="store_true")
     parser.add_argument("--no-tracking", action="store_true")
@@ -215,6 +217,8 @@ def main() -> None:
         overrides["strategy"] = args.strategy
     if args.max_sim_seconds is not None:  # a track day: the safe variant drives more, shorter maneuvers
         overrides["design"] = {"max_sim_seconds": args.max_sim_seconds, "max_maneuvers": None}
+    if args.trust_yaw_rate:
+        overrides.setdefault("safety", {})["trust_rates"] = ["speed", "yaw_rate"]
     if args.per_round is not None:
         overrides.setdefault("design", {})["per_round"] = args.per_round
     if args.setup_seconds is not None:
