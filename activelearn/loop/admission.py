@@ -100,8 +100,8 @@ def withhold(pool: Pool, safe: Assessment) -> Pool:
     A refused candidate's points count whole; a cut one's weigh by the share of its seconds after the
     cut (a pool's points need not be in time order: a candidate's distinct controls are scored once).
     """
-    kept = np.where(safe.admissible, safe.duration, 0.0) / np.maximum(safe.full, 1e-9)
-    share = np.where(safe.assessed & ~pool.taken, np.clip(1.0 - kept, 0.0, 1.0), 0.0)
+    # a refused candidate's duration is 0; the taken ones were not assessed
+    share = np.where(safe.assessed, 1.0 - safe.duration / safe.full, 0.0)
     rows = np.flatnonzero(share[pool.owner] > 1e-9)
     weights = pool.weights[rows] * share[pool.owner[rows]]
     return dataclasses.replace(pool, withheld=pool.points[rows], withheld_weights=weights)
