@@ -103,9 +103,38 @@ def test_identification_recovers_the_parameters_of_its_own_structure():
         levels[rng.integers(6), 0] = 0.0
         controls.append(np.repeat(levels, 90, axis=0))
     runs = physics.run_single_track(np.stack(controls), np.zeros((6, 2)), truth, 1 / 30)[0]
-    found, stderr = physics.identify_from_logs([(u, y) for u, y in zip(controls, runs, strict=True)])
-    np.testing.assert_allclose(found, truth, rtol=0.02)
-    assert np.all(stderr < 0.05 * np.maximum(truth, 0.1))
+    found = physics.identify_from_logs([(u, y) for u, y in zip(controls, runs, strict=True)])
+    np.testing.assert_allclose(found.values, truth, rtol=0.02)
+    assert np.all(found.stderr < 0.05 * np.maximum(truth, 0.1))
+
+
+def _box_controls(seed: int, n_logs: int) -> np.ndarray:
+    """Piecewise-constant controls over the box (6 levels of 3 s each per log), brake phases included."""
+    rng = np.random.default_rng(seed)
+    controls = []
+    for _ in range(n_logs):
+        levels = rng.uniform([-1.0, -0.5236], [1.0, 0.5236], size=(6, 2))
+        levels[rng.integers(6), 0] = 0.0
+        controls.append(np.repeat(levels, 90, axis=0))
+    return np.stack(controls)
+
+
+def test_the_covariance_widens_where_the_logs_disagree():
+    """Half the logs from a car with scrub 0.8, half from one with 1.6: the single track fits neither,
+    and the cluster-robust standard error of the scrub is of the size of that disagreement (the
+    spread of the two halves' fits over the root of the number of logs), not of the noise-free fit's."""
+    controls = _box_controls(1, 12)
+    cars = np.array([[0.8, 1.1, 0.2, scrub, 1.15, 0.08, 3.0] for scrub in (0.8, 1.6)])
+    runs = [physics.run_single_track(controls[i::2], np.zeros((6, 2)), car, 1 / 30)[0]
+            for i, car in enumerate(cars)]  # fmt: skip
+    logs = [(u, y) for i in range(2) for u, y in zip(controls[i::2], runs[i], strict=True)]
+    both = physics.identify_from_logs(logs)
+    halves = [physics.identify_from_logs(logs[:6]).values[3], physics.identify_from_logs(logs[6:]).values[3]]
+    assert halves == pytest.approx([0.8, 1.6], rel=0.05)
+    disagreement = np.std(halves) / np.sqrt(len(logs))  # ~0.12
+    assert 0.5 * disagreement < both.stderr[3] < 4 * disagreement
+    one_car = physics.identify_from_logs(logs[:6])
+    assert one_car.stderr[3] < 0.1 * both.stderr[3]  # one car's logs agree: no such spread
 
 
 @pytest.mark.slow
@@ -394,6 +423,69 @@ def test_gated_free_runs_computed_whole_are_the_step_loops(monkeypatch):
     assert np.abs(whole.mean_rates - full.mean_rates).max() > 1e-2  # the gate moved the mean
     for name in ("v", "w", "mean_rates", "epistemic_var"):
         np.testing.assert_allclose(getattr(whole, name), getattr(stepped, name), atol=2e-5, err_msg=name)
+
+
+def _with_parameter_spread(model: PhysicsModel) -> PhysicsModel:
+    """The model with the scrub and the understeer uncertain (s.e. 0.3 and 0.1, correlated)."""
+    covariance = np.diag(np.full(len(physics.PARAMETERS), 1e-8))
+    covariance[3, 3], covariance[4, 4], covariance[3, 4] = 0.09, 0.01, 0.015
+    covariance[4, 3] = covariance[3, 4]
+    with torch.no_grad():
+        model.theta_scale.copy_(torch.as_tensor(physics._cholesky(covariance), dtype=torch.float32))
+    return model
+
+
+def test_each_draw_has_its_own_parameters_from_the_covariance():
+    model = _with_parameter_spread(_perturbed_control_model())
+    draws = model.parameter_draws(4000, seed=5)
+    np.testing.assert_array_equal(draws.numpy(), model.parameter_draws(4000, seed=5).numpy())  # seeded
+    assert not torch.equal(draws, model.parameter_draws(4000, seed=6))
+    assert (draws >= torch.as_tensor(physics.LOW, dtype=torch.float32)).all()
+    assert (draws <= torch.as_tensor(physics.HIGH, dtype=torch.float32)).all()
+    # scrub's nominal 0 sits on its lower bound: clipped there; the understeer is inside its range
+    assert np.std(draws[:, 4].numpy()) == pytest.approx(0.1, rel=0.1)
+    assert float(draws[:, 0].std()) < 1e-3  # the others stay put
+    assert torch.equal(_perturbed_control_model().parameter_draws(3, seed=5), model.theta.expand(3, -1))
+
+
+@pytest.mark.parametrize("inputs", ["control", "history"])
+def test_the_parameter_spread_widens_the_fans_and_whole_runs_still_are_the_step_loops(monkeypatch, inputs):
+    """The draws' parameters enter both free-run paths alike (the kernel reads one set: torch steps
+    them), and the fans at full lock are wider with them than with the correction's spread alone."""
+    monkeypatch.setattr(physics, "NOISE_CAP", 0.0)
+    controls = [np.tile([0.8, 0.5236], (300, 1)), np.tile([0.6, 0.2], (300, 1))]
+    plain = simulate(_perturbed_control_model(inputs), controls, n_samples=16, seed=3)
+    model = _with_parameter_spread(_perturbed_control_model(inputs))
+    spread = simulate(model, controls, n_samples=16, seed=3)
+    assert (spread.epistemic_var[0, -60:].mean(axis=0) > 2 * plain.epistemic_var[0, -60:].mean(axis=0)).all()
+    monkeypatch.setattr(PhysicsModel, "open_loop_free_runs", Model.open_loop_free_runs)
+    stepped = simulate(model, controls, n_samples=16, seed=3)
+    for name in ("v", "w", "mean_rates", "epistemic_var"):
+        np.testing.assert_allclose(getattr(spread, name), getattr(stepped, name), atol=2e-5, err_msg=name)
+
+
+def test_identification_sets_the_spread_only_when_asked(forward_grid: pd.DataFrame, tmp_path):
+    rows = pd.concat([training_rows(g, DATA) for _, g in forward_grid.groupby("run_id", sort=False)])
+    x, y = arrays(rows, DATA)
+    logs = _logs(forward_grid)
+    found = physics.identify_from_logs(logs)
+    for setting in ("none", "by_log"):
+        model = build_model(_config(parameter_uncertainty=setting), seed=0)
+        model.identify(x, y, logs)
+        scale = model.theta_scale.double().numpy()
+        if setting == "none":
+            assert not scale.any()
+            continue
+        np.testing.assert_allclose(scale @ scale.T, found.covariance, rtol=1e-3, atol=1e-6)
+        save_model(model, tmp_path / "spread.pt")
+        torch.testing.assert_close(load_model(tmp_path / "spread.pt").theta_scale, model.theta_scale)
+    # a model saved before the spread existed loads without one
+    state = build_model(_config(), seed=0).state_dict()
+    del state["theta_scale"]
+    older = build_model(_config(), seed=0)
+    older.theta_scale.fill_(1.0)
+    older.load_state_dict(state)
+    assert not older.theta_scale.any()
 
 
 def test_the_gate_keeps_the_correction_only_where_held_out_maneuvers_want_it(monkeypatch):

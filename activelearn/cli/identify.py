@@ -31,10 +31,10 @@ def _identify(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.rate_hz) and args.rate_hz > 0):
         raise InputError("--rate-hz", args.rate_hz, "must be a positive number")
     logs = control_rate_logs([read_log_file(path) for path in log_files(args.logs)])
-    values, stderr = identify_from_logs(logs, dt=1.0 / args.rate_hz)
+    found = identify_from_logs(logs, dt=1.0 / args.rate_hz)
     print(f"physical parameters from {len(logs)} log(s), {sum(len(u) for u, _ in logs)} steps:")
     print(f"  {'parameter':<13}{'datasheet':>10}{'fitted':>10}{'± s.e.':>9}{'change':>9}  unit  meaning")
-    for p, value, err in zip(PARAMETERS, values, stderr, strict=True):
+    for p, value, err in zip(PARAMETERS, found.values, found.stderr, strict=True):
         change = f"{value / p.nominal - 1:+.1%}" if p.nominal else f"{value - p.nominal:+.3f}"
         row = f"{p.name:<13}{p.nominal:>10.4f}{value:>10.4f}{err:>9.4f}{change:>9}"
         print(f"  {row}  {p.unit:<5} {p.meaning}")

@@ -97,6 +97,15 @@ class ModelConfig(_Section):
     identify: bool = Field(
         True, description="kind = 'physics': fit the physical parameters to the training logs before training"
     )
+    # The fans carried the correction's posterior but not the identified core's: where the single track
+    # misses the car and the data hold no example (full lock past the prior's 0.31 rad, a steering step
+    # at speed), they were ~1 % wide and 1-11 % off (experiments/results/bench_safety.txt, session 20).
+    parameter_uncertainty: Literal["none", "by_log"] = Field(
+        "none",
+        description="kind = 'physics': 'by_log' gives each posterior draw its own physical parameters, "
+        "drawn from the identification's cluster-robust covariance (each training log a cluster), so the "
+        "fans carry the identified core's uncertainty as well as the correction's",
+    )
     residual_bound: Annotated[float, Field(ge=0.0, le=0.5)] = Field(
         0.05,
         description="kind = 'physics': largest learnt change of a steady rate, as a share of its limit "

@@ -199,6 +199,8 @@ def main() -> None:
                         help="track seconds each maneuver costs besides its duration (default: the config's)")
     parser.add_argument("--trust-yaw-rate", action="store_true",
                         help="[safety] trust_rates = [speed, yaw_rate] (default: the config's)")
+    parser.add_argument("--parameter-uncertainty", choices=("none", "by_log"), default=None,
+                        help="[model] parameter_uncertainty of a physics model (default: the config's)")
     parser.add_argument("--out", default="runs/bench_safety")
     parser.add_argument("--resume", action="store_true")
     parser.add_argument("--no-tracking", action="store_true")
@@ -219,6 +221,8 @@ def main() -> None:
         overrides["design"] = {"max_sim_seconds": args.max_sim_seconds, "max_maneuvers": None}
     if args.trust_yaw_rate:
         overrides.setdefault("safety", {})["trust_rates"] = ["speed", "yaw_rate"]
+    if args.parameter_uncertainty is not None:
+        overrides["model"] = {"parameter_uncertainty": args.parameter_uncertainty}
     if args.per_round is not None:
         overrides.setdefault("design", {})["per_round"] = args.per_round
     if args.setup_seconds is not None:

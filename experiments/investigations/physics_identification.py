@@ -47,7 +47,7 @@ def main() -> None:
     model.set_scalers(*campaign.fitting.training_data(samples)[:2])
     # the bare single track: the correction's outputs held at zero
     step = model._physical_step
-    model._physical_step = lambda x, dim, z, var: step(x, dim, torch.zeros_like(z), var)
+    model._physical_step = lambda x, dim, z, var, theta: step(x, dim, torch.zeros_like(z), var, theta)
 
     def error() -> float:
         return free_run_metrics(model, test.logs, test.truth_logs)["rollout_pos_err_30s"]

@@ -32,6 +32,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -60,6 +61,7 @@ LAST_LAYER_SCALE = 0.1  # the correction starts near zero: an untrained model is
 # stays below 1.5x.
 NOISE_CAP = 0.03
 _RATE_LIMITS = torch.tensor([datasheet.MAX_SPEED, datasheet.MAX_YAW_RATE])  # float32, as y_std
+THETA_SEED_SALT = 0x7E7A  # the parameter draws' normals differ from the correction's of the same seed
 PRIOR_ROWS = 1e4  # the first pass of `_map_fit` weighs the datasheet prior this much less
 
 
@@ -179,16 +181,29 @@ def _split(x: Tensor, dim: int, rate_at: int) -> tuple[Tensor, Tensor, Tensor, T
     return x.select(dim, 0), x.select(dim, 1), x.select(dim, rate_at), x.select(dim, rate_at + 1)
 
 
-def identify(x: np.ndarray, y: np.ndarray, dt: float, rate_at: int) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares physical parameters for rows x (N, 4k) → y (N, 2): their values and standard errors.
+class Identified(NamedTuple):
+    """Identified physical parameters (`PARAMETERS`' order) and their covariance."""
+
+    values: np.ndarray
+    covariance: np.ndarray
+
+    @property
+    def stderr(self) -> np.ndarray:
+        """The standard error of each parameter."""
+        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+
+
+def identify(x: np.ndarray, y: np.ndarray, dt: float, rate_at: int) -> Identified:
+    """Least-squares physical parameters for rows x (N, 4k) → y (N, 2), with their covariance.
 
     MAP under the datasheet prior (`_map_fit`): a parameter the rows do not excite stays near the
-    datasheet. Standard errors come from the Gauss-Newton covariance at the solution (prior included).
+    datasheet. The covariance is the sandwich with each row its own cluster (rows are one-step
+    errors, roughly independent).
     """
     x = torch.as_tensor(np.asarray(x, dtype=np.float64))
     y = np.asarray(y, dtype=np.float64)
     if len(x) == 0:
-        return NOMINAL.copy(), WIDTH.copy()
+        return Identified(NOMINAL.copy(), np.diag(WIDTH**2))
     tau, delta, v, w = _split(x, -1, rate_at)
 
     def errors_of(sets: np.ndarray) -> np.ndarray:
@@ -196,7 +211,7 @@ def identify(x: np.ndarray, y: np.ndarray, dt: float, rate_at: int) -> tuple[np.
             v1, w1 = single_track_step(tau, delta, v, w, torch.as_tensor(sets)[:, None], dt)
         return np.stack([v1.numpy(), w1.numpy()], axis=-1) - y
 
-    return _map_fit(errors_of, y.std(axis=0))
+    return _map_fit(errors_of, y.std(axis=0), np.arange(len(y)))
 
 
 def run_single_track(controls: np.ndarray, start: np.ndarray, theta: np.ndarray, dt: float) -> np.ndarray:
@@ -224,13 +239,13 @@ def identify_from_logs(
     first recorded rates, come closest to its recorded rates. Logs are (controls (T, 2), rates (T, 2))
     at `dt`; `every` > 1 fits every n-th step of the runs (they are still simulated at `dt`).
 
-    MAP under the datasheet prior (`_map_fit`). Returns the values and their standard errors.
-    Free runs weigh the steady states and lags as a free run of the model uses them; one-step
-    errors over noisy past rates bias the lags.
+    MAP under the datasheet prior (`_map_fit`), with each log a cluster of the covariance (a free
+    run's errors are correlated along it). Free runs weigh the steady states and lags as a free run
+    of the model uses them; one-step errors over noisy past rates bias the lags.
     """
     logs = [(np.asarray(u, np.float64), np.asarray(y, np.float64)) for u, y in logs if len(u) > 1]
     if not logs:
-        return NOMINAL.copy(), WIDTH.copy()
+        return Identified(NOMINAL.copy(), np.diag(WIDTH**2))
     length = max(len(u) for u, _ in logs)
     controls = np.zeros((len(logs), length, 2))
     rates = np.zeros((len(logs), length, 2))
@@ -245,13 +260,14 @@ def identify_from_logs(
     def errors_of(sets: np.ndarray) -> np.ndarray:  # (P, n, 2) errors of each parameter set's runs
         return (run_single_track(controls, start, sets, dt) - rates)[:, keep]
 
-    return _map_fit(errors_of, rates[valid].std(axis=0))
+    return _map_fit(errors_of, rates[valid].std(axis=0), np.nonzero(keep)[0])
 
 
-def _map_fit(errors_of, spread: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _map_fit(errors_of, spread: np.ndarray, clusters: np.ndarray) -> Identified:
     """MAP parameters under the datasheet prior: Gaussian errors of unknown size per rate, found in two
     passes (the first, with the prior at 1/`PRIOR_ROWS` of its weight, measures the error size), and
-    their Gauss-Newton standard errors. `errors_of` maps parameter sets (P, 7) to errors (P, n, 2)."""
+    their cluster-robust covariance. `errors_of` maps parameter sets (P, 7) to errors (P, n, 2);
+    `clusters` (n,) labels the error rows whose errors may be correlated (one log's steps)."""
     x0 = np.clip(NOMINAL, LOW + 1e-9, HIGH - 1e-9)
     noise = np.maximum(spread, 1e-3)
     for prior_weight in (1.0 / PRIOR_ROWS, 1.0):
@@ -275,8 +291,33 @@ def _map_fit(errors_of, spread: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         x0 = sol.x
         err = errors_of(sol.x[None])[0]
         noise = np.maximum(np.sqrt(np.mean(err**2, axis=0)), 1e-6 * np.maximum(spread, 1e-3))
-    stderr = np.sqrt(np.clip(np.diag(np.linalg.pinv(sol.jac.T @ sol.jac)), 0.0, None))
-    return sol.x, stderr
+    return Identified(sol.x, _sandwich(sol.jac, sol.fun, clusters))
+
+
+def _sandwich(jac: np.ndarray, residuals: np.ndarray, clusters: np.ndarray) -> np.ndarray:
+    """Cluster-robust covariance H⁻¹ (Σ_g s_g s_gᵀ + P) H⁻¹ of a MAP fit (Liang & Zeger 1986).
+
+    `jac` and `residuals` are the fit's, error rows (n × 2, rate fastest) then the prior's 7 rows;
+    s_g sums the scores Jᵀr of cluster g's rows; P is the prior's information. The Gauss-Newton
+    covariance H⁻¹ assumes every error independent: a free run's errors are correlated along the
+    whole log, and where the single track misses the car (tyres at full lock, a steering step at
+    speed) different logs want different parameters. That disagreement is what the sandwich
+    measures (on the twin, scrub's standard error 0.054 against Gauss-Newton's 0.0025). With G
+    clusters, the meat is scaled by G / (G - 1) (CR1); one cluster alone gives Gauss-Newton's.
+    """
+    n_params = jac.shape[1]
+    errors, prior = jac[:-n_params], jac[-n_params:]
+    bread = np.linalg.pinv(jac.T @ jac)
+    labels = np.repeat(clusters, errors.shape[0] // len(clusters))  # both rates of a row share it
+    n_clusters = len(np.unique(labels))
+    if n_clusters < 2:
+        return bread
+    scores = errors * residuals[:-n_params, None]  # (n, 7): each row's score
+    _, index = np.unique(labels, return_inverse=True)
+    per_cluster = np.zeros((n_clusters, n_params))
+    np.add.at(per_cluster, index, scores)
+    meat = per_cluster.T @ per_cluster * n_clusters / (n_clusters - 1) + prior.T @ prior
+    return bread @ meat @ bread
 
 
 class PhysicsModel(Model):
@@ -316,6 +357,9 @@ class PhysicsModel(Model):
         self.rate_at = N_CONTROLS * lags.history
         self.dt = lags.step / datasheet.LOG_RATE_HZ
         self.register_buffer("theta", torch.as_tensor(NOMINAL, dtype=torch.float32).clone())
+        # Lower Cholesky factor of the identified parameters' covariance (`parameter_uncertainty =
+        # "by_log"`; zeros: every draw shares `theta`). Models saved before it existed load with zeros.
+        self.register_buffer("theta_scale", torch.zeros(len(PARAMETERS), len(PARAMETERS)))
         # The share of the correction's posterior mean a prediction keeps (`[model] correction_gate`,
         # chosen by `training.fit`); each draw's deviation from that mean is kept whole. Models saved
         # before it existed load with 1 (the whole correction).
@@ -339,10 +383,26 @@ class PhysicsModel(Model):
         if not self.config.identify:
             return
         if logs:
-            values, _ = identify_from_logs(logs)
+            found = identify_from_logs(logs)
         else:
-            values, _ = identify(x, y, self.dt, self.rate_at)
-        self.theta.copy_(torch.as_tensor(values, dtype=torch.float32))
+            found = identify(x, y, self.dt, self.rate_at)
+        self.theta.copy_(torch.as_tensor(found.values, dtype=torch.float32))
+        self.theta_scale.zero_()
+        if self.config.parameter_uncertainty == "by_log":
+            self.theta_scale.copy_(torch.as_tensor(_cholesky(found.covariance), dtype=torch.float32))
+
+    def parameter_draws(self, n_samples: int, seed: int) -> Tensor:
+        """(S, 7) physical parameters of S posterior draws: `theta` plus its covariance's spread (the
+        same normals for one seed), inside the parameters' physical ranges; `theta` itself S times
+        where the model has no parameter spread."""
+        if not bool(self.theta_scale.any()):
+            return self.theta.expand(n_samples, -1)
+        normals = torch.randn(
+            n_samples, len(PARAMETERS), generator=torch.Generator().manual_seed(int(seed) ^ THETA_SEED_SALT)
+        )
+        draws = self.theta + normals @ self.theta_scale.T
+        low, high = (torch.as_tensor(bound, dtype=draws.dtype) for bound in (LOW, HIGH))
+        return torch.clamp(draws, low, high)
 
     @torch.no_grad()
     def set_scalers(self, x: np.ndarray | Tensor, y: np.ndarray | Tensor) -> None:
@@ -399,7 +459,9 @@ class PhysicsModel(Model):
         newest = np.maximum(np.arange(n_steps) - lags.control_lags[0], 0)  # the control each step reads
         controls = np.ascontiguousarray(controls[:, newest], dtype=np.float32)
         n_maneuvers, n_steps, _ = controls.shape
-        if correction.kernel is not None:  # the kernel applies the gated correction and the pose
+        # The kernel reads one parameter set: draws with their own parameters step in torch.
+        if correction.kernel is not None and not bool(self.theta_scale.any()):
+            # the kernel applies the gated correction and the pose
             # Reused memory (`buffers`): first-touch page faults of the fans cost a third of a run.
             rates = buffers.empty((n_samples, 2, n_maneuvers, n_steps))
             moments = tuple(buffers.empty((n_maneuvers, n_steps, 2)) for _ in range(3))
@@ -423,10 +485,13 @@ class PhysicsModel(Model):
             return torch.from_numpy(rates), tuple(torch.from_numpy(m) for m in moments), paths
         rates = torch.empty((n_samples, 2, n_maneuvers, n_steps))
         moments = tuple(torch.empty((n_maneuvers, n_steps, 2)) for _ in range(3))
-        self._torch_free_runs(correction, controls, start, keys, rate_lag, spread, rates, moments)
+        theta = self.parameter_draws(n_samples, seed)[:, None]  # (S, 1, 7) against (S, M)
+        self._torch_free_runs(correction, controls, start, keys, rate_lag, spread, rates, moments, theta)
         return rates, moments, None
 
-    def _torch_free_runs(self, correction, controls, start, keys, rate_lag, spread, rates, moments) -> None:
+    def _torch_free_runs(
+        self, correction, controls, start, keys, rate_lag, spread, rates, moments, theta: Tensor
+    ) -> None:
         """`open_loop_free_runs` in torch: the reference physics_rollout.c is tested against."""
         _, _, n_maneuvers, n_steps = rates.shape
         flat = controls.reshape(-1, N_CONTROLS)
@@ -449,11 +514,11 @@ class PhysicsModel(Model):
             past = rates[..., k - rate_lag] if k >= rate_lag else start
             zs = z[..., rows].unbind(1)
             tau, delta, bound = u[:, k, 0], u[:, k, 1], self.config.residual_bound
-            v1, w1 = single_track_step(tau, delta, past[:, 0], past[:, 1], self.theta, self.dt, zs, bound)
+            v1, w1 = single_track_step(tau, delta, past[:, 0], past[:, 1], theta, self.dt, zs, bound)
             means = torch.stack([v1, w1], dim=1)  # (S, 2, M)
             if spread != 1.0:  # widen each draw's correction, not its past (surrogate.widened_step)
                 common = past.mean(dim=0)
-                vc, wc = single_track_step(tau, delta, common[0], common[1], self.theta, self.dt, zs, bound)
+                vc, wc = single_track_step(tau, delta, common[0], common[1], theta, self.dt, zs, bound)
                 at_common = torch.stack([vc, wc], dim=1)
                 means = means + (spread - 1.0) * (at_common - at_common.mean(dim=0))
             centre = means.mean(dim=0)
@@ -465,14 +530,17 @@ class PhysicsModel(Model):
             moments[2][:, k] = deviation.square().mean(dim=0).t()
 
     # ----- the step ---------------------------------------------------------------------------
-    def _physical_step(self, x: Tensor, dim: int, z_mean: Tensor, z_var: Tensor) -> tuple[Tensor, Tensor]:
-        """Standardised (mean, variance) of the next rates, stacked along `dim`, from standardised x."""
+    def _physical_step(
+        self, x: Tensor, dim: int, z_mean: Tensor, z_var: Tensor, theta: Tensor
+    ) -> tuple[Tensor, Tensor]:
+        """Standardised (mean, variance) of the next rates, stacked along `dim`, from standardised x, with
+        physical parameters `theta` (7,) or one set per draw (S, 1, 7) against columns (S, d, N)."""
         shape = [1] * x.dim()
         shape[dim] = -1
         phys = x * self.x_std.view(shape) + self.x_mean.view(shape)
         tau, delta, v, w = _split(phys, dim, self.rate_at)
         zs = z_mean.unbind(dim) if self.corrected else torch.zeros_like(z_mean).unbind(dim)
-        v1, w1 = single_track_step(tau, delta, v, w, self.theta, self.dt, zs, self.config.residual_bound)
+        v1, w1 = single_track_step(tau, delta, v, w, theta, self.dt, zs, self.config.residual_bound)
         mean = torch.stack([v1, w1], dim=dim)
         y_shape = [1] * mean.dim()
         y_shape[dim] = -1
@@ -499,26 +567,29 @@ class PhysicsModel(Model):
             z_mean, z_var = self.correction.train_forward(inputs)
         if z_var is None:
             z_var = torch.ones_like(z_mean)
-        return self._physical_step(x, -1, z_mean, z_var)
+        return self._physical_step(x, -1, z_mean, z_var, self.theta)
 
     def kl(self) -> Tensor:
         """The correction's KL divergence."""
         return self.correction.kl()
 
     def sample_params(self, n_samples: int, seed: int) -> list:
-        """The correction's posterior draws."""
-        return self.correction.sample_params(n_samples, seed)
+        """The correction's posterior draws and each draw's physical parameters (S, 1, 7)."""
+        thetas = self.parameter_draws(n_samples, seed)[:, None]
+        return [self.correction.sample_params(n_samples, seed), thetas]
 
     def mean_params(self) -> tuple[list, int]:
-        """The correction's posterior-mean weights."""
-        return self.correction.mean_params()
+        """The correction's posterior-mean weights and the identified parameters."""
+        params, n = self.correction.mean_params()
+        return [params, self.theta], n
 
     def columns_params(self, params: list) -> list:
-        """The correction's column-layout weights."""
-        return self.correction.columns_params(params)
+        """The correction's column-layout weights and the physical parameters."""
+        return [self.correction.columns_params(params[0]), params[1]]
 
     def columns_forward(self, x: Tensor, params: list, n_samples: int) -> tuple[Tensor, Tensor]:
         """Standardised (S, 2, N) means and variances for standardised x (d, N) or (S, d, N)."""
+        params, theta = params
         inputs = x.narrow(-2, 0, self.n_correction_inputs)
         if self.even_features:
             features, delta = self._even_features(inputs, -2)
@@ -532,7 +603,7 @@ class PhysicsModel(Model):
         z_mean = self._gate(z_mean)
         if x.dim() == 2:
             x = x.expand(n_samples, *x.shape)
-        return self._physical_step(x, -2, z_mean, z_var)
+        return self._physical_step(x, -2, z_mean, z_var, theta)
 
     def _even_features(self, x: Tensor, dim: int) -> tuple[Tensor, Tensor]:
         """A control-only correction's standardised inputs (τ, δ²) from the model's standardised (τ, δ)
@@ -596,8 +667,18 @@ def _symmetrise(z: Tensor, z_var: Tensor | None, dim: int) -> tuple[Tensor, Tens
 
 
 def _default_correction_weight(module, state_dict, prefix, *args) -> None:
-    """Load hook: a state dict saved before `correction_weight` existed keeps the whole correction."""
+    """Load hook: a state dict saved before `correction_weight` (`theta_scale`) existed keeps the whole
+    correction (no parameter spread)."""
     state_dict.setdefault(prefix + "correction_weight", torch.ones(()))
+    state_dict.setdefault(prefix + "theta_scale", torch.zeros(len(PARAMETERS), len(PARAMETERS)))
+
+
+def _cholesky(covariance: np.ndarray) -> np.ndarray:
+    """Lower Cholesky factor of a covariance that may be singular (a parameter fixed at the prior's
+    bound): through its eigen-decomposition, negative round-off eigenvalues set to 0."""
+    values, vectors = np.linalg.eigh(0.5 * (covariance + covariance.T))
+    root = vectors * np.sqrt(np.clip(values, 0.0, None))
+    return np.linalg.cholesky(root @ root.T + 1e-12 * np.eye(len(covariance)))
 
 
 def control_box_sweep(duration: float = 60.0, rate_hz: float = datasheet.LOG_RATE_HZ) -> list[np.ndarray]:
