@@ -227,6 +227,7 @@ def test_identify_command_prints_the_fit_beside_the_datasheet(tmp_path, capsys):
     row = next(line.split() for line in out.splitlines() if line.strip().startswith("speed_gain"))
     datasheet_value, fitted = float(row[1]), float(row[2])
     assert datasheet_value == 1.0 and 0.85 < fitted < 0.95  # the weaker motor, found in its own log
+    assert "Gauss-Newton from one log" in out
     assert main(["identify", str(tmp_path / "missing.csv")]) == 2
     assert "LOG" in capsys.readouterr().err
 

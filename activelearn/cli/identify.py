@@ -38,5 +38,9 @@ def _identify(args: argparse.Namespace) -> int:
         change = f"{value / p.nominal - 1:+.1%}" if p.nominal else f"{value - p.nominal:+.3f}"
         row = f"{p.name:<13}{p.nominal:>10.4f}{value:>10.4f}{err:>9.4f}{change:>9}"
         print(f"  {row}  {p.unit:<5} {p.meaning}")
+    if len(logs) > 1:
+        print("  s.e.: cluster-robust, each log a cluster (a log's errors are correlated along it)")
+    else:  # one cluster: the sandwich is Gauss-Newton's
+        print("  s.e.: Gauss-Newton from one log (its steps counted as independent: optimistic)")
     return 0
 
