@@ -1,18 +1,13 @@
 """A surrogate that knows the car: Nigel's single track from its datasheet plus a bounded Bayesian correction.
 
-The physics core steps the rates y = (v, ω) over the Δ = `history_step` / 30 Hz between a dynamic
-model's newest past rate and its target, from the newest control u = (τ, δ):
-
-    v_ss = g(τ) · table(|τ|) · sign(τ) / (1 + scrub · tan² δ)    g: speed_gain (τ > 0), reverse_gain (τ < 0)
-    v'   = v_ss + (v − v_ss) · exp(−Δ / speed_lag)                (τ = 0 brakes: |v| falls by brake_decel · Δ)
-    ω_ss = v' · tan δ / (L · understeer),  |ω_ss| ≤ 1.25 × the datasheet's yaw-rate limit
-    ω'   = ω_ss + (ω − ω_ss) · exp(−Δ / yaw_lag)
-
-`table` is the datasheet's throttle → speed table (mirrored in reverse). The seven physical
-parameters start at the datasheet (`PARAMETERS`) and are identified before every fit: by the free
-runs of the training logs where the caller gives them (`identify_from_logs`, what campaigns do),
-else from one-step rows (`identify`), MAP with the datasheet as the prior, so a parameter the data
-do not touch (say the reverse gain, trained forward only) stays at the datasheet's value.
+The physics core is Nigel's single track (`activelearn.numerics.models.single_track`: the step, the
+seven `PARAMETERS`, their identification), stepping the rates y = (v, ω) over the Δ = `history_step`
+/ 30 Hz between a dynamic model's newest past rate and its target, from the newest control. Its
+parameters are identified before every fit: by the free runs of the training logs where the caller
+gives them (what campaigns do), else from one-step rows, MAP with the datasheet as the prior, so a
+parameter the data do not touch (say the reverse gain, trained forward only) stays at the datasheet's
+value. With `parameter_uncertainty = "by_log"` each posterior draw has its own parameters, drawn from
+their cluster-robust covariance (`parameter_draws`).
 
 The Bayesian part (a deep ensemble or hybrid PBNN of `config.correction`, on the same inputs)
 learns only what the physics misses, every output squashed into a physical range:
@@ -29,14 +24,10 @@ bounded correction, which is the epistemic band there.
 
 from __future__ import annotations
 
-import functools
 import math
-from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 import torch
-from scipy.optimize import least_squares
 from torch import Tensor
 
 from activelearn.config import ModelConfig
@@ -45,14 +36,30 @@ from activelearn.numerics import buffers, counter_noise, native
 from activelearn.numerics.lags import N_CONTROLS, N_RATES, Lags, model_lags
 from activelearn.numerics.models.base import Model, column_scalers, draw_spread
 from activelearn.numerics.models.networks import NETWORK_CLASSES
+from activelearn.numerics.models.single_track import (  # noqa: F401 (re-exported: physics.X)
+    HIGH,
+    LAG_FACTOR,
+    LOW,
+    NOMINAL,
+    PARAMETER_NAMES,
+    PARAMETERS,
+    WIDTH,
+    YAW_CAP,
+    Identified,
+    PhysicalParameter,
+    _cholesky,
+    _split,
+    identify,
+    identify_from_logs,
+    run_single_track,
+    single_track_step,
+)
 from simulator import datasheet
 
 N_CORRECTIONS = 4  # steady-state residuals (v, ω) and lag factors (v, ω)
 # Under the mirror (δ, ω → −δ, −ω) the steady yaw-rate residual changes sign; the speed residual, both
 # lag factors and the aleatoric variances do not.
 MIRROR_PARITY = (1.0, -1.0, 1.0, 1.0)
-LAG_FACTOR = 3.0  # the correction scales each lag within [1/3, 3]
-YAW_CAP = 1.25 * datasheet.MAX_YAW_RATE  # rad/s: a steady yaw rate beyond the datasheet's limit + 25 %
 LAST_LAYER_SCALE = 0.1  # the correction starts near zero: an untrained model is the datasheet's physics
 # The aleatoric std of each rate is at most this fraction of its limit (speed, yaw rate). MuJoCo's
 # logged rates carry 0.2 % / 1.8 % of the limits; without a physical cap (the old one: the training
@@ -62,262 +69,6 @@ LAST_LAYER_SCALE = 0.1  # the correction starts near zero: an untrained model is
 NOISE_CAP = 0.03
 _RATE_LIMITS = torch.tensor([datasheet.MAX_SPEED, datasheet.MAX_YAW_RATE])  # float32, as y_std
 THETA_SEED_SALT = 0x7E7A  # the parameter draws' normals differ from the correction's of the same seed
-PRIOR_ROWS = 1e4  # the first pass of `_map_fit` weighs the datasheet prior this much less
-
-
-@dataclass(frozen=True)
-class PhysicalParameter:
-    """One physical parameter of the single track: its datasheet value, physical range and prior width."""
-
-    name: str
-    nominal: float
-    low: float
-    high: float
-    width: float
-    unit: str
-    meaning: str
-
-
-def _nominal_understeer() -> float:
-    """The datasheet's linear single track at its top speed: L·f = L + K·v_max²."""
-    return 1.0 + datasheet.understeer_gradient() * datasheet.MAX_SPEED**2 / datasheet.WHEELBASE
-
-
-PARAMETERS: tuple[PhysicalParameter, ...] = (
-    PhysicalParameter("speed_gain", 1.0, 0.25, 1.25, 0.5, "-", "scale of the table's forward steady speed"),
-    PhysicalParameter("reverse_gain", 1.0, 0.25, 1.25, 0.5, "-", "scale of the mirrored table in reverse"),
-    PhysicalParameter("speed_lag", 0.1, 0.01, 1.0, 0.2, "s", "time constant of the speed's response"),
-    PhysicalParameter("scrub", 0.0, 0.0, 3.0, 1.0, "-", "steady speed / (1 + scrub tan² δ): tyre scrub"),
-    PhysicalParameter(
-        "understeer", _nominal_understeer(), 0.7, 2.0, 0.5, "-", "turning radius over the kinematic L / tan δ"
-    ),
-    PhysicalParameter("yaw_lag", 0.05, 0.005, 1.0, 0.2, "s", "time constant of the yaw rate's response"),
-    PhysicalParameter(
-        "brake_decel",
-        datasheet.FRICTION * datasheet.GRAVITY,
-        0.5,
-        20.0,
-        3.0,
-        "m/s²",
-        "deceleration at throttle 0 (the brake); datasheet: μ g",
-    ),
-)
-PARAMETER_NAMES = tuple(p.name for p in PARAMETERS)
-NOMINAL = np.array([p.nominal for p in PARAMETERS])
-LOW = np.array([p.low for p in PARAMETERS])
-HIGH = np.array([p.high for p in PARAMETERS])
-WIDTH = np.array([p.width for p in PARAMETERS])
-
-
-Array = Tensor | np.ndarray  # the step serves training and free runs (torch) and identification (NumPy)
-
-
-def _namespace(a: Array):
-    """torch for tensors, NumPy for arrays: the functions the step calls exist under one name in both."""
-    return torch if isinstance(a, Tensor) else np
-
-
-@functools.lru_cache(maxsize=4)
-def _table(dtype: torch.dtype) -> tuple[Tensor, Tensor]:
-    """The datasheet's speed table (m/s at throttle 0, 0.1, ..., 1) and its slope per 0.1 of throttle."""
-    speed = torch.as_tensor(datasheet.REFERENCE_SPEED, dtype=dtype)
-    return speed, torch.diff(speed)
-
-
-def _table_speed(throttle: Array) -> Array:
-    """The datasheet's steady forward speed at |throttle| (m/s), interpolated linearly (τ in [0, 1])."""
-    xp = _namespace(throttle)
-    x = xp.clip(xp.abs(throttle), 0.0, datasheet.THROTTLE_LIMIT) * 10.0
-    i = xp.clip(xp.floor(x), 0.0, 9.0)
-    if xp is torch:
-        speed, slope = _table(throttle.dtype)
-        index = i.long()
-    else:
-        speed, slope = datasheet.REFERENCE_SPEED, np.diff(datasheet.REFERENCE_SPEED)
-        index = i.astype(np.intp)
-    return speed[index] + (x - i) * slope[index]
-
-
-def single_track_step(
-    throttle: Array,
-    steering: Array,
-    v: Array,
-    w: Array,
-    theta: Array,
-    dt: float,
-    corrections: tuple[Tensor, Tensor, Tensor, Tensor] | None = None,
-    residual_bound: float = 0.0,
-) -> tuple[Array, Array]:
-    """Next (v, ω) after `dt` s of the control (throttle, steering) from rates (v, ω), broadcast.
-
-    `theta` holds the seven `PARAMETERS` along its last axis; `corrections` the network's raw outputs
-    (steady speed, steady yaw rate, speed lag, yaw lag), each squashed into its range (None: pure
-    physics). Tensors (training, free runs) or NumPy arrays (identification, several times faster on
-    its small arrays), not mixed.
-    """
-    xp = _namespace(throttle)
-    gain_f, gain_r, t_v, scrub, understeer, t_w, brake = (theta[..., i] for i in range(len(PARAMETERS)))
-    tan_d = xp.tan(steering)
-    gain = xp.where(throttle >= 0, gain_f, gain_r)
-    v_ss = xp.sign(throttle) * gain * _table_speed(throttle) / (1.0 + scrub * tan_d * tan_d)
-    if corrections is not None:
-        z_v, z_w, z_tv, z_tw = corrections
-        v_ss = v_ss + residual_bound * datasheet.MAX_SPEED * xp.tanh(z_v)
-        t_v = t_v * xp.exp(math.log(LAG_FACTOR) * xp.tanh(z_tv))
-        t_w = t_w * xp.exp(math.log(LAG_FACTOR) * xp.tanh(z_tw))
-    v_next = v_ss + (v - v_ss) * xp.exp(-dt / t_v)
-    braked = v - xp.sign(v) * xp.minimum(xp.abs(v), brake * dt)
-    v_next = xp.where(throttle == 0, braked, v_next)
-    w_ss = v_next * tan_d / (datasheet.WHEELBASE * understeer)
-    if corrections is not None:
-        w_ss = w_ss + residual_bound * datasheet.MAX_YAW_RATE * xp.tanh(z_w)
-    w_ss = xp.clip(w_ss, -YAW_CAP, YAW_CAP)
-    w_next = w_ss + (w - w_ss) * xp.exp(-dt / t_w)
-    return v_next, w_next
-
-
-def _split(x: Tensor, dim: int, rate_at: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """The newest control (τ, δ) and the newest past rate (v, ω) of physical inputs along `dim`."""
-    return x.select(dim, 0), x.select(dim, 1), x.select(dim, rate_at), x.select(dim, rate_at + 1)
-
-
-class Identified(NamedTuple):
-    """Identified physical parameters (`PARAMETERS`' order) and their covariance."""
-
-    values: np.ndarray
-    covariance: np.ndarray
-
-    @property
-    def stderr(self) -> np.ndarray:
-        """The standard error of each parameter."""
-        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
-
-
-def identify(x: np.ndarray, y: np.ndarray, dt: float, rate_at: int) -> Identified:
-    """Least-squares physical parameters for rows x (N, 4k) → y (N, 2), with their covariance.
-
-    MAP under the datasheet prior (`_map_fit`): a parameter the rows do not excite stays near the
-    datasheet. The covariance is the sandwich with each row its own cluster (rows are one-step
-    errors, roughly independent).
-    """
-    x = torch.as_tensor(np.asarray(x, dtype=np.float64))
-    y = np.asarray(y, dtype=np.float64)
-    if len(x) == 0:
-        return Identified(NOMINAL.copy(), np.diag(WIDTH**2))
-    tau, delta, v, w = _split(x, -1, rate_at)
-
-    def errors_of(sets: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            v1, w1 = single_track_step(tau, delta, v, w, torch.as_tensor(sets)[:, None], dt)
-        return np.stack([v1.numpy(), w1.numpy()], axis=-1) - y
-
-    return _map_fit(errors_of, y.std(axis=0), np.arange(len(y)))
-
-
-def run_single_track(controls: np.ndarray, start: np.ndarray, theta: np.ndarray, dt: float) -> np.ndarray:
-    """Free runs of the bare single track (`single_track_step`, no correction): controls (M, T, 2), start
-    rates (M, 2), parameter sets (P, 7) → rates (P, M, T, 2), the first step being `start`. NumPy,
-    every parameter set at once."""
-    sets = np.atleast_2d(theta)[:, None]  # (P, 1, 7) against (M,)
-    n_runs, n_steps = controls.shape[:2]
-    out = np.empty((len(sets), n_runs, n_steps, 2))
-    v, w = (np.broadcast_to(start[:, j], (len(sets), n_runs)) for j in range(2))
-    out[:, :, 0, 0], out[:, :, 0, 1] = v, w
-    for k in range(1, n_steps):
-        v, w = single_track_step(controls[:, k, 0], controls[:, k, 1], v, w, sets, dt)
-        out[:, :, k, 0], out[:, :, k, 1] = v, w
-    return out
-
-
-def identify_from_logs(
-    logs: list[tuple[np.ndarray, np.ndarray]],
-    *,
-    dt: float = 1.0 / datasheet.LOG_RATE_HZ,
-    every: int = 1,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Output-error least squares: the parameters whose free runs along each log's controls, from its
-    first recorded rates, come closest to its recorded rates. Logs are (controls (T, 2), rates (T, 2))
-    at `dt`; `every` > 1 fits every n-th step of the runs (they are still simulated at `dt`).
-
-    MAP under the datasheet prior (`_map_fit`), with each log a cluster of the covariance (a free
-    run's errors are correlated along it). Free runs weigh the steady states and lags as a free run
-    of the model uses them; one-step errors over noisy past rates bias the lags.
-    """
-    logs = [(np.asarray(u, np.float64), np.asarray(y, np.float64)) for u, y in logs if len(u) > 1]
-    if not logs:
-        return Identified(NOMINAL.copy(), np.diag(WIDTH**2))
-    length = max(len(u) for u, _ in logs)
-    controls = np.zeros((len(logs), length, 2))
-    rates = np.zeros((len(logs), length, 2))
-    valid = np.zeros((len(logs), length), dtype=bool)
-    for i, (u, y) in enumerate(logs):
-        controls[i, : len(u)], rates[i, : len(u)], valid[i, : len(u)] = u, y, True
-        controls[i, len(u) :] = u[-1]
-    keep = np.zeros_like(valid)
-    keep[:, ::every] = valid[:, ::every]
-    start = rates[:, 0]
-
-    def errors_of(sets: np.ndarray) -> np.ndarray:  # (P, n, 2) errors of each parameter set's runs
-        return (run_single_track(controls, start, sets, dt) - rates)[:, keep]
-
-    return _map_fit(errors_of, rates[valid].std(axis=0), np.nonzero(keep)[0])
-
-
-def _map_fit(errors_of, spread: np.ndarray, clusters: np.ndarray) -> Identified:
-    """MAP parameters under the datasheet prior: Gaussian errors of unknown size per rate, found in two
-    passes (the first, with the prior at 1/`PRIOR_ROWS` of its weight, measures the error size), and
-    their cluster-robust covariance. `errors_of` maps parameter sets (P, 7) to errors (P, n, 2);
-    `clusters` (n,) labels the error rows whose errors may be correlated (one log's steps)."""
-    x0 = np.clip(NOMINAL, LOW + 1e-9, HIGH - 1e-9)
-    noise = np.maximum(spread, 1e-3)
-    for prior_weight in (1.0 / PRIOR_ROWS, 1.0):
-
-        def residuals_of(sets: np.ndarray, noise=noise, prior_weight=prior_weight) -> np.ndarray:
-            err = errors_of(sets) / noise
-            prior = (sets - NOMINAL) / WIDTH * math.sqrt(prior_weight)
-            return np.concatenate([err.reshape(len(sets), -1), prior], axis=1)
-
-        def fun(p: np.ndarray, residuals_of=residuals_of) -> np.ndarray:
-            return residuals_of(p[None])[0]
-
-        def jac(p: np.ndarray, residuals_of=residuals_of) -> np.ndarray:
-            # one batched run for every forward difference, stepping inwards at an upper bound
-            step = 1e-5 * WIDTH
-            step = np.where(p + step > HIGH, -step, step)
-            res = residuals_of(np.vstack([p, p + np.diag(step)]))
-            return ((res[1:] - res[0]) / step[:, None]).T
-
-        sol = least_squares(fun, x0, jac=jac, bounds=(LOW, HIGH), x_scale=WIDTH, method="trf", max_nfev=100)
-        x0 = sol.x
-        err = errors_of(sol.x[None])[0]
-        noise = np.maximum(np.sqrt(np.mean(err**2, axis=0)), 1e-6 * np.maximum(spread, 1e-3))
-    return Identified(sol.x, _sandwich(sol.jac, sol.fun, clusters))
-
-
-def _sandwich(jac: np.ndarray, residuals: np.ndarray, clusters: np.ndarray) -> np.ndarray:
-    """Cluster-robust covariance H⁻¹ (Σ_g s_g s_gᵀ + P) H⁻¹ of a MAP fit (Liang & Zeger 1986).
-
-    `jac` and `residuals` are the fit's, error rows (n × 2, rate fastest) then the prior's 7 rows;
-    s_g sums the scores Jᵀr of cluster g's rows; P is the prior's information. The Gauss-Newton
-    covariance H⁻¹ assumes every error independent: a free run's errors are correlated along the
-    whole log, and where the single track misses the car (tyres at full lock, a steering step at
-    speed) different logs want different parameters. That disagreement is what the sandwich
-    measures (on the twin, scrub's standard error 0.054 against Gauss-Newton's 0.0025). With G
-    clusters, the meat is scaled by G / (G - 1) (CR1); one cluster alone gives Gauss-Newton's.
-    """
-    n_params = jac.shape[1]
-    errors, prior = jac[:-n_params], jac[-n_params:]
-    bread = np.linalg.pinv(jac.T @ jac)
-    labels = np.repeat(clusters, errors.shape[0] // len(clusters))  # both rates of a row share it
-    n_clusters = len(np.unique(labels))
-    if n_clusters < 2:
-        return bread
-    scores = errors * residuals[:-n_params, None]  # (n, 7): each row's score
-    _, index = np.unique(labels, return_inverse=True)
-    per_cluster = np.zeros((n_clusters, n_params))
-    np.add.at(per_cluster, index, scores)
-    meat = per_cluster.T @ per_cluster * n_clusters / (n_clusters - 1) + prior.T @ prior
-    return bread @ meat @ bread
 
 
 class PhysicsModel(Model):
@@ -673,14 +424,6 @@ def _default_correction_weight(module, state_dict, prefix, *args) -> None:
     state_dict.setdefault(prefix + "theta_scale", torch.zeros(len(PARAMETERS), len(PARAMETERS)))
 
 
-def _cholesky(covariance: np.ndarray) -> np.ndarray:
-    """Lower Cholesky factor of a covariance that may be singular (a parameter fixed at the prior's
-    bound): through its eigen-decomposition, negative round-off eigenvalues set to 0."""
-    values, vectors = np.linalg.eigh(0.5 * (covariance + covariance.T))
-    root = vectors * np.sqrt(np.clip(values, 0.0, None))
-    return np.linalg.cholesky(root @ root.T + 1e-12 * np.eye(len(covariance)))
-
-
 def control_box_sweep(duration: float = 60.0, rate_hz: float = datasheet.LOG_RATE_HZ) -> list[np.ndarray]:
     """Control sequences (T, 2) over Nigel's whole control box: constants at its corners, edges and
     centre (throttle 0, the brake, included) and steps across it halfway through."""
@@ -705,4 +448,3 @@ def runs_out_of_bounds(v: np.ndarray, w: np.ndarray, factor: float = 1.5) -> int
     bad |= np.abs(np.nan_to_num(v)) > factor * datasheet.MAX_SPEED
     bad |= np.abs(np.nan_to_num(w)) > factor * datasheet.MAX_YAW_RATE
     return int(bad.any(axis=-1).sum())
-
