@@ -14,6 +14,7 @@ from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import arrays, control_rate_logs, training_rows
 from activelearn.numerics import correction_gate, native
 from activelearn.numerics.models import PhysicsModel, build_model, load_model, physics, save_model
+from activelearn.numerics.models import single_track as st
 from activelearn.numerics.models.base import Model
 from activelearn.numerics.surrogate import STEADY_STATES, model_inputs, simulate, steady_state_inputs
 from activelearn.numerics.training import fit
@@ -78,34 +79,20 @@ def forward_model(request, forward_grid: pd.DataFrame) -> PhysicsModel:
 
 
 def test_the_bare_single_track_drives_the_datasheet_table():
-    theta = torch.as_tensor(physics.NOMINAL)
+    theta = torch.as_tensor(st.NOMINAL)
     v, w = torch.zeros(()), torch.zeros(())
     for _ in range(100):  # 10 s at 0.1 s
-        v, w = physics.single_track_step(torch.tensor(0.6), torch.tensor(0.0), v, w, theta, 0.1)
+        v, w = st.single_track_step(torch.tensor(0.6), torch.tensor(0.0), v, w, theta, 0.1)
     assert float(v) == pytest.approx(0.16516, rel=1e-4)
     assert float(w) == pytest.approx(0.0, abs=1e-9)
     for _ in range(100):  # reverse mirrors the table
-        v, w = physics.single_track_step(torch.tensor(-0.6), torch.tensor(0.2), v, w, theta, 0.1)
+        v, w = st.single_track_step(torch.tensor(-0.6), torch.tensor(0.2), v, w, theta, 0.1)
     assert float(v) == pytest.approx(-0.16516, rel=1e-4)
     assert float(w) == pytest.approx(
-        float(v) * np.tan(0.2) / (datasheet.WHEELBASE * physics.NOMINAL[4]), rel=1e-4
+        float(v) * np.tan(0.2) / (datasheet.WHEELBASE * st.NOMINAL[4]), rel=1e-4
     )
-    v, _ = physics.single_track_step(torch.tensor(0.0), torch.tensor(0.0), v, w, theta, 0.01)
+    v, _ = st.single_track_step(torch.tensor(0.0), torch.tensor(0.0), v, w, theta, 0.01)
     assert float(v) == pytest.approx(-0.16516 + 0.01 * datasheet.FRICTION * datasheet.GRAVITY, rel=1e-4)
-
-
-def test_identification_recovers_the_parameters_of_its_own_structure():
-    rng = np.random.default_rng(0)
-    truth = np.array([0.8, 1.1, 0.2, 1.2, 1.15, 0.08, 3.0])
-    controls = []
-    for _ in range(6):  # piecewise-constant controls over the box, brake phases included
-        levels = rng.uniform([-1.0, -0.5236], [1.0, 0.5236], size=(6, 2))
-        levels[rng.integers(6), 0] = 0.0
-        controls.append(np.repeat(levels, 90, axis=0))
-    runs = physics.run_single_track(np.stack(controls), np.zeros((6, 2)), truth, 1 / 30)[0]
-    found = physics.identify_from_logs([(u, y) for u, y in zip(controls, runs, strict=True)])
-    np.testing.assert_allclose(found.values, truth, rtol=0.02)
-    assert np.all(found.stderr < 0.05 * np.maximum(truth, 0.1))
 
 
 def _box_controls(seed: int, n_logs: int) -> np.ndarray:
@@ -119,21 +106,30 @@ def _box_controls(seed: int, n_logs: int) -> np.ndarray:
     return np.stack(controls)
 
 
+def test_identification_recovers_the_parameters_of_its_own_structure():
+    truth = np.array([0.8, 1.1, 0.2, 1.2, 1.15, 0.08, 3.0])
+    controls = _box_controls(0, 6)
+    runs = st.run_single_track(controls, np.zeros((6, 2)), truth, 1 / 30)[0]
+    found = st.identify_from_logs([(u, y) for u, y in zip(controls, runs, strict=True)])
+    np.testing.assert_allclose(found.values, truth, rtol=0.02)
+    assert np.all(found.stderr < 0.05 * np.maximum(truth, 0.1))
+
+
 def test_the_covariance_widens_where_the_logs_disagree():
     """Half the logs from a car with scrub 0.8, half from one with 1.6: the single track fits neither,
     and the cluster-robust standard error of the scrub is of the size of that disagreement (the
     spread of the two halves' fits over the root of the number of logs), not of the noise-free fit's."""
     controls = _box_controls(1, 12)
     cars = np.array([[0.8, 1.1, 0.2, scrub, 1.15, 0.08, 3.0] for scrub in (0.8, 1.6)])
-    runs = [physics.run_single_track(controls[i::2], np.zeros((6, 2)), car, 1 / 30)[0]
+    runs = [st.run_single_track(controls[i::2], np.zeros((6, 2)), car, 1 / 30)[0]
             for i, car in enumerate(cars)]  # fmt: skip
     logs = [(u, y) for i in range(2) for u, y in zip(controls[i::2], runs[i], strict=True)]
-    both = physics.identify_from_logs(logs)
-    halves = [physics.identify_from_logs(logs[:6]).values[3], physics.identify_from_logs(logs[6:]).values[3]]
+    both = st.identify_from_logs(logs)
+    halves = [st.identify_from_logs(logs[:6]).values[3], st.identify_from_logs(logs[6:]).values[3]]
     assert halves == pytest.approx([0.8, 1.6], rel=0.05)
     disagreement = np.std(halves) / np.sqrt(len(logs))  # ~0.12
     assert 0.5 * disagreement < both.stderr[3] < 4 * disagreement
-    one_car = physics.identify_from_logs(logs[:6])
+    one_car = st.identify_from_logs(logs[:6])
     assert one_car.stderr[3] < 0.1 * both.stderr[3]  # one car's logs agree: no such spread
 
 
@@ -145,8 +141,8 @@ def test_identification_on_the_twin_recovers_its_weaker_motor_and_grip():
     nominal = simulator.collect(maneuvers, seed=0)
     car = simulator.twin_vehicle({"motor_gain": 0.9, "tire_friction": 0.55})
     twin = simulator.collect(maneuvers, seed=0, vehicle=car)
-    found_nominal, _ = physics.identify_from_logs(_logs(nominal))
-    found_twin, _ = physics.identify_from_logs(_logs(twin))
+    found_nominal, _ = st.identify_from_logs(_logs(nominal))
+    found_twin, _ = st.identify_from_logs(_logs(twin))
 
     def steady(frame: pd.DataFrame) -> np.ndarray:
         return np.array([g["speed"].to_numpy()[-60:].mean() for _, g in frame.groupby("run_id", sort=False)])
@@ -157,7 +153,7 @@ def test_identification_on_the_twin_recovers_its_weaker_motor_and_grip():
         change = true_ratio[index].mean() - 1.0
         assert abs(change) > 0.05  # the twin is measurably slower
         found = found_twin[gain] / found_nominal[gain] - 1.0
-        assert abs(found - change) <= 0.1 * abs(change), (physics.PARAMETER_NAMES[gain], found, change)
+        assert abs(found - change) <= 0.1 * abs(change), (st.PARAMETER_NAMES[gain], found, change)
 
     # full lock: grip gives back part of the speed; the identified scrub and gain predict how much
     def full_lock(theta: np.ndarray) -> float:
@@ -428,11 +424,11 @@ def test_gated_free_runs_computed_whole_are_the_step_loops(monkeypatch):
 
 def _with_parameter_spread(model: PhysicsModel) -> PhysicsModel:
     """The model with the scrub and the understeer uncertain (s.e. 0.3 and 0.1, correlated)."""
-    covariance = np.diag(np.full(len(physics.PARAMETERS), 1e-8))
+    covariance = np.diag(np.full(len(st.PARAMETERS), 1e-8))
     covariance[3, 3], covariance[4, 4], covariance[3, 4] = 0.09, 0.01, 0.015
     covariance[4, 3] = covariance[3, 4]
     with torch.no_grad():
-        model.theta_scale.copy_(torch.as_tensor(physics._cholesky(covariance), dtype=torch.float32))
+        model.theta_scale.copy_(torch.as_tensor(st.cholesky_factor(covariance), dtype=torch.float32))
     return model
 
 
@@ -441,8 +437,8 @@ def test_each_draw_has_its_own_parameters_from_the_covariance():
     draws = model.parameter_draws(4000, seed=5)
     np.testing.assert_array_equal(draws.numpy(), model.parameter_draws(4000, seed=5).numpy())  # seeded
     assert not torch.equal(draws, model.parameter_draws(4000, seed=6))
-    assert (draws >= torch.as_tensor(physics.LOW, dtype=torch.float32)).all()
-    assert (draws <= torch.as_tensor(physics.HIGH, dtype=torch.float32)).all()
+    assert (draws >= torch.as_tensor(st.LOW, dtype=torch.float32)).all()
+    assert (draws <= torch.as_tensor(st.HIGH, dtype=torch.float32)).all()
     # scrub's nominal 0 sits on its lower bound: clipped there; the understeer is inside its range
     assert np.std(draws[:, 4].numpy()) == pytest.approx(0.1, rel=0.1)
     assert float(draws[:, 0].std()) < 1e-3  # the others stay put
@@ -469,7 +465,7 @@ def test_identification_sets_the_spread_only_when_asked(forward_grid: pd.DataFra
     rows = pd.concat([training_rows(g, DATA) for _, g in forward_grid.groupby("run_id", sort=False)])
     x, y = arrays(rows, DATA)
     logs = _logs(forward_grid)
-    found = physics.identify_from_logs(logs)
+    found = st.identify_from_logs(logs)
     for setting in ("none", "by_log"):
         model = build_model(_config(parameter_uncertainty=setting), seed=0)
         model.identify(x, y, logs)
@@ -495,7 +491,7 @@ def test_the_gate_keeps_the_correction_only_where_held_out_maneuvers_want_it(mon
     monkeypatch.setattr(physics, "NOISE_CAP", 1e-4)
     model, controls = _perturbed_control_model(), _busy_controls()
     start = np.zeros((len(controls), 2))
-    core = physics.run_single_track(np.stack(controls), start, model.theta.numpy().astype(float), model.dt)[0]
+    core = st.run_single_track(np.stack(controls), start, model.theta.numpy().astype(float), model.dt)[0]
     corrected = simulate(model, controls, n_samples=correction_gate.GATE_SAMPLES, seed=0).mean_rates
     ids = list(range(len(controls)))
     for rates, expected in ((core, 0.0), (corrected, 1.0)):

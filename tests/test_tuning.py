@@ -721,7 +721,7 @@ def load_config_text(text: str):
 def test_a_physics_study_identifies_each_trial_on_the_training_maneuvers_whole_logs(tmp_path, mlflow_uri):
     """Tuning a physics-structured model: its parameters come from the free runs of the training
     split's whole logs (never a held-out maneuver's), as a campaign's do, not from strided rows."""
-    from activelearn.numerics.models.physics import PARAMETER_NAMES, identify_from_logs
+    from activelearn.numerics.models.single_track import PARAMETER_NAMES, identify_from_logs
 
     extra = TINY_SPACE + """
 [pool]

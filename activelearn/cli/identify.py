@@ -26,7 +26,7 @@ def _identify(args: argparse.Namespace) -> int:
     from activelearn.errors import InputError
     from activelearn.fidelity import read_log_file
     from activelearn.loop.collection import control_rate_logs
-    from activelearn.numerics.models.physics import PARAMETERS, identify_from_logs
+    from activelearn.numerics.models.single_track import PARAMETERS, identify_from_logs
 
     if not (math.isfinite(args.rate_hz) and args.rate_hz > 0):
         raise InputError("--rate-hz", args.rate_hz, "must be a positive number")

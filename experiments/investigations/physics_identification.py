@@ -24,7 +24,7 @@ from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import control_rate_logs
 from activelearn.numerics.diagnostics import free_run_metrics
 from activelearn.numerics.models import build_model
-from activelearn.numerics.models.physics import identify_from_logs
+from activelearn.numerics.models.single_track import identify_from_logs
 
 
 def main() -> None:

@@ -36,23 +36,19 @@ from activelearn.numerics import buffers, counter_noise, native
 from activelearn.numerics.lags import N_CONTROLS, N_RATES, Lags, model_lags
 from activelearn.numerics.models.base import Model, column_scalers, draw_spread
 from activelearn.numerics.models.networks import NETWORK_CLASSES
-from activelearn.numerics.models.single_track import (  # noqa: F401 (re-exported: physics.X)
+from activelearn.numerics.models.single_track import (
     HIGH,
     LAG_FACTOR,
     LOW,
     NOMINAL,
     PARAMETER_NAMES,
     PARAMETERS,
-    WIDTH,
     YAW_CAP,
-    Identified,
-    PhysicalParameter,
-    _cholesky,
-    _split,
+    cholesky_factor,
     identify,
     identify_from_logs,
-    run_single_track,
     single_track_step,
+    split_inputs,
 )
 from simulator import datasheet
 
@@ -140,13 +136,18 @@ class PhysicsModel(Model):
         self.theta.copy_(torch.as_tensor(found.values, dtype=torch.float32))
         self.theta_scale.zero_()
         if self.config.parameter_uncertainty == "by_log":
-            self.theta_scale.copy_(torch.as_tensor(_cholesky(found.covariance), dtype=torch.float32))
+            self.theta_scale.copy_(torch.as_tensor(cholesky_factor(found.covariance), dtype=torch.float32))
+
+    @property
+    def has_parameter_spread(self) -> bool:
+        """Whether the draws have parameters of their own (`parameter_uncertainty`, once identified)."""
+        return bool(self.theta_scale.any())
 
     def parameter_draws(self, n_samples: int, seed: int) -> Tensor:
         """(S, 7) physical parameters of S posterior draws: `theta` plus its covariance's spread (the
         same normals for one seed), inside the parameters' physical ranges; `theta` itself S times
         where the model has no parameter spread."""
-        if not bool(self.theta_scale.any()):
+        if not self.has_parameter_spread:
             return self.theta.expand(n_samples, -1)
         normals = torch.randn(
             n_samples, len(PARAMETERS), generator=torch.Generator().manual_seed(int(seed) ^ THETA_SEED_SALT)
@@ -211,7 +212,7 @@ class PhysicsModel(Model):
         controls = np.ascontiguousarray(controls[:, newest], dtype=np.float32)
         n_maneuvers, n_steps, _ = controls.shape
         # The kernel reads one parameter set: draws with their own parameters step in torch.
-        if correction.kernel is not None and not bool(self.theta_scale.any()):
+        if correction.kernel is not None and not self.has_parameter_spread:
             # the kernel applies the gated correction and the pose
             # Reused memory (`buffers`): first-touch page faults of the fans cost a third of a run.
             rates = buffers.empty((n_samples, 2, n_maneuvers, n_steps))
@@ -289,7 +290,7 @@ class PhysicsModel(Model):
         shape = [1] * x.dim()
         shape[dim] = -1
         phys = x * self.x_std.view(shape) + self.x_mean.view(shape)
-        tau, delta, v, w = _split(phys, dim, self.rate_at)
+        tau, delta, v, w = split_inputs(phys, dim, self.rate_at)
         zs = z_mean.unbind(dim) if self.corrected else torch.zeros_like(z_mean).unbind(dim)
         v1, w1 = single_track_step(tau, delta, v, w, theta, self.dt, zs, self.config.residual_bound)
         mean = torch.stack([v1, w1], dim=dim)

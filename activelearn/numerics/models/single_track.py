@@ -143,7 +143,7 @@ def single_track_step(
     return v_next, w_next
 
 
-def _split(x: Tensor, dim: int, rate_at: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+def split_inputs(x: Tensor, dim: int, rate_at: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """The newest control (τ, δ) and the newest past rate (v, ω) of physical inputs along `dim`."""
     return x.select(dim, 0), x.select(dim, 1), x.select(dim, rate_at), x.select(dim, rate_at + 1)
 
@@ -171,7 +171,7 @@ def identify(x: np.ndarray, y: np.ndarray, dt: float, rate_at: int) -> Identifie
     y = np.asarray(y, dtype=np.float64)
     if len(x) == 0:
         return Identified(NOMINAL.copy(), np.diag(WIDTH**2))
-    tau, delta, v, w = _split(x, -1, rate_at)
+    tau, delta, v, w = split_inputs(x, -1, rate_at)
 
     def errors_of(sets: np.ndarray) -> np.ndarray:
         with torch.no_grad():
@@ -201,7 +201,7 @@ def identify_from_logs(
     *,
     dt: float = 1.0 / datasheet.LOG_RATE_HZ,
     every: int = 1,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> Identified:
     """Output-error least squares: the parameters whose free runs along each log's controls, from its
     first recorded rates, come closest to its recorded rates. Logs are (controls (T, 2), rates (T, 2))
     at `dt`; `every` > 1 fits every n-th step of the runs (they are still simulated at `dt`).
@@ -276,18 +276,18 @@ def _sandwich(jac: np.ndarray, residuals: np.ndarray, clusters: np.ndarray) -> n
     errors, prior = jac[:-n_params], jac[-n_params:]
     bread = np.linalg.pinv(jac.T @ jac)
     labels = np.repeat(clusters, errors.shape[0] // len(clusters))  # both rates of a row share it
-    n_clusters = len(np.unique(labels))
+    _, index = np.unique(labels, return_inverse=True)
+    n_clusters = int(index.max()) + 1
     if n_clusters < 2:
         return bread
     scores = errors * residuals[:-n_params, None]  # (n, 7): each row's score
-    _, index = np.unique(labels, return_inverse=True)
     per_cluster = np.zeros((n_clusters, n_params))
     np.add.at(per_cluster, index, scores)
     meat = per_cluster.T @ per_cluster * n_clusters / (n_clusters - 1) + prior.T @ prior
     return bread @ meat @ bread
 
 
-def _cholesky(covariance: np.ndarray) -> np.ndarray:
+def cholesky_factor(covariance: np.ndarray) -> np.ndarray:
     """Lower Cholesky factor of a covariance that may be singular (a parameter fixed at the prior's
     bound): through its eigen-decomposition, negative round-off eigenvalues set to 0."""
     values, vectors = np.linalg.eigh(0.5 * (covariance + covariance.T))
