@@ -133,6 +133,63 @@ def test_the_covariance_widens_where_the_logs_disagree():
     assert one_car.stderr[3] < 0.1 * both.stderr[3]  # one car's logs agree: no such spread
 
 
+def _forward_only(controls: np.ndarray) -> np.ndarray:
+    forward = controls.copy()
+    forward[..., 0] = np.abs(forward[..., 0])
+    return forward
+
+
+def test_another_cars_logs_centre_the_prior_instead_of_outvoting_this_cars():
+    """Twelve logs of a simulator (motor 1.0, reverse 1.1) and two forward-only logs of the car (motor
+    0.85): pooled as data, the simulator's logs outvote the car's; as another car's, they only centre
+    the prior, so the car's logs set its motor, and its reverse gain, which they do not excite, stays
+    the simulator's, as uncertain as the datasheet says two cars may differ."""
+    simulator_car = np.array([1.0, 1.1, 0.1, 1.2, 1.15, 0.05, 3.0])
+    this_car = simulator_car * np.array([0.85, 1, 1, 1, 1, 1, 1])
+    others_controls, own_controls = _box_controls(2, 12), _forward_only(_box_controls(3, 2))
+    noise = np.random.default_rng(0)  # sensor noise: noise-free logs leave the covariance degenerate
+    others = st.run_single_track(others_controls, np.zeros((12, 2)), simulator_car, 1 / 30)[0]
+    own = st.run_single_track(own_controls, np.zeros((2, 2)), this_car, 1 / 30)[0]
+    others, own = (rates + noise.normal(0.0, [0.005, 0.02], rates.shape) for rates in (others, own))
+    other_logs = list(zip(others_controls, others, strict=True))
+    own_logs = list(zip(own_controls, own, strict=True))
+
+    pooled = st.identify_from_logs(other_logs + own_logs)
+    assert pooled.values[0] > 0.93  # nearer the simulator's 1.0 than the car's 0.85
+    found = st.identify_on_another_car(own_logs, other_logs)
+    assert found.values[0] == pytest.approx(0.85, rel=0.01)
+    alone = st.identify_from_logs(other_logs)
+    assert found.values[1] == pytest.approx(alone.values[1], abs=0.01)  # the simulator's reverse gain, 1.1
+    assert found.stderr[1] == pytest.approx(np.hypot(alone.stderr[1], st.WIDTH[1]), rel=0.05)
+    assert found.stderr[0] < 0.05  # the motor the car's logs measured
+    # no log of the car yet: the simulator's identification stands
+    before = st.identify_on_another_car([], other_logs)
+    np.testing.assert_array_equal(before.values, alone.values)
+
+
+def test_the_model_identifies_on_its_own_logs_where_the_others_are_flagged(forward_grid: pd.DataFrame):
+    """`PhysicsModel.identify` with `of_another_car` is `identify_on_another_car`, also through `fit`
+    with the correction gate (whose probe keeps the flags of the logs it keeps)."""
+    rows = pd.concat([training_rows(g, DATA) for _, g in forward_grid.groupby("run_id", sort=False)])
+    x, y = arrays(rows, DATA)
+    logs = _logs(forward_grid)
+    flags = [i >= 3 for i in range(len(logs))]  # the first three logs (the straights) are this car's
+    expected = st.identify_on_another_car(logs[:3], logs[3:])
+    model = build_model(_config(), seed=0)
+    model.identify(x, y, logs, of_another_car=flags)
+    np.testing.assert_allclose(model.theta.numpy(), expected.values, rtol=1e-5)
+    assert not np.allclose(expected.values, st.identify_from_logs(logs).values, rtol=1e-3)
+    gated = build_model(_config(correction_gate=True), seed=0)
+    frames = [g for _, g in forward_grid.groupby("run_id", sort=False)]
+    history = fit(
+        gated, x, y, TrainingConfig(epochs=2, batch_size=64, patience=None), seed=0,
+        groups=rows["run_id"].to_numpy(), logs=logs, log_groups=[g["run_id"].iloc[0] for g in frames],
+        of_another_car=flags,
+    )  # fmt: skip
+    assert set(history.gate_errors) == set(correction_gate.GATE_WEIGHTS)
+    np.testing.assert_allclose(gated.theta.numpy(), expected.values, rtol=1e-5)
+
+
 @pytest.mark.slow
 def test_identification_on_the_twin_recovers_its_weaker_motor_and_grip():
     """The twin's change (weaker motor, less grip) is found within 10 % of the change MuJoCo shows."""
@@ -498,8 +555,8 @@ def test_the_gate_keeps_the_correction_only_where_held_out_maneuvers_want_it(mon
         logs = [(u, r[: len(u)]) for u, r in zip(controls, rates, strict=True)]
         trained_on = []
 
-        def probe(rows, probe_logs, windows, trained_on=trained_on):
-            trained_on.append(len(probe_logs))
+        def probe(rows, in_probe, windows, trained_on=trained_on):
+            trained_on.append(int(np.sum(in_probe)))
             return model
 
         chosen = correction_gate.choose_correction_weight(

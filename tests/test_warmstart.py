@@ -21,6 +21,7 @@ from activelearn.loop.acquisition import (
     make_strategy,
 )
 from activelearn.loop.campaign import Campaign, CampaignState
+from activelearn.loop.collection import control_rate_logs
 from activelearn.loop.pool import (
     build_pool,
     operating_features,
@@ -32,6 +33,7 @@ from activelearn.loop.prior import PRIOR_FILE
 from activelearn.loop.state import MODEL_FILE, PRIOR_MODEL_FILE
 from activelearn.numerics import synthetic
 from activelearn.numerics.models import ResidualModel, build_model, load_model, save_model
+from activelearn.numerics.models import single_track as st
 from activelearn.numerics.models.residual import BASE_SAMPLES
 from activelearn.numerics.training import fit
 from activelearn.numerics.uncertainty import rmse
@@ -71,6 +73,34 @@ def test_prior_rows_train_every_round_but_count_against_no_budget(tmp_path):
     assert history["n_samples"].iloc[-1] == prior_rows + len(x)
     assert len(result.state.taken) == cfg.design.max_maneuvers
     assert result.state.stop_reason == "max_maneuvers"
+
+
+@pytest.mark.slow
+def test_a_prior_of_another_car_only_centres_the_identification(tmp_path):
+    """`same_car = false` on the twin: round 0's model is identified on the (nominal) prior grid, the
+    next on the twin's own logs under the grid's estimate (`identify_on_another_car`); true pools them."""
+    def logs(frame):
+        return control_rate_logs([part for _, part in frame.groupby("pool_index", sort=False)])
+
+    found, grid = {}, {**PRIOR_GRID, "kinds": ["straight", "skidpad"]}
+    for same_car in (True, False):
+        cfg = warm_config(
+            tmp_path, oracle={"kind": "twin", "overrides": {"motor_gain": 0.8}},
+            data={"stride": 5, "skip_seconds": 0.0, "inputs": "history", "history": 3, "history_step": 2},
+            model={"kind": "physics", "arch": "D16-V8-V"}, training={"epochs": 2},
+            pool={"kinds": ["straight"], "duration": 8.0},
+            design={"initial": 0, "per_round": 2, "max_maneuvers": 2,
+                    "prior": {"grid": grid, "same_car": same_car}},
+        )  # fmt: skip
+        directory = tmp_path / f"same_car_{same_car}"
+        Campaign(cfg, directory).run(figures=False)
+        prior = logs(read_table(directory / PRIOR_FILE))
+        own = logs(read_table(directory / "samples.parquet"))
+        found[same_car] = load_model(directory / "model.pt").theta.numpy()
+        expected = st.identify_from_logs(prior + own) if same_car else st.identify_on_another_car(own, prior)
+        np.testing.assert_allclose(found[same_car], expected.values, rtol=1e-5)
+    assert found[False][0] == pytest.approx(0.8, abs=0.03)  # the twin's motor, from its two straights
+    assert found[True][0] > found[False][0] + 0.03  # pooled, the grid's nominal motor pulls it up
 
 
 @pytest.mark.slow

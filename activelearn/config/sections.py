@@ -300,6 +300,14 @@ class PriorConfig(_Section):
         description="Trained prior model (a model.pt or a campaign directory) instead of fitting one on "
         "the prior rows",
     )
+    same_car: bool = Field(
+        True,
+        description="Whether the prior's logs are of the car the campaign drives: a physics model "
+        "(`[model] kind = \"physics\"`) then identifies its parameters on them beside the collected "
+        "logs; false (another car, e.g. a grid simulated on nominal Nigel for a twin or a real car): "
+        "they only centre the identification's prior, widened by the datasheet's widths, until the "
+        "first collected log. The prior rows train the correction either way",
+    )
 
     @model_validator(mode="before")
     @classmethod

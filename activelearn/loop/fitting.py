@@ -93,14 +93,18 @@ class Fitting:
 
     def identification_logs(
         self, samples: pd.DataFrame
-    ) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[Any]] | None:
+    ) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[Any], list[bool] | None] | None:
         """Each training log's (controls, rates) for a physics-structured model to identify itself on,
-        and its maneuver id (`pool_index`, as in the training rows' groups; the correction gate holds
-        maneuvers out by it). None for other kinds."""
+        its maneuver id (`pool_index`, as in the training rows' groups; the correction gate holds
+        maneuvers out by it) and, with `[design.prior] same_car = false`, whether it is the prior's
+        (of another car). None for other kinds."""
         if self.cfg.model.kind != "physics":
             return None
         parts = self.with_prior(samples).groupby("pool_index", sort=False)
-        return control_rate_logs([part for _, part in parts]), list(parts.groups)
+        ids = list(parts.groups)
+        prior = self.cfg.design.prior
+        of_another_car = None if prior is None or prior.same_car else [int(i) < 0 for i in ids]
+        return control_rate_logs([part for _, part in parts]), ids, of_another_car
 
     # ------------------------------------------------------------------ models
 
@@ -143,7 +147,7 @@ class Fitting:
         """
         x, y, groups = self.training_data(samples)
         windows = self.training_windows(samples)
-        logs, log_groups = self.identification_logs(samples) or (None, None)
+        logs, log_groups, of_another_car = self.identification_logs(samples) or (None, None, None)
         seed = self.cfg.seed * 10_007 + round_index
         base = self.prior_model()
         use = self.cfg.design.prior.use if self.cfg.design.prior is not None else "data"
@@ -157,18 +161,18 @@ class Fitting:
             if len(x):
                 training = self.cfg.training.model_copy(update={"reinit": False})
                 fit(model, x, y, training, groups=groups, seed=seed, keep_scalers=True, windows=windows,
-                    logs=logs, log_groups=log_groups)  # fmt: skip
+                    logs=logs, log_groups=log_groups, of_another_car=of_another_car)  # fmt: skip
         elif previous is not None and self.cfg.training.warm_start:
             model = load_model_copy(previous)
             training = self.cfg.training
             epochs = training.warm_epochs or max(1, training.epochs // 4)
             fit(model, x, y, training.model_copy(update={"reinit": False, "epochs": epochs}),
                 groups=groups, seed=seed, keep_scalers=True, windows=windows, logs=logs,
-                log_groups=log_groups)  # fmt: skip
+                log_groups=log_groups, of_another_car=of_another_car)  # fmt: skip
         else:
             model = build_model(self.cfg.model)
             fit(model, x, y, self.cfg.training, groups=groups, seed=seed, windows=windows, logs=logs,
-                log_groups=log_groups)
+                log_groups=log_groups, of_another_car=of_another_car)
         with torch.no_grad():
             model.epistemic_scale.fill_(epistemic_scale)
         return model

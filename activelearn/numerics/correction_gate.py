@@ -29,8 +29,8 @@ HELD_OUT_SHARE = 0.25  # of the training maneuvers, at least one
 GATE_SAMPLES = 32  # posterior draws of the held-out free runs
 
 Log = tuple[np.ndarray, np.ndarray]  # (controls (T, 2), rates (T, 2)) at the log rate
-# Trains the probe on the rows whose mask is given, with these logs and windows; returns it. Called once.
-ProbeTrainer = Callable[[np.ndarray, list[Log], Windows | None], torch.nn.Module]
+# Trains the probe on the rows and logs whose masks are given, with these windows; returns it. Called once.
+ProbeTrainer = Callable[[np.ndarray, np.ndarray, Windows | None], torch.nn.Module]
 
 
 def held_out_count(n_maneuvers: int) -> int:
@@ -92,7 +92,7 @@ def choose_correction_weight(
     if not rows.any():
         return None
     probe_windows = windows.of_logs(np.flatnonzero(in_probe)) if windows is not None else None
-    probe = train_probe(rows, [log for log, keep in zip(logs, in_probe, strict=True) if keep], probe_windows)
+    probe = train_probe(rows, in_probe, probe_windows)
     held_logs = [log for log, keep in zip(logs, in_probe, strict=True) if not keep and len(log[0]) > 1]
     if not held_logs:
         return None

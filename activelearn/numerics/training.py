@@ -284,6 +284,7 @@ def fit(
     windows: Windows | None = None,
     logs: list[tuple[np.ndarray, np.ndarray]] | None = None,
     log_groups: Sequence | None = None,
+    of_another_car: Sequence[bool] | None = None,
 ) -> History:
     """Train `model` on (x, y) in physical units; return the per-epoch History.
 
@@ -303,9 +304,10 @@ def fit(
     `rollout_batch` windows at a time (eager steps: the compiled path trains one-step losses only).
     A physics-structured model (`[model] kind = "physics"`) first identifies its physical parameters:
     by free runs along `logs` (each (controls (T, 2), rates (T, 2)) at the log rate) where given, else
-    from the rows. With `[model] correction_gate`, `groups` and `log_groups` (each log's id among
-    `groups`), a probe trained without a quarter of the maneuvers then decides the share of its
-    correction's mean to keep (`activelearn.numerics.correction_gate`).
+    from the rows; logs flagged in `of_another_car` (a simulated prior grid on another car) only centre
+    the identification's prior (`PhysicsModel.identify`). With `[model] correction_gate`, `groups` and
+    `log_groups` (each log's id among `groups`), a probe trained without a quarter of the maneuvers
+    then decides the share of its correction's mean to keep (`activelearn.numerics.correction_gate`).
     """
     x, y = _check_xy(model, x, y, "")
     if config.rollout_horizon and windows is not None:
@@ -342,16 +344,18 @@ def fit(
     gate = gate and log_groups is not None
     probe = copy.deepcopy(model) if gate else None  # as it starts training: the probe starts there too
 
-    def train_probe(rows: np.ndarray, probe_logs: list, probe_windows: Windows | None) -> Model:
+    def train_probe(rows: np.ndarray, in_probe: np.ndarray, probe_windows: Windows | None) -> Model:
+        keep = np.flatnonzero(in_probe)
         fit(probe, x[rows], y[rows], config, x_val=x_val, y_val=y_val, groups=groups[rows],  # type: ignore[index]
             groups_val=groups_val, seed=seed, keep_scalers=keep_scalers, windows=probe_windows,
-            logs=probe_logs)  # fmt: skip
+            logs=[logs[i] for i in keep],  # type: ignore[index]
+            of_another_car=None if of_another_car is None else [of_another_car[i] for i in keep])  # fmt: skip
         return probe
 
     with intra_op_threads(config.num_threads), torch.random.fork_rng(devices=[]):
         _fit(
             model, x, y, config, x_val, y_val, groups_val, seed, callback,
-            history, kl_weight, batch, use_compile, keep_scalers, windows, logs,
+            history, kl_weight, batch, use_compile, keep_scalers, windows, logs, of_another_car,
         )  # fmt: skip
         if gate:
             chosen = choose_correction_weight(
@@ -382,6 +386,7 @@ def _fit(
     keep_scalers: bool,
     windows: Windows | None = None,
     logs: list[tuple[np.ndarray, np.ndarray]] | None = None,
+    of_another_car: Sequence[bool] | None = None,
 ) -> History:
     """The training loop of `fit` (arguments validated, RNG forked, threads set)."""
     has_val = x_val is not None and y_val is not None
@@ -394,7 +399,7 @@ def _fit(
             model.epistemic_scale.fill_(1.0)
     if not keep_scalers:
         model.set_scalers(x, y)
-    model.identify(x, y, logs)  # a physics-structured model fits its physical parameters first
+    model.identify(x, y, logs, of_another_car)  # a physics-structured model fits its parameters first
     xs = model.standardise_inputs(torch.from_numpy(x)).contiguous()
     ys = ((torch.from_numpy(y) - model.y_mean) / model.y_std).contiguous()
     stepper = _Stepper(model, config, kl_weight, batch, use_compile, windows, gen)

@@ -201,6 +201,9 @@ def main() -> None:
                         help="[safety] trust_rates = [speed, yaw_rate] (default: the config's)")
     parser.add_argument("--parameter-uncertainty", choices=("none", "by_log"), default=None,
                         help="[model] parameter_uncertainty of a physics model (default: the config's)")
+    parser.add_argument("--prior-same-car", choices=("true", "false"), default=None,
+                        help="[design.prior] same_car: whether the prior's logs identify the physics "
+                        "model beside the collected ones (default: the config's)")
     parser.add_argument("--out", default="runs/bench_safety")
     parser.add_argument("--resume", action="store_true")
     parser.add_argument("--no-tracking", action="store_true")
@@ -223,6 +226,8 @@ def main() -> None:
         overrides.setdefault("safety", {})["trust_rates"] = ["speed", "yaw_rate"]
     if args.parameter_uncertainty is not None:
         overrides["model"] = {"parameter_uncertainty": args.parameter_uncertainty}
+    if args.prior_same_car is not None:
+        overrides.setdefault("design", {})["prior"] = {"same_car": args.prior_same_car == "true"}
     if args.per_round is not None:
         overrides.setdefault("design", {})["per_round"] = args.per_round
     if args.setup_seconds is not None:
@@ -260,7 +265,8 @@ def main() -> None:
           f"start {list(cfg.safety.start)}, limits |v| <= {cfg.safety.max_speed} m/s, "
           f"|w| <= {cfg.safety.max_yaw_rate} rad/s, |v w| <= {cfg.safety.max_lateral_acceleration} m/s^2, "
           f"margin {cfg.safety.margin} m, fan {cfg.safety.n_samples} trajectories x {cfg.safety.fan_scale} "
-          f"epistemic std")  # fmt: skip
+          f"epistemic std; model {cfg.model.kind}, parameter_uncertainty {cfg.model.parameter_uncertainty}, "
+          f"prior same_car {cfg.design.prior.same_car if cfg.design.prior else None}")  # fmt: skip
     for row in rows:
         print(
             f"{row['variant']:>16}: violations {row['violations']} in {row['campaigns_with_any']} of "

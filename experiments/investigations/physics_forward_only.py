@@ -84,7 +84,7 @@ def main() -> None:
             empty = campaign.fitting.with_prior(pd.DataFrame()).iloc[:0]
             x, y, groups = campaign.fitting.training_data(empty)
             windows = campaign.fitting.training_windows(empty)
-            logs, log_groups = campaign.fitting.identification_logs(empty) or (None, None)  # black box
+            logs, log_groups, _ = campaign.fitting.identification_logs(empty) or (None,) * 3  # black box
             for seed in range(args.seeds):
                 model = build_model(cfg.model)
                 fit(model, x, y, cfg.training, groups=groups, seed=seed, windows=windows, logs=logs,

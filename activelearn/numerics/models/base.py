@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -332,11 +333,16 @@ class Model(nn.Module, ABC):
         """Re-initialise every learnable parameter from `generator`."""
 
     def identify(
-        self, x: np.ndarray, y: np.ndarray, logs: list[tuple[np.ndarray, np.ndarray]] | None = None
+        self,
+        x: np.ndarray,
+        y: np.ndarray,
+        logs: list[tuple[np.ndarray, np.ndarray]] | None = None,
+        of_another_car: Sequence[bool] | None = None,
     ) -> None:
         """Fit what the kind knows of the car to the training data before its weights train (a hook of
-        `training.fit`; rows x, y in physical units, `logs` as (controls, rates) per maneuver). Networks
-        know nothing beforehand: a no-op."""
+        `training.fit`; rows x, y in physical units, `logs` as (controls, rates) per maneuver, flagged
+        True in `of_another_car` where they are of another car, e.g. a simulated prior). Networks know
+        nothing beforehand: a no-op."""
 
     def open_loop_free_runs(
         self,

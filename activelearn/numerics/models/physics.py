@@ -25,6 +25,7 @@ bounded correction, which is the epistemic band there.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -47,6 +48,7 @@ from activelearn.numerics.models.single_track import (
     cholesky_factor,
     identify,
     identify_from_logs,
+    identify_on_another_car,
     single_track_step,
     split_inputs,
 )
@@ -123,13 +125,25 @@ class PhysicsModel(Model):
 
     @torch.no_grad()
     def identify(
-        self, x: np.ndarray, y: np.ndarray, logs: list[tuple[np.ndarray, np.ndarray]] | None = None
+        self,
+        x: np.ndarray,
+        y: np.ndarray,
+        logs: list[tuple[np.ndarray, np.ndarray]] | None = None,
+        of_another_car: Sequence[bool] | None = None,
     ) -> None:
         """Fit the physical parameters: to whole logs by their free runs (`identify_from_logs`) where
-        given, else to one-step rows (`identify`). A no-op with `identify = false`."""
+        given, else to one-step rows (`identify`). Logs flagged in `of_another_car` (a simulated prior
+        grid) only centre the prior the others are identified under (`identify_on_another_car`). A
+        no-op with `identify = false`."""
         if not self.config.identify:
             return
-        if logs:
+        if logs and of_another_car is not None and any(of_another_car):
+            flags = list(of_another_car)
+            found = identify_on_another_car(
+                [log for log, other in zip(logs, flags, strict=True) if not other],
+                [log for log, other in zip(logs, flags, strict=True) if other],
+            )
+        elif logs:
             found = identify_from_logs(logs)
         else:
             found = identify(x, y, self.dt, self.rate_at)

@@ -160,6 +160,9 @@ class Identified(NamedTuple):
         return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
 
 
+DATASHEET_PRIOR = Identified(NOMINAL, np.diag(WIDTH**2))  # what the datasheet says before any log
+
+
 def identify(x: np.ndarray, y: np.ndarray, dt: float, rate_at: int) -> Identified:
     """Least-squares physical parameters for rows x (N, 4k) → y (N, 2), with their covariance.
 
@@ -170,7 +173,7 @@ def identify(x: np.ndarray, y: np.ndarray, dt: float, rate_at: int) -> Identifie
     x = torch.as_tensor(np.asarray(x, dtype=np.float64))
     y = np.asarray(y, dtype=np.float64)
     if len(x) == 0:
-        return Identified(NOMINAL.copy(), np.diag(WIDTH**2))
+        return Identified(NOMINAL.copy(), DATASHEET_PRIOR.covariance.copy())
     tau, delta, v, w = split_inputs(x, -1, rate_at)
 
     def errors_of(sets: np.ndarray) -> np.ndarray:
@@ -201,18 +204,21 @@ def identify_from_logs(
     *,
     dt: float = 1.0 / datasheet.LOG_RATE_HZ,
     every: int = 1,
+    prior: Identified | None = None,
 ) -> Identified:
     """Output-error least squares: the parameters whose free runs along each log's controls, from its
     first recorded rates, come closest to its recorded rates. Logs are (controls (T, 2), rates (T, 2))
     at `dt`; `every` > 1 fits every n-th step of the runs (they are still simulated at `dt`).
 
-    MAP under the datasheet prior (`_map_fit`), with each log a cluster of the covariance (a free
-    run's errors are correlated along it). Free runs weigh the steady states and lags as a free run
-    of the model uses them; one-step errors over noisy past rates bias the lags.
+    MAP under a Gaussian prior (`_map_fit`): the datasheet's (`NOMINAL` ± `WIDTH`) or `prior`'s values
+    and the standard errors of its covariance, with each log a cluster of the covariance (a free run's
+    errors are correlated along it). Free runs weigh the steady states and lags as a free run of the
+    model uses them; one-step errors over noisy past rates bias the lags.
     """
+    prior = prior or DATASHEET_PRIOR
     logs = [(np.asarray(u, np.float64), np.asarray(y, np.float64)) for u, y in logs if len(u) > 1]
     if not logs:
-        return Identified(NOMINAL.copy(), np.diag(WIDTH**2))
+        return Identified(prior.values.copy(), prior.covariance.copy())
     length = max(len(u) for u, _ in logs)
     controls = np.zeros((len(logs), length, 2))
     rates = np.zeros((len(logs), length, 2))
@@ -227,21 +233,42 @@ def identify_from_logs(
     def errors_of(sets: np.ndarray) -> np.ndarray:  # (P, n, 2) errors of each parameter set's runs
         return (run_single_track(controls, start, sets, dt) - rates)[:, keep]
 
-    return _map_fit(errors_of, rates[valid].std(axis=0), np.nonzero(keep)[0])
+    return _map_fit(errors_of, rates[valid].std(axis=0), np.nonzero(keep)[0], prior)
 
 
-def _map_fit(errors_of, spread: np.ndarray, clusters: np.ndarray) -> Identified:
-    """MAP parameters under the datasheet prior: Gaussian errors of unknown size per rate, found in two
-    passes (the first, with the prior at 1/`PRIOR_ROWS` of its weight, measures the error size), and
-    their cluster-robust covariance. `errors_of` maps parameter sets (P, 7) to errors (P, n, 2);
-    `clusters` (n,) labels the error rows whose errors may be correlated (one log's steps)."""
-    x0 = np.clip(NOMINAL, LOW + 1e-9, HIGH - 1e-9)
+def identify_on_another_car(
+    logs: list[tuple[np.ndarray, np.ndarray]], others: list[tuple[np.ndarray, np.ndarray]], **kwargs
+) -> Identified:
+    """The parameters of the car that drove `logs`, where `others` are logs of another car (the nominal
+    simulator's prior grid, for a car that is not the simulator): `others` are identified alone first,
+    and their estimate, with the datasheet's widths added to its covariance (how far two cars of one
+    datasheet may differ), is the prior `logs` are identified under. Without `logs`, `others`' estimate
+    stands. So the other car's logs say where to start, not what this car is: pooled with this car's
+    few logs as data, 35 simulated logs outvote them (the twin's motor: 0.994 against its 0.9)."""
+    found = identify_from_logs(others, **kwargs)
+    if not any(len(u) > 1 for u, _ in logs):
+        return found
+    widened = Identified(found.values, found.covariance + np.diag(WIDTH**2))
+    return identify_from_logs(logs, prior=widened, **kwargs)
+
+
+def _map_fit(
+    errors_of, spread: np.ndarray, clusters: np.ndarray, prior: Identified | None = None
+) -> Identified:
+    """MAP parameters under a Gaussian prior (default the datasheet's; independent parameters, its
+    covariance's diagonal): Gaussian errors of unknown size per rate, found in two passes (the first,
+    with the prior at 1/`PRIOR_ROWS` of its weight, measures the error size), and their
+    cluster-robust covariance. `errors_of` maps parameter sets (P, 7) to errors (P, n, 2); `clusters`
+    (n,) labels the error rows whose errors may be correlated (one log's steps)."""
+    prior = prior or DATASHEET_PRIOR
+    centre, width = prior.values, np.maximum(prior.stderr, 1e-9)
+    x0 = np.clip(centre, LOW + 1e-9, HIGH - 1e-9)
     noise = np.maximum(spread, 1e-3)
     for prior_weight in (1.0 / PRIOR_ROWS, 1.0):
 
         def residuals_of(sets: np.ndarray, noise=noise, prior_weight=prior_weight) -> np.ndarray:
             err = errors_of(sets) / noise
-            prior = (sets - NOMINAL) / WIDTH * math.sqrt(prior_weight)
+            prior = (sets - centre) / width * math.sqrt(prior_weight)
             return np.concatenate([err.reshape(len(sets), -1), prior], axis=1)
 
         def fun(p: np.ndarray, residuals_of=residuals_of) -> np.ndarray:
