@@ -281,6 +281,16 @@ def test_identify_command_prints_the_fit_beside_the_datasheet(tmp_path, capsys):
     datasheet_value, fitted = float(row[1]), float(row[2])
     assert datasheet_value == 1.0 and 0.85 < fitted < 0.95  # the weaker motor, found in its own log
     assert "Gauss-Newton from one log" in out
+    # beside logs of another car (nominal Nigel): still the twin's motor, and the printout says so
+    (tmp_path / "nominal").mkdir()
+    for throttle in (0.4, 0.8):  # one log a file
+        log = simulator.collect([Maneuver("straight", throttle, 0.0, "ccw", 8.0)], seed=0)
+        log.to_parquet(tmp_path / "nominal" / f"straight{throttle}.parquet")
+    twin_log, other = str(tmp_path / "twin.parquet"), str(tmp_path / "nominal")
+    assert main(["identify", twin_log, "--other-car", other]) == 0
+    out = capsys.readouterr().out
+    row = next(line.split() for line in out.splitlines() if line.strip().startswith("speed_gain"))
+    assert 0.85 < float(row[2]) < 0.95 and "from 2 log(s) of another car" in out
     assert main(["identify", str(tmp_path / "missing.csv")]) == 2
     assert "LOG" in capsys.readouterr().err
 

@@ -16,6 +16,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "recorded commands, and print them beside the datasheet's values.",
     )
     p.add_argument("logs", nargs="+", metavar="LOG", help="log files, or folders searched for .csv/.parquet")
+    p.add_argument("--other-car", nargs="+", default=[], metavar="LOG",
+                   help="logs of another car (e.g. simulated on nominal Nigel): identified alone first, "
+                        "their estimate, widened by the datasheet's widths, is the prior LOG is fitted under")
     p.add_argument("--rate-hz", type=float, default=30.0, metavar="HZ", help="the logs' rate (default 30)")
     p.set_defaults(handler=_identify)
 
@@ -26,13 +29,23 @@ def _identify(args: argparse.Namespace) -> int:
     from activelearn.errors import InputError
     from activelearn.fidelity import read_log_file
     from activelearn.loop.collection import control_rate_logs
-    from activelearn.numerics.models.single_track import PARAMETERS, identify_from_logs
+    from activelearn.numerics.models.single_track import (
+        PARAMETERS,
+        identify_from_logs,
+        identify_on_another_car,
+    )
 
     if not (math.isfinite(args.rate_hz) and args.rate_hz > 0):
         raise InputError("--rate-hz", args.rate_hz, "must be a positive number")
     logs = control_rate_logs([read_log_file(path) for path in log_files(args.logs)])
-    found = identify_from_logs(logs, dt=1.0 / args.rate_hz)
-    print(f"physical parameters from {len(logs)} log(s), {sum(len(u) for u, _ in logs)} steps:")
+    if args.other_car:
+        others = control_rate_logs([read_log_file(path) for path in log_files(args.other_car)])
+        found = identify_on_another_car(logs, others, dt=1.0 / args.rate_hz)
+        prior = f"under the estimate from {len(others)} log(s) of another car ± the datasheet's widths"
+    else:
+        found = identify_from_logs(logs, dt=1.0 / args.rate_hz)
+        prior = "under the datasheet's values ± their widths"
+    print(f"physical parameters from {len(logs)} log(s), {sum(len(u) for u, _ in logs)} steps, {prior}:")
     print(f"  {'parameter':<13}{'datasheet':>10}{'fitted':>10}{'± s.e.':>9}{'change':>9}  unit  meaning")
     for p, value, err in zip(PARAMETERS, found.values, found.stderr, strict=True):
         change = f"{value / p.nominal - 1:+.1%}" if p.nominal else f"{value - p.nominal:+.3f}"

@@ -244,7 +244,10 @@ def identify_on_another_car(
     and their estimate, with the datasheet's widths added to its covariance (how far two cars of one
     datasheet may differ), is the prior `logs` are identified under. Without `logs`, `others`' estimate
     stands. So the other car's logs say where to start, not what this car is: pooled with this car's
-    few logs as data, 35 simulated logs outvote them (the twin's motor: 0.994 against its 0.9)."""
+    few logs as data, 35 simulated logs outvote them (the twin's motor: 0.994 against its 0.9). A
+    parameter neither car's logs excite ends at √2 × the datasheet's width (the two widths add: the
+    reverse gain after forward logs, 0.71): conservative, and what `safe_track_twin.toml` was measured
+    with; capping it at the datasheet's width is not measured."""
     found = identify_from_logs(others, **kwargs)
     if not any(len(u) > 1 for u, _ in logs):
         return found
