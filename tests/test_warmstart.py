@@ -78,7 +78,8 @@ def test_prior_rows_train_every_round_but_count_against_no_budget(tmp_path):
 @pytest.mark.slow
 def test_a_prior_of_another_car_only_centres_the_identification(tmp_path):
     """`same_car = false` on the twin: round 0's model is identified on the (nominal) prior grid, the
-    next on the twin's own logs under the grid's estimate (`identify_on_another_car`); true pools them."""
+    next on the twin's own logs under the grid's estimate (`identify_on_another_car`); true pools them.
+    The correction trains on the grid's rows in round 0 and, with false, on the twin's alone after."""
     def logs(frame):
         return control_rate_logs([part for _, part in frame.groupby("pool_index", sort=False)])
 
@@ -93,9 +94,13 @@ def test_a_prior_of_another_car_only_centres_the_identification(tmp_path):
                     "prior": {"grid": grid, "same_car": same_car}},
         )  # fmt: skip
         directory = tmp_path / f"same_car_{same_car}"
-        Campaign(cfg, directory).run(figures=False)
-        prior = logs(read_table(directory / PRIOR_FILE))
-        own = logs(read_table(directory / "samples.parquet"))
+        campaign = Campaign(cfg, directory)
+        result = campaign.run(figures=False)
+        prior_rows, samples = read_table(directory / PRIOR_FILE), read_table(directory / "samples.parquet")
+        prior, own = logs(prior_rows), logs(samples)
+        n_prior, n_own = len(campaign.fitting.rows(prior_rows)[0]), len(campaign.fitting.rows(samples)[0])
+        trained = result.history["n_samples"].tolist()
+        assert trained == [n_prior, n_prior + n_own if same_car else n_own]
         found[same_car] = load_model(directory / "model.pt").theta.numpy()
         expected = st.identify_from_logs(prior + own) if same_car else st.identify_on_another_car(own, prior)
         np.testing.assert_allclose(found[same_car], expected.values, rtol=1e-5)

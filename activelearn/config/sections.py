@@ -305,8 +305,8 @@ class PriorConfig(_Section):
         description="Whether the prior's logs are of the car the campaign drives: a physics model "
         "(`[model] kind = \"physics\"`) then identifies its parameters on them beside the collected "
         "logs; false (another car, e.g. a grid simulated on nominal Nigel for a twin or a real car): "
-        "they only centre the identification's prior, widened by the datasheet's widths, until the "
-        "first collected log. The prior rows train the correction either way",
+        "they only centre the identification's prior, widened by the datasheet's widths, and train the "
+        "correction only until the first collected log (after it, the car's own logs alone)",
     )
 
     @model_validator(mode="before")

@@ -70,6 +70,19 @@ class Fitting:
             return pd.concat([self.prior.rows, samples], ignore_index=True)
         return samples
 
+    def correction_logs(self, samples: pd.DataFrame) -> pd.DataFrame:
+        """The logs a round's model trains its correction on: `with_prior`'s, but with `[design.prior]
+        same_car = false` only the car's own once it has any.
+
+        Another car's rows, against this car's identified core, would teach the correction the other
+        car's offset: on the twin, the nominal grid's rows dragged the correction to its bound towards
+        the faster car (4 % of speed where only the grid had driven) while the core alone was within 1 %.
+        """
+        prior = self.cfg.design.prior
+        if prior is not None and not prior.same_car and not samples.empty:
+            return samples
+        return self.with_prior(samples)
+
     def known_logs(self, samples: pd.DataFrame | None) -> pd.DataFrame | None:
         """Every log row the campaign holds of the car: the prior's runs and the collected maneuvers."""
         prior = self.prior.rows if self.prior is not None else None
@@ -77,15 +90,15 @@ class Fitting:
         return pd.concat(frames, ignore_index=True) if frames else None
 
     def training_data(self, samples: pd.DataFrame) -> Rows:
-        """Inputs, targets and maneuver ids the model of a round trains on (prior rows included)."""
-        return self.rows(self.with_prior(samples))
+        """Inputs, targets and maneuver ids the model of a round trains on (`correction_logs`' rows)."""
+        return self.rows(self.correction_logs(samples))
 
     def training_windows(self, samples: pd.DataFrame) -> Any:
         """Free-running windows for multi-step training (`[training] rollout_horizon`), else None."""
         horizon = self.cfg.training.rollout_horizon
         if not horizon:
             return None
-        samples = self.with_prior(samples)
+        samples = self.correction_logs(samples)
         if samples.empty:
             return None
         frames = [part for _, part in samples.groupby("pool_index", sort=False)]
