@@ -71,15 +71,16 @@ class Fitting:
         return samples
 
     def correction_logs(self, samples: pd.DataFrame) -> pd.DataFrame:
-        """The logs a round's model trains its correction on: `with_prior`'s, but with `[design.prior]
-        same_car = false` only the car's own once it has any.
+        """The logs a round's model trains on: `with_prior`'s, but for a physics model's correction with
+        `[design.prior] same_car = false` only the car's own once it has any.
 
         Another car's rows, against this car's identified core, would teach the correction the other
         car's offset: on the twin, the nominal grid's rows dragged the correction to its bound towards
         the faster car (4 % of speed where only the grid had driven) while the core alone was within 1 %.
         """
         prior = self.cfg.design.prior
-        if prior is not None and not prior.same_car and not samples.empty:
+        physics = self.cfg.model.kind == "physics"
+        if physics and prior is not None and not prior.same_car and not samples.empty:
             return samples
         return self.with_prior(samples)
 
