@@ -70,17 +70,21 @@ class Fitting:
             return pd.concat([self.prior.rows, samples], ignore_index=True)
         return samples
 
-    def correction_logs(self, samples: pd.DataFrame) -> pd.DataFrame:
-        """The logs a round's model trains on: `with_prior`'s, but for a physics model's correction with
-        `[design.prior] same_car = false` only the car's own once it has any.
+    @property
+    def prior_of_another_car(self) -> bool:
+        """A physics model's prior logs are another car's (`[design.prior] same_car = false`)."""
+        prior = self.cfg.design.prior
+        return self.cfg.model.kind == "physics" and prior is not None and not prior.same_car
+
+    def training_logs(self, samples: pd.DataFrame) -> pd.DataFrame:
+        """The logs a round's model trains on: `with_prior`'s, but only the car's own once it has any
+        where the prior is another car's (`prior_of_another_car`).
 
         Another car's rows, against this car's identified core, would teach the correction the other
         car's offset: on the twin, the nominal grid's rows dragged the correction to its bound towards
         the faster car (4 % of speed where only the grid had driven) while the core alone was within 1 %.
         """
-        prior = self.cfg.design.prior
-        physics = self.cfg.model.kind == "physics"
-        if physics and prior is not None and not prior.same_car and not samples.empty:
+        if self.prior_of_another_car and not samples.empty:
             return samples
         return self.with_prior(samples)
 
@@ -91,15 +95,15 @@ class Fitting:
         return pd.concat(frames, ignore_index=True) if frames else None
 
     def training_data(self, samples: pd.DataFrame) -> Rows:
-        """Inputs, targets and maneuver ids the model of a round trains on (`correction_logs`' rows)."""
-        return self.rows(self.correction_logs(samples))
+        """Inputs, targets and maneuver ids the model of a round trains on (`training_logs`' rows)."""
+        return self.rows(self.training_logs(samples))
 
     def training_windows(self, samples: pd.DataFrame) -> Any:
         """Free-running windows for multi-step training (`[training] rollout_horizon`), else None."""
         horizon = self.cfg.training.rollout_horizon
         if not horizon:
             return None
-        samples = self.correction_logs(samples)
+        samples = self.training_logs(samples)
         if samples.empty:
             return None
         frames = [part for _, part in samples.groupby("pool_index", sort=False)]
@@ -116,8 +120,7 @@ class Fitting:
             return None
         parts = self.with_prior(samples).groupby("pool_index", sort=False)
         ids = list(parts.groups)
-        prior = self.cfg.design.prior
-        of_another_car = None if prior is None or prior.same_car else [int(i) < 0 for i in ids]
+        of_another_car = [int(i) < 0 for i in ids] if self.prior_of_another_car else None
         return control_rate_logs([part for _, part in parts]), ids, of_another_car
 
     # ------------------------------------------------------------------ models

@@ -39,6 +39,11 @@ def steady_turns(vehicle) -> np.ndarray:
     )  # fmt: skip
 
 
+def kinematic_yaw_rate(turns: np.ndarray) -> np.ndarray:
+    """ω_k = v0 tan δ / L of each turn (rad/s): the yaw rate of the straight's speed on the kinematic turn."""
+    return turns[:, 2] * np.tan(turns[:, 1]) / datasheet.WHEELBASE
+
+
 Law = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]  # (params, tan² δ, ω_k) -> v / v0
 
 
@@ -59,7 +64,7 @@ def fitted(
     """The law's parameters fitted on `rows` of `turns` and its relative speed error on every turn."""
     t2 = np.tan(turns[:, 1]) ** 2
     v0, v = turns[:, 2], turns[:, 3]
-    wk = v0 * np.tan(turns[:, 1]) / datasheet.WHEELBASE
+    wk = kinematic_yaw_rate(turns)
 
     def error(p: np.ndarray) -> np.ndarray:
         return (v0 * law(p, t2, wk) - v) / v
@@ -74,7 +79,7 @@ def main() -> None:
     args = parser.parse_args()
     for name, vehicle in (("nominal", None), ("twin", simulator.twin_vehicle(TWIN))):
         turns = steady_turns(vehicle)
-        wk = turns[:, 2] * np.tan(turns[:, 1]) / datasheet.WHEELBASE
+        wk = kinematic_yaw_rate(turns)
         slow, top = wk < args.slow, int(np.argmax(wk))
         print(f"{name}: {len(turns)} steady turns, ω_k {wk.min():.2f}-{wk.max():.2f} rad/s; "
               f"{slow.sum()} below {args.slow}")  # fmt: skip
@@ -85,6 +90,7 @@ def main() -> None:
                   f"max {np.abs(rel).max():.2%}")  # fmt: skip
             print(f"  {'':36s} fitted on the slow turns: p = {np.round(p_slow, 3)}, at the fastest turn "
                   f"{off[top]:+.2%}, the worst fast turn {np.abs(off[~slow]).max():.2%}")  # fmt: skip
+
 
 if __name__ == "__main__":
     main()
