@@ -13,7 +13,9 @@ from activelearn.errors import InputError
 from activelearn.loop.acquisition import (
     STRATEGIES,
     BaldStrategy,
+    CandidateTruth,
     FunctionSamples,
+    History,
     MaxEpistemicStrategy,
     greedy_maximin,
     make_strategy,
@@ -62,11 +64,10 @@ def _pool(cfg: CampaignConfig, taken: list[int] | None = None):
 @pytest.mark.parametrize("name", sorted(STRATEGIES))
 def test_every_strategy_returns_k_distinct_untaken_candidates(cfg, model, name):
     pool = _pool(cfg, taken=[0, 5, 11])
-    if name == "oracle_error":  # the diagnostic oracle reads noise-free truth of every candidate
-        truth_x = np.column_stack([pool.points[:, 0], np.abs(pool.points[:, 1])])
-        pool = dataclasses.replace(
-            pool, truth_x=pool.points, truth_y=synthetic.steady_state(truth_x), truth_owner=pool.owner
-        )
+    # the diagnostic oracle reads noise-free truth of every candidate from the campaign's history
+    truth_x = np.column_stack([pool.points[:, 0], np.abs(pool.points[:, 1])])
+    truth = CandidateTruth(pool.points, synthetic.steady_state(truth_x), pool.owner)
+    history = History(truth=lambda: truth)
     k = 4
     strategy = make_strategy(name)
     if name == "oracle_lookahead":  # retrains on each candidate batch: here a stand-in error to minimise
@@ -76,7 +77,7 @@ def test_every_strategy_returns_k_distinct_untaken_candidates(cfg, model, name):
         )
         assert len(tried) >= 4 and picks == max(tried, key=sum)
     else:
-        picks = strategy.select(model, pool, k, np.random.default_rng(0))
+        picks = strategy.pick(model, pool, k, np.random.default_rng(0), history)
     assert len(picks) == k
     assert len(set(picks)) == k
     assert all(0 <= p < len(pool.maneuvers) for p in picks)
@@ -133,8 +134,9 @@ def test_safe_expander_aims_its_data_where_safety_withholds_seconds(cfg, model):
     def picks(name: str, refused: np.ndarray) -> list[int]:
         risk, duration = np.where(refused, 1.0, 0.0), np.where(refused, 0.0, full)
         safe = Assessment(risk, duration, np.zeros(len(full)), full)
-        withheld = dataclasses.replace(withhold(pool, safe), affordable=~refused)
-        return make_strategy(name, n_samples=32).select(model, withheld, 2, np.random.default_rng(0))
+        admitted = dataclasses.replace(pool, affordable=~refused)
+        history = History(withheld=withhold(pool, safe))
+        return make_strategy(name, n_samples=32).pick(model, admitted, 2, np.random.default_rng(0), history)
 
     # the model knows forward throttle: refusing the hardest reverse maneuvers, it asks for the mildest
     # reverse ones; refusing full forward throttle, the next throttle down (integrated_variance on the

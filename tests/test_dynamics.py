@@ -480,9 +480,9 @@ def test_a_campaign_scores_dynamic_candidates_along_their_paths(tmp_path):
     steady = cfg.model_copy(update=update)
     other = Campaign(steady, tmp_path / "s").pool(result.state.taken, model)
     assert other.points.shape[0] < pool.points.shape[0]  # steady state: distinct control points only
-    # `auto` learns from the context that candidates are scored along paths (it then seeks max_epistemic)
-    assert campaign.strategy_context(result.state).get("dynamic_paths") == 1.0
-    assert "dynamic_paths" not in Campaign(steady, tmp_path / "s").strategy_context(result.state)
+    # `auto` learns from the history that candidates are scored along paths (it then seeks max_epistemic)
+    assert campaign.strategy_history(result.state).scores_paths
+    assert not Campaign(steady, tmp_path / "s").strategy_history(result.state).scores_paths
 
 
 def test_a_free_run_that_blows_up_scores_infinity_not_nan(history_models, slalom_log):

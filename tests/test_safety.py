@@ -25,6 +25,7 @@ from activelearn.config import (
 )
 from activelearn.errors import ConfigError
 from activelearn.loop.acquisition import make_strategy
+from activelearn.loop.admission import withhold
 from activelearn.loop.campaign import Campaign, CampaignState
 from activelearn.loop.collection import rows_per_maneuver
 from activelearn.loop.pool import maneuver_controls
@@ -422,8 +423,9 @@ def test_a_cut_candidate_is_scored_as_it_would_be_driven(tmp_path):
     # by the share of its seconds after the cut, nothing of one admitted whole
     withheld = 1.0 - safe.duration / safe.full
     expected = sum(whole.weights[whole.owner == i].sum() * withheld[i] for i in range(len(withheld)))
-    assert (~safe.admissible).any() and pool.withheld_weights.sum() == pytest.approx(expected)
-    assert len(pool.withheld) == np.isin(whole.owner, np.flatnonzero(withheld > 1e-9)).sum()
+    held = withhold(whole, safe)
+    assert (~safe.admissible).any() and held.weights.sum() == pytest.approx(expected)
+    assert len(held.points) == np.isin(whole.owner, np.flatnonzero(withheld > 1e-9)).sum()
 
 
 def test_every_strategy_picks_among_admissible_candidates_only(tmp_path):

@@ -22,6 +22,7 @@ from activelearn.loop.acquisition import (
 )
 from activelearn.loop.campaign import Campaign, CampaignState
 from activelearn.loop.collection import control_rate_logs
+from activelearn.loop.history import History
 from activelearn.loop.pool import (
     build_pool,
     operating_features,
@@ -323,30 +324,32 @@ def test_auto_decides_from_the_warm_start_and_is_deterministic(pool_cfg, forward
     maneuvers = pool_maneuvers(pool_cfg.pool)
     auto = make_strategy("auto", n_samples=32)
     cold = _pool(pool_cfg)
-    assert auto.decide(cold) == "uniform"
+    assert auto.decide(History()) == "uniform"
     assert auto.select(forward_model, cold, 3, np.random.default_rng(5)) == greedy_maximin(
         cold, 3, np.random.default_rng(5)
     )
-    warm = dataclasses.replace(_pool(pool_cfg, prior=[m for m in maneuvers if m.throttle > 0]),
-                               context={"warm_start": 1.0})  # fmt: skip
-    assert auto.decide(warm) == "integrated_variance"
-    first = auto.select(forward_model, warm, 3, np.random.default_rng(5))
-    assert first == auto.select(forward_model, warm, 3, np.random.default_rng(5))
+    warm = _pool(pool_cfg, prior=[m for m in maneuvers if m.throttle > 0])
+    known = History(prior=True)
+    assert auto.decide(known) == "integrated_variance"
+    first = auto.pick(forward_model, warm, 3, np.random.default_rng(5), known)
+    assert first == auto.pick(forward_model, warm, 3, np.random.default_rng(5), known)
     assert first == make_strategy("integrated_variance", n_samples=32).select(
         forward_model, warm, 3, np.random.default_rng(5)
     )
-    # the guard: a model whose std ranked its recent errors the wrong way round is not asked
-    distrusted = dataclasses.replace(warm, context={"warm_start": 1.0, "prequential_spearman": -0.4})
+    # the guard: a model whose std ranked its recent errors the wrong way round (the mean of the last
+    # three rounds that checked it) is not asked
+    checks = [{"prequential_spearman": s} for s in (0.9, -0.5, float("nan"), -0.4, 0.2)]
+    distrusted = History(rounds=tuple(checks), prior=True)
     assert auto.decide(distrusted) == "uniform"
+    assert auto.decide(History(rounds=tuple(checks[:1] + checks[2:]), prior=True)) == "integrated_variance"
     # a dynamic model scoring candidates along its free runs seeks its largest uncertainty, guard kept
-    paths = dataclasses.replace(warm, context={"warm_start": 1.0, "dynamic_paths": 1.0})
+    paths = History(prior=True, scores_paths=True)
     assert auto.decide(paths) == "max_epistemic"
-    assert auto.select(forward_model, paths, 3, np.random.default_rng(5)) == make_strategy(
+    assert auto.pick(forward_model, warm, 3, np.random.default_rng(5), paths) == make_strategy(
         "max_epistemic", n_samples=32
-    ).select(forward_model, paths, 3, np.random.default_rng(5))
-    distrusted_paths = dataclasses.replace(paths, context={**paths.context, "prequential_spearman": -0.4})
-    assert auto.decide(distrusted_paths) == "uniform"
-    assert auto.decide(dataclasses.replace(cold, context={"dynamic_paths": 1.0})) == "uniform"
+    ).select(forward_model, warm, 3, np.random.default_rng(5))
+    assert auto.decide(dataclasses.replace(paths, rounds=distrusted.rounds)) == "uniform"
+    assert auto.decide(History(scores_paths=True)) == "uniform"
 
 
 @pytest.mark.slow

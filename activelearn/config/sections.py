@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, ValidationInfo, field_validator, model_validator
+from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from activelearn.config.base import (
     POSE_LEVER_ARM,
@@ -459,3 +459,16 @@ class AcquisitionConfig(_Section):
             reason = "must differ from switch_first: a switch changes the rule"
             raise ConfigError("switch_to", self.switch_to, reason)
         return self
+
+    def updated(self, **options: Any) -> AcquisitionConfig:
+        """A copy with `options` changed, validated as the TOML's [acquisition] is (a ConfigError names
+        the key, e.g. `acquisition.n_samples`): how a strategy built in Python changes single options."""
+        try:
+            return AcquisitionConfig.model_validate({**self.model_dump(), **options})
+        except ValidationError as exc:
+            error = exc.errors()[0]
+            cause = (error.get("ctx") or {}).get("error")
+            if isinstance(cause, ConfigError):
+                raise ConfigError(f"acquisition.{cause.field}", cause.value, cause.reason) from None
+            field = ".".join(str(part) for part in error["loc"])
+            raise ConfigError(f"acquisition.{field}", error.get("input"), error["msg"]) from None

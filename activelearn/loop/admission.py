@@ -15,6 +15,7 @@ import pandas as pd
 
 from activelearn.config import CampaignConfig
 from activelearn.loop.budget import Budget
+from activelearn.loop.history import Withheld
 from activelearn.loop.safety import Assessment
 from activelearn.loop.state import CampaignState
 from activelearn.loop.strategy import Pool
@@ -49,7 +50,6 @@ class Admission:
         if safety is None:
             return pool, None
         safe = self.assess(model, round_index, ~pool.taken, samples)
-        pool = withhold(pool, safe)
         if not safety.enforce:
             return pool, safe
         if safe.cut.any():  # score each candidate as it would be driven: a cut one by its first seconds
@@ -94,8 +94,8 @@ class Admission:
                 state.cuts[str(i)] = float(safe.duration[i])
 
 
-def withhold(pool: Pool, safe: Assessment) -> Pool:
-    """`pool` with the points of the seconds `safe` withholds from its open candidates (`Pool.withheld`).
+def withhold(pool: Pool, safe: Assessment) -> Withheld:
+    """The points of the seconds `safe` withholds from `pool`'s open candidates (`History.withheld`).
 
     A refused candidate's points count whole; a cut one's weigh by the share of its seconds after the
     cut (a pool's points need not be in time order: a candidate's distinct controls are scored once).
@@ -104,4 +104,4 @@ def withhold(pool: Pool, safe: Assessment) -> Pool:
     share = np.where(safe.assessed, 1.0 - safe.duration / safe.full, 0.0)
     rows = np.flatnonzero(share[pool.owner] > 1e-9)
     weights = pool.weights[rows] * share[pool.owner[rows]]
-    return dataclasses.replace(pool, withheld=pool.points[rows], withheld_weights=weights)
+    return Withheld(pool.points[rows], weights)

@@ -24,9 +24,10 @@ import dataclasses
 import hashlib
 import json
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -37,12 +38,13 @@ from activelearn.config import CampaignConfig, validate_config
 from activelearn.data import atomic_write_bytes, read_table, write_table
 from activelearn.errors import ActiveLearnError, InputError
 from activelearn.loop import lock
-from activelearn.loop.acquisition import Evidence, Pool, Strategy, greedy_maximin, make_strategy
-from activelearn.loop.admission import Admission
+from activelearn.loop.acquisition import Pool, Strategy, greedy_maximin, make_strategy
+from activelearn.loop.admission import Admission, withhold
 from activelearn.loop.budget import Budget, total_rounds
 from activelearn.loop.collection import SimulationCache, TestSet, cache_root, truth_rows
 from activelearn.loop.evaluation import Evaluation, applied_scale
 from activelearn.loop.fitting import Fitting
+from activelearn.loop.history import CandidateTruth, History, Withheld
 from activelearn.loop.oracles import Oracle, make_oracle
 from activelearn.loop.pool import build_pool, maneuver_costs, path_points, target_points
 from activelearn.loop.prior import PRIOR_FILE, Prior, load_prior, prior_from_rows
@@ -125,18 +127,7 @@ class Campaign:
     ) -> None:
         self.cfg = cfg
         self.directory = Path(directory)
-        acq = cfg.acquisition
-        self.strategy: Strategy = make_strategy(
-            cfg.strategy,
-            batch=acq.batch,
-            n_samples=acq.n_samples,
-            fantasy_weight=acq.fantasy_weight,
-            penalty_length=acq.penalty_length,
-            cost_aware=acq.cost_aware,
-            switch_after=acq.switch_after,
-            switch_first=acq.switch_first,
-            switch_to=acq.switch_to,
-        )
+        self.strategy: Strategy = make_strategy(cfg.strategy, cfg.acquisition)
         cache = Path(cache_dir) if cache_dir else cache_root(cfg)
         self.nominal = SimulationCache(cache, cfg.simulation)  # prior grids: the nominal simulator
         self.oracle: Oracle = make_oracle(cfg, cache)
@@ -159,7 +150,7 @@ class Campaign:
         self._model: Any | None = None  # the model of the last fitted round, while in memory
         self._target: tuple[np.ndarray, np.ndarray] | None = None
         self._clock = (0.0, time.perf_counter())
-        self._truth: dict[str, np.ndarray] | None = None
+        self._truth: CandidateTruth | None = None
         self.cuts: dict[str, float] = {}  # the state's [safety] cuts (pool index -> seconds)
 
     # Set after construction by commands and scripts; the rooms that use them read them here.
@@ -273,8 +264,8 @@ class Campaign:
         """Whether candidates are scored along the dynamic model's own free runs of them."""
         return self.cfg.data.inputs != "controls" and self.cfg.acquisition.dynamic_points == "path"
 
-    def _candidate_truth(self) -> dict[str, np.ndarray]:
-        """Noise-free training rows of every candidate (`Evidence.truth`: benchmark-only strategies)."""
+    def _candidate_truth(self) -> CandidateTruth:
+        """Noise-free training rows of every candidate (`History.truth`: benchmark-only strategies)."""
         if self._truth is None:
             clean = self.oracle.truth(self.maneuvers)
             if clean is None:
@@ -286,27 +277,27 @@ class Campaign:
 
     # ------------------------------------------------------------------ strategies and [safety]
 
-    def strategy_context(self, state: CampaignState) -> dict[str, float]:
-        """What strategies may read: recent prequential checks (mean of 3), warm start, kind of budget,
-        whether a dynamic model scores candidates along its free runs."""
-        recent = [
-            r["prequential_spearman"]
-            for r in state.rounds
-            if np.isfinite(r.get("prequential_spearman", np.nan))
-        ]
-        context = {"prequential_spearman": float(np.mean(recent[-3:]))} if recent else {}
-        if self.cfg.design.max_sim_seconds is not None:  # the budget is track time: costs matter
-            context["seconds_budget"] = 1.0
-        if self.cfg.design.prior is not None:  # the model starts from what was known before
-            context["warm_start"] = 1.0
-        if self._scores_paths:
-            context["dynamic_paths"] = 1.0
-        return context
+    def strategy_history(
+        self, state: CampaignState, withheld: Withheld | None = None,
+        trial: Callable[[list[int]], float] | None = None,
+    ) -> History:  # fmt: skip
+        """What every strategy may read before this round's pick: the rounds so far, the kind of budget,
+        the warm start, whether a dynamic model scores candidates along its free runs, what [safety]
+        withholds, the candidates' truth (simulated oracles) and `trial`."""
+        return History(
+            rounds=tuple(MappingProxyType(dict(r)) for r in state.rounds),
+            budget="seconds" if self.cfg.design.max_sim_seconds is not None else "maneuvers",
+            prior=self.cfg.design.prior is not None,
+            scores_paths=self._scores_paths,
+            withheld=withheld,
+            truth=self._candidate_truth,
+            trial=trial,
+        )
 
     def _trial(
         self, state: CampaignState, samples: pd.DataFrame, batch: list[int], round_index: int, model: Any
     ) -> float:
-        """Test RMSE of the next round's model if `batch` were collected (`Evidence.trial`)."""
+        """Test RMSE of the next round's model if `batch` were collected (`History.trial`)."""
         new = self.collect(batch, len(state.batches))
         more = pd.concat([samples, new], ignore_index=True)
         trial = self.fitting.fit(more, round_index + 1, previous=model)
@@ -449,13 +440,14 @@ class Campaign:
         )
         metrics["wall_seconds"] = state.wall_seconds = self._wall()
         k, reason = self.budget.next_batch_size(state)
-        pool = dataclasses.replace(
-            self.pool(state.taken, model, self.budget.affordable(state)), context=self.strategy_context(state)
-        )
+        pool = self.pool(state.taken, model, self.budget.affordable(state))
         safe: Assessment | None = None
+        withheld: Withheld | None = None
         if reason is None:
             started = time.perf_counter()
+            whole = pool
             pool, safe = self.admission.safe_pool(pool, model, round_index, state.taken, samples)
+            withheld = withhold(whole, safe) if safe is not None else None
             if safe is not None:
                 metrics.update(self.admission.metrics(state, safe, time.perf_counter() - started))
                 k = min(k, len(pool.available))
@@ -469,11 +461,10 @@ class Campaign:
         picks: list[int] = []
         if reason is None:
             rng = _rng(self.cfg.seed, round_index, 0x5E1)
-            evidence = Evidence(
-                truth=self._candidate_truth,
-                trial=lambda batch: self._trial(state, samples, batch, round_index, model),
+            history = self.strategy_history(
+                state, withheld, trial=lambda batch: self._trial(state, samples, batch, round_index, model)
             )
-            picks = self.strategy.pick(model, pool, k, rng, evidence)
+            picks = self.strategy.pick(model, pool, k, rng, history)
             picks = self.budget.within_budget(state, picks)
             metrics.update(self.strategy.round_metrics())
         if figures:

@@ -23,6 +23,7 @@ import pandas as pd
 import simulator
 from activelearn.config import CampaignConfig, DataConfig, NoiseSettings, SimulationConfig
 from activelearn.data import read_table, write_table
+from activelearn.loop.history import CandidateTruth
 from activelearn.names import CONTROLS, PREVIOUS_RATES, RATES
 from activelearn.numerics.lags import Lags
 from activelearn.numerics.multistep import Windows, windows_from_logs
@@ -204,20 +205,16 @@ def arrays(rows: pd.DataFrame, cfg: DataConfig) -> tuple[np.ndarray, np.ndarray]
     return x, y
 
 
-def truth_rows(frames: Sequence[pd.DataFrame], cfg: DataConfig) -> dict[str, np.ndarray]:
+def truth_rows(frames: Sequence[pd.DataFrame], cfg: DataConfig) -> CandidateTruth:
     """Noise-free training rows of every candidate, stacked, and the candidate each row belongs to
-    (`Pool.truth_x`, `truth_y`, `truth_owner`: what only a simulated oracle knows)."""
+    (`History.truth`: what only a simulated oracle knows)."""
     xs, ys, owner = [], [], []
     for i, frame in enumerate(frames):
         x, y = arrays(training_rows(frame, cfg), cfg)
         xs.append(x)
         ys.append(y)
         owner.append(np.full(len(x), i))
-    return {
-        "truth_x": np.concatenate(xs),
-        "truth_y": np.concatenate(ys),
-        "truth_owner": np.concatenate(owner),
-    }
+    return CandidateTruth(np.concatenate(xs), np.concatenate(ys), np.concatenate(owner))
 
 
 def rows_per_maneuver(duration: float, settings: SimulationConfig, cfg: DataConfig) -> float:

@@ -20,7 +20,8 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 
-from activelearn.errors import InputError
+from activelearn.config import AcquisitionConfig
+from activelearn.loop.history import NO_HISTORY, History
 from activelearn.loop.strategy import Pool, Strategy, check_k, per_candidate, proximity_penalty
 
 BatchMode = Literal["fantasy", "penalty", "topk"]
@@ -79,30 +80,14 @@ class UncertaintyStrategy(Strategy):
 
     uses_model = True
 
-    def __init__(
-        self,
-        *,
-        batch: BatchMode = "fantasy",
-        n_samples: int = 64,
-        fantasy_weight: float = 1.0,
-        penalty_length: float = 0.15,
-        seed: int = 0,
-        cost_aware: bool = False,
-    ) -> None:
-        if batch not in ("fantasy", "penalty", "topk"):
-            raise InputError("acquisition.batch", batch, "must be one of fantasy, penalty, topk")
-        if n_samples < 2:
-            raise InputError("acquisition.n_samples", n_samples, "must be at least 2")
-        if fantasy_weight <= 0:
-            raise InputError("acquisition.fantasy_weight", fantasy_weight, "must be positive")
-        if penalty_length <= 0:
-            raise InputError("acquisition.penalty_length", penalty_length, "must be positive")
-        self.batch = batch
-        self.n_samples = n_samples
-        self.fantasy_weight = fantasy_weight
-        self.penalty_length = penalty_length
-        self.seed = seed
-        self.cost_aware = cost_aware
+    def __init__(self, acquisition: AcquisitionConfig | None = None, **options: Any) -> None:
+        super().__init__(acquisition, **options)
+        acq = self.acquisition
+        self.batch: BatchMode = acq.batch
+        self.n_samples = acq.n_samples
+        self.fantasy_weight = acq.fantasy_weight
+        self.penalty_length = acq.penalty_length
+        self.cost_aware = acq.cost_aware
 
     def per_second(self, scores: np.ndarray, costs: np.ndarray | None) -> np.ndarray:
         """Scores per second of track time when cost-aware (scores unchanged otherwise)."""
@@ -228,21 +213,19 @@ class IntegratedVarianceStrategy(UncertaintyStrategy):
 
     name = "integrated_variance"
 
-    def __init__(self, **options: Any) -> None:
-        options.setdefault("batch", "fantasy")
-        super().__init__(**options)
-
     def point_scores(self, samples: FunctionSamples, cov: np.ndarray) -> np.ndarray:  # pragma: no cover
         raise NotImplementedError("integrated_variance scores whole candidates")
 
-    def target_of(self, pool: Pool) -> tuple[np.ndarray, np.ndarray | None]:
-        """The points whose epistemic variance the picks should lower, and their weights (None: equal)."""
-        return pool.target, pool.target_weights
-
     def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
+        return self.reduce_variance(model, pool, k, rng, pool.target, pool.target_weights)
+
+    def reduce_variance(
+        self, model: Any, pool: Pool, k: int, rng: np.random.Generator, target: np.ndarray,
+        target_weights: np.ndarray | None,
+    ) -> list[int]:  # fmt: skip
+        """The k candidates that most lower the epistemic variance at `target` (weights None: equal)."""
         available = list(check_k(pool, k))
         seed = int(rng.integers(2**31 - 1))
-        target, target_weights = self.target_of(pool)
         stacked = np.concatenate([pool.points, target])
         samples = FunctionSamples.from_model(model, stacked, pool.output_scale, self.n_samples, seed)
         cand = FunctionSamples(samples.phi[: len(pool.points)], samples.aleatoric[: len(pool.points)])
@@ -268,7 +251,7 @@ class IntegratedVarianceStrategy(UncertaintyStrategy):
 
 class SafeExpanderStrategy(IntegratedVarianceStrategy):
     """Grow the safe set: among the admitted candidates, drive those whose data most lower the epistemic
-    variance where [safety] withholds seconds (`Pool.withheld`: refused candidates, cut ones' rest).
+    variance where [safety] withholds seconds (`History.withheld`: refused candidates, cut ones' rest).
 
     SafeOpt's expanders (Sui et al., ICML 2015) are the safe points whose data could make unsafe ones
     safe; this aims at the withheld points directly, as transductive active learning does (Hübotter et
@@ -281,10 +264,14 @@ class SafeExpanderStrategy(IntegratedVarianceStrategy):
 
     name = "safe_expander"
 
-    def target_of(self, pool: Pool) -> tuple[np.ndarray, np.ndarray | None]:
-        if pool.withheld is None or not len(pool.withheld):
-            return super().target_of(pool)
-        return pool.withheld, pool.withheld_weights
+    def pick(
+        self, model: Any, pool: Pool, k: int, rng: np.random.Generator, history: History = NO_HISTORY
+    ) -> list[int]:
+        """Aim at what the `history` says [safety] withholds this round (`[target]`'s points if nothing)."""
+        withheld = history.withheld
+        if withheld is None or not len(withheld.points):
+            return self.select(model, pool, k, rng)
+        return self.reduce_variance(model, pool, k, rng, withheld.points, withheld.weights)
 
 
 def _target_moment(phi: np.ndarray, weights: np.ndarray | None) -> np.ndarray:

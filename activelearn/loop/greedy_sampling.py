@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from activelearn.config import AcquisitionConfig
 from activelearn.errors import InputError
 from activelearn.loop.space_filling import greedy_maximin
 from activelearn.loop.strategy import Pool, Strategy, check_k
@@ -57,15 +58,14 @@ def trajectory_distances(trajectories: np.ndarray, rows: np.ndarray, to: np.ndar
 
 class TrajectoryStrategy(Strategy):
     """A strategy that compares candidates by their predicted rate trajectories (`predicted_trajectories`,
-    the mean of `n_samples` posterior draws): `igs` and `lcmd`."""
+    the mean of `[acquisition] n_samples` posterior draws): `igs` and `lcmd`."""
 
     uses_model = True
 
-    def __init__(self, *, n_samples: int = 64, **_: Any) -> None:
+    def __init__(self, acquisition: AcquisitionConfig | None = None, **options: Any) -> None:
         # The draws' seed comes from the round's rng (`select`), as the uncertainty strategies' does.
-        if n_samples < 1:
-            raise InputError("acquisition.n_samples", n_samples, "must be at least 1")
-        self.n_samples = n_samples
+        super().__init__(acquisition, **options)
+        self.n_samples = self.acquisition.n_samples
 
 
 class GreedySamplingStrategy(TrajectoryStrategy):

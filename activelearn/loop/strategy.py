@@ -1,27 +1,30 @@
 """The one interface every acquisition strategy implements, and the pool of candidates it reads.
 
-A strategy picks k untaken candidates from a `Pool`. The campaign calls every strategy the same way,
-`Strategy.pick(model, pool, k, rng, evidence)`, and logs what `Strategy.round_metrics()` returns beside
-the round's metrics: it names none of them. Most strategies only `select` from the pool; the
-benchmark-only oracles also read `Evidence` (what no real campaign knows: the noise-free truth of the
-candidates, or the error of a model retrained on a batch).
+A strategy picks k untaken candidates from a `Pool` (the candidates' geometry and costs). The campaign
+calls every strategy the same way, `Strategy.pick(model, pool, k, rng, history)`, and logs what
+`Strategy.round_metrics()` returns beside the round's metrics: it names none of them. Most strategies
+only `select` from the pool; those that decide from what the campaign has seen read the `History`
+(`activelearn.loop.history`) themselves. Every strategy builds itself from `[acquisition]`
+(`AcquisitionConfig`: its defaults are the config's).
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 
+from activelearn.config import AcquisitionConfig
 from activelearn.errors import InputError
+from activelearn.loop.history import NO_HISTORY, History
 
 
 @dataclass(frozen=True)
 class Pool:
-    """Candidate maneuvers and what strategies need to compare and score them.
+    """Candidate maneuvers: their geometry and costs, what strategies need to compare and score them.
 
     features: (n, d) coordinates of each candidate in [0, 1]^d (operating point: throttle, signed
         steering; for a family pool the normalised family parameters and direction,
@@ -39,14 +42,6 @@ class Pool:
     prior_features / prior_kinds: operating points (scaled like `features`) and kind codes of the
         maneuvers a warm start already holds (-1 = kind unknown: no kind distance). Space-filling
         designs treat them as taken.
-    truth_x / truth_y / truth_owner: noise-free rows of every candidate, set only for the diagnostic
-        `oracle_error` strategy (a real campaign cannot know them).
-    context: what the campaign measured about its model so far (e.g. `prequential_spearman`, the rank
-        correlation of the last models' epistemic std with their errors on the maneuvers collected
-        after them), for strategies that decide from it (`auto`).
-    withheld / withheld_weights: (W, n_inputs) points of the open candidates [safety] does not admit
-        whole (refused, or cut short) and the training rows each stands for, times the share of its
-        candidate's seconds withheld; None without [safety]. `safe_expander` aims its data there.
     """
 
     maneuvers: tuple[Any, ...]
@@ -65,12 +60,6 @@ class Pool:
     affordable: np.ndarray | None = None
     prior_features: np.ndarray | None = None
     prior_kinds: np.ndarray | None = None
-    truth_x: np.ndarray | None = None
-    truth_y: np.ndarray | None = None
-    truth_owner: np.ndarray | None = None
-    context: Mapping[str, float] | None = None
-    withheld: np.ndarray | None = None
-    withheld_weights: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.maneuvers)
@@ -86,10 +75,6 @@ class Pool:
             raise ValueError("Pool.target_weights needs one weight per target point")
         if (self.prior_features is None) != (self.prior_kinds is None):
             raise ValueError("Pool.prior_features and prior_kinds go together")
-        if (self.withheld is None) != (self.withheld_weights is None) or (
-            self.withheld is not None and len(self.withheld) != len(self.withheld_weights)  # type: ignore[arg-type]
-        ):
-            raise ValueError("Pool.withheld needs one weight per point in withheld_weights")
 
     @property
     def available(self) -> np.ndarray:
@@ -125,20 +110,6 @@ class Pool:
         return gap
 
 
-
-@dataclass(frozen=True)
-class Evidence:
-    """What a campaign can tell a strategy beyond the pool; only the benchmark-only oracles ask for it.
-
-    truth(): noise-free training rows of every candidate (`Pool.truth_x`, `truth_y`, `truth_owner`),
-        from a simulated oracle; an InputError naming the strategy where the oracle cannot know them.
-    trial(batch): the test RMSE of the next round's model had `batch` been collected.
-    """
-
-    truth: Callable[[], dict[str, np.ndarray]]
-    trial: Callable[[list[int]], float]
-
-
 def check_k(pool: Pool, k: int) -> np.ndarray:
     """The pool's available candidates, once k is known to be a batch they can fill."""
     available = pool.available
@@ -162,19 +133,27 @@ def proximity_penalty(pool: Pool, picks: Sequence[int], length: float) -> np.nda
 
 
 class Strategy(ABC):
-    """Pick k untaken candidates from a pool."""
+    """Pick k untaken candidates from a pool.
+
+    `acquisition`: the `[acquisition]` section it reads its options from (None: the section's
+    defaults); `options` change single keys of it, validated as the config validates them.
+    """
 
     name: ClassVar[str]
     uses_model: ClassVar[bool] = False
+
+    def __init__(self, acquisition: AcquisitionConfig | None = None, **options: Any) -> None:
+        base = AcquisitionConfig() if acquisition is None else acquisition
+        self.acquisition = base.updated(**options) if options else base
 
     @abstractmethod
     def select(self, model: Any, pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
         """Return k distinct indices of untaken candidates in `pool`."""
 
     def pick(
-        self, model: Any, pool: Pool, k: int, rng: np.random.Generator, evidence: Evidence | None = None
+        self, model: Any, pool: Pool, k: int, rng: np.random.Generator, history: History = NO_HISTORY
     ) -> list[int]:
-        """What the campaign calls every round: `select`, unless a strategy needs the `evidence` too."""
+        """What the campaign calls every round: `select`, unless a strategy reads the `history` too."""
         return self.select(model, pool, k, rng)
 
     def round_metrics(self) -> dict[str, float]:
