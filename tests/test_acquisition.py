@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from activelearn.config import CampaignConfig, ModelConfig, TrainingConfig
-from activelearn.errors import InputError
+from activelearn.config import AcquisitionConfig, CampaignConfig, ModelConfig, TrainingConfig
+from activelearn.errors import ConfigError, InputError
 from activelearn.loop.acquisition import (
     STRATEGIES,
     BaldStrategy,
@@ -90,6 +90,30 @@ def test_unknown_strategy_and_oversized_batch_are_rejected(cfg, model):
     pool = _pool(cfg, taken=list(range(len(pool_maneuvers(cfg.pool)) - 2)))
     with pytest.raises(InputError, match="k"):
         make_strategy("uniform").select(model, pool, 3, np.random.default_rng(0))
+
+
+def test_strategies_take_their_options_from_the_acquisition_section(cfg, model):
+    section = AcquisitionConfig(n_samples=7, batch="penalty", penalty_length=0.3, switch_to="lcmd")
+    built = {name: make_strategy(name, section) for name in ("bald", "igs", "switch", "auto")}
+    assert (built["bald"].n_samples, built["bald"].batch, built["bald"].penalty_length) == (7, "penalty", 0.3)
+    assert built["igs"].n_samples == 7
+    assert (built["switch"].target.name, built["switch"].target.n_samples) == ("lcmd", 7)
+    assert built["auto"].acquisition is section
+    # no defaults of their own: left alone, a strategy has the section's
+    defaults = AcquisitionConfig()
+    plain = make_strategy("max_epistemic")
+    assert (plain.n_samples, plain.batch, plain.fantasy_weight, plain.cost_aware) == (
+        defaults.n_samples, defaults.batch, defaults.fantasy_weight, defaults.cost_aware
+    )
+    # a single key changed in Python is validated as the config validates it
+    assert make_strategy("bald", section, n_samples=9).n_samples == 9
+    with pytest.raises(ConfigError, match=r"acquisition\.n_samples"):
+        make_strategy("bald", n_samples=1)
+    with pytest.raises(ConfigError, match=r"acquisition\.n_sample"):
+        make_strategy("bald", n_sample=16)
+    # the error oracle reads the candidates' truth from the history only a campaign gives
+    with pytest.raises(InputError, match="noise-free truth"):
+        make_strategy("oracle_error").select(model, _pool(cfg), 2, np.random.default_rng(0))
 
 
 def test_maximin_spreads_more_than_random(cfg):

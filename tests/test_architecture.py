@@ -39,7 +39,7 @@ _CAMPAIGN_ROOMS = (
     "oracles", "collection", "prior", "state", "lock", "asktell", "safety",
 )  # fmt: skip
 _STRATEGY_ROOMS = (
-    "strategy", "space_filling", "function_space", "greedy_sampling", "lcmd", "acquisition",
+    "strategy", "history", "space_filling", "function_space", "greedy_sampling", "lcmd", "acquisition",
 )  # fmt: skip
 
 
@@ -205,6 +205,78 @@ def test_the_loop_names_no_strategy():
                 if ident.endswith("Strategy") and ident != "Strategy":
                     bad.append(f"{name}:{node.lineno} names {ident}")
     assert bad == []
+
+
+def _keys_built(tree: ast.AST) -> set[str]:
+    """String keys a module writes into mappings: dict displays, `d["k"] = ...`, `update(k=...)`,
+    `dict(k=...)`, `replace(k=...)` and `setdefault("k", ...)`."""
+    keys: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Dict):
+            keys |= {k.value for k in node.keys if isinstance(k, ast.Constant) and isinstance(k.value, str)}
+        elif isinstance(node, ast.Subscript) and isinstance(node.ctx, ast.Store):
+            if isinstance(node.slice, ast.Constant) and isinstance(node.slice.value, str):
+                keys.add(node.slice.value)
+        elif isinstance(node, ast.Call):
+            func = node.func
+            called = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
+            if called in ("update", "dict", "replace"):
+                keys |= {k.arg for k in node.keywords if k.arg}
+            elif called == "setdefault" and node.args and isinstance(node.args[0], ast.Constant):
+                keys.add(str(node.args[0].value))
+    return keys
+
+
+def _keys_read(tree: ast.AST) -> set[str]:
+    """String keys a module reads out of mappings: `d["k"]`, `d.get("k")`, `d.pop("k")`, `setdefault`."""
+    keys: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Subscript) and isinstance(node.ctx, ast.Load):
+            if isinstance(node.slice, ast.Constant) and isinstance(node.slice.value, str):
+                keys.add(node.slice.value)
+        elif isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.args:
+            first = node.args[0]
+            if node.func.attr in ("get", "pop", "setdefault") and isinstance(first, ast.Constant):
+                if isinstance(first.value, str):
+                    keys.add(first.value)
+    return keys
+
+
+def _keys_built_for_strategies(sources: dict[str, str]) -> list[str]:
+    """Keys a loop module outside the strategy rooms builds and a strategy room reads, but for round
+    metrics (names.py's, and every key the evaluation room builds: what a round logs for every
+    strategy, which strategies read from `History.rounds`). `sources`: module name -> source."""
+    from activelearn.names import METRICS
+
+    rooms = {f"activelearn.loop.{room}" for room in _STRATEGY_ROOMS}
+    trees = {name: ast.parse(source) for name, source in sources.items()}
+    read = set().union(*(_keys_read(tree) for name, tree in trees.items() if name in rooms))
+    metrics = set(METRICS) | _keys_built(trees.get("activelearn.loop.evaluation", ast.Module([], [])))
+    return sorted(
+        f"{name} builds {key!r}"
+        for name, tree in trees.items()
+        if name not in rooms and name != "activelearn.loop.evaluation"
+        for key in (_keys_built(tree) & read) - metrics
+    )
+
+
+def test_the_key_scan_sees_a_key_built_for_one_strategy():
+    # Guards the check below: the coupling it forbids (a context key only `auto` reads) is found.
+    sources = {
+        "activelearn.loop.campaign": 'context = {"round": 1}\ncontext["warm_start"] = 1.0\n',
+        "activelearn.loop.acquisition": 'if pool.context.get("warm_start") and r["round"]: pass\n',
+        "activelearn.loop.evaluation": 'checks = {"prequential_spearman": 0.5}\n',
+        "activelearn.loop.function_space": 'spearman = r["prequential_spearman"]\n',
+    }
+    assert _keys_built_for_strategies(sources) == ["activelearn.loop.campaign builds 'warm_start'"]
+
+
+def test_the_loop_builds_no_key_for_a_strategy():
+    # Strategies read what the campaign has seen from one typed History, built alike for every
+    # strategy; the loop hands them no mapping whose keys only a strategy reads.
+    loop = {name: path for name, path in MODULES.items() if name.startswith("activelearn.loop")}
+    sources = {name: path.read_text() for name, path in loop.items()}
+    assert _keys_built_for_strategies(sources) == []
 
 
 def test_no_module_is_much_longer_than_600_lines():
