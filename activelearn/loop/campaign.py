@@ -61,6 +61,7 @@ from activelearn.loop.state import (
 )
 from activelearn.numerics.models import load_model, save_model
 from activelearn.numerics.surrogate import model_inputs
+from activelearn.seeds import Stream, derived_rng, derived_seed
 
 __all__ = [
     "MODEL_FILE",
@@ -98,10 +99,6 @@ class CampaignResult:
     def history(self) -> pd.DataFrame:
         """One row per round with every logged metric."""
         return pd.DataFrame(self.state.rounds)
-
-
-def _rng(seed: int, *tags: int) -> np.random.Generator:
-    return np.random.default_rng([seed, *tags])
 
 
 class Campaign:
@@ -322,8 +319,8 @@ class Campaign:
         turn = None
         if safety.measured_turn_speed:
             turn = turn_speed(self.fitting.known_logs(samples), rate, safety.limit_window)
-        return assess(model, self.maneuvers, safety, rate_hz=rate, seed=self.cfg.seed * 10_007 + round_index,
-                      which=open_, turn=turn)  # fmt: skip
+        seed = derived_seed(self.cfg.seed, Stream.ROUND, round_index)  # the fan of the round's model
+        return assess(model, self.maneuvers, safety, rate_hz=rate, seed=seed, which=open_, turn=turn)
 
     def _set_pending(self, state: CampaignState, picks: list[int], safe: Assessment | None) -> None:
         """Propose `picks`; with [safety], record their risks and the shorter durations of those cut."""
@@ -422,7 +419,7 @@ class Campaign:
                 state.finished, state.stop_reason = True, "nothing_admissible"
                 self._checkpoint(state, None, None)
                 return
-            initial = greedy_maximin(pool, k, _rng(self.cfg.seed, 0x1D))
+            initial = greedy_maximin(pool, k, derived_rng(self.cfg.seed, Stream.INITIAL))
             self._set_pending(state, initial, safe)
             self._checkpoint(state, None, None)
             return
@@ -468,7 +465,7 @@ class Campaign:
                 reason = "stop_epistemic_std"
         picks: list[int] = []
         if reason is None:
-            rng = _rng(self.cfg.seed, round_index, 0x5E1)
+            rng = derived_rng(self.cfg.seed, Stream.PICKS, round_index)
             evidence = Evidence(
                 truth=self._candidate_truth,
                 trial=lambda batch: self._trial(state, samples, batch, round_index, model),

@@ -39,6 +39,7 @@ from activelearn.loop.prior import load_prior
 from activelearn.loop.safety import assess, log_violation, placed_path, turn_speed
 from activelearn.loop.state import MODEL_FILE, SAMPLES_FILE, CampaignState
 from activelearn.numerics.models import load_model
+from activelearn.seeds import Stream, derived_seed
 from simulator.maneuvers import sample_times
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -126,7 +127,7 @@ def main() -> None:
                 update["fan_scale"] = fan_scale
             safety = base.model_copy(update=update)
             safe = assess(None if fan_scale == "none" else model, campaign.maneuvers, safety, rate_hz=rate,
-                          seed=seed * 10_007 + round_index, which=open_, turn=turn)  # fmt: skip
+                          seed=derived_seed(seed, Stream.ROUND, round_index), which=open_, turn=turn)  # fmt: skip
             bad, reasons, slacks = [], [], []
             for i in np.flatnonzero(safe.admissible):
                 log = drive(campaign, clean, int(i), float(safe.duration[i]))
