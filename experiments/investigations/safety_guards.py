@@ -126,8 +126,9 @@ def main() -> None:
             if fan_scale != "none":
                 update["fan_scale"] = fan_scale
             safety = base.model_copy(update=update)
+            fan_seed = derived_seed(seed, Stream.ROUND, round_index)
             safe = assess(None if fan_scale == "none" else model, campaign.maneuvers, safety, rate_hz=rate,
-                          seed=derived_seed(seed, Stream.ROUND, round_index), which=open_, turn=turn)  # fmt: skip
+                          seed=fan_seed, which=open_, turn=turn)  # fmt: skip
             bad, reasons, slacks = [], [], []
             for i in np.flatnonzero(safe.admissible):
                 log = drive(campaign, clean, int(i), float(safe.duration[i]))
