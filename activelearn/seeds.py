@@ -32,6 +32,7 @@ class Stream(Enum):
     PICKS = "picks"  # a round's acquisition (key: the round index)
     TEST_SPLIT = "test_split"  # which recorded logs are held out as the test set (seed: the pool's)
     FAMILY = "family"  # one maneuver family's pool draw (seed: the pool's; key: the family's name)
+    # NOISE and FAMILY share a recipe (seed, crc32 of a name); a maneuver's name is never a family's.
 
 
 # The tag each stream mixes in (after the seed; PICKS after the seed and the round index).
