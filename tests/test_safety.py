@@ -409,7 +409,8 @@ def test_a_cut_candidate_is_scored_as_it_would_be_driven(tmp_path):
         assert pool.weights[pool.owner == i].sum() == pytest.approx(rows)
         assert whole.weights[whole.owner == i].sum() > rows + 1
         m = campaign.maneuvers[i]
-        reached = np.abs(maneuver_controls(dataclasses.replace(m, duration=safe.duration[i]))[:, 1]).max()
+        driven = dataclasses.replace(m, duration=safe.duration[i])
+        reached = np.abs(maneuver_controls(driven, rate_hz=30.0)[:, 1]).max()
         assert np.abs(pool.points[pool.owner == i, 1]).max() == pytest.approx(reached, abs=1e-6)
     hook = [i for i in cut if campaign.maneuvers[i].kind == "fishhook"]
     assert hook

@@ -230,7 +230,7 @@ def assess(
     maneuvers: Sequence[Any],
     cfg: SafetyConfig,
     *,
-    rate_hz: float = 30.0,
+    rate_hz: float,
     seed: int = 0,
     which: np.ndarray | None = None,
     turn: TurnSpeed | None = None,

@@ -284,7 +284,7 @@ def simulate(
     model,
     controls: Sequence[np.ndarray],
     *,
-    rate_hz: float = 30.0,
+    rate_hz: float,
     n_samples: int = 32,
     seed: int = 0,
     initial_rates: np.ndarray | None = None,
@@ -473,7 +473,7 @@ def widened_step(
     draw_moments(means, variances, moments)
 
 
-def estimate_lever_arm(logs: Sequence, *, rate_hz: float = 30.0, min_yaw_rate: float = 0.2) -> float:
+def estimate_lever_arm(logs: Sequence, *, rate_hz: float, min_yaw_rate: float = 0.2) -> float:
     """Where the logged pose lies ahead of the rear axle (m), from logs' positions, heading and ω.
 
     A kinematic car's rear axle does not slip sideways, so the logged point's sideways velocity in
