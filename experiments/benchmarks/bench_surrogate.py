@@ -266,7 +266,7 @@ def main() -> None:
         # The static map twice: its compiled kernel ("auto" where a C compiler built it) and the
         # NumPy/torch reference that draws the same numbers. The dynamic models have one path each.
         for (name, backend), label in zip(runs, labels, strict=True):
-            call = dict(n_samples=args.samples, backend=backend)
+            call = dict(rate_hz=LOG_RATE_HZ, n_samples=args.samples, backend=backend)
             if round_ == 0:
                 simulate(models[name, seeds[0]], controls[:4], initial_rates=initial[:4], **call)  # warm-up
             times = []
@@ -308,7 +308,7 @@ def main() -> None:
     for seed in seeds:
         for name in names:
             model = models[name, seed]
-            call = dict(initial_rates=initial, n_samples=args.samples)
+            call = dict(rate_hz=LOG_RATE_HZ, initial_rates=initial, n_samples=args.samples)
             rollout = rollouts[name] if seed == seeds[0] else simulate(model, controls, **call)
             # the same rollout with the uncalibrated fan, where calibration moved it
             raw = simulate(model, controls, fan_scale=1.0, **call) if args.calibration_maneuvers > 0 else None
