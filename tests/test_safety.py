@@ -321,7 +321,7 @@ def test_fans_place_the_path_where_the_car_logs_it(tmp_path):
     # pose_lever_arm), so the CG's side slip is in the fan and `path_tolerance` only keeps a few cm
     # (true rates retrace the logged path to ~1 cm: tests/test_surrogate.py).
     cfg = safe_config(tmp_path, {"start": [0.3, -0.2, 0.5], "fan_scale": 1.0}, tracking={"enabled": False})
-    assert cfg.safety.path_tolerance < 0.05 and cfg.model.pose_lever_arm == cfg.data.pose_lever_arm > 0
+    assert cfg.safety.path_tolerance < 0.05 and cfg.model.pose_lever_arm > 0
     campaign = Campaign(cfg, tmp_path / "c")
     model = build_model(cfg.model)
     test = campaign.test_set
@@ -330,7 +330,7 @@ def test_fans_place_the_path_where_the_car_logs_it(tmp_path):
     rollout = fan(model, skidpads, cfg.safety, 30.0, seed=4)
     controls = [maneuver_controls(m, 30.0) for m in skidpads]
     call = dict(rate_hz=30.0, n_samples=cfg.safety.n_samples, seed=4, initial_yaw=0.5)
-    at_cg = simulate(model, controls, lever_arm=cfg.data.pose_lever_arm, **call)
+    at_cg = simulate(model, controls, lever_arm=cfg.model.pose_lever_arm, **call)
     np.testing.assert_allclose(rollout.x, at_cg.x + 0.3, atol=1e-6)
     np.testing.assert_allclose(rollout.y, at_cg.y - 0.2, atol=1e-6)
     at_axle = simulate(model, controls, lever_arm=0.0, **call)
@@ -341,7 +341,7 @@ def test_fans_place_the_path_where_the_car_logs_it(tmp_path):
         model.fan_scale.fill_(4.0)
     again = fan(model, skidpads, cfg.safety, 30.0, seed=4)
     np.testing.assert_array_equal(again.x, rollout.x)
-    assert not np.allclose(simulate(model, controls, lever_arm=cfg.data.pose_lever_arm, **call).x, at_cg.x)
+    assert not np.allclose(simulate(model, controls, lever_arm=cfg.model.pose_lever_arm, **call).x, at_cg.x)
 
 
 # ------------------------------------------------------------------------------------- campaigns

@@ -304,7 +304,7 @@ def test_true_rates_integrated_at_the_rear_axle_retrace_the_logged_path(turning_
     # The floor under every model's free run: with the rates MuJoCo logged, integrating v along the
     # heading at the CG drifts by centimetres in a turn (the CG slides sideways at l_r·ω); placing the
     # CG l_r ahead of a rear axle that does not slip retraces the path to millimetres.
-    arm = DataConfig().pose_lever_arm
+    arm = ModelConfig().pose_lever_arm
     for run_id, table in turning_truth.groupby("run_id", sort=False):
         at_cg, at_axle = _end_error_of_true_rates(table, 0.0), _end_error_of_true_rates(table, arm)
         assert at_axle < 0.02, (run_id, at_axle)
@@ -328,7 +328,7 @@ def test_lever_arm_estimated_from_logs_is_the_models_geometry(turning_truth):
     vehicle = simulator.Vehicle()
     rear_axle = -float(vehicle.model.body("wheel_rl").pos[0])  # the IMU site sits at the chassis origin
     assert float(vehicle.model.site("imu").pos[0]) == 0.0
-    assert DataConfig().pose_lever_arm == pytest.approx(rear_axle)
+    assert ModelConfig().pose_lever_arm == pytest.approx(rear_axle)
     logs = [part for _, part in turning_truth.groupby("run_id", sort=False)]
     assert estimate_lever_arm(logs, rate_hz=30.0) == pytest.approx(rear_axle, abs=0.01)
     noisy = simulator.add_noise(turning_truth, simulator.NoiseConfig(), seed=3)

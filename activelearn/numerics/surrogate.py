@@ -298,8 +298,7 @@ def simulate(
     `initial_rates` (M, 2) seeds a dynamic model's past rates (default: standing still; its past
     controls are the first control);
     `initial_yaw` is one heading or one per maneuver. Positions are those of the logged point,
-    `lever_arm` metres ahead of the rear axle (default: the model's `config.pose_lever_arm`, which a
-    campaign sets from `[data] pose_lever_arm`). `fan_scale` scales each sampled pose's (x, y, ψ)
+    `lever_arm` metres ahead of the rear axle (default: the model's `[model] pose_lever_arm`). `fan_scale` scales each sampled pose's (x, y, ψ)
     deviation from the mean over samples, so the pose fan widens about an unchanged mean path
     (default: the model's `fan_scale`, fitted by `calibrate_fan`; 1 leaves the fan as the posterior
     and the noise make it; rates are never scaled). Deterministic for a given seed.
@@ -478,7 +477,7 @@ def estimate_lever_arm(logs: Sequence, *, rate_hz: float, min_yaw_rate: float = 
 
     A kinematic car's rear axle does not slip sideways, so the logged point's sideways velocity in
     the body frame is a·ω: a least-squares fit over the turning steps (|ω| >= `min_yaw_rate`, rad/s).
-    Tells `[data] pose_lever_arm` for a car whose pose reference is not documented.
+    Tells `[model] pose_lever_arm` for a car whose pose reference is not documented.
     """
     lateral, rates = [], []
     for table in logs:

@@ -108,7 +108,7 @@ def main() -> None:
         variants += [("none", t, True) for t in tolerances]
     print(f"# {cfg.name}: {'first-round (prior-only) models' if args.campaigns is None else args.campaigns}, "
           f"seeds 0-{args.seeds - 1}, margin {base.margin} m, delta {base.delta}, "
-          f"{base.n_samples} trajectories, pose_lever_arm {cfg.data.pose_lever_arm} m")  # fmt: skip
+          f"{base.n_samples} trajectories, pose_lever_arm {cfg.model.pose_lever_arm} m")  # fmt: skip
     print(f"{'fan_scale':>9} {'tol':>5} {'kin':>4} {'seed':>4} {'adm':>4} {'cut':>4} {'viol':>4} "
           f"{'arena':>5} {'limit':>5} {'track_s':>8} {'min_slack':>9}  violating candidates")  # fmt: skip
     totals: dict[tuple, list] = {v: [0, 0, 0, 0.0] for v in variants}
