@@ -298,7 +298,8 @@ def simulate(
     `initial_rates` (M, 2) seeds a dynamic model's past rates (default: standing still; its past
     controls are the first control);
     `initial_yaw` is one heading or one per maneuver. Positions are those of the logged point,
-    `lever_arm` metres ahead of the rear axle (default: the model's `[model] pose_lever_arm`). `fan_scale` scales each sampled pose's (x, y, ψ)
+    `lever_arm` metres ahead of the rear axle (default: the model's `[model] pose_lever_arm`).
+    `fan_scale` scales each sampled pose's (x, y, ψ)
     deviation from the mean over samples, so the pose fan widens about an unchanged mean path
     (default: the model's `fan_scale`, fitted by `calibrate_fan`; 1 leaves the fan as the posterior
     and the noise make it; rates are never scaled). Deterministic for a given seed.
