@@ -370,7 +370,7 @@ def test_free_runs_of_a_control_correction_agree_between_the_kernel_and_torch(we
     model.correction_weight.fill_(weight)
     model.epistemic_scale.fill_(scale)
     headings = np.linspace(-2.0, 2.5, len(controls))
-    kwargs = dict(n_samples=8, seed=3, initial_yaw=headings, lever_arm=0.08)
+    kwargs = dict(rate_hz=30.0, n_samples=8, seed=3, initial_yaw=headings, lever_arm=0.08)
     kernel = simulate(model, controls, backend="native", **kwargs)
     torch_runs = simulate(model, controls, backend="reference", **kwargs)
     assert kernel.epistemic_var.max() > 1e-4  # the draws do differ

@@ -237,7 +237,7 @@ def test_compiled_kernel_and_reference_give_the_same_rollout(skidpad_model):
         np.tile([0.8, -0.2], (1100, 1)),
         np.tile([0.4, 0.3], (37, 1)),
     ]
-    call = dict(n_samples=6, seed=5, initial_yaw=np.array([0.0, 1.0, -2.5]))
+    call = dict(rate_hz=30.0, n_samples=6, seed=5, initial_yaw=np.array([0.0, 1.0, -2.5]))
     compiled = simulate(skidpad_model, controls, backend="native", **call)
     reference = simulate(skidpad_model, controls, backend="reference", **call)
     for name in ("v", "w", "yaw", "mean_rates", "aleatoric_var", "epistemic_var"):
@@ -340,7 +340,7 @@ def test_lever_arm_estimated_from_logs_is_the_models_geometry(turning_truth):
 
 def test_simulate_places_the_path_by_the_models_lever_arm(skidpad_model):
     controls = [np.tile([0.6, 0.4], (300, 1))]
-    call = dict(n_samples=4, seed=2, initial_yaw=0.7)
+    call = dict(rate_hz=30.0, n_samples=4, seed=2, initial_yaw=0.7)
     assert skidpad_model.config.pose_lever_arm == pytest.approx(0.07929)
     default = simulate(skidpad_model, controls, **call)
     axle = simulate(skidpad_model, controls, lever_arm=0.0, **call)

@@ -45,7 +45,6 @@ from activelearn.numerics import buffers, counter_noise, native
 from activelearn.numerics.lags import Lags, model_lags
 from activelearn.numerics.models.base import BACKENDS, CHUNK_ROWS, draw_moments
 from activelearn.numerics.threads import even_blocks, intra_op_threads, parallel_map
-from simulator import Maneuver, nominal_controls
 
 N_CONTROLS = 2
 TORCH_BLOCK = 16  # maneuvers per task of a sequential rollout on torch (no compiled kernel)
@@ -93,11 +92,6 @@ class Rollout:
         if index is None:
             return self.x.mean(axis=0), self.y.mean(axis=0)
         return self.x[:, index].mean(axis=0), self.y[:, index].mean(axis=0)
-
-
-def controls_for(maneuvers: Sequence[Maneuver], rate_hz: float) -> list[np.ndarray]:
-    """The (T, 2) control sequence each maneuver applies at `rate_hz`."""
-    return [nominal_controls(m, rate_hz) for m in maneuvers]
 
 
 def _stack(controls: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
