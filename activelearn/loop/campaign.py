@@ -59,6 +59,7 @@ from activelearn.loop.state import (
     STATE_FILE,
     CampaignState,
 )
+from activelearn.names import CORRECTION_WEIGHT, EPISTEMIC_SCALE, FAN_SCALE, PREQUENTIAL_FAN_SCALE
 from activelearn.numerics.models import load_model, save_model
 from activelearn.numerics.surrogate import model_inputs
 from activelearn.seeds import Stream, derived_rng, derived_seed
@@ -430,13 +431,13 @@ class Campaign:
         model = self.fitting.fit(samples, round_index, scale, previous=previous)
         fans: dict[str, float] = {}
         if self.cfg.design.fan_calibration == "prequential":
-            fans["fan_scale"] = applied_scale(state, "prequential_fan_scale", recent=None)
+            fans[FAN_SCALE] = applied_scale(state, PREQUENTIAL_FAN_SCALE, recent=None)
             with torch.no_grad():
-                model.fan_scale.fill_(fans["fan_scale"])
+                model.fan_scale.fill_(fans[FAN_SCALE])
         x, _, _ = self.fitting.training_data(samples)
-        metrics: dict[str, Any] = {"round": round_index, "epistemic_scale": scale, **fans}
+        metrics: dict[str, Any] = {"round": round_index, EPISTEMIC_SCALE: scale, **fans}
         if hasattr(model, "correction_weight"):  # the physics kind: the share of its correction kept
-            metrics["correction_weight"] = float(model.correction_weight)
+            metrics[CORRECTION_WEIGHT] = float(model.correction_weight)
         metrics.update(self.evaluation.evaluate(model))
         metrics.update(
             n_samples=len(x),
