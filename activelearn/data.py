@@ -251,3 +251,12 @@ def read_recorded_log(path: str | Path) -> pd.DataFrame:
     if not np.isfinite(table[list(RECORDED_COLUMNS)].to_numpy(dtype=np.float64)).all():
         raise DataFormatError(f"{path}: has missing or non-finite values")
     return table
+
+
+def log_rate_hz(tables: list[pd.DataFrame]) -> float:
+    """The logs' rate (Hz) read off their `time` columns: one over the median step (to 1e-6 Hz)."""
+    steps = np.concatenate([np.diff(np.asarray(t["time"], dtype=np.float64)) for t in tables])
+    steps = steps[np.isfinite(steps) & (steps > 0)]
+    if steps.size == 0:
+        raise InputError("logs", "time", "no two rows a positive time apart: the log rate is unknown")
+    return round(1.0 / float(np.median(steps)), 6)

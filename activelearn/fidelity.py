@@ -22,6 +22,7 @@ import pandas as pd
 import simulator
 from activelearn.data import read_recorded_log
 from activelearn.errors import DataFormatError, InputError
+from simulator.datasheet import LOG_RATE_HZ
 
 _RESPONSES = ("v_sim", "v_log", "w_sim", "w_log")
 _STRAIGHT_SECONDS = 6.0  # simulated straights: steady after 3 s, averaged over the last 3 s
@@ -35,7 +36,7 @@ class FidelitySettings:
     min_window: float = 1.0  # s of steady data a stretch must still have
     throttle_tolerance: float = 0.02
     steering_tolerance: float = 0.01  # rad
-    rate_hz: float = 30.0  # simulator log rate of the replay
+    rate_hz: float = LOG_RATE_HZ  # simulator log rate of the replay
 
     def __post_init__(self) -> None:
         for name in ("settle", "min_window", "throttle_tolerance", "steering_tolerance", "rate_hz"):

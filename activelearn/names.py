@@ -67,6 +67,13 @@ _ALL: tuple[Metric, ...] = (
     Metric("n_maneuvers", "maneuvers collected", column="maneuvers"),
     Metric("n_samples", "training rows", column="samples"),
     Metric("track_seconds", "track seconds (durations + set-up)", "s"),
+    Metric("sim_seconds", "simulated seconds of the maneuvers taken", "s"),
+    Metric("wall_seconds", "wall-clock seconds of the campaign so far", "s"),
+    Metric("rollout_seconds", "seconds the round's free runs took", "s"),
+    # the model's own scales and gates as the round fitted them
+    Metric("epistemic_scale", "epistemic scale applied to the round's model"),
+    Metric("fan_scale", "fan scale applied to the round's model"),
+    Metric("correction_weight", "share of the physics kind's correction kept"),
     # one-step accuracy on the fixed test set
     Metric("test_rmse", "test RMSE (standardised, v and ω)", column="RMSE"),
     Metric("test_rmse_v", "test RMSE of v (m/s)", "m/s", "RMSE v"),
@@ -78,6 +85,19 @@ _ALL: tuple[Metric, ...] = (
     Metric("epistemic_std_mean", "mean epistemic std on the grid (standardised)", column="epi std"),
     Metric("calib_std_to_rmse", "epistemic std over error", column="epi/err"),
     Metric("calib_z_spread", "spread of the standardised errors", column="z spread"),
+    Metric("calib_spearman", "rank correlation of epistemic std and error on the test set"),
+    Metric("calib_rmse", "test RMSE of the mean against noise-free truth (standardised)"),
+    Metric("calib_mean_std", "mean epistemic std on the test set (standardised)"),
+    Metric("epistemic_std_max", "largest epistemic std on the grid (standardised)"),
+    Metric("aleatoric_std_mean", "mean aleatoric std on the grid (standardised)"),
+    Metric("pool_epistemic_std_max", "largest epistemic std over the open candidates (standardised)"),
+    # prequential checks: the model of a round on the batch collected after it
+    Metric("prequential_spearman", "rank correlation of epistemic std and error on the next batch"),
+    Metric("prequential_points", "distinct operating points of the next batch"),
+    Metric("prequential_scale", "epistemic scale that would have calibrated the next batch"),
+    Metric("prequential_fan_scale", "fan scale that would have covered the next batch"),
+    # [safety]
+    Metric("violations", "maneuvers of the round that left the arena or broke a limit"),
     # free runs of the whole test maneuvers (`activelearn.numerics.diagnostics.free_run_metrics`)
     Metric("rollout_pos_err_10s", "free-run position error at 10 s (m)", "m", "pos 10s m"),
     Metric("rollout_pos_err_30s", "free-run position error at 30 s (m)", "m", "pos 30s m"),
@@ -88,14 +108,32 @@ _ALL: tuple[Metric, ...] = (
 )
 METRICS: dict[str, Metric] = {m.name: m for m in _ALL}
 
+# The free-run metrics by name (`activelearn.numerics.diagnostics.free_run_metrics` writes them).
+ROLLOUT_POS_ERR_10S = "rollout_pos_err_10s"
+ROLLOUT_POS_ERR_30S = "rollout_pos_err_30s"
+ROLLOUT_HEADING_ERR_30S = "rollout_heading_err_30s"
+ROLLOUT_RMSE_V = "rollout_rmse_v"
+ROLLOUT_RMSE_W = "rollout_rmse_w"
+ROLLOUT_COVERAGE_95 = "rollout_coverage_95"
+# The prequential checks' names (`activelearn.loop.evaluation`) and the round's applied scales.
+PREQUENTIAL_SPEARMAN = "prequential_spearman"
+PREQUENTIAL_POINTS = "prequential_points"
+PREQUENTIAL_SCALE = "prequential_scale"
+PREQUENTIAL_FAN_SCALE = "prequential_fan_scale"
+EPISTEMIC_SCALE = "epistemic_scale"
+FAN_SCALE = "fan_scale"
+CORRECTION_WEIGHT = "correction_weight"
+VIOLATIONS = "violations"
+CALIB_PREFIX = "calib_"  # the test set's epistemic diagnostic, one metric per key it returns
+
 # Free-running rollout metrics a campaign logs every round (MLflow and curves.csv).
 ROLLOUT_METRICS: tuple[str, ...] = (
-    "rollout_pos_err_10s",
-    "rollout_pos_err_30s",
-    "rollout_heading_err_30s",
-    "rollout_rmse_v",
-    "rollout_rmse_w",
-    "rollout_coverage_95",
+    ROLLOUT_POS_ERR_10S,
+    ROLLOUT_POS_ERR_30S,
+    ROLLOUT_HEADING_ERR_30S,
+    ROLLOUT_RMSE_V,
+    ROLLOUT_RMSE_W,
+    ROLLOUT_COVERAGE_95,
 )
 # Metrics a comparison can rank strategies by (lower is better): one-step test errors, and the free
 # runs of the test maneuvers (their fan coverage is not an error, so it does not rank).
@@ -105,7 +143,7 @@ RANKING_METRICS: tuple[str, ...] = (
     "test_rmse_w",
     "test_nll",
     "test_crps",
-    *(m for m in ROLLOUT_METRICS if m != "rollout_coverage_95"),
+    *(m for m in ROLLOUT_METRICS if m != ROLLOUT_COVERAGE_95),
 )
 # What a comparison's figure draws besides the metric it ranks by.
 CURVE_METRICS: tuple[str, ...] = ("test_rmse", "test_rmse_v", "test_rmse_w", "epistemic_std_mean", "test_nll")
@@ -133,15 +171,19 @@ def metric_label(name: str) -> str:
 
 # --------------------------------------------------------------------------------------- log columns
 
-CONTROLS: tuple[str, ...] = ("throttle", "steering")  # what the car is told: the model's inputs
-RATES: tuple[str, ...] = ("speed", "angZ")  # forward speed (m/s) and yaw rate (rad/s): its outputs
-POSE: tuple[str, ...] = ("posX", "posY", "yaw")  # where the logged point is (m, m, rad)
+TIME = "time"  # s since the run started
+THROTTLE, STEERING = "throttle", "steering"  # the commands (steering in rad, signed)
+SPEED, YAW_RATE = "speed", "angZ"  # forward speed (m/s) and yaw rate (rad/s)
+POS_X, POS_Y, YAW = "posX", "posY", "yaw"  # the logged point (m, m) and heading (rad)
+CONTROLS: tuple[str, ...] = (THROTTLE, STEERING)  # what the car is told: the model's inputs
+RATES: tuple[str, ...] = (SPEED, YAW_RATE)  # its outputs
+POSE: tuple[str, ...] = (POS_X, POS_Y, YAW)  # where the logged point is
 PREVIOUS_RATES: tuple[str, ...] = ("prev_speed", "prev_angZ")  # a Markov model's extra inputs
 # What a recorded drive must hold to say what the car did: time, the commands and the two rates.
-RECORDED_COLUMNS: tuple[str, ...] = ("time", *CONTROLS, *RATES)
+RECORDED_COLUMNS: tuple[str, ...] = (TIME, *CONTROLS, *RATES)
 # A free run's ground truth: the rates and the pose along the log.
 TRUTH_COLUMNS: tuple[str, ...] = (*RATES, *POSE)
 # A control schedule (a CSV a person or planner hands to `simulate --schedule`).
-SCHEDULE_COLUMNS: tuple[str, ...] = ("time", *CONTROLS)
+SCHEDULE_COLUMNS: tuple[str, ...] = (TIME, *CONTROLS)
 # A proposals/round-NNN.csv of reference maneuvers (the values `activelearn simulate` takes).
 PROPOSAL_COLUMNS: tuple[str, ...] = ("maneuver", "direction", "throttle", "steering", "duration")

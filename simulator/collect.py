@@ -40,6 +40,7 @@ import mujoco.rollout
 import numpy as np
 import pandas as pd
 
+from simulator.datasheet import LOG_RATE_HZ
 from simulator.errors import DivergenceError, DivergenceWarning, ManeuverError
 from simulator.families import FamilyManeuver
 from simulator.maneuvers import Maneuver, Replay, open_loop_steering
@@ -193,7 +194,7 @@ def _default_vehicle() -> Vehicle:
 def collect(
     maneuvers: Sequence[Maneuver | Replay | FamilyManeuver] | Maneuver | Replay | FamilyManeuver,
     *,
-    rate_hz: float = 30.0,
+    rate_hz: float = LOG_RATE_HZ,
     seed: int = 0,
     noise: NoiseConfig | None = NoiseConfig(),  # noqa: B008 (a frozen dataclass: a safe shared default)
     threads: int | None = None,

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from simulator.datasheet import LOG_RATE_HZ
 from simulator.errors import ManeuverError
 from simulator.vehicle import MAX_SPEED, STEERING_LIMIT, THROTTLE_LIMIT, WHEELBASE, reference_speed
 
@@ -120,7 +121,7 @@ class Replay:
     label: str
     throttles: np.ndarray
     steerings: np.ndarray
-    rate_hz: float = 30.0
+    rate_hz: float = LOG_RATE_HZ
 
     kind = "replay"
 
@@ -245,7 +246,7 @@ def alternating(t: np.ndarray, loop_time: float) -> np.ndarray:
     return np.where(loop % 2 == 0, 1.0, -1.0)
 
 
-def nominal_controls(maneuver: Maneuver, rate_hz: float = 30.0) -> np.ndarray:
+def nominal_controls(maneuver: Maneuver, rate_hz: float = LOG_RATE_HZ) -> np.ndarray:
     """(T, 2) array of (throttle, signed steering) the maneuver applies at each log step, without simulating.
 
     Rows match the rows `collect` logs for the same maneuver and rate. A family member

@@ -298,21 +298,3 @@ def test_one_module_talks_to_each_service(library, home):
     }
     assert importers, f"nothing imports {library}: the rule checks nothing"
     assert {n for n in importers if not (n == home or n.startswith(home + "."))} == set()
-
-
-def test_moved_modules_keep_their_old_import_paths():
-    # Scripts and models pickled before the split into rooms import e.g. activelearn.campaign.
-    import importlib
-    import sys
-
-    from activelearn import MOVED_MODULES
-
-    for old, new in MOVED_MODULES.items():
-        assert new in MODULES, f"{old} points to {new}, which does not exist"
-    sys.modules.pop("activelearn.campaign", None)
-    with pytest.warns(DeprecationWarning, match="activelearn.loop.campaign"):
-        old = importlib.import_module("activelearn.campaign")
-    assert old is importlib.import_module("activelearn.loop.campaign")
-    from activelearn import Campaign
-
-    assert Campaign is old.Campaign

@@ -399,7 +399,7 @@ def test_round_figure_shows_the_chosen_signals_and_their_predicted_paths(tmp_pat
         Maneuver("skidpad", 0.5, 0.4, "cw", 4.0),
     ]
     controls = [nominal_controls(m) for m in picks]
-    rollout = simulate(build_model(ModelConfig()), controls, n_samples=4)
+    rollout = simulate(build_model(ModelConfig()), controls, rate_hz=30.0, n_samples=4)
     grid = np.linspace(0.3, 0.9, 3)
     plans = ([m.name for m in picks], controls, rollout)
     fig = epistemic_map(grid, grid - 0.6, np.ones((3, 3)), taken=[], picks=picks[1:], plans=plans)

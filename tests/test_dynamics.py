@@ -95,7 +95,8 @@ def test_rollout_feeds_each_trajectory_its_own_lagged_rates(history_models, kind
     assert lags == Lags(3, 2)
     controls = [np.column_stack([np.full(40, 0.7), 0.4 * np.sin(np.arange(40) / 5.0)])]
     initial = np.array([[0.1, 0.05]])
-    rollout = simulate(model, controls, n_samples=4, seed=7, initial_rates=initial, backend="reference")
+    rollout = simulate(model, controls, rate_hz=30.0, n_samples=4, seed=7, initial_rates=initial,
+                       backend="reference")  # fmt: skip
     draw_seed = int(torch.randint(2**31 - 1, (1,), generator=torch.Generator().manual_seed(7)))
     draws = model.draw(4, seed=draw_seed, backend="reference")
     u, rates = controls[0], np.stack([rollout.v[:, 0], rollout.w[:, 0]], axis=-1)  # (S, T, 2)
@@ -123,7 +124,7 @@ def test_recurrent_model_splits_uncertainty_and_survives_a_round_trip(history_mo
 
 def test_free_run_metrics_are_zero_error_for_the_truth_and_grow_with_a_bias(history_models, slalom_log):
     logs = [part.reset_index(drop=True) for _, part in slalom_log.groupby("run_id", sort=False)]
-    metrics = free_run_metrics(history_models["hybrid"], logs, n_samples=8)
+    metrics = free_run_metrics(history_models["hybrid"], logs, rate_hz=30.0, n_samples=8)
     assert set(metrics) == set(ROLLOUT_METRICS)
     assert set(ROLLOUT_METRICS) - {"rollout_coverage_95"} <= set(RANKING_METRICS)
     assert 0 <= metrics["rollout_coverage_95"] <= 1
@@ -131,18 +132,18 @@ def test_free_run_metrics_are_zero_error_for_the_truth_and_grow_with_a_bias(hist
     # Judged against a truth that drives 10 % faster than recorded, the same run errs more.
     faster = [t.assign(posX=t["posX"][0] + 1.1 * (t["posX"] - t["posX"][0]),
                        posY=t["posY"][0] + 1.1 * (t["posY"] - t["posY"][0])) for t in logs]  # fmt: skip
-    worse = free_run_metrics(history_models["hybrid"], logs, faster, n_samples=8)
+    worse = free_run_metrics(history_models["hybrid"], logs, faster, rate_hz=30.0, n_samples=8)
     assert worse["rollout_pos_err_30s"] > metrics["rollout_pos_err_30s"]
     assert worse["rollout_rmse_v"] == metrics["rollout_rmse_v"]
     # Judged against its own mean run as the truth (the same draws: the same seed), every error is zero.
-    rollout = free_runs(history_models["hybrid"], logs, n_samples=8)
+    rollout = free_runs(history_models["hybrid"], logs, rate_hz=30.0, n_samples=8)
     mean_x, mean_y = rollout.mean_path()
     own = [
         pd.DataFrame({"posX": mean_x[i, :n], "posY": mean_y[i, :n], "yaw": rollout.yaw[:, i, :n].mean(axis=0),
                       "speed": rollout.mean_rates[i, :n, 0], "angZ": rollout.mean_rates[i, :n, 1]})
         for i, n in enumerate(rollout.lengths)
     ]  # fmt: skip
-    exact = free_run_metrics(history_models["hybrid"], logs, own, n_samples=8)
+    exact = free_run_metrics(history_models["hybrid"], logs, own, rate_hz=30.0, n_samples=8)
     errors = [name for name in ROLLOUT_METRICS if name != "rollout_coverage_95"]
     assert all(metrics[name] > 0 for name in errors), metrics  # against the log, the run errs
     assert {name: exact[name] for name in errors} == dict.fromkeys(errors, 0.0), exact
@@ -382,7 +383,7 @@ def test_a_residual_models_free_run_adds_the_base_mean(history_models, slalom_lo
     base, residual = history_models["hybrid"], build_model(ModelConfig(n_inputs=12, history_step=2))
     model = ResidualModel(base, residual)
     controls = [np.column_stack([np.full(12, 0.5), np.linspace(-0.3, 0.3, 12)])]
-    rollout = simulate(model, controls, n_samples=4, seed=2)
+    rollout = simulate(model, controls, rate_hz=30.0, n_samples=4, seed=2)
     draw_seed = int(torch.randint(2**31 - 1, (1,), generator=torch.Generator().manual_seed(2)))
     draws = model.draw(4, seed=draw_seed)
     rates = np.stack([rollout.v[:, 0], rollout.w[:, 0]], axis=-1)
@@ -399,7 +400,7 @@ def test_a_residual_models_free_run_adds_the_base_mean(history_models, slalom_lo
     # widened (the [safety] fan's scale): the residual's draws widen about the same base mean
     with torch.no_grad():
         model.epistemic_scale.fill_(9.0)
-    wide = simulate(model, controls, n_samples=4, seed=2)
+    wide = simulate(model, controls, rate_hz=30.0, n_samples=4, seed=2)
     assert np.isfinite(wide.v).all() and np.isfinite(wide.w).all()
     assert wide.epistemic_var[0, 1:].sum() > rollout.epistemic_var[0, 1:].sum()
 
@@ -439,7 +440,7 @@ def test_path_inputs_follow_the_models_own_free_run(history_models):
     t = np.arange(240)
     slalom = np.column_stack([np.full(240, 0.7), np.where((t // 40) % 2 == 0, 0.4, -0.4)])
     skidpad = np.tile([0.6, 0.3], (240, 1))
-    inputs = path_inputs(model, [slalom, skidpad], 12)
+    inputs = path_inputs(model, [slalom, skidpad], 12, rate_hz=30.0)
     assert [a.shape for a in inputs] == [(12, lags.n_inputs)] * 2
     steps = evenly_spaced_steps(240, 12)
     np.testing.assert_array_equal(inputs[0][:, :2], slalom[steps])  # the newest controls as scheduled
@@ -447,7 +448,8 @@ def test_path_inputs_follow_the_models_own_free_run(history_models):
     steady = steady_state_inputs(model, skidpad[:1], steps=120)
     np.testing.assert_allclose(inputs[1][-1], steady[0], atol=0.02)
     # A slalom's rate inputs are its own free run's mean rates, lagged as the model reads them
-    run = simulate(model, [slalom, skidpad], n_samples=8, seed=0, fan_scale=1.0)  # the same draws
+    # the same draws
+    run = simulate(model, [slalom, skidpad], rate_hz=30.0, n_samples=8, seed=0, fan_scale=1.0)
     newest_rate = 2 * lags.history  # the first rate input pair: one step of the layout back
     back = lags.rate_lags[0]
     np.testing.assert_allclose(
@@ -456,11 +458,12 @@ def test_path_inputs_follow_the_models_own_free_run(history_models):
     # ... which, unlike a steady state, lag the steering: right after a switch the yaw rate still
     # has the old sign (the static stand-in would flip at once).
     flips = [k for k in range(1, 240) if slalom[k, 1] != slalom[k - 1, 1]]
-    just_after = path_inputs(model, [slalom], 240)[0][[f + back for f in flips[:3]]]
+    just_after = path_inputs(model, [slalom], 240, rate_hz=30.0)[0][[f + back for f in flips[:3]]]
     assert (np.sign(just_after[:, newest_rate + 1]) != np.sign(slalom[[f for f in flips[:3]], 1])).all()
     # A static map's path inputs are its controls.
     static = build_model(ModelConfig())
-    np.testing.assert_array_equal(path_inputs(static, [slalom], 5)[0], slalom[evenly_spaced_steps(240, 5)])
+    static_inputs = path_inputs(static, [slalom], 5, rate_hz=30.0)[0]
+    np.testing.assert_array_equal(static_inputs, slalom[evenly_spaced_steps(240, 5)])
 
 
 def test_a_campaign_scores_dynamic_candidates_along_their_paths(tmp_path):
@@ -490,6 +493,6 @@ def test_a_free_run_that_blows_up_scores_infinity_not_nan(history_models, slalom
     with torch.no_grad():  # an output scale no feedback loop survives: the run overflows to inf, then nan
         model.y_std.mul_(1e30)
     logs = [part.reset_index(drop=True) for _, part in slalom_log.groupby("run_id", sort=False)]
-    metrics = free_run_metrics(model, logs, n_samples=4)
+    metrics = free_run_metrics(model, logs, rate_hz=30.0, n_samples=4)
     for name in ("rollout_pos_err_10s", "rollout_pos_err_30s", "rollout_heading_err_30s", "rollout_rmse_v"):
         assert metrics[name] == np.inf, (name, metrics[name])

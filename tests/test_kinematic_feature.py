@@ -62,7 +62,8 @@ def test_compiled_and_reference_paths_agree_with_the_feature(n_inputs, kind):
     np.testing.assert_allclose(native.mean, reference.mean, atol=1e-5)
     np.testing.assert_allclose(native.epistemic_var, reference.epistemic_var, atol=1e-6)
     controls = [np.column_stack([np.full(90, 0.6), np.linspace(-0.4, 0.4, 90)])]
-    runs = [simulate(model, controls, n_samples=4, backend=b, initial_rates=np.array([[0.1, 0.0]]))
+    start = np.array([[0.1, 0.0]])
+    runs = [simulate(model, controls, rate_hz=30.0, n_samples=4, backend=b, initial_rates=start)
             for b in ("native", "reference")]  # fmt: skip
     np.testing.assert_allclose(runs[0].x, runs[1].x, atol=1e-5)
     np.testing.assert_allclose(runs[0].mean_rates, runs[1].mean_rates, atol=1e-5)

@@ -145,13 +145,13 @@ def test_a_failing_compiler_warns_and_falls_back(tmp_path, monkeypatch, untraine
         with pytest.warns(RuntimeWarning, match="kernel unavailable"):
             assert native.library() is None
         controls = [np.tile([0.5, 0.2], (40, 1))]
-        fallback = simulate(untrained_model, controls, n_samples=3, seed=1)  # backend "auto"
+        fallback = simulate(untrained_model, controls, rate_hz=30.0, n_samples=3, seed=1)  # backend "auto"
         with pytest.raises(InputError, match="backend"):
-            simulate(untrained_model, controls, n_samples=3, seed=1, backend="native")
+            simulate(untrained_model, controls, rate_hz=30.0, n_samples=3, seed=1, backend="native")
     finally:
         monkeypatch.undo()
         native.library.cache_clear()
-    compiled = simulate(untrained_model, controls, n_samples=3, seed=1, backend="native")
+    compiled = simulate(untrained_model, controls, rate_hz=30.0, n_samples=3, seed=1, backend="native")
     np.testing.assert_allclose(fallback.x, compiled.x, atol=1e-5)
 
 

@@ -226,7 +226,7 @@ def test_trained_forward_only_it_never_leaves_physics(forward_model: PhysicsMode
     """Every draw of every 60-s free run over the control box stays finite and within 1.5x Nigel's limits."""
     draws = forward_model.n_members or 32  # an ensemble's S = K draws are all its members
     sweep = physics.control_box_sweep(60.0)
-    rollout = simulate(forward_model, sweep, n_samples=max(draws, 2), seed=0)
+    rollout = simulate(forward_model, sweep, rate_hz=30.0, n_samples=max(draws, 2), seed=0)
     assert np.isfinite(rollout.v).all() and np.isfinite(rollout.w).all()
     assert np.abs(rollout.v).max() <= SPEED_BOUND
     assert np.abs(rollout.w).max() <= YAW_BOUND
@@ -240,7 +240,7 @@ def test_trained_forward_only_it_never_leaves_physics(forward_model: PhysicsMode
 
 def test_far_from_its_data_it_falls_back_to_the_datasheet(forward_model: PhysicsModel):
     """Trained forward only, a reverse straight runs at the datasheet's mirrored speed, not a guess."""
-    rollout = simulate(forward_model, [np.tile([-0.6, 0.0], (600, 1))], n_samples=32, seed=0)
+    rollout = simulate(forward_model, [np.tile([-0.6, 0.0], (600, 1))], rate_hz=30.0, n_samples=32, seed=0)
     assert forward_model.physical_parameters()["reverse_gain"] == pytest.approx(1.0, abs=0.05)  # untouched
     mean_v = rollout.mean_rates[0, -150:, 0].mean()
     assert abs(mean_v - (-0.16516)) <= forward_model.config.residual_bound * datasheet.MAX_SPEED
@@ -252,7 +252,8 @@ def test_it_saves_loads_and_replays_identically(forward_model: PhysicsModel, tmp
     again = load_model(tmp_path / "physics.pt")
     assert again.physical_parameters() == forward_model.physical_parameters()
     controls = [np.tile([0.5, 0.3], (300, 1))]
-    first, second = simulate(forward_model, controls, seed=3), simulate(again, controls, seed=3)
+    first = simulate(forward_model, controls, rate_hz=30.0, seed=3)
+    second = simulate(again, controls, rate_hz=30.0, seed=3)
     np.testing.assert_array_equal(first.x, second.x)
 
 
@@ -369,7 +370,7 @@ def test_free_runs_of_a_control_correction_agree_between_the_kernel_and_torch(we
     model.correction_weight.fill_(weight)
     model.epistemic_scale.fill_(scale)
     headings = np.linspace(-2.0, 2.5, len(controls))
-    kwargs = dict(n_samples=8, seed=3, initial_yaw=headings, lever_arm=0.08)
+    kwargs = dict(rate_hz=30.0, n_samples=8, seed=3, initial_yaw=headings, lever_arm=0.08)
     kernel = simulate(model, controls, backend="native", **kwargs)
     torch_runs = simulate(model, controls, backend="reference", **kwargs)
     assert kernel.epistemic_var.max() > 1e-4  # the draws do differ
@@ -388,9 +389,9 @@ def test_a_widened_fan_stays_as_bounded_as_its_draws(inputs, backend):
     if backend == "native" and native.library() is None:
         pytest.skip("no C compiler")
     model, controls = _perturbed_control_model(inputs), _busy_controls()
-    plain = simulate(model, controls, n_samples=16, seed=3, backend=backend)
+    plain = simulate(model, controls, rate_hz=30.0, n_samples=16, seed=3, backend=backend)
     model.epistemic_scale.fill_(9.0)
-    wide = simulate(model, controls, n_samples=16, seed=3, backend=backend)
+    wide = simulate(model, controls, rate_hz=30.0, n_samples=16, seed=3, backend=backend)
     for name, limit in (("v", datasheet.MAX_SPEED), ("w", datasheet.MAX_YAW_RATE)):
         bound = max(1.5, np.abs(getattr(plain, name)).max() / limit)
         assert np.isfinite(getattr(wide, name)).all(), name
@@ -408,9 +409,9 @@ def test_free_runs_computed_whole_are_the_step_loops(monkeypatch, scale):
     monkeypatch.setattr(physics, "NOISE_CAP", 0.0)
     model, controls = _perturbed_control_model(), _busy_controls()
     model.epistemic_scale.fill_(scale)
-    whole = simulate(model, controls, n_samples=8, seed=3)
+    whole = simulate(model, controls, rate_hz=30.0, n_samples=8, seed=3)
     monkeypatch.setattr(PhysicsModel, "open_loop_free_runs", Model.open_loop_free_runs)
-    stepped = simulate(model, controls, n_samples=8, seed=3)
+    stepped = simulate(model, controls, rate_hz=30.0, n_samples=8, seed=3)
     assert np.abs(whole.v).max() > 0.1 and whole.epistemic_var.max() > 1e-4
     for name in ("v", "w", "mean_rates", "epistemic_var"):
         np.testing.assert_allclose(getattr(whole, name), getattr(stepped, name), atol=2e-5, err_msg=name)
@@ -449,13 +450,13 @@ def test_mirror_symmetric_free_runs_computed_whole_are_the_step_loops(monkeypatc
     monkeypatch.setattr(physics, "NOISE_CAP", 0.0)
     model, controls = _perturbed_control_model(symmetry="mirror"), _busy_controls()
     start = np.tile([0.3, 0.5], (len(controls), 1))
-    whole = simulate(model, controls, n_samples=8, seed=3, initial_rates=start)
+    whole = simulate(model, controls, rate_hz=30.0, n_samples=8, seed=3, initial_rates=start)
     mirrored = [c * [1.0, -1.0] for c in controls]
-    image = simulate(model, mirrored, n_samples=8, seed=3, initial_rates=start * [1.0, -1.0])
+    image = simulate(model, mirrored, rate_hz=30.0, n_samples=8, seed=3, initial_rates=start * [1.0, -1.0])
     np.testing.assert_allclose(image.v, whole.v, atol=2e-5)
     np.testing.assert_allclose(image.w, -whole.w, atol=2e-5)
     monkeypatch.setattr(PhysicsModel, "open_loop_free_runs", Model.open_loop_free_runs)
-    stepped = simulate(model, controls, n_samples=8, seed=3, initial_rates=start)
+    stepped = simulate(model, controls, rate_hz=30.0, n_samples=8, seed=3, initial_rates=start)
     assert np.abs(whole.w).max() > 0.1 and whole.epistemic_var.max() > 1e-5  # the draws do differ
     for name in ("v", "w", "mean_rates", "epistemic_var"):
         np.testing.assert_allclose(getattr(whole, name), getattr(stepped, name), atol=2e-5, err_msg=name)
@@ -480,10 +481,10 @@ def test_gated_free_runs_computed_whole_are_the_step_loops(monkeypatch):
     monkeypatch.setattr(physics, "NOISE_CAP", 0.0)
     model, controls = _perturbed_control_model(), _busy_controls()
     model.correction_weight.fill_(0.5)
-    whole = simulate(model, controls, n_samples=8, seed=3)
-    full = simulate(_perturbed_control_model(), controls, n_samples=8, seed=3)
+    whole = simulate(model, controls, rate_hz=30.0, n_samples=8, seed=3)
+    full = simulate(_perturbed_control_model(), controls, rate_hz=30.0, n_samples=8, seed=3)
     monkeypatch.setattr(PhysicsModel, "open_loop_free_runs", Model.open_loop_free_runs)
-    stepped = simulate(model, controls, n_samples=8, seed=3)
+    stepped = simulate(model, controls, rate_hz=30.0, n_samples=8, seed=3)
     assert np.abs(whole.mean_rates - full.mean_rates).max() > 1e-2  # the gate moved the mean
     for name in ("v", "w", "mean_rates", "epistemic_var"):
         np.testing.assert_allclose(getattr(whole, name), getattr(stepped, name), atol=2e-5, err_msg=name)
@@ -518,12 +519,12 @@ def test_the_parameter_spread_widens_the_fans_and_whole_runs_still_are_the_step_
     them), and the fans at full lock are wider with them than with the correction's spread alone."""
     monkeypatch.setattr(physics, "NOISE_CAP", 0.0)
     controls = [np.tile([0.8, 0.5236], (300, 1)), np.tile([0.6, 0.2], (300, 1))]
-    plain = simulate(_perturbed_control_model(inputs), controls, n_samples=16, seed=3)
+    plain = simulate(_perturbed_control_model(inputs), controls, rate_hz=30.0, n_samples=16, seed=3)
     model = _with_parameter_spread(_perturbed_control_model(inputs))
-    spread = simulate(model, controls, n_samples=16, seed=3)
+    spread = simulate(model, controls, rate_hz=30.0, n_samples=16, seed=3)
     assert (spread.epistemic_var[0, -60:].mean(axis=0) > 2 * plain.epistemic_var[0, -60:].mean(axis=0)).all()
     monkeypatch.setattr(PhysicsModel, "open_loop_free_runs", Model.open_loop_free_runs)
-    stepped = simulate(model, controls, n_samples=16, seed=3)
+    stepped = simulate(model, controls, rate_hz=30.0, n_samples=16, seed=3)
     for name in ("v", "w", "mean_rates", "epistemic_var"):
         np.testing.assert_allclose(getattr(spread, name), getattr(stepped, name), atol=2e-5, err_msg=name)
 
@@ -559,7 +560,8 @@ def test_the_gate_keeps_the_correction_only_where_held_out_maneuvers_want_it(mon
     model, controls = _perturbed_control_model(), _busy_controls()
     start = np.zeros((len(controls), 2))
     core = st.run_single_track(np.stack(controls), start, model.theta.numpy().astype(float), model.dt)[0]
-    corrected = simulate(model, controls, n_samples=correction_gate.GATE_SAMPLES, seed=0).mean_rates
+    gated = simulate(model, controls, rate_hz=30.0, n_samples=correction_gate.GATE_SAMPLES, seed=0)
+    corrected = gated.mean_rates
     ids = list(range(len(controls)))
     for rates, expected in ((core, 0.0), (corrected, 1.0)):
         logs = [(u, r[: len(u)]) for u, r in zip(controls, rates, strict=True)]

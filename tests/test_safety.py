@@ -322,7 +322,7 @@ def test_fans_place_the_path_where_the_car_logs_it(tmp_path):
     # pose_lever_arm), so the CG's side slip is in the fan and `path_tolerance` only keeps a few cm
     # (true rates retrace the logged path to ~1 cm: tests/test_surrogate.py).
     cfg = safe_config(tmp_path, {"start": [0.3, -0.2, 0.5], "fan_scale": 1.0}, tracking={"enabled": False})
-    assert cfg.safety.path_tolerance < 0.05 and cfg.model.pose_lever_arm == cfg.data.pose_lever_arm > 0
+    assert cfg.safety.path_tolerance < 0.05 and cfg.model.pose_lever_arm > 0
     campaign = Campaign(cfg, tmp_path / "c")
     model = build_model(cfg.model)
     test = campaign.test_set
@@ -331,7 +331,7 @@ def test_fans_place_the_path_where_the_car_logs_it(tmp_path):
     rollout = fan(model, skidpads, cfg.safety, 30.0, seed=4)
     controls = [maneuver_controls(m, 30.0) for m in skidpads]
     call = dict(rate_hz=30.0, n_samples=cfg.safety.n_samples, seed=4, initial_yaw=0.5)
-    at_cg = simulate(model, controls, lever_arm=cfg.data.pose_lever_arm, **call)
+    at_cg = simulate(model, controls, lever_arm=cfg.model.pose_lever_arm, **call)
     np.testing.assert_allclose(rollout.x, at_cg.x + 0.3, atol=1e-6)
     np.testing.assert_allclose(rollout.y, at_cg.y - 0.2, atol=1e-6)
     at_axle = simulate(model, controls, lever_arm=0.0, **call)
@@ -342,7 +342,7 @@ def test_fans_place_the_path_where_the_car_logs_it(tmp_path):
         model.fan_scale.fill_(4.0)
     again = fan(model, skidpads, cfg.safety, 30.0, seed=4)
     np.testing.assert_array_equal(again.x, rollout.x)
-    assert not np.allclose(simulate(model, controls, lever_arm=cfg.data.pose_lever_arm, **call).x, at_cg.x)
+    assert not np.allclose(simulate(model, controls, lever_arm=cfg.model.pose_lever_arm, **call).x, at_cg.x)
 
 
 # ------------------------------------------------------------------------------------- campaigns
@@ -410,7 +410,8 @@ def test_a_cut_candidate_is_scored_as_it_would_be_driven(tmp_path):
         assert pool.weights[pool.owner == i].sum() == pytest.approx(rows)
         assert whole.weights[whole.owner == i].sum() > rows + 1
         m = campaign.maneuvers[i]
-        reached = np.abs(maneuver_controls(dataclasses.replace(m, duration=safe.duration[i]))[:, 1]).max()
+        driven = dataclasses.replace(m, duration=safe.duration[i])
+        reached = np.abs(maneuver_controls(driven, rate_hz=30.0)[:, 1]).max()
         assert np.abs(pool.points[pool.owner == i, 1]).max() == pytest.approx(reached, abs=1e-6)
     hook = [i for i in cut if campaign.maneuvers[i].kind == "fishhook"]
     assert hook

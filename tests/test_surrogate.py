@@ -57,7 +57,8 @@ def _circle_radius(x: np.ndarray, y: np.ndarray) -> float:
 
 @pytest.mark.slow
 def test_skidpad_circle_radius_within_ten_percent(skidpad_model):
-    result = against_simulator(skidpad_model, [Maneuver("skidpad", 0.6, 0.3, "ccw", 30.0)], n_samples=32)
+    ccw = Maneuver("skidpad", 0.6, 0.3, "ccw", 30.0)
+    result = against_simulator(skidpad_model, [ccw], rate_hz=30.0, n_samples=32)
     truth = result.truth[0].iloc[60:]
     true_radius = _circle_radius(truth["posX"].to_numpy(), truth["posY"].to_numpy())
     mx, my = result.rollout.mean_path()
@@ -66,7 +67,8 @@ def test_skidpad_circle_radius_within_ten_percent(skidpad_model):
 
 
 def test_ground_truth_inside_the_95_band_in_distribution(skidpad_model):
-    result = against_simulator(skidpad_model, [Maneuver("skidpad", 0.5, 0.3, "cw", 20.0)], n_samples=64)
+    cw = Maneuver("skidpad", 0.5, 0.3, "cw", 20.0)
+    result = against_simulator(skidpad_model, [cw], rate_hz=30.0, n_samples=64)
     m = result.metrics[0]
     assert m.coverage_v >= 0.8 and m.coverage_w >= 0.8, m
 
@@ -82,7 +84,7 @@ def test_bands_widen_far_outside_the_training_range(skidpad_model):
     """
     inside = Maneuver("skidpad", 0.6, 0.3, "ccw", 10.0)
     outside = Maneuver("skidpad", -0.9, 0.3, "ccw", 10.0)  # reverse throttle: never seen
-    result = against_simulator(skidpad_model, [inside, outside], n_samples=64)
+    result = against_simulator(skidpad_model, [inside, outside], rate_hz=30.0, n_samples=64)
     epistemic_std = np.sqrt(result.rollout.epistemic_var).mean(axis=1)  # (maneuver, output)
     for i, name in enumerate(("v", "w")):
         assert epistemic_std[1, i] > 3.0 * epistemic_std[0, i], (name, epistemic_std[:, i])
@@ -98,7 +100,7 @@ def test_markov_variant_tracks_a_throttle_step_better_than_the_static_map():
     step = [Maneuver("straight", 0.75, 0.0, "ccw", 2.0)]  # a throttle step from standstill, unseen level
     errors = {}
     for name, model in (("static", static), ("markov", markov)):
-        result = against_simulator(model, step, n_samples=16, noise=None)
+        result = against_simulator(model, step, rate_hz=30.0, n_samples=16, noise=None)
         truth = result.truth[0]["speed"].to_numpy()[:30]  # the first second
         errors[name] = float(np.sqrt(np.mean((result.rollout.mean_rates[0, :30, 0] - truth) ** 2)))
     assert errors["markov"] < 0.5 * errors["static"], errors
@@ -107,7 +109,7 @@ def test_markov_variant_tracks_a_throttle_step_better_than_the_static_map():
 def test_rollout_keeps_one_weight_draw_per_trajectory(skidpad_model):
     """Without aleatoric noise each sampled path is one deterministic function: no step-to-step jitter."""
     control, n_steps = [-0.6, 0.3], 50  # reverse throttle, never trained on: the draws disagree there
-    rollout = simulate(skidpad_model, [np.tile(control, (n_steps, 1))], n_samples=8, seed=0)
+    rollout = simulate(skidpad_model, [np.tile(control, (n_steps, 1))], rate_hz=30.0, n_samples=8, seed=0)
     # The rollout's posterior draws: the first number of its seeded generator is their seed.
     draw_seed = int(torch.randint(2**31 - 1, (1,), generator=torch.Generator().manual_seed(0)))
     means, variances = skidpad_model.draw(8, seed=draw_seed)(np.array([control], dtype=np.float32))
@@ -128,7 +130,7 @@ def test_rollout_keeps_one_weight_draw_per_trajectory(skidpad_model):
 
 def test_per_maneuver_quantiles_and_mean_path_equal_the_full_ones(skidpad_model):
     controls = [np.tile([0.6, 0.3], (40, 1)), np.tile([0.9, 0.1], (30, 1))]
-    rollout = simulate(skidpad_model, controls, n_samples=16, seed=1)
+    rollout = simulate(skidpad_model, controls, rate_hz=30.0, n_samples=16, seed=1)
     for name in ("v", "w", "x", "y", "yaw"):
         full = rollout.quantiles(name)
         assert full.shape == (5, 2, 40)
@@ -213,15 +215,15 @@ def test_rollout_is_seeded_and_independent_of_the_thread_count(skidpad_model):
     old = torch.get_num_threads()
     try:
         torch.set_num_threads(2)
-        two = simulate(skidpad_model, controls, n_samples=8, seed=3)
+        two = simulate(skidpad_model, controls, rate_hz=30.0, n_samples=8, seed=3)
         torch.set_num_threads(1)
-        one = simulate(skidpad_model, controls, n_samples=8, seed=3)
+        one = simulate(skidpad_model, controls, rate_hz=30.0, n_samples=8, seed=3)
     finally:
         torch.set_num_threads(old)
     assert torch.get_num_threads() == old
     for name in ("v", "w", "x", "y", "yaw", "mean_rates", "aleatoric_var", "epistemic_var"):
         np.testing.assert_array_equal(getattr(one, name), getattr(two, name), err_msg=name)
-    other = simulate(skidpad_model, controls, n_samples=8, seed=4)
+    other = simulate(skidpad_model, controls, rate_hz=30.0, n_samples=8, seed=4)
     assert not np.array_equal(other.v, one.v)
     # The shorter maneuver is padded with its last control: its tail repeats the last rates' moments.
     np.testing.assert_array_equal(one.mean_rates[1, 120:], np.broadcast_to(one.mean_rates[1, 119], (60, 2)))
@@ -235,7 +237,7 @@ def test_compiled_kernel_and_reference_give_the_same_rollout(skidpad_model):
         np.tile([0.8, -0.2], (1100, 1)),
         np.tile([0.4, 0.3], (37, 1)),
     ]
-    call = dict(n_samples=6, seed=5, initial_yaw=np.array([0.0, 1.0, -2.5]))
+    call = dict(rate_hz=30.0, n_samples=6, seed=5, initial_yaw=np.array([0.0, 1.0, -2.5]))
     compiled = simulate(skidpad_model, controls, backend="native", **call)
     reference = simulate(skidpad_model, controls, backend="reference", **call)
     for name in ("v", "w", "yaw", "mean_rates", "aleatoric_var", "epistemic_var"):
@@ -246,9 +248,10 @@ def test_compiled_kernel_and_reference_give_the_same_rollout(skidpad_model):
 
 
 def test_a_maneuvers_rollout_does_not_depend_on_the_rest_of_the_batch(skidpad_model):
-    alone = simulate(skidpad_model, [np.tile([0.5, 0.2], (300, 1))], n_samples=4, seed=9)
+    alone = simulate(skidpad_model, [np.tile([0.5, 0.2], (300, 1))], rate_hz=30.0, n_samples=4, seed=9)
     batch = simulate(
-        skidpad_model, [np.tile([0.5, 0.2], (300, 1)), np.tile([0.9, -0.4], (900, 1))], n_samples=4, seed=9
+        skidpad_model, [np.tile([0.5, 0.2], (300, 1)), np.tile([0.9, -0.4], (900, 1))], rate_hz=30.0,
+        n_samples=4, seed=9,
     )
     for name in ("v", "w", "x", "y"):
         np.testing.assert_allclose(getattr(batch, name)[:, 0, :300], getattr(alone, name)[:, 0], atol=1e-6)
@@ -257,22 +260,23 @@ def test_a_maneuvers_rollout_does_not_depend_on_the_rest_of_the_batch(skidpad_mo
 def test_simulate_rejects_an_unknown_backend_or_a_wrong_heading_shape(skidpad_model):
     controls = [np.tile([0.5, 0.2], (30, 1))]
     with pytest.raises(InputError, match="backend"):
-        simulate(skidpad_model, controls, backend="cuda")
+        simulate(skidpad_model, controls, rate_hz=30.0, backend="cuda")
     with pytest.raises(InputError, match="initial_yaw"):
-        simulate(skidpad_model, controls, initial_yaw=np.zeros(3))
+        simulate(skidpad_model, controls, rate_hz=30.0, initial_yaw=np.zeros(3))
 
 
 def test_rollouts_alive_together_never_share_memory_and_reuse_changes_nothing(skidpad_model):
     controls = [np.tile([0.5, 0.2], (40_000, 1))]  # 8 draws x 40 000 steps: arrays large enough to be cached
-    first = simulate(skidpad_model, controls, n_samples=8, seed=1)
+    first = simulate(skidpad_model, controls, rate_hz=30.0, n_samples=8, seed=1)
     kept = {name: getattr(first, name).copy() for name in ("v", "x", "yaw", "mean_rates")}
-    second = simulate(skidpad_model, controls, n_samples=8, seed=2)
+    second = simulate(skidpad_model, controls, rate_hz=30.0, n_samples=8, seed=2)
     assert not np.shares_memory(first.x, second.x)
     for name, values in kept.items():
         np.testing.assert_array_equal(getattr(first, name), values, err_msg=name)
     del first, second
     gc.collect()
-    third = simulate(skidpad_model, controls, n_samples=8, seed=1)  # on the dropped rollouts' memory
+    # on the dropped rollouts' memory
+    third = simulate(skidpad_model, controls, rate_hz=30.0, n_samples=8, seed=1)
     for name, values in kept.items():
         np.testing.assert_array_equal(getattr(third, name), values, err_msg=name)
 
@@ -300,7 +304,7 @@ def test_true_rates_integrated_at_the_rear_axle_retrace_the_logged_path(turning_
     # The floor under every model's free run: with the rates MuJoCo logged, integrating v along the
     # heading at the CG drifts by centimetres in a turn (the CG slides sideways at l_r·ω); placing the
     # CG l_r ahead of a rear axle that does not slip retraces the path to millimetres.
-    arm = DataConfig().pose_lever_arm
+    arm = ModelConfig().pose_lever_arm
     for run_id, table in turning_truth.groupby("run_id", sort=False):
         at_cg, at_axle = _end_error_of_true_rates(table, 0.0), _end_error_of_true_rates(table, arm)
         assert at_axle < 0.02, (run_id, at_axle)
@@ -311,7 +315,8 @@ def test_path_from_rates_is_the_pose_a_free_run_integrates():
     # The benchmark's error attribution swaps true rates into this integration: it must be simulate's own.
     model = build_model(ModelConfig(n_inputs=2), seed=3)
     controls = [np.column_stack([np.full(90, 0.6), np.linspace(-0.4, 0.4, 90)])]
-    rollout = simulate(model, controls, n_samples=2, initial_yaw=0.3, lever_arm=0.08, fan_scale=1.0)
+    rollout = simulate(model, controls, rate_hz=30.0, n_samples=2, initial_yaw=0.3, lever_arm=0.08,
+                       fan_scale=1.0)  # fmt: skip
     x, y, yaw = path_from_rates(rollout.v[1, 0], rollout.w[1, 0], dt=rollout.dt, lever_arm=0.08, yaw0=0.3)
     np.testing.assert_allclose(yaw, rollout.yaw[1, 0], atol=1e-6)  # the compiled kernel rounds differently
     np.testing.assert_allclose(np.column_stack([x, y]), np.column_stack([rollout.x[1, 0], rollout.y[1, 0]]),
@@ -323,19 +328,19 @@ def test_lever_arm_estimated_from_logs_is_the_models_geometry(turning_truth):
     vehicle = simulator.Vehicle()
     rear_axle = -float(vehicle.model.body("wheel_rl").pos[0])  # the IMU site sits at the chassis origin
     assert float(vehicle.model.site("imu").pos[0]) == 0.0
-    assert DataConfig().pose_lever_arm == pytest.approx(rear_axle)
+    assert ModelConfig().pose_lever_arm == pytest.approx(rear_axle)
     logs = [part for _, part in turning_truth.groupby("run_id", sort=False)]
-    assert estimate_lever_arm(logs) == pytest.approx(rear_axle, abs=0.01)
+    assert estimate_lever_arm(logs, rate_hz=30.0) == pytest.approx(rear_axle, abs=0.01)
     noisy = simulator.add_noise(turning_truth, simulator.NoiseConfig(), seed=3)
     noisy = [part for _, part in noisy.groupby("run_id", sort=False)]
-    assert estimate_lever_arm(noisy) == pytest.approx(rear_axle, abs=0.02)
+    assert estimate_lever_arm(noisy, rate_hz=30.0) == pytest.approx(rear_axle, abs=0.02)
     with pytest.raises(InputError, match="logs"):
-        estimate_lever_arm([turning_truth.iloc[:5]])
+        estimate_lever_arm([turning_truth.iloc[:5]], rate_hz=30.0)
 
 
 def test_simulate_places_the_path_by_the_models_lever_arm(skidpad_model):
     controls = [np.tile([0.6, 0.4], (300, 1))]
-    call = dict(n_samples=4, seed=2, initial_yaw=0.7)
+    call = dict(rate_hz=30.0, n_samples=4, seed=2, initial_yaw=0.7)
     assert skidpad_model.config.pose_lever_arm == pytest.approx(0.07929)
     default = simulate(skidpad_model, controls, **call)
     axle = simulate(skidpad_model, controls, lever_arm=0.0, **call)
@@ -363,14 +368,14 @@ def test_a_fan_calibrated_on_noisy_logs_is_the_one_the_truth_needs(skidpad_model
         [part.reset_index(drop=True) for _, part in table.groupby("run_id", sort=False)]
         for table in (truth, noisy)
     )
-    needed = fan_scale_needed(skidpad_model, clean_logs, n_samples=32)
-    allowed = fan_scale_needed(skidpad_model, noisy_logs, n_samples=32, noise=noise)
-    naive = fan_scale_needed(skidpad_model, noisy_logs, n_samples=32)
+    needed = fan_scale_needed(skidpad_model, clean_logs, rate_hz=30.0, n_samples=32)
+    allowed = fan_scale_needed(skidpad_model, noisy_logs, rate_hz=30.0, n_samples=32, noise=noise)
+    naive = fan_scale_needed(skidpad_model, noisy_logs, rate_hz=30.0, n_samples=32)
     assert naive > 1.2 * needed, (naive, needed)  # the noise alone reads as misses
     assert allowed == pytest.approx(needed, rel=0.1), (allowed, needed, naive)
     # disabled noise allows for nothing
     off = simulator.NoiseConfig(enabled=False)
-    assert fan_scale_needed(skidpad_model, noisy_logs, n_samples=32, noise=off) == naive
+    assert fan_scale_needed(skidpad_model, noisy_logs, rate_hz=30.0, n_samples=32, noise=off) == naive
 
 
 def test_calibrated_fan_holds_the_asked_share_of_true_positions(tmp_path, skidpad_model):
@@ -387,11 +392,11 @@ def test_calibrated_fan_holds_the_asked_share_of_true_positions(tmp_path, skidpa
     logs = [part.reset_index(drop=True) for _, part in held_out.groupby("run_id", sort=False)]
     model = load_model_copy(skidpad_model)
     assert float(model.fan_scale) == 1.0
-    raw = free_run_metrics(model, logs, n_samples=32)["rollout_coverage_95"]
-    scale = calibrate_fan(model, logs, n_samples=32)
+    raw = free_run_metrics(model, logs, rate_hz=30.0, n_samples=32)["rollout_coverage_95"]
+    scale = calibrate_fan(model, logs, rate_hz=30.0, n_samples=32)
     assert float(model.fan_scale) == pytest.approx(scale)
     assert abs(scale - 1.0) > 0.2, scale  # the raw fan was off: calibration had something to do
-    calibrated = free_run_metrics(model, logs, n_samples=32)["rollout_coverage_95"]
+    calibrated = free_run_metrics(model, logs, rate_hz=30.0, n_samples=32)["rollout_coverage_95"]
     assert 0.9 <= calibrated <= 0.99, (raw, calibrated, scale)
     assert abs(calibrated - 0.95) < abs(raw - 0.95), (raw, calibrated)
     # The scale travels with the saved model; files written before it existed load with scale 1.
@@ -402,11 +407,11 @@ def test_calibrated_fan_holds_the_asked_share_of_true_positions(tmp_path, skidpa
     torch.save(payload, tmp_path / "old.pt")
     assert float(load_model(tmp_path / "old.pt").fan_scale) == 1.0
     # An explicit scale overrides the stored one; bad values name the field.
-    wide = simulate(model, [np.tile([0.6, 0.3], (200, 1))], n_samples=8, fan_scale=3.0 * scale)
-    narrow = simulate(model, [np.tile([0.6, 0.3], (200, 1))], n_samples=8)
+    wide = simulate(model, [np.tile([0.6, 0.3], (200, 1))], rate_hz=30.0, n_samples=8, fan_scale=3.0 * scale)
+    narrow = simulate(model, [np.tile([0.6, 0.3], (200, 1))], rate_hz=30.0, n_samples=8)
     assert np.ptp(wide.x[:, 0, -1]) > 2.0 * np.ptp(narrow.x[:, 0, -1])
     assert float(model.epistemic_scale) == 1.0  # the widening is undone after the call
     with pytest.raises(InputError, match="fan_scale"):
-        simulate(model, [np.tile([0.6, 0.3], (20, 1))], n_samples=8, fan_scale=0.0)
+        simulate(model, [np.tile([0.6, 0.3], (20, 1))], rate_hz=30.0, n_samples=8, fan_scale=0.0)
     with pytest.raises(InputError, match="level"):
-        calibrate_fan(model, logs, level=1.5)
+        calibrate_fan(model, logs, rate_hz=30.0, level=1.5)

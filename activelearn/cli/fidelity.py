@@ -61,7 +61,9 @@ def _fidelity(args: argparse.Namespace) -> int:
         raise InputError("--settle", args.settle, "must be a finite number of seconds >= 0")
     if not math.isfinite(args.min_window) or args.min_window <= 0:
         raise InputError("--min-window", args.min_window, "must be a finite number of seconds > 0")
-    vehicle, name, rate = None, "nominal", 30.0
+    from simulator.datasheet import LOG_RATE_HZ
+
+    vehicle, name, rate = None, "nominal", LOG_RATE_HZ
     if args.config is not None:
         from activelearn.config import load_config
 

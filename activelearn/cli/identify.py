@@ -19,13 +19,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--other-car", nargs="+", default=[], metavar="LOG",
                    help="logs of another car (e.g. simulated on nominal Nigel): identified alone first, "
                         "their estimate, widened by the datasheet's widths, is the prior LOG is fitted under")
-    p.add_argument("--rate-hz", type=float, default=30.0, metavar="HZ", help="the logs' rate (default 30)")
+    p.add_argument("--rate-hz", type=float, metavar="HZ",
+                   help="the logs' rate (default: read off their time columns)")
     p.set_defaults(handler=_identify)
 
 
 def _identify(args: argparse.Namespace) -> int:
     import math
 
+    from activelearn.data import log_rate_hz
     from activelearn.errors import InputError
     from activelearn.fidelity import read_log_file
     from activelearn.loop.collection import control_rate_logs
@@ -35,9 +37,12 @@ def _identify(args: argparse.Namespace) -> int:
         identify_on_another_car,
     )
 
-    if not (math.isfinite(args.rate_hz) and args.rate_hz > 0):
+    if args.rate_hz is not None and not (math.isfinite(args.rate_hz) and args.rate_hz > 0):
         raise InputError("--rate-hz", args.rate_hz, "must be a positive number")
-    logs = control_rate_logs([read_log_file(path) for path in log_files(args.logs)])
+    tables = [read_log_file(path) for path in log_files(args.logs)]
+    if args.rate_hz is None:
+        args.rate_hz = log_rate_hz(tables)
+    logs = control_rate_logs(tables)
     if args.other_car:
         others = control_rate_logs([read_log_file(path) for path in log_files(args.other_car)])
         found = identify_on_another_car(logs, others, dt=1.0 / args.rate_hz)

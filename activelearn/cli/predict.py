@@ -8,8 +8,6 @@ from pathlib import Path
 from activelearn.cli.common import PLOT_SUFFIXES, output_path
 from activelearn.cli.maneuver_args import add_maneuver_options, driven_from_args
 
-PREDICT_RATE = 30.0  # Hz: the rate predict simulates at (MuJoCo's log and the surrogate's steps)
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("predict", help="forward-simulate a trained surrogate against MuJoCo on one maneuver",
@@ -66,6 +64,7 @@ def _existing_store(tracking_uri: str) -> None:
 def _predict(args: argparse.Namespace) -> int:
 
     from activelearn.errors import InputError
+    from simulator.datasheet import LOG_RATE_HZ as PREDICT_RATE  # MuJoCo's log and the surrogate's steps
 
     maneuver = driven_from_args(args, PREDICT_RATE, fixed_rate=True)
     if args.samples < 2:

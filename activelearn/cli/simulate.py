@@ -18,7 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "a proposal of `campaign propose`, to rehearse it.",
     )
     add_maneuver_options(p)
-    p.add_argument("--rate", type=float, default=30.0, metavar="HZ", help="log rate in Hz (default 30)")
+    p.add_argument("--rate", type=float, metavar="HZ", help="log rate in Hz (default: the simulator's, 30)")
     p.add_argument("--seed", type=int, default=0, metavar="N", help="noise seed (default 0)")
     p.add_argument("--noise", action=argparse.BooleanOptionalAction, default=True,
                    help="add the default sensor noise (default: on)")
@@ -35,8 +35,11 @@ def _simulate(args: argparse.Namespace) -> int:
 
     from activelearn.errors import InputError
     from simulator import DivergenceWarning, NoiseConfig, collect
+    from simulator.datasheet import LOG_RATE_HZ
 
     # Validate everything before simulating, so a bad value never leaves a file behind.
+    if args.rate is None:
+        args.rate = LOG_RATE_HZ
     if not math.isfinite(args.rate) or not 0.0 < args.rate <= 300.0:
         raise InputError("--rate", args.rate, "must lie in (0, 300] Hz")
     maneuver = driven_from_args(args, args.rate)

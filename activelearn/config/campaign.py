@@ -6,7 +6,7 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Any
 
-from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
 
 from activelearn.config.base import Seed, _Section
 from activelearn.config.evaluation import OracleConfig, TargetConfig, TestSetConfig, TrackingConfig
@@ -92,12 +92,29 @@ class CampaignConfig(_Section):
             raise ValueError(f"unknown strategy {value!r}; choose from {', '.join(STRATEGY_NAMES)}")
         return value
 
+    @model_validator(mode="before")
+    @classmethod
+    def _lever_arm_in_model(cls, value: Any) -> Any:
+        # `pose_lever_arm` lives in [model]. Configs and stored campaigns that set it in [data], where it
+        # lived before, are read with it moved to [model]; set in both with two values, it is an error.
+        if not (isinstance(value, dict) and isinstance(value.get("data"), dict)):
+            return value
+        if "pose_lever_arm" not in value["data"]:
+            return value
+        data = dict(value["data"])
+        arm = data.pop("pose_lever_arm")
+        model = value.get("model") or {}
+        if isinstance(model, BaseModel):
+            model = model.model_dump(exclude_unset=True)
+        if "pose_lever_arm" in model and model["pose_lever_arm"] != arm:
+            raise ValueError(
+                f"data.pose_lever_arm = {arm!r} and model.pose_lever_arm = {model['pose_lever_arm']!r}: "
+                "pose_lever_arm belongs in [model] only"
+            )
+        return {**value, "data": data, "model": {**model, "pose_lever_arm": arm}}
+
     @model_validator(mode="after")
     def _inputs_match_model(self) -> CampaignConfig:
-        if self.model.pose_lever_arm != self.data.pose_lever_arm:
-            # The data section says where the pose is logged; the saved model carries it to free runs.
-            update = {"pose_lever_arm": self.data.pose_lever_arm}
-            object.__setattr__(self, "model", self.model.model_copy(update=update))
         if self.data.inputs == "history":
             # The data section owns the layout; the model follows it (its saved config then carries
             # what the forward simulation needs).

@@ -66,10 +66,14 @@ class ModelConfig(_Section):
         description="Log steps between the lagged inputs of a dynamic model (`activelearn.numerics.lags`); "
         "a campaign sets it from [data] history_step and the saved model carries it to free runs",
     )
+    # A kinematic car's rear axle does not slip sideways, so a point `a` ahead of it moves sideways at a·ω
+    # in a turn; free runs integrate v along the heading at the axle and place the path there. It lives
+    # here, not in [data], because the saved model carries it to every free run.
     pose_lever_arm: Annotated[float, Field(ge=-1.0, le=1.0)] = Field(
         POSE_LEVER_ARM,
-        description="Metres the logged position lies ahead of the rear axle, where free runs place their "
-        "paths (`activelearn.numerics.surrogate`); a campaign sets it from [data] pose_lever_arm",
+        description="Metres the logged pose (posX, posY) lies ahead of the rear axle, where free runs place "
+        "their paths (`activelearn.numerics.surrogate`): Nigel's IMU at the CG, 0.0793 m; 0 integrates v "
+        "along the heading at the logged point itself",
     )
     hidden_size: int = Field(
         32,

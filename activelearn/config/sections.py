@@ -9,7 +9,6 @@ from typing import Annotated, Any, Literal
 from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from activelearn.config.base import (
-    POSE_LEVER_ARM,
     Count,
     Direction,
     FamilyName,
@@ -225,13 +224,6 @@ class DataConfig(_Section):
         3,
         description="inputs = 'history': log steps between those past steps (a delay embedding, "
         "`activelearn.numerics.lags`)",
-    )
-    # A kinematic car's rear axle does not slip sideways, so a point `a` ahead of it moves sideways at a·ω
-    # in a turn; free runs integrate v along the heading at the axle and place the path there.
-    pose_lever_arm: Annotated[float, Field(ge=-1.0, le=1.0)] = Field(
-        POSE_LEVER_ARM,
-        description="Metres the logged pose (posX, posY) lies ahead of the rear axle: Nigel's IMU at the CG, "
-        "0.0793 m; 0 integrates v along the heading at the logged point itself",
     )
 
     @model_validator(mode="after")

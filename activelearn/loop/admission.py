@@ -19,6 +19,7 @@ from activelearn.loop.history import Withheld
 from activelearn.loop.safety import Assessment
 from activelearn.loop.state import CampaignState
 from activelearn.loop.strategy import Pool
+from activelearn.names import VIOLATIONS
 
 Assess = Callable[[Any, int, np.ndarray, "pd.DataFrame | None"], Assessment]
 Rebuild = Callable[..., Pool]
@@ -74,7 +75,7 @@ class Admission:
         """What a round logs of [safety]: safe-set size and shares, risk, violations (batch and total)."""
         total = sum(1 for reason in state.violated.values() if reason)
         before = next((r["violations_total"] for r in reversed(state.rounds) if "violations_total" in r), 0)
-        metrics = {"violations": float(total - before), "violations_total": float(total)}
+        metrics = {VIOLATIONS: float(total - before), "violations_total": float(total)}
         if safe is not None:
             metrics.update(
                 safe_set_size=float(safe.size),

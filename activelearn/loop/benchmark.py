@@ -31,7 +31,7 @@ def against_simulator(
     model,
     maneuvers: Sequence[Maneuver],
     *,
-    rate_hz: float = 30.0,
+    rate_hz: float,
     n_samples: int = 32,
     seed: int = 0,
     noise: object | None = "default",

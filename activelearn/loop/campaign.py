@@ -61,8 +61,10 @@ from activelearn.loop.state import (
     STATE_FILE,
     CampaignState,
 )
+from activelearn.names import CORRECTION_WEIGHT, EPISTEMIC_SCALE, FAN_SCALE, PREQUENTIAL_FAN_SCALE
 from activelearn.numerics.models import load_model, save_model
 from activelearn.numerics.surrogate import model_inputs
+from activelearn.seeds import Stream, derived_rng, derived_seed
 
 __all__ = [
     "MODEL_FILE",
@@ -100,10 +102,6 @@ class CampaignResult:
     def history(self) -> pd.DataFrame:
         """One row per round with every logged metric."""
         return pd.DataFrame(self.state.rounds)
-
-
-def _rng(seed: int, *tags: int) -> np.random.Generator:
-    return np.random.default_rng([seed, *tags])
 
 
 class Campaign:
@@ -313,8 +311,8 @@ class Campaign:
         turn = None
         if safety.measured_turn_speed:
             turn = turn_speed(self.fitting.known_logs(samples), rate, safety.limit_window)
-        return assess(model, self.maneuvers, safety, rate_hz=rate, seed=self.cfg.seed * 10_007 + round_index,
-                      which=open_, turn=turn)  # fmt: skip
+        seed = derived_seed(self.cfg.seed, Stream.ROUND, round_index)  # the fan of the round's model
+        return assess(model, self.maneuvers, safety, rate_hz=rate, seed=seed, which=open_, turn=turn)
 
     def _set_pending(self, state: CampaignState, picks: list[int], safe: Assessment | None) -> None:
         """Propose `picks`; with [safety], record their risks and the shorter durations of those cut."""
@@ -413,7 +411,7 @@ class Campaign:
                 state.finished, state.stop_reason = True, "nothing_admissible"
                 self._checkpoint(state, None, None)
                 return
-            initial = greedy_maximin(pool, k, _rng(self.cfg.seed, 0x1D))
+            initial = greedy_maximin(pool, k, derived_rng(self.cfg.seed, Stream.INITIAL))
             self._set_pending(state, initial, safe)
             self._checkpoint(state, None, None)
             return
@@ -424,13 +422,13 @@ class Campaign:
         model = self.fitting.fit(samples, round_index, scale, previous=previous)
         fans: dict[str, float] = {}
         if self.cfg.design.fan_calibration == "prequential":
-            fans["fan_scale"] = applied_scale(state, "prequential_fan_scale", recent=None)
+            fans[FAN_SCALE] = applied_scale(state, PREQUENTIAL_FAN_SCALE, recent=None)
             with torch.no_grad():
-                model.fan_scale.fill_(fans["fan_scale"])
+                model.fan_scale.fill_(fans[FAN_SCALE])
         x, _, _ = self.fitting.training_data(samples)
-        metrics: dict[str, Any] = {"round": round_index, "epistemic_scale": scale, **fans}
+        metrics: dict[str, Any] = {"round": round_index, EPISTEMIC_SCALE: scale, **fans}
         if hasattr(model, "correction_weight"):  # the physics kind: the share of its correction kept
-            metrics["correction_weight"] = float(model.correction_weight)
+            metrics[CORRECTION_WEIGHT] = float(model.correction_weight)
         metrics.update(self.evaluation.evaluate(model))
         metrics.update(
             n_samples=len(x),
@@ -460,7 +458,7 @@ class Campaign:
                 reason = "stop_epistemic_std"
         picks: list[int] = []
         if reason is None:
-            rng = _rng(self.cfg.seed, round_index, 0x5E1)
+            rng = derived_rng(self.cfg.seed, Stream.PICKS, round_index)
             history = self.strategy_history(
                 state, withheld, trial=lambda batch: self._trial(state, samples, batch, round_index, model)
             )

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import hashlib
 import os
-import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +26,7 @@ from activelearn.loop.history import CandidateTruth
 from activelearn.names import CONTROLS, PREVIOUS_RATES, RATES
 from activelearn.numerics.lags import Lags
 from activelearn.numerics.multistep import Windows, windows_from_logs
+from activelearn.seeds import Stream, derived_seed
 from simulator import Maneuver
 
 FEATURES: tuple[str, ...] = CONTROLS  # a static model's inputs
@@ -126,7 +126,7 @@ def twin_cache(root: str | Path, cfg: CampaignConfig) -> SimulationCache:
 
 def noise_seed(seed: int, maneuver: Maneuver) -> int:
     """Noise seed of one maneuver in one campaign: independent of when or by whom it is collected."""
-    return int(np.random.SeedSequence([seed, zlib.crc32(maneuver.name.encode())]).generate_state(1)[0])
+    return derived_seed(seed, Stream.NOISE, maneuver.name)
 
 
 def noise_config(settings: NoiseSettings) -> simulator.NoiseConfig | None:

@@ -22,6 +22,13 @@ from activelearn.loop.oracles import Oracle
 from activelearn.loop.pool import evaluation_grid
 from activelearn.loop.state import CampaignState
 from activelearn.loop.strategy import Pool
+from activelearn.names import (
+    CALIB_PREFIX,
+    PREQUENTIAL_FAN_SCALE,
+    PREQUENTIAL_POINTS,
+    PREQUENTIAL_SCALE,
+    PREQUENTIAL_SPEARMAN,
+)
 from activelearn.numerics import uncertainty
 from activelearn.numerics.diagnostics import fan_scale_needed, free_run_metrics
 from activelearn.numerics.models import Prediction
@@ -45,7 +52,7 @@ def standardise(pred: Prediction, scale: np.ndarray) -> Prediction:
     )
 
 
-def applied_scale(state: CampaignState, key: str = "prequential_scale", recent: int | None = 2) -> float:
+def applied_scale(state: CampaignState, key: str = PREQUENTIAL_SCALE, recent: int | None = 2) -> float:
     """Geometric mean of the last `recent` prequential scales under `key` (None: of every one so far;
     1 before any was measured).
 
@@ -95,7 +102,7 @@ class Evaluation:
             "coverage_95": float(uncertainty.coverage(noisy, std_pred, level=0.95)),
         }
         diag = uncertainty.epistemic_diagnostic(clean, std_pred)
-        metrics.update({f"calib_{k}": float(v) for k, v in diag.items() if np.isscalar(v)})
+        metrics.update({f"{CALIB_PREFIX}{k}": float(v) for k, v in diag.items() if np.isscalar(v)})
         _, _, grid = evaluation_grid(self.cfg, self.maneuvers)
         grid_pred = standardise(
             model.predict(model_inputs(model, grid), n_samples=EVAL_SAMPLES, seed=0), test.scale
@@ -160,22 +167,22 @@ class Evaluation:
         x_mean = np.stack([np.bincount(groups, weights=col) / counts for col in x.T], axis=1)
         y_mean = np.stack([np.bincount(groups, weights=col) / counts for col in y.T], axis=1)
         if len(counts) < 3:
-            return {"prequential_spearman": float("nan"), "prequential_points": float(len(counts))}
+            return {PREQUENTIAL_SPEARMAN: float("nan"), PREQUENTIAL_POINTS: float(len(counts))}
         pred = standardise(model.predict(x_mean, n_samples=EVAL_SAMPLES, seed=0), self.test_set.scale)
         diag = uncertainty.epistemic_diagnostic(y_mean / self.test_set.scale, pred)
-        return {"prequential_spearman": float(diag["spearman"]), "prequential_points": float(len(counts))}
+        return {PREQUENTIAL_SPEARMAN: float(diag["spearman"]), PREQUENTIAL_POINTS: float(len(counts))}
 
     def prequential(self, model: Any, new: pd.DataFrame) -> dict[str, float]:
         """Every check of `model` on the batch collected after it: the rank check, and the epistemic and
         fan scales that would have calibrated it where the config applies them to later rounds."""
         checks = self.prequential_check(model, new)
         if self.cfg.design.recalibrate == "prequential":
-            checks["prequential_scale"] = self.prequential_scale(model, new)
+            checks[PREQUENTIAL_SCALE] = self.prequential_scale(model, new)
         if self.cfg.design.fan_calibration == "prequential":
             logs = [part.reset_index(drop=True) for _, part in new.groupby("pool_index", sort=False)]
             # The batch's logs are measurements: their pose noise is allowed for (the config's sensor
             # noise; for recorded logs, the stated one), else it reads as misses and widens every fan.
-            checks["prequential_fan_scale"] = fan_scale_needed(
+            checks[PREQUENTIAL_FAN_SCALE] = fan_scale_needed(
                 model, logs, rate_hz=self.cfg.simulation.rate_hz,
                 n_samples=self.cfg.test.rollout_samples or FAN_SAMPLES, seed=0,
                 noise=noise_config(self.cfg.simulation.noise),

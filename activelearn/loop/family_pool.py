@@ -15,7 +15,6 @@ draws with different seeds and equal parameters are the same point of the design
 from __future__ import annotations
 
 import warnings
-import zlib
 from collections.abc import Sequence
 from typing import Any
 
@@ -24,6 +23,7 @@ import pandas as pd
 from scipy.stats import qmc
 
 from activelearn.config import PoolConfig
+from activelearn.seeds import Stream, derived_rng
 from simulator import KINDS, FamilyManeuver, Maneuver, ManeuverError, as_family
 from simulator.families import FAMILIES
 
@@ -38,7 +38,7 @@ def pool_families(cfg: PoolConfig) -> list[str]:
 def _draw(cfg: PoolConfig, family: str) -> list[dict[str, float]]:
     """`cfg.size` parameter vectors of one family: Sobol over its continuous parameters, seeded per family."""
     spec = FAMILIES[family]
-    rng = np.random.default_rng([cfg.seed, zlib.crc32(family.encode())])
+    rng = derived_rng(cfg.seed, Stream.FAMILY, family)
     continuous = spec.continuous
     with warnings.catch_warnings():  # any number of candidates, as the operating-point pool does
         warnings.filterwarnings("ignore", message=".*balance properties.*", category=UserWarning)

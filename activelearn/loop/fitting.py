@@ -32,6 +32,7 @@ from activelearn.loop.prior import Prior
 from activelearn.loop.state import MODEL_FILE, PRIOR_MODEL_FILE
 from activelearn.numerics.models import ResidualModel, build_model, load_model, save_model
 from activelearn.numerics.training import fit
+from activelearn.seeds import Stream, derived_seed
 
 WARM_DIR = "warm"  # each round's model, kept for the next warm-started round
 
@@ -144,7 +145,8 @@ class Fitting:
                 assert self.prior is not None
                 x, y, groups = self.rows(self.prior.rows)
                 model = build_model(self.cfg.model)
-                fit(model, x, y, self.cfg.training, groups=groups, seed=self.cfg.seed * 10_007 + 0x9210)
+                seed = derived_seed(self.cfg.seed, Stream.PRIOR)
+                fit(model, x, y, self.cfg.training, groups=groups, seed=seed)
                 self._prior_model = model
         return self._prior_model
 
@@ -165,7 +167,7 @@ class Fitting:
         x, y, groups = self.training_data(samples)
         windows = self.training_windows(samples)
         logs, log_groups, of_another_car = self.identification_logs(samples) or (None, None, None)
-        seed = self.cfg.seed * 10_007 + round_index
+        seed = derived_seed(self.cfg.seed, Stream.ROUND, round_index)
         base = self.prior_model()
         use = self.cfg.design.prior.use if self.cfg.design.prior is not None else "data"
         if base is not None and use == "residual":

@@ -32,6 +32,7 @@ from activelearn.loop.collection import (
     test_set_from_logs,
 )
 from activelearn.loop.pool import KIND_ORDER, pool_maneuvers, test_maneuvers
+from activelearn.seeds import Stream, derived_rng
 
 _LOG_FOLDER = re.compile(r"^(?P<kind>[a-z]+)_(?P<rate>\d+(?:\.\d+)?)_hz$")
 
@@ -287,7 +288,7 @@ class LogsOracle(Oracle):
             maneuvers.append(recorded_maneuver(kind, table, str(path.relative_to(self.root))))
         order = np.arange(len(maneuvers))
         if cfg.test.logs is None:
-            held = np.random.default_rng([cfg.pool.seed, 0x7E57]).permutation(len(maneuvers))
+            held = derived_rng(cfg.pool.seed, Stream.TEST_SPLIT).permutation(len(maneuvers))
             n_test = max(1, round(cfg.oracle.test_fraction * len(maneuvers)))
             if len(maneuvers) - n_test < cfg.design.initial + 1:
                 raise InputError(

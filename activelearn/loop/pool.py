@@ -19,6 +19,7 @@ from activelearn.loop.strategy import Pool
 from activelearn.numerics.paths import path_inputs
 from activelearn.numerics.surrogate import model_inputs
 from simulator import Maneuver, nominal_controls
+from simulator.datasheet import LOG_RATE_HZ
 
 KIND_ORDER: tuple[str, ...] = ("straight", "skidpad", "fishhook", "slalom", "eight")
 
@@ -99,7 +100,7 @@ def test_maneuvers(cfg: TestSetConfig) -> list[Maneuver]:
 test_maneuvers.__test__ = False  # type: ignore[attr-defined]  # not a pytest test
 
 
-def maneuver_controls(maneuver: Any, rate_hz: float = 30.0) -> np.ndarray:
+def maneuver_controls(maneuver: Any, rate_hz: float) -> np.ndarray:
     """(T, 2) throttle and signed steering a candidate applies: recorded if it has them, else nominal."""
     recorded = getattr(maneuver, "recorded_controls", None)
     return (
@@ -194,7 +195,7 @@ def kind_codes(maneuvers: Sequence[Any]) -> tuple[list[str], np.ndarray]:
 
 def scoring_points(maneuver: Any, n_points: int, rows_per_maneuver: float) -> tuple[np.ndarray, np.ndarray]:
     """Distinct control points along a maneuver's schedule and how many training rows each stands for."""
-    controls = maneuver_controls(maneuver, 30.0)
+    controls = maneuver_controls(maneuver, LOG_RATE_HZ)  # points along the schedule, whatever the log rate
     index = np.linspace(0, len(controls) - 1, n_points).round().astype(int)
     points, counts = np.unique(np.round(controls[index], 6), axis=0, return_counts=True)
     return points, counts * (rows_per_maneuver / n_points)

@@ -69,6 +69,7 @@ import simulator
 from activelearn.config import POSE_LEVER_ARM, SafetyConfig, boundary_distance, polygon_clearance
 from activelearn.loop.pool import maneuver_controls
 from activelearn.numerics.surrogate import Rollout, simulate
+from activelearn.seeds import Stream, derived_seed
 from simulator.stop import place
 
 SPEED_PER_THROTTLE = 0.287  # m/s: above every point of the reference throttle -> speed table
@@ -229,7 +230,7 @@ def assess(
     maneuvers: Sequence[Any],
     cfg: SafetyConfig,
     *,
-    rate_hz: float = 30.0,
+    rate_hz: float,
     seed: int = 0,
     which: np.ndarray | None = None,
     turn: TurnSpeed | None = None,
@@ -535,7 +536,8 @@ def proposal_figure(campaign: Any, path: str | Path) -> Path:
         proposals.append({"label": f"{m.name}{cut}", "risk": state.risks.get(str(i), float("nan"))})
     live = safety.stop == "live" and safety.enforce
     if model is not None and maneuvers:
-        rollout = fan(model, maneuvers, safety, cfg.simulation.rate_hz, cfg.seed * 10_007 + len(state.rounds))
+        seed = derived_seed(cfg.seed, Stream.ROUND, len(state.rounds))  # the campaign's fan of this model
+        rollout = fan(model, maneuvers, safety, cfg.simulation.rate_hz, seed)
         for j, proposal in enumerate(proposals):
             n = int(rollout.lengths[j])
             x, y = rollout.x[:, j, :n], rollout.y[:, j, :n]

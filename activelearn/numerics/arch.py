@@ -69,14 +69,3 @@ def parse_arch(arch: str) -> list[LayerSpec]:
             raise ValueError(f"hidden token {token!r} needs a width >= 1")
         layers.append(LayerSpec(m["kind"] == "V", width, act))
     return layers
-
-
-def format_arch(layers: list[LayerSpec]) -> str:
-    """Inverse of `parse_arch` (activations written explicitly when set)."""
-    out = []
-    for layer in layers:
-        tok = ("V" if layer.variational else "D") + (str(layer.width) if layer.width is not None else "")
-        if layer.activation:
-            tok += f":{layer.activation}"
-        out.append(tok)
-    return "-".join(out)

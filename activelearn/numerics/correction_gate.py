@@ -23,6 +23,7 @@ import torch
 from activelearn.errors import InputError
 from activelearn.numerics.multistep import Windows
 from activelearn.numerics.surrogate import path_from_rates, simulate
+from simulator.datasheet import LOG_RATE_HZ
 
 GATE_WEIGHTS = (0.0, 0.5, 1.0)
 HELD_OUT_SHARE = 0.25  # of the training maneuvers, at least one
@@ -52,8 +53,9 @@ def free_run_error(model, logs: Sequence[Log], *, seed: int = 0) -> float:
     controls = [np.asarray(u, dtype=np.float64) for u, _ in logs]
     initial = np.array([y[0] for _, y in logs], dtype=np.float64)
     rollout = simulate(
-        model, controls, n_samples=GATE_SAMPLES, seed=seed, initial_rates=initial, lever_arm=0.0
-    )
+        model, controls, rate_hz=LOG_RATE_HZ, n_samples=GATE_SAMPLES, seed=seed, initial_rates=initial,
+        lever_arm=0.0,
+    )  # fmt: skip
     mean_x, mean_y = rollout.mean_path()
     errors = []
     for i, (u, y) in enumerate(logs):

@@ -17,7 +17,20 @@ import numpy as np
 import torch
 
 from activelearn.errors import InputError
-from activelearn.names import CONTROLS, RATES, ROLLOUT_METRICS, TRUTH_COLUMNS
+from activelearn.names import (
+    CONTROLS,
+    RATES,
+    ROLLOUT_COVERAGE_95,
+    ROLLOUT_HEADING_ERR_30S,
+    ROLLOUT_METRICS,
+    ROLLOUT_POS_ERR_10S,
+    ROLLOUT_POS_ERR_30S,
+    ROLLOUT_RMSE_V,
+    ROLLOUT_RMSE_W,
+    SPEED,
+    TRUTH_COLUMNS,
+    YAW_RATE,
+)
 from activelearn.numerics.surrogate import Rollout, simulate
 from simulator import noise_std
 
@@ -90,7 +103,7 @@ def free_runs(
     model,
     logs: Sequence,
     *,
-    rate_hz: float = 30.0,
+    rate_hz: float,
     n_samples: int = 32,
     seed: int = 0,
     fan_scale: float | None = None,
@@ -158,7 +171,7 @@ def fan_scale_needed(
     logs: Sequence,
     *,
     level: float = 0.95,
-    rate_hz: float = 30.0,
+    rate_hz: float,
     n_samples: int = 32,
     seed: int = 0,
     noise: Any | None = None,
@@ -194,7 +207,7 @@ def free_run_metrics(
     logs: Sequence,
     truth_logs: Sequence | None = None,
     *,
-    rate_hz: float = 30.0,
+    rate_hz: float,
     n_samples: int = 32,
     seed: int = 0,
 ) -> dict[str, float]:
@@ -225,17 +238,17 @@ def free_run_metrics(
         k30 = min(round(30.0 / rollout.dt), n - 1)
         gap = mean_yaw[i, k30] - tyaw[k30]
         heading.append(abs(np.angle(np.exp(1j * gap))) if np.isfinite(gap) else np.inf)  # wrapped to [0, π]
-        sq_v += float(np.sum((rollout.mean_rates[i, :n, 0] - truth["speed"][:n]) ** 2))
-        sq_w += float(np.sum((rollout.mean_rates[i, :n, 1] - truth["angZ"][:n]) ** 2))
+        sq_v += float(np.sum((rollout.mean_rates[i, :n, 0] - truth[SPEED][:n]) ** 2))
+        sq_w += float(np.sum((rollout.mean_rates[i, :n, 1] - truth[YAW_RATE][:n]) ** 2))
         within = (band_x[0, i, :n] <= tx) & (tx <= band_x[1, i, :n])
         within &= (band_y[0, i, :n] <= ty) & (ty <= band_y[1, i, :n])
         inside += int(within.sum())
         steps += n
     return {
-        "rollout_pos_err_10s": float(np.mean(at[10.0])),
-        "rollout_pos_err_30s": float(np.mean(at[30.0])),
-        "rollout_heading_err_30s": float(np.mean(heading)),
-        "rollout_rmse_v": float(np.nan_to_num(np.sqrt(sq_v / steps), nan=np.inf)),
-        "rollout_rmse_w": float(np.nan_to_num(np.sqrt(sq_w / steps), nan=np.inf)),
-        "rollout_coverage_95": float(inside / steps),
+        ROLLOUT_POS_ERR_10S: float(np.mean(at[10.0])),
+        ROLLOUT_POS_ERR_30S: float(np.mean(at[30.0])),
+        ROLLOUT_HEADING_ERR_30S: float(np.mean(heading)),
+        ROLLOUT_RMSE_V: float(np.nan_to_num(np.sqrt(sq_v / steps), nan=np.inf)),
+        ROLLOUT_RMSE_W: float(np.nan_to_num(np.sqrt(sq_w / steps), nan=np.inf)),
+        ROLLOUT_COVERAGE_95: float(inside / steps),
     }

@@ -31,7 +31,7 @@ def path_inputs(
     controls: Sequence[np.ndarray],
     n_points: int,
     *,
-    rate_hz: float = 30.0,
+    rate_hz: float,
     n_samples: int = 8,
     seed: int = 0,
 ) -> list[np.ndarray]:

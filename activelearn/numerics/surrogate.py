@@ -45,7 +45,6 @@ from activelearn.numerics import buffers, counter_noise, native
 from activelearn.numerics.lags import Lags, model_lags
 from activelearn.numerics.models.base import BACKENDS, CHUNK_ROWS, draw_moments
 from activelearn.numerics.threads import even_blocks, intra_op_threads, parallel_map
-from simulator import Maneuver, nominal_controls
 
 N_CONTROLS = 2
 TORCH_BLOCK = 16  # maneuvers per task of a sequential rollout on torch (no compiled kernel)
@@ -93,11 +92,6 @@ class Rollout:
         if index is None:
             return self.x.mean(axis=0), self.y.mean(axis=0)
         return self.x[:, index].mean(axis=0), self.y[:, index].mean(axis=0)
-
-
-def controls_for(maneuvers: Sequence[Maneuver], rate_hz: float) -> list[np.ndarray]:
-    """The (T, 2) control sequence each maneuver applies at `rate_hz`."""
-    return [nominal_controls(m, rate_hz) for m in maneuvers]
 
 
 def _stack(controls: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -284,7 +278,7 @@ def simulate(
     model,
     controls: Sequence[np.ndarray],
     *,
-    rate_hz: float = 30.0,
+    rate_hz: float,
     n_samples: int = 32,
     seed: int = 0,
     initial_rates: np.ndarray | None = None,
@@ -298,8 +292,8 @@ def simulate(
     `initial_rates` (M, 2) seeds a dynamic model's past rates (default: standing still; its past
     controls are the first control);
     `initial_yaw` is one heading or one per maneuver. Positions are those of the logged point,
-    `lever_arm` metres ahead of the rear axle (default: the model's `config.pose_lever_arm`, which a
-    campaign sets from `[data] pose_lever_arm`). `fan_scale` scales each sampled pose's (x, y, ψ)
+    `lever_arm` metres ahead of the rear axle (default: the model's `[model] pose_lever_arm`).
+    `fan_scale` scales each sampled pose's (x, y, ψ)
     deviation from the mean over samples, so the pose fan widens about an unchanged mean path
     (default: the model's `fan_scale`, fitted by `calibrate_fan`; 1 leaves the fan as the posterior
     and the noise make it; rates are never scaled). Deterministic for a given seed.
@@ -473,12 +467,12 @@ def widened_step(
     draw_moments(means, variances, moments)
 
 
-def estimate_lever_arm(logs: Sequence, *, rate_hz: float = 30.0, min_yaw_rate: float = 0.2) -> float:
+def estimate_lever_arm(logs: Sequence, *, rate_hz: float, min_yaw_rate: float = 0.2) -> float:
     """Where the logged pose lies ahead of the rear axle (m), from logs' positions, heading and ω.
 
     A kinematic car's rear axle does not slip sideways, so the logged point's sideways velocity in
     the body frame is a·ω: a least-squares fit over the turning steps (|ω| >= `min_yaw_rate`, rad/s).
-    Tells `[data] pose_lever_arm` for a car whose pose reference is not documented.
+    Tells `[model] pose_lever_arm` for a car whose pose reference is not documented.
     """
     lateral, rates = [], []
     for table in logs:

@@ -39,6 +39,7 @@ from activelearn.loop.collection import arrays, control_rate_logs, training_rows
 from activelearn.numerics.diagnostics import free_run_metrics, free_runs, relative_pose
 from activelearn.numerics.models import build_model
 from activelearn.numerics.training import fit
+from simulator.datasheet import LOG_RATE_HZ
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 # dynamics.toml, and the same answered by sim_to_real.toml's twin (tests/test_twin.py keeps them equal)
@@ -89,7 +90,7 @@ def trained(campaign: Campaign, variant: str, frames: list[pd.DataFrame], seed: 
 
 def errors_by_maneuver(model, logs, truth_logs) -> np.ndarray:
     """30-s position error of each test maneuver's mean path."""
-    rollout = free_runs(model, logs)
+    rollout = free_runs(model, logs, rate_hz=LOG_RATE_HZ)
     mean_x, mean_y = rollout.mean_path()
     out = []
     for i, table in enumerate(truth_logs):
@@ -156,7 +157,8 @@ def main() -> None:
                     model = trained(campaign, variant, frames, seed)
                     seconds = time.perf_counter() - started
                     errors = errors_by_maneuver(model, logs, truth)
-                    coverage = free_run_metrics(model, logs, truth)["rollout_coverage_95"]
+                    metrics = free_run_metrics(model, logs, truth, rate_hz=LOG_RATE_HZ)
+                    coverage = metrics["rollout_coverage_95"]
                     print(f"{oracle} seed {seed} {variant:10s} 30-s error {errors.mean():.4f} m, fan holds "
                           f"{coverage:.2f} (trained in {seconds:.0f} s)", flush=True)  # fmt: skip
                     for kind, error in zip(kinds, errors, strict=True):

@@ -50,6 +50,7 @@ from activelearn.numerics.models.physics import control_box_sweep, runs_out_of_b
 from activelearn.numerics.surrogate import path_from_rates, simulate
 from activelearn.numerics.training import fit
 from simulator import Maneuver
+from simulator.datasheet import LOG_RATE_HZ
 
 KINDS = ("straight", "skidpad", "fishhook", "slalom", "eight")
 # Every model kind the surrogate runs: its data inputs and model settings.
@@ -242,7 +243,7 @@ def main() -> None:
         held_out = simulator.collect(maneuver_set(args.calibration_maneuvers, seed=4), seed=4)
         held_out = [part.reset_index(drop=True) for _, part in held_out.groupby("run_id", sort=False)]
         for (name, seed), model in models.items():
-            scale = calibrate_fan(model, held_out, n_samples=args.samples)
+            scale = calibrate_fan(model, held_out, n_samples=args.samples, rate_hz=LOG_RATE_HZ)
             print(f"free-run fan scale of {name} (seed {seed}): {scale:.2f} "
                   f"(on {len(held_out)} held-out maneuvers)")  # fmt: skip
 
@@ -265,7 +266,7 @@ def main() -> None:
         # The static map twice: its compiled kernel ("auto" where a C compiler built it) and the
         # NumPy/torch reference that draws the same numbers. The dynamic models have one path each.
         for (name, backend), label in zip(runs, labels, strict=True):
-            call = dict(n_samples=args.samples, backend=backend)
+            call = dict(rate_hz=LOG_RATE_HZ, n_samples=args.samples, backend=backend)
             if round_ == 0:
                 simulate(models[name, seeds[0]], controls[:4], initial_rates=initial[:4], **call)  # warm-up
             times = []
@@ -307,7 +308,7 @@ def main() -> None:
     for seed in seeds:
         for name in names:
             model = models[name, seed]
-            call = dict(initial_rates=initial, n_samples=args.samples)
+            call = dict(rate_hz=LOG_RATE_HZ, initial_rates=initial, n_samples=args.samples)
             rollout = rollouts[name] if seed == seeds[0] else simulate(model, controls, **call)
             # the same rollout with the uncalibrated fan, where calibration moved it
             raw = simulate(model, controls, fan_scale=1.0, **call) if args.calibration_maneuvers > 0 else None
@@ -372,7 +373,8 @@ def main() -> None:
     for name in names:
         counts = []
         for seed in seeds:
-            sweep_run = simulate(models[name, seed], sweep, n_samples=args.samples, seed=0)
+            model = models[name, seed]
+            sweep_run = simulate(model, sweep, rate_hz=LOG_RATE_HZ, n_samples=args.samples, seed=0)
             counts.append(runs_out_of_bounds(sweep_run.v, sweep_run.w))
         print(f"  {name:24s} {' '.join(str(c) for c in counts)} of {len(sweep) * args.samples}")
     speed = {k: float(np.median(v)) for k, v in ratios.items()}

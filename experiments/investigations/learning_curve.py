@@ -55,6 +55,7 @@ from activelearn.loop.prior import PRIOR_FILE, prior_from_rows
 from activelearn.loop.state import SAMPLES_FILE, CampaignState
 from activelearn.numerics.models import build_model
 from activelearn.numerics.training import fit
+from activelearn.seeds import Stream, derived_seed
 
 VARIANTS = ("base", "fixed_scalers", "pool_x_scaler", "equal_rows", "const_steps", "epochs300", "alt_batch")
 # alt_batch: the round's last batch replaced by these (reverse, mid throttle: where the test error is)
@@ -105,7 +106,7 @@ def fit_variant(
         finally:
             campaign.cfg = cfg
     x, y, groups = campaign.fitting.training_data(samples)
-    seed = train_seed * 10_007 + round_index
+    seed = derived_seed(train_seed, Stream.ROUND, round_index)
     training = cfg.training
     model = build_model(cfg.model)
     keep_scalers = False

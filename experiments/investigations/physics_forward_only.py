@@ -28,6 +28,7 @@ from activelearn.loop.prior import load_prior
 from activelearn.numerics.diagnostics import free_runs, relative_pose
 from activelearn.numerics.models import build_model
 from activelearn.numerics.training import fit
+from simulator.datasheet import LOG_RATE_HZ
 
 PHYSICS = {"model": {"kind": "physics", "kinematic_feature": False}}
 # dynamics_warm.toml's model before it moved to the physics kind (it ships the physics kind now)
@@ -36,7 +37,7 @@ BLACK_BOX = {"model": {"kind": "ensemble", "ensemble_size": 5, "kinematic_featur
 
 def errors(model, logs, truth) -> tuple[np.ndarray, np.ndarray]:
     """Per test maneuver: the 30-s position error of the mean path and the fan's share of true positions."""
-    rollout = free_runs(model, logs)
+    rollout = free_runs(model, logs, rate_hz=LOG_RATE_HZ)
     mean_x, mean_y = rollout.mean_path()
     band_x, band_y = (np.quantile(getattr(rollout, a), (0.025, 0.975), axis=0) for a in ("x", "y"))
     err, cover = [], []
@@ -91,7 +92,7 @@ def main() -> None:
                     log_groups=log_groups)  # fmt: skip
                 err, cover = errors(model, test.logs, test.truth_logs)
                 if seed == 0:
-                    drawn[name] = free_runs(model, [test.logs[i] for _, i in cases])
+                    drawn[name] = free_runs(model, [test.logs[i] for _, i in cases], rate_hz=LOG_RATE_HZ)
                 rows.append({"model": name, "seed": seed, "all": err.mean(), "reverse": err[reverse].mean(),
                              "fishhook": err[fishhook].mean(), "fan_all": cover.mean()})  # fmt: skip
                 print(rows[-1], flush=True)

@@ -25,6 +25,7 @@ from activelearn.loop.collection import control_rate_logs
 from activelearn.numerics.diagnostics import free_run_metrics
 from activelearn.numerics.models import build_model
 from activelearn.numerics.models.single_track import identify_from_logs
+from simulator.datasheet import LOG_RATE_HZ
 
 
 def main() -> None:
@@ -50,7 +51,7 @@ def main() -> None:
     model._physical_step = lambda x, dim, z, var, theta: step(x, dim, torch.zeros_like(z), var, theta)
 
     def error() -> float:
-        return free_run_metrics(model, test.logs, test.truth_logs)["rollout_pos_err_30s"]
+        return free_run_metrics(model, test.logs, test.truth_logs, rate_hz=LOG_RATE_HZ)["rollout_pos_err_30s"]
 
     print(f"datasheet (no data): {error():.4f} m")
     for n in (int(s) for s in args.signals.split(",")):

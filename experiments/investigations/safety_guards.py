@@ -39,6 +39,7 @@ from activelearn.loop.prior import load_prior
 from activelearn.loop.safety import assess, log_violation, placed_path, turn_speed
 from activelearn.loop.state import MODEL_FILE, SAMPLES_FILE, CampaignState
 from activelearn.numerics.models import load_model
+from activelearn.seeds import Stream, derived_seed
 from simulator.maneuvers import sample_times
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -107,7 +108,7 @@ def main() -> None:
         variants += [("none", t, True) for t in tolerances]
     print(f"# {cfg.name}: {'first-round (prior-only) models' if args.campaigns is None else args.campaigns}, "
           f"seeds 0-{args.seeds - 1}, margin {base.margin} m, delta {base.delta}, "
-          f"{base.n_samples} trajectories, pose_lever_arm {cfg.data.pose_lever_arm} m")  # fmt: skip
+          f"{base.n_samples} trajectories, pose_lever_arm {cfg.model.pose_lever_arm} m")  # fmt: skip
     print(f"{'fan_scale':>9} {'tol':>5} {'kin':>4} {'seed':>4} {'adm':>4} {'cut':>4} {'viol':>4} "
           f"{'arena':>5} {'limit':>5} {'track_s':>8} {'min_slack':>9}  violating candidates")  # fmt: skip
     totals: dict[tuple, list] = {v: [0, 0, 0, 0.0] for v in variants}
@@ -125,8 +126,9 @@ def main() -> None:
             if fan_scale != "none":
                 update["fan_scale"] = fan_scale
             safety = base.model_copy(update=update)
+            fan_seed = derived_seed(seed, Stream.ROUND, round_index)
             safe = assess(None if fan_scale == "none" else model, campaign.maneuvers, safety, rate_hz=rate,
-                          seed=seed * 10_007 + round_index, which=open_, turn=turn)  # fmt: skip
+                          seed=fan_seed, which=open_, turn=turn)  # fmt: skip
             bad, reasons, slacks = [], [], []
             for i in np.flatnonzero(safe.admissible):
                 log = drive(campaign, clean, int(i), float(safe.duration[i]))
