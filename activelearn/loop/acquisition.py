@@ -42,6 +42,7 @@ from activelearn.loop.space_filling import (
     greedy_maximin,
 )
 from activelearn.loop.strategy import Pool, Strategy, check_k, per_candidate, proximity_penalty
+from activelearn.names import PREQUENTIAL_SPEARMAN
 
 __all__ = [
     "STRATEGIES",
@@ -194,9 +195,9 @@ class AutoStrategy(Strategy):
     def prequential_spearman(self, history: History) -> float | None:
         """Mean rank check of the last rounds that measured one (None: none did)."""
         recent = [
-            r["prequential_spearman"]
+            r[PREQUENTIAL_SPEARMAN]
             for r in history.rounds
-            if np.isfinite(r.get("prequential_spearman", np.nan))
+            if np.isfinite(r.get(PREQUENTIAL_SPEARMAN, np.nan))
         ]
         return float(np.mean(recent[-self.guard_rounds :])) if recent else None
 
