@@ -438,8 +438,7 @@ class Campaign:
                 model.fan_scale.fill_(fans["fan_scale"])
         x, _, _ = self.fitting.training_data(samples)
         metrics: dict[str, Any] = {"round": round_index, "epistemic_scale": scale, **fans}
-        if hasattr(model, "correction_weight"):  # the physics kind: the share of its correction kept
-            metrics["correction_weight"] = float(model.correction_weight)
+        metrics.update(model.round_metrics())  # what only some kinds record (a correction's kept share)
         metrics.update(self.evaluation.evaluate(model))
         metrics.update(
             n_samples=len(x),
