@@ -28,6 +28,7 @@ from activelearn.loop.prior import load_prior
 from activelearn.numerics.diagnostics import free_runs, relative_pose
 from activelearn.numerics.models import build_model
 from activelearn.numerics.training import fit
+from activelearn.numerics.training_data import TrainingData
 
 PHYSICS = {"model": {"kind": "physics", "kinematic_feature": False}}
 # dynamics_warm.toml's model before it moved to the physics kind (it ships the physics kind now)
@@ -87,8 +88,12 @@ def main() -> None:
             logs, log_groups, _ = campaign.fitting.identification_logs(empty) or (None,) * 3  # black box
             for seed in range(args.seeds):
                 model = build_model(cfg.model)
-                fit(model, x, y, cfg.training, groups=groups, seed=seed, windows=windows, logs=logs,
-                    log_groups=log_groups)  # fmt: skip
+                fit(
+                    model,
+                    TrainingData(x, y, groups=groups, windows=windows, logs=logs, log_groups=log_groups),
+                    cfg.training,
+                    seed=seed,
+                )  # fmt: skip
                 err, cover = errors(model, test.logs, test.truth_logs)
                 if seed == 0:
                     drawn[name] = free_runs(model, [test.logs[i] for _, i in cases])
