@@ -25,6 +25,7 @@ from activelearn.loop.pool import build_pool, pool_maneuvers, target_points, tes
 from activelearn.numerics import synthetic
 from activelearn.numerics.models import build_model
 from activelearn.numerics.training import fit
+from activelearn.numerics.training_data import TrainingData
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +50,7 @@ def model():
     x = synthetic.random_points(600, throttle=(0.2, 1.0), steering=(0.0, 0.5), seed=1)
     y = synthetic.observe(x, rng)
     m = build_model(ModelConfig())
-    fit(m, x, y, TrainingConfig(epochs=60, batch_size=64, patience=None), seed=0)
+    fit(m, TrainingData(x, y), TrainingConfig(epochs=60, batch_size=64, patience=None), seed=0)
     return m
 
 

@@ -285,6 +285,68 @@ def test_no_module_is_much_longer_than_600_lines():
     assert long == {}
 
 
+# What holds a model in the generic layers, by the names the code gives it (a name or an attribute:
+# `model`, `self.model`, `cfg.model`, `net`, a gate's `probe`, a residual's `base`).
+_MODEL_NAMES = {"model", "net", "probe", "base", "residual", "surrogate"}
+
+
+def _holds_a_model(node: ast.AST) -> bool:
+    """Whether an expression names a model or a model's config: any link of `a.b.c` is a model name."""
+    while isinstance(node, ast.Attribute):
+        if node.attr in _MODEL_NAMES:
+            return True
+        node = node.value
+    return isinstance(node, ast.Name) and node.id in _MODEL_NAMES
+
+
+def _model_kind_checks(tree: ast.AST) -> Iterator[tuple[int, str]]:
+    """(line, what) for every question about a model's kind: a comparison of its (or its config's)
+    `kind`, `isinstance` of a model, `hasattr` on one, or `getattr(model, "name", None)`. Reading a
+    model's `config` through `getattr(model, "config", None)` asks whether there is a model at all."""
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Compare):
+            for side in (node.left, *node.comparators):
+                if isinstance(side, ast.Attribute) and side.attr == "kind" and _holds_a_model(side.value):
+                    yield node.lineno, f"compares {ast.unparse(side)}"
+        elif isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.args:
+            probe, subject = node.func.id, node.args[0]
+            if probe in ("hasattr", "isinstance") and _holds_a_model(subject):
+                yield node.lineno, ast.unparse(node)
+            elif probe == "getattr" and len(node.args) == 3 and _holds_a_model(subject):
+                name, default = node.args[1], node.args[2]
+                none = isinstance(default, ast.Constant) and default.value is None
+                if none and not (isinstance(name, ast.Constant) and name.value == "config"):
+                    yield node.lineno, ast.unparse(node)
+
+
+def test_the_scan_sees_a_question_about_the_model_kind():
+    before = """
+def f(self, model, net, cfg, samples):
+    if self.cfg.model.kind == "physics": pass
+    if "physics" != cfg.model.kind: pass
+    if hasattr(model, "correction_weight"): pass
+    if hasattr(net, "physical_parameters"): pass
+    runs = getattr(model, "open_loop_free_runs", None)
+    if isinstance(self.model, PhysicsModel): pass
+    arm = getattr(getattr(model, "config", None), "pose_lever_arm", 0.0)  # a None guard: allowed
+    if cfg.oracle.kind == "twin" or samples.kind == "skidpad": pass  # not a model: allowed
+"""
+    assert [line for line, _ in _model_kind_checks(ast.parse(before))] == [3, 4, 5, 6, 7, 8]
+
+
+def test_only_the_models_know_their_kind():
+    # Every kind is trained, fitted and recorded through one interface (`Model`'s hooks: identify,
+    # gates_correction, round_metrics, physical_parameters, identifies_on_logs): outside the models
+    # (and the config, which validates a kind's settings) nothing asks which kind a model is.
+    bad = []
+    for name, path in MODULES.items():
+        inside = name.startswith(("activelearn.numerics.models", "activelearn.config"))
+        if not name.startswith("activelearn") or inside:
+            continue
+        bad += [f"{name}:{line} {what}" for line, what in _model_kind_checks(ast.parse(path.read_text()))]
+    assert bad == []
+
+
 @pytest.mark.parametrize(
     ("library", "home"),
     [("mlflow", "activelearn.studies.tracking"), ("optuna", "activelearn.studies.tuning")],

@@ -16,6 +16,7 @@ from activelearn.config import ModelConfig, TrainingConfig
 from activelearn.numerics import synthetic as syn
 from activelearn.numerics.models import build_model
 from activelearn.numerics.training import fit
+from activelearn.numerics.training_data import TrainingData
 from activelearn.numerics.uncertainty import coverage, epistemic_diagnostic, recalibrate_epistemic, rmse
 
 pytestmark = pytest.mark.slow  # models trained to convergence on the calibration tasks
@@ -29,7 +30,7 @@ def _novelty_ratio(arch: str, seed: int = 0) -> np.ndarray:
     x = syn.random_points(2000, throttle=(0.2, 1.0), steering=(0.0, STEER), seed=seed)
     y = syn.observe(x, np.random.default_rng(seed + 1))  # noise grows with throttle
     model = build_model(ModelConfig(arch=arch))
-    fit(model, x, y, TRAIN, seed=seed)
+    fit(model, TrainingData(x, y), TRAIN, seed=seed)
     on = syn.grid(np.linspace(0.2, 1.0, 9), np.linspace(0.0, STEER, 9))
     off = syn.grid(np.linspace(-1.0, -0.2, 9), np.linspace(-STEER, 0.0, 9))
     s_on = model.predict(on, 64).epistemic_std.mean(axis=0)
@@ -55,7 +56,7 @@ def test_1_novelty_1d_gap_and_beyond():
     x = np.concatenate([rng.uniform(-1, -0.3, 500), rng.uniform(0.3, 1, 500)])[:, None]
     y = np.sin(2.5 * x) + 0.05 * rng.standard_normal(x.shape)
     model = build_model(ModelConfig(n_inputs=1, n_outputs=1))
-    fit(model, x, y, TRAIN)
+    fit(model, TrainingData(x, y), TRAIN)
     inside = np.concatenate([np.linspace(-0.95, -0.35, 20), np.linspace(0.35, 0.95, 20)])[:, None]
     gap = np.linspace(-0.15, 0.15, 20)[:, None]
     beyond = np.concatenate([np.linspace(-1.8, -1.3, 10), np.linspace(1.3, 1.8, 10)])[:, None]
@@ -69,7 +70,7 @@ def heteroscedastic():
     """Default model trained on noisy rows spread over the whole operating box."""
     x, y = syn.uniform_rows(3000, steering=(-STEER, STEER), seed=0)
     model = build_model(ModelConfig())
-    fit(model, x, y, TRAIN)
+    fit(model, TrainingData(x, y), TRAIN)
     return model
 
 
@@ -97,7 +98,7 @@ def test_6_hybrid_accuracy_close_to_dnn_on_skidpad_data():
     errors = {}
     for kind in ("hybrid", "dnn"):
         model = build_model(ModelConfig(kind=kind))
-        fit(model, x, y, TRAIN)
+        fit(model, TrainingData(x, y), TRAIN)
         errors[kind] = rmse(truth, model.predict(test, 32))
     assert errors["hybrid"] <= 1.5 * errors["dnn"], errors
     assert np.isfinite(errors["dnn"]) and errors["dnn"] > 0
@@ -108,7 +109,12 @@ def test_7_epistemic_calibration_after_recalibration():
     d = syn.calibration_task(0)
     model = build_model(ModelConfig())
     cfg = TrainingConfig()  # default KL counting, optimizer and early stopping
-    fit(model, d["x"], d["y"], cfg, x_val=d["val_x"], y_val=d["val_y"], groups=d["groups"])
+    fit(
+        model,
+        TrainingData(d["x"], d["y"], groups=d["groups"]),
+        cfg,
+        validation=TrainingData(d["val_x"], d["val_y"]),
+    )
     before = epistemic_diagnostic(d["test_truth"], model.predict(d["test_points"], 64))
     scale = recalibrate_epistemic(model, d["cal_points"], d["cal_truth"], noise_free=True)
     after = epistemic_diagnostic(d["test_truth"], model.predict(d["test_points"], 64))

@@ -25,6 +25,7 @@ from activelearn.numerics.multistep import window_loss
 from activelearn.numerics.paths import evenly_spaced_steps, path_inputs
 from activelearn.numerics.surrogate import simulate, steady_state_inputs
 from activelearn.numerics.training import fit
+from activelearn.numerics.training_data import TrainingData
 from simulator import Maneuver
 from tests.conftest import predict_slalom_fan, smoke_file
 from tests.test_campaign import SMOKE, _run_cli, _run_cli_signalled
@@ -56,7 +57,7 @@ def history_models(slalom_log):
     models = {}
     for kind, extra in (("hybrid", {}), ("recurrent", {"arch": "D16-V8-V", "hidden_size": 12})):
         model = build_model(ModelConfig(kind=kind, n_inputs=x.shape[1], history_step=2, **extra))
-        fit(model, x, y, TrainingConfig(lr=3e-3, epochs=40, patience=None), seed=0)
+        fit(model, TrainingData(x, y), TrainingConfig(lr=3e-3, epochs=40, patience=None), seed=0)
         models[kind] = model
     return models
 
@@ -178,7 +179,7 @@ def test_multi_step_training_changes_the_fit_and_is_seeded(slalom_log):
     for horizon in (0, 10, 10):
         model = build_model(ModelConfig(n_inputs=12, history_step=2))
         cfg = TrainingConfig(epochs=5, patience=None, rollout_horizon=horizon, rollout_batch=8)
-        fit(model, x, y, cfg, seed=3, windows=windows)
+        fit(model, TrainingData(x, y, windows=windows), cfg, seed=3)
         fits.append(model.predict(x[:20], n_samples=4).mean)
     assert not np.allclose(fits[0], fits[1])  # the window loss took part
     np.testing.assert_array_equal(fits[1], fits[2])  # and the same seed gives the same weights
@@ -192,8 +193,12 @@ def test_multi_step_training_runs_each_ensemble_member_on_its_own_predictions(sl
     fits = []
     for horizon in (0, 10, 10):
         model = build_model(spec)
-        fit(model, x, y, TrainingConfig(epochs=3, patience=None, rollout_horizon=horizon, rollout_batch=8),
-            seed=3, windows=windows)  # fmt: skip
+        fit(
+            model,
+            TrainingData(x, y, windows=windows),
+            TrainingConfig(epochs=3, patience=None, rollout_horizon=horizon, rollout_batch=8),
+            seed=3,
+        )  # fmt: skip
         fits.append(model.predict(x[:20], n_samples=3).mean)
     assert not np.allclose(fits[0], fits[1])  # the window loss took part
     np.testing.assert_array_equal(fits[1], fits[2])  # seeded
@@ -232,11 +237,11 @@ def test_multi_step_training_clips_the_gradient_norm(slalom_log):
     moved = {}
     for clip in (0.0, 1e-6):
         model = build_model(ModelConfig(n_inputs=12, history_step=2))
-        fit(model, x, y, TrainingConfig(epochs=1, patience=None), seed=3)  # scalers and a start
+        fit(model, TrainingData(x, y), TrainingConfig(epochs=1, patience=None), seed=3)  # scalers and a start
         start = [p.detach().clone() for p in model.parameters()]
         cfg = TrainingConfig(epochs=2, patience=None, rollout_horizon=10, rollout_batch=8,
                              rollout_clip=clip, reinit=False, optimizer="sgd", momentum=0.0)  # fmt: skip
-        fit(model, x, y, cfg, seed=3, windows=windows, keep_scalers=True)
+        fit(model, TrainingData(x, y, windows=windows), cfg, seed=3, keep_scalers=True)
         now = [p.detach() for p in model.parameters()]
         moved[clip] = sum(float((p - q).norm()) for p, q in zip(now, start, strict=True))
     # plain SGD moves each step by lr x the gradient: clipped to a norm of 1e-6 it barely moves

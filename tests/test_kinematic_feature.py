@@ -19,6 +19,7 @@ from activelearn.numerics.lags import Lags
 from activelearn.numerics.models import build_model, load_model, save_model
 from activelearn.numerics.surrogate import simulate
 from activelearn.numerics.training import fit
+from activelearn.numerics.training_data import TrainingData
 from simulator import Maneuver
 from tests.test_dynamics import _dynamic_config
 
@@ -92,7 +93,12 @@ def test_markov_training_with_windows_uses_the_feature():
     fitted = {}
     for feature in (False, True):
         model = build_model(ModelConfig(n_inputs=4, kinematic_feature=feature), seed=0)
-        fit(model, x, y, TrainingConfig(epochs=3, patience=None, rollout_horizon=5), seed=0, windows=windows)
+        fit(
+            model,
+            TrainingData(x, y, windows=windows),
+            TrainingConfig(epochs=3, patience=None, rollout_horizon=5),
+            seed=0,
+        )
         fitted[feature] = model.predict(x[:100]).mean
         assert np.isfinite(fitted[feature]).all()
     assert not np.allclose(fitted[False], fitted[True])
@@ -108,7 +114,7 @@ def test_a_trained_static_map_reads_its_yaw_rate_off_the_feature():
     samples = pd.concat([training_rows(part, data) for _, part in log.groupby("run_id", sort=False)])
     x, y = arrays(samples, data)
     model = build_model(ModelConfig(n_inputs=2, kinematic_feature=True), seed=0)
-    fit(model, x, y, TrainingConfig(epochs=20, patience=None), seed=0)
+    fit(model, TrainingData(x, y), TrainingConfig(epochs=20, patience=None), seed=0)
     params, n = model.mean_params()
 
     def network(rows: torch.Tensor) -> np.ndarray:  # the forward path on expanded rows, physical units

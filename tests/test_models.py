@@ -29,6 +29,7 @@ from activelearn.numerics.models import (
 )
 from activelearn.numerics.models.base import CHUNK_ROWS
 from activelearn.numerics.training import fit
+from activelearn.numerics.training_data import TrainingData
 from activelearn.studies.tracking import model_packages
 
 KINDS = ["hybrid", "pbnn", "pnn", "bnn", "dnn", "ensemble"]
@@ -48,7 +49,7 @@ def trained(data):
     models = {}
     for kind in KINDS:
         m = build_model(ModelConfig(kind=kind, **SMALL))
-        fit(m, x, y, TrainingConfig(epochs=3, batch_size=64, patience=None))
+        fit(m, TrainingData(x, y), TrainingConfig(epochs=3, batch_size=64, patience=None))
         models[kind] = m
     return models
 
@@ -210,7 +211,7 @@ def test_predict_agrees_with_draw(trained, data):
 def test_epistemic_scale_applies_to_predict_and_draw(data):
     x, y = data
     m = build_model(ModelConfig(**SMALL))
-    fit(m, x, y, TrainingConfig(epochs=2, batch_size=64, patience=None))
+    fit(m, TrainingData(x, y), TrainingConfig(epochs=2, batch_size=64, patience=None))
     base = m.predict(x[:20], 8)
     base_draw, _ = m.draw(8)(x[:20])
     with torch.no_grad():
@@ -263,7 +264,7 @@ def test_full_cov_and_mc_kl_models_train(data):
     x, y = data
     for extra in ({"posterior": "full_cov"}, {"kl": "mc", "kl_samples": 2}, {"prior_trainable": True}):
         m = build_model(ModelConfig(arch="D8-V4-V", **extra))
-        h = fit(m, x, y, TrainingConfig(epochs=2, batch_size=64, patience=None))
+        h = fit(m, TrainingData(x, y), TrainingConfig(epochs=2, batch_size=64, patience=None))
         assert np.isfinite(h.train_loss).all()
         assert m.predict(x[:5], 4).epistemic_var.shape == (5, 2)
 
@@ -273,7 +274,7 @@ def test_markov_state_inputs():
     x = rng.uniform(-1, 1, (300, 4))
     y = np.stack([x[:, 0] + 0.5 * x[:, 2], x[:, 1] * x[:, 3]], 1) + 0.01 * rng.standard_normal((300, 2))
     m = build_model(ModelConfig(n_inputs=4, arch="D8-V8-V"))
-    fit(m, x, y, TrainingConfig(epochs=2, batch_size=64, patience=None))
+    fit(m, TrainingData(x, y), TrainingConfig(epochs=2, batch_size=64, patience=None))
     assert m.predict(x[:7], 4).mean.shape == (7, 2)
     assert m.draw(3)(np.zeros((3, 7, 4)))[0].shape == (3, 7, 2)
 

@@ -18,6 +18,7 @@ from activelearn.numerics.models import single_track as st
 from activelearn.numerics.models.base import Model
 from activelearn.numerics.surrogate import STEADY_STATES, model_inputs, simulate, steady_state_inputs
 from activelearn.numerics.training import fit
+from activelearn.numerics.training_data import TrainingData
 from simulator import Maneuver, datasheet
 from tests.conftest import SMOKE, predict_slalom_fan
 
@@ -73,7 +74,10 @@ def forward_model(request, forward_grid: pd.DataFrame) -> PhysicsModel:
     knobs = {"correction": kind, "correction_inputs": inputs, "correction_symmetry": symmetry}
     model = build_model(_config(**knobs, ensemble_size=3), seed=0)
     fit(
-        model, x, y, TrainingConfig(epochs=30, batch_size=64, patience=None), seed=0, logs=_logs(forward_grid)
+        model,
+        TrainingData(x, y, logs=_logs(forward_grid)),
+        TrainingConfig(epochs=30, batch_size=64, patience=None),
+        seed=0,
     )
     return model
 
@@ -176,15 +180,17 @@ def test_the_model_identifies_on_its_own_logs_where_the_others_are_flagged(forwa
     flags = [i >= 3 for i in range(len(logs))]  # the first three logs (the straights) are this car's
     expected = st.identify_on_another_car(logs[:3], logs[3:])
     model = build_model(_config(), seed=0)
-    model.identify(x, y, logs, of_another_car=flags)
+    model.identify(TrainingData(x, y, logs=logs, of_another_car=flags))
     np.testing.assert_allclose(model.theta.numpy(), expected.values, rtol=1e-5)
     assert not np.allclose(expected.values, st.identify_from_logs(logs).values, rtol=1e-3)
     gated = build_model(_config(correction_gate=True), seed=0)
     frames = [g for _, g in forward_grid.groupby("run_id", sort=False)]
     history = fit(
-        gated, x, y, TrainingConfig(epochs=2, batch_size=64, patience=None), seed=0,
-        groups=rows["run_id"].to_numpy(), logs=logs, log_groups=[g["run_id"].iloc[0] for g in frames],
-        of_another_car=flags,
+        gated,
+        TrainingData(x, y, groups=rows["run_id"].to_numpy(), logs=logs,
+                     log_groups=[g["run_id"].iloc[0] for g in frames], of_another_car=flags),
+        TrainingConfig(epochs=2, batch_size=64, patience=None),
+        seed=0,
     )  # fmt: skip
     assert set(history.gate_errors) == set(correction_gate.GATE_WEIGHTS)
     np.testing.assert_allclose(gated.theta.numpy(), expected.values, rtol=1e-5)
@@ -536,7 +542,7 @@ def test_identification_sets_the_spread_only_when_asked(forward_grid: pd.DataFra
     found = st.identify_from_logs(logs)
     for setting in ("none", "by_log"):
         model = build_model(_config(parameter_uncertainty=setting), seed=0)
-        model.identify(x, y, logs)
+        model.identify(TrainingData(x, y, logs=logs))
         scale = model.theta_scale.double().numpy()
         if setting == "none":
             assert not scale.any()
@@ -566,27 +572,24 @@ def test_the_gate_keeps_the_correction_only_where_held_out_maneuvers_want_it(mon
     for rates, expected in ((core, 0.0), (corrected, 1.0)):
         logs = [(u, r[: len(u)]) for u, r in zip(controls, rates, strict=True)]
         trained_on = []
+        rows = np.zeros((10 * len(ids), 1))  # ten rows per maneuver: the probe ignores them
+        data = TrainingData(rows, rows, groups=np.repeat(ids, 10), logs=logs, log_groups=ids)
 
-        def probe(rows, in_probe, windows, trained_on=trained_on):
-            trained_on.append(int(np.sum(in_probe)))
+        def probe(held_in, trained_on=trained_on):
+            assert len(held_in.x) == 10 * len(held_in.logs) and set(held_in.groups) == set(held_in.log_groups)
+            trained_on.append(len(held_in.logs))
             return model
 
-        chosen = correction_gate.choose_correction_weight(
-            probe, groups=np.repeat(ids, 10), logs=logs, log_groups=ids, windows=None, seed=0
-        )
+        chosen = correction_gate.choose_correction_weight(probe, data, seed=0)
         assert chosen is not None and trained_on == [len(controls) - 2]  # a quarter of 6 held out
         weight, errors = chosen
         assert weight == expected, errors
         assert errors[weight] < 0.5 * max(errors.values())
         # Two held out of six: judged with at least two; closed (the core, no probe) when three are asked.
         trained_on.clear()
-        two = correction_gate.choose_correction_weight(
-            probe, groups=np.repeat(ids, 10), logs=logs, log_groups=ids, windows=None, seed=0, min_held_out=2
-        )
+        two = correction_gate.choose_correction_weight(probe, data, seed=0, min_held_out=2)
         assert two == chosen and trained_on == [len(controls) - 2]
-        closed = correction_gate.choose_correction_weight(
-            probe, groups=np.repeat(ids, 10), logs=logs, log_groups=ids, windows=None, seed=0, min_held_out=3
-        )
+        closed = correction_gate.choose_correction_weight(probe, data, seed=0, min_held_out=3)
         assert closed == (0.0, {}) and trained_on == [len(controls) - 2]
 
 
@@ -598,13 +601,17 @@ def test_fit_gates_the_correction_and_the_choice_is_saved(forward_grid: pd.DataF
     x, y = arrays(rows, DATA)
     model = build_model(_config(correction_gate=True), seed=0)
     history = fit(
-        model, x, y, TrainingConfig(epochs=4, batch_size=64, patience=None), seed=0,
-        groups=rows["run_id"].to_numpy(), logs=_logs(forward_grid),
-        log_groups=[g["run_id"].iloc[0] for g in frames],
+        model,
+        TrainingData(x, y, groups=rows["run_id"].to_numpy(), logs=_logs(forward_grid),
+                     log_groups=[g["run_id"].iloc[0] for g in frames]),
+        TrainingConfig(epochs=4, batch_size=64, patience=None),
+        seed=0,
     )  # fmt: skip
     assert set(history.gate_errors) == set(correction_gate.GATE_WEIGHTS)
     assert history.correction_weight == min(history.gate_errors, key=lambda w: (history.gate_errors[w], w))
     assert float(model.correction_weight) == history.correction_weight
+    assert model.round_metrics() == {"correction_weight": history.correction_weight}  # what a round logs
+    assert model.identifies_on_logs and set(model.physical_parameters()) == set(st.PARAMETER_NAMES)
     save_model(model, tmp_path / "gated.pt")
     assert float(load_model(tmp_path / "gated.pt").correction_weight) == history.correction_weight
     state = {k: v for k, v in model.state_dict().items() if k != "correction_weight"}
@@ -615,9 +622,11 @@ def test_fit_gates_the_correction_and_the_choice_is_saved(forward_grid: pd.DataF
     # Asked to judge on more held-out maneuvers than a quarter of these: closed, no probe trained.
     closed = build_model(_config(correction_gate=True, correction_gate_min_held_out=100), seed=0)
     history = fit(
-        closed, x, y, TrainingConfig(epochs=4, batch_size=64, patience=None), seed=0,
-        groups=rows["run_id"].to_numpy(), logs=_logs(forward_grid),
-        log_groups=[g["run_id"].iloc[0] for g in frames],
+        closed,
+        TrainingData(x, y, groups=rows["run_id"].to_numpy(), logs=_logs(forward_grid),
+                     log_groups=[g["run_id"].iloc[0] for g in frames]),
+        TrainingConfig(epochs=4, batch_size=64, patience=None),
+        seed=0,
     )  # fmt: skip
     assert (history.correction_weight, history.gate_errors) == (0.0, {})
     assert float(closed.correction_weight) == 0.0

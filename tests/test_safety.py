@@ -48,6 +48,7 @@ from activelearn.loop.safety import (
 from activelearn.numerics.models import build_model
 from activelearn.numerics.surrogate import Rollout, simulate
 from activelearn.numerics.training import fit
+from activelearn.numerics.training_data import TrainingData
 from activelearn.studies.tracking import Tracker
 from simulator import FamilyManeuver, Maneuver, collect
 
@@ -326,7 +327,7 @@ def test_fans_place_the_path_where_the_car_logs_it(tmp_path):
     campaign = Campaign(cfg, tmp_path / "c")
     model = build_model(cfg.model)
     test = campaign.test_set
-    fit(model, test.x, test.y_noisy, cfg.training, groups=test.groups, seed=0)
+    fit(model, TrainingData(test.x, test.y_noisy, groups=test.groups), cfg.training, seed=0)
     skidpads = [m for m in campaign.maneuvers if m.kind == "skidpad"][:2]
     rollout = fan(model, skidpads, cfg.safety, 30.0, seed=4)
     controls = [maneuver_controls(m, 30.0) for m in skidpads]
@@ -435,7 +436,7 @@ def test_every_strategy_picks_among_admissible_candidates_only(tmp_path):
     campaign = Campaign(cfg, tmp_path / "c")
     model = build_model(cfg.model)
     test = campaign.test_set
-    fit(model, test.x, test.y_noisy, cfg.training, groups=test.groups, seed=0)
+    fit(model, TrainingData(test.x, test.y_noisy, groups=test.groups), cfg.training, seed=0)
     pool, safe = campaign.admission.safe_pool(campaign.pool([], model), model, 1)
     admissible = set(np.flatnonzero(safe.admissible).tolist())
     assert 2 <= len(admissible) < len(campaign.maneuvers) and safe.cut.any()

@@ -219,12 +219,13 @@ def model_file(tmp_path_factory) -> Path:
     from activelearn.loop.collection import arrays, training_rows
     from activelearn.numerics.models import build_model, save_model
     from activelearn.numerics.training import fit
+    from activelearn.numerics.training_data import TrainingData
 
     data = DataConfig(stride=3, skip_seconds=0.5)
     log = simulator.collect([simulator.Maneuver("skidpad", 0.6, 0.3, d, 4.0) for d in ("ccw", "cw")], seed=1)
     x, y = arrays(pd.concat([training_rows(p, data) for _, p in log.groupby("run_id")]), data)
     model = build_model(ModelConfig(n_inputs=2))
-    fit(model, x, y, TrainingConfig(epochs=5, patience=None), seed=0)
+    fit(model, TrainingData(x, y), TrainingConfig(epochs=5, patience=None), seed=0)
     path = tmp_path_factory.mktemp("model") / "model.pt"
     save_model(model, path)
     return path

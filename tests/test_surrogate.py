@@ -21,6 +21,7 @@ from activelearn.numerics.diagnostics import calibrate_fan, fan_scale_needed, fr
 from activelearn.numerics.models import build_model, load_model, save_model
 from activelearn.numerics.surrogate import _integrate, estimate_lever_arm, path_from_rates, simulate
 from activelearn.numerics.training import fit
+from activelearn.numerics.training_data import TrainingData
 from simulator import Maneuver
 
 TRAIN_THROTTLES = (0.3, 0.5, 0.7, 0.9)
@@ -32,7 +33,7 @@ def _train(maneuvers: list[Maneuver], data: DataConfig, n_inputs: int, epochs: i
     rows = pd.concat([training_rows(part, data) for _, part in log.groupby("run_id", sort=False)])
     x, y = arrays(rows, data)
     model = build_model(ModelConfig(n_inputs=n_inputs))
-    fit(model, x, y, TrainingConfig(lr=3e-3, epochs=epochs, patience=None), seed=0)
+    fit(model, TrainingData(x, y), TrainingConfig(lr=3e-3, epochs=epochs, patience=None), seed=0)
     return model
 
 

@@ -37,6 +37,7 @@ from activelearn.numerics.models import ResidualModel, build_model, load_model, 
 from activelearn.numerics.models import single_track as st
 from activelearn.numerics.models.residual import BASE_SAMPLES
 from activelearn.numerics.training import fit
+from activelearn.numerics.training_data import TrainingData
 from activelearn.numerics.uncertainty import rmse
 from tests.conftest import flat_weights
 
@@ -238,7 +239,7 @@ def forward_model():
     x = synthetic.random_points(500, throttle=(0.2, 1.0), steering=(-0.5, 0.5), seed=3)
     y = synthetic.observe(x, np.random.default_rng(0))
     model = build_model(ModelConfig())
-    fit(model, x, y, TrainingConfig(epochs=40, patience=None), seed=0)
+    fit(model, TrainingData(x, y), TrainingConfig(epochs=40, patience=None), seed=0)
     return model
 
 

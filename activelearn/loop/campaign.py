@@ -61,7 +61,7 @@ from activelearn.loop.state import (
     STATE_FILE,
     CampaignState,
 )
-from activelearn.names import CORRECTION_WEIGHT, EPISTEMIC_SCALE, FAN_SCALE, PREQUENTIAL_FAN_SCALE
+from activelearn.names import EPISTEMIC_SCALE, FAN_SCALE, PREQUENTIAL_FAN_SCALE
 from activelearn.numerics.models import load_model, save_model
 from activelearn.numerics.surrogate import model_inputs
 from activelearn.seeds import Stream, derived_rng, derived_seed
@@ -427,8 +427,7 @@ class Campaign:
                 model.fan_scale.fill_(fans[FAN_SCALE])
         x, _, _ = self.fitting.training_data(samples)
         metrics: dict[str, Any] = {"round": round_index, EPISTEMIC_SCALE: scale, **fans}
-        if hasattr(model, "correction_weight"):  # the physics kind: the share of its correction kept
-            metrics[CORRECTION_WEIGHT] = float(model.correction_weight)
+        metrics.update(model.round_metrics())  # what only some kinds record (a correction's kept share)
         metrics.update(self.evaluation.evaluate(model))
         metrics.update(
             n_samples=len(x),

@@ -30,8 +30,9 @@ from activelearn.loop.collection import (
 from activelearn.loop.evaluation import EVAL_SAMPLES
 from activelearn.loop.prior import Prior
 from activelearn.loop.state import MODEL_FILE, PRIOR_MODEL_FILE
-from activelearn.numerics.models import ResidualModel, build_model, load_model, save_model
+from activelearn.numerics.models import ResidualModel, build_model, load_model, model_class, save_model
 from activelearn.numerics.training import fit
+from activelearn.numerics.training_data import TrainingData
 from activelearn.seeds import Stream, derived_seed
 
 WARM_DIR = "warm"  # each round's model, kept for the next warm-started round
@@ -73,9 +74,10 @@ class Fitting:
 
     @property
     def prior_of_another_car(self) -> bool:
-        """A physics model's prior logs are another car's (`[design.prior] same_car = false`)."""
+        """The prior logs are another car's (`[design.prior] same_car = false`) and the model identifies
+        itself on logs (`Model.identifies_on_logs`): they then only centre that identification."""
         prior = self.cfg.design.prior
-        return self.cfg.model.kind == "physics" and prior is not None and not prior.same_car
+        return model_class(self.cfg.model).identifies_on_logs and prior is not None and not prior.same_car
 
     def training_logs(self, samples: pd.DataFrame) -> pd.DataFrame:
         """The logs a round's model trains on: `with_prior`'s, but only the car's own once it has any
@@ -113,16 +115,23 @@ class Fitting:
     def identification_logs(
         self, samples: pd.DataFrame
     ) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[Any], list[bool] | None] | None:
-        """Each training log's (controls, rates) for a physics-structured model to identify itself on,
-        its maneuver id (`pool_index`, as in the training rows' groups; the correction gate holds
-        maneuvers out by it) and, with `[design.prior] same_car = false`, whether it is the prior's
-        (of another car). None for other kinds."""
-        if self.cfg.model.kind != "physics":
+        """Each training log's (controls, rates) for a model that identifies itself on logs
+        (`Model.identifies_on_logs`), its maneuver id (`pool_index`, as in the training rows' groups; the
+        correction gate holds maneuvers out by it) and, with `[design.prior] same_car = false`, whether it
+        is the prior's (of another car). None for other kinds."""
+        if not model_class(self.cfg.model).identifies_on_logs:
             return None
         parts = self.with_prior(samples).groupby("pool_index", sort=False)
         ids = list(parts.groups)
         of_another_car = [int(i) < 0 for i in ids] if self.prior_of_another_car else None
         return control_rate_logs([part for _, part in parts]), ids, of_another_car
+
+    def data(self, samples: pd.DataFrame) -> TrainingData:
+        """Everything the model of a round trains on: rows, windows and, where it uses them, the logs."""
+        x, y, groups = self.training_data(samples)
+        windows = self.training_windows(samples)
+        logs, log_groups, of_another_car = self.identification_logs(samples) or (None, None, None)
+        return TrainingData(x, y, groups, windows, logs, log_groups, of_another_car)
 
     # ------------------------------------------------------------------ models
 
@@ -146,7 +155,7 @@ class Fitting:
                 x, y, groups = self.rows(self.prior.rows)
                 model = build_model(self.cfg.model)
                 seed = derived_seed(self.cfg.seed, Stream.PRIOR)
-                fit(model, x, y, self.cfg.training, groups=groups, seed=seed)
+                fit(model, TrainingData(x, y, groups), self.cfg.training, seed=seed)
                 self._prior_model = model
         return self._prior_model
 
@@ -164,34 +173,29 @@ class Fitting:
         With `[training] warm_start`, a fresh model's round starts from `previous` (the last round's
         model) and trains `warm_epochs` epochs.
         """
-        x, y, groups = self.training_data(samples)
-        windows = self.training_windows(samples)
-        logs, log_groups, of_another_car = self.identification_logs(samples) or (None, None, None)
+        data = self.data(samples)
         seed = derived_seed(self.cfg.seed, Stream.ROUND, round_index)
         base = self.prior_model()
         use = self.cfg.design.prior.use if self.cfg.design.prior is not None else "data"
         if base is not None and use == "residual":
             residual = build_model(self.cfg.model)
-            fit(residual, x, y - base.predict(x, n_samples=EVAL_SAMPLES, seed=0).mean, self.cfg.training,
-                groups=groups, seed=seed)  # fmt: skip
+            difference = data.y - base.predict(data.x, n_samples=EVAL_SAMPLES, seed=0).mean
+            fit(residual, TrainingData(data.x, difference, data.groups), self.cfg.training, seed=seed)
             model: Any = ResidualModel(base, residual)
         elif base is not None:
             model = load_model_copy(base)
-            if len(x):
+            if len(data.x):
                 training = self.cfg.training.model_copy(update={"reinit": False})
-                fit(model, x, y, training, groups=groups, seed=seed, keep_scalers=True, windows=windows,
-                    logs=logs, log_groups=log_groups, of_another_car=of_another_car)  # fmt: skip
+                fit(model, data, training, seed=seed, keep_scalers=True)
         elif previous is not None and self.cfg.training.warm_start:
             model = load_model_copy(previous)
             training = self.cfg.training
             epochs = training.warm_epochs or max(1, training.epochs // 4)
-            fit(model, x, y, training.model_copy(update={"reinit": False, "epochs": epochs}),
-                groups=groups, seed=seed, keep_scalers=True, windows=windows, logs=logs,
-                log_groups=log_groups, of_another_car=of_another_car)  # fmt: skip
+            fit(model, data, training.model_copy(update={"reinit": False, "epochs": epochs}), seed=seed,
+                keep_scalers=True)  # fmt: skip
         else:
             model = build_model(self.cfg.model)
-            fit(model, x, y, self.cfg.training, groups=groups, seed=seed, windows=windows, logs=logs,
-                log_groups=log_groups, of_another_car=of_another_car)
+            fit(model, data, self.cfg.training, seed=seed)
         with torch.no_grad():
             model.epistemic_scale.fill_(epistemic_scale)
         return model

@@ -21,17 +21,16 @@ import numpy as np
 import torch
 
 from activelearn.errors import InputError
-from activelearn.numerics.multistep import Windows
 from activelearn.numerics.surrogate import path_from_rates, simulate
+from activelearn.numerics.training_data import Log, TrainingData
 from simulator.datasheet import LOG_RATE_HZ
 
 GATE_WEIGHTS = (0.0, 0.5, 1.0)
 HELD_OUT_SHARE = 0.25  # of the training maneuvers, at least one
 GATE_SAMPLES = 32  # posterior draws of the held-out free runs
 
-Log = tuple[np.ndarray, np.ndarray]  # (controls (T, 2), rates (T, 2)) at the log rate
-# Trains the probe on the rows and logs whose masks are given, with these windows; returns it. Called once.
-ProbeTrainer = Callable[[np.ndarray, np.ndarray, Windows | None], torch.nn.Module]
+# Trains the probe on the held-in data (rows, logs and windows) and returns it. Called once.
+ProbeTrainer = Callable[[TrainingData], torch.nn.Module]
 
 
 def held_out_count(n_maneuvers: int) -> int:
@@ -66,42 +65,36 @@ def free_run_error(model, logs: Sequence[Log], *, seed: int = 0) -> float:
 
 
 def choose_correction_weight(
-    train_probe: ProbeTrainer,
-    *,
-    groups: np.ndarray,
-    logs: list[Log],
-    log_groups: Sequence,
-    windows: Windows | None,
-    seed: int,
-    min_held_out: int = 1,
+    train_probe: ProbeTrainer, data: TrainingData, *, seed: int, min_held_out: int = 1
 ) -> tuple[float, dict[float, float]] | None:
     """The share of the correction's mean to keep and each share's held-out error (m).
 
-    `groups` are the training rows' maneuver ids, `log_groups` each log's (the same ids). None when
-    there are fewer than two maneuvers or no row is left for the probe; (0, {}) without a probe when
-    fewer than `min_held_out` maneuvers would be held out.
+    `data` needs `groups` (the rows' maneuver ids), `logs` and `log_groups` (each log's id among them).
+    None when there are fewer than two maneuvers or no row is left for the probe; (0, {}) without a
+    probe when fewer than `min_held_out` maneuvers would be held out.
     """
-    if len(log_groups) != len(logs):
-        raise InputError("log_groups", len(log_groups), f"needs one id per log ({len(logs)})")
+    logs, log_groups = data.logs or [], data.log_groups
+    if log_groups is None or len(log_groups) != len(logs):
+        raise InputError("log_groups", None if log_groups is None else len(log_groups),
+                         f"needs one id per log ({len(logs)})")  # fmt: skip
     n_maneuvers = len(np.unique(np.asarray(log_groups)))
     if n_maneuvers < 2:
         return None
     if held_out_count(n_maneuvers) < min_held_out:
         return 0.0, {}
     held = held_out_groups(log_groups, seed)
-    rows = ~np.isin(groups, held)
+    rows = ~np.isin(data.groups, held)
     in_probe = ~np.isin(np.asarray(log_groups), held)
     if not rows.any():
         return None
-    probe_windows = windows.of_logs(np.flatnonzero(in_probe)) if windows is not None else None
-    probe = train_probe(rows, in_probe, probe_windows)
+    probe = train_probe(data.without(held))
     held_logs = [log for log, keep in zip(logs, in_probe, strict=True) if not keep and len(log[0]) > 1]
     if not held_logs:
         return None
     errors = {}
     with torch.no_grad():
         for weight in GATE_WEIGHTS:
-            probe.correction_weight.fill_(weight)
+            probe.set_correction_weight(weight)
             errors[weight] = free_run_error(probe, held_logs, seed=seed)
     best = min(GATE_WEIGHTS, key=lambda w: (errors[w], w))
     return best, errors

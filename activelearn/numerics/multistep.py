@@ -86,7 +86,7 @@ def window_loss(model, windows: Windows, rows: Tensor) -> Tensor:
     controls = torch.from_numpy(windows.controls)[rows]
     past = torch.from_numpy(windows.past)[rows]
     target = (torch.from_numpy(windows.target)[rows] - model.y_mean) / model.y_std
-    members = getattr(model, "n_members", None)
+    members = model.n_members
     if members is not None:  # (K, W, ...): one batch of windows per member
         controls, past, target = (t.expand(members, *t.shape) for t in (controls, past, target))
     rates: list[Tensor] = list(past.unbind(-2))  # grows by predictions

@@ -394,8 +394,7 @@ def _sequential_rollout(
         start[:] = torch.as_tensor(np.asarray(initial_rates, dtype=np.float32)).t()
     # A kind whose learnt part reads the controls alone computes its free runs whole (its noise from
     # the draws' seed, so `gen` is left as the step loop below finds it).
-    whole_runs = getattr(model, "open_loop_free_runs", None)  # wrappers (residual models) have none
-    whole = None if whole_runs is None else whole_runs(n_samples, seed, controls, start, lags, backend, pose)
+    whole = model.open_loop_free_runs(n_samples, seed, controls, start, lags, backend, pose)
     if whole is not None:
         rates, moments, paths = whole
         return (rates[:, 0], rates[:, 1]), moments, paths

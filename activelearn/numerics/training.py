@@ -18,8 +18,8 @@ import copy
 import math
 import time
 import warnings
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -32,6 +32,7 @@ from activelearn.numerics.correction_gate import choose_correction_weight
 from activelearn.numerics.models.base import Model
 from activelearn.numerics.multistep import Windows, window_loss
 from activelearn.numerics.threads import intra_op_threads
+from activelearn.numerics.training_data import TrainingData
 from activelearn.numerics.uncertainty import gaussian_nll, recalibrate_epistemic, rmse
 
 Callback = Callable[[int, dict[str, float]], "bool | None"]
@@ -129,10 +130,6 @@ def _elbo(
     return data, data
 
 
-def _is_variational(model: Model) -> bool:
-    return any(getattr(model, "variational", [False]))
-
-
 class _LossModule(nn.Module):
     """Wraps a model so that `functional_call` can substitute flat-parameter views."""
 
@@ -140,7 +137,7 @@ class _LossModule(nn.Module):
         super().__init__()
         self.model = model
         self.loss = loss
-        self.variational = _is_variational(model)
+        self.variational = model.is_variational()
 
     def forward(self, xb: Tensor, yb: Tensor, kl_weight: Tensor) -> tuple[Tensor, Tensor]:
         return _elbo(self.model, xb, yb, self.loss, kl_weight, self.variational)
@@ -270,61 +267,69 @@ def _validate(
 
 def fit(
     model: Model,
-    x: np.ndarray,
-    y: np.ndarray,
+    data: TrainingData,
     config: TrainingConfig,
     *,
-    x_val: np.ndarray | None = None,
-    y_val: np.ndarray | None = None,
-    groups: np.ndarray | None = None,
-    groups_val: np.ndarray | None = None,
+    validation: TrainingData | None = None,
     seed: int = 0,
     callback: Callback | None = None,
     keep_scalers: bool = False,
-    windows: Windows | None = None,
-    logs: list[tuple[np.ndarray, np.ndarray]] | None = None,
-    log_groups: Sequence | None = None,
-    of_another_car: Sequence[bool] | None = None,
 ) -> History:
-    """Train `model` on (x, y) in physical units; return the per-epoch History.
+    """Train `model` on `data` (physical units); return the per-epoch History.
 
     The loss per row is the data term (Gaussian NLL, MSE or MAE in standardised units, summed over
-    outputs) plus kl_weight · KL / N with N from `config.kl_count` (`groups` = per-row maneuver or
+    outputs) plus kl_weight · KL / N with N from `config.kl_count` (`data.groups` = per-row maneuver or
     operating-point ids for "maneuvers" and "sqrt"; without them each row is its own maneuver).
-    With validation data, early stopping watches the validation NLL (physical units, mean per
-    output) and the best epoch's weights are restored.
+    With `validation` rows, early stopping watches the validation NLL (physical units, mean per
+    output) and the best epoch's weights are restored; their `groups` let `recalibrate="validation"`
+    average validation rows per operating point.
     `callback(epoch, metrics)` runs after every epoch with train_loss, train_data, kl, epoch_time,
     and val_nll / val_rmse when validation data are given; returning True stops training, and
     exceptions (e.g. optuna.TrialPruned) propagate. Same seed and inputs → identical weights; the
-    global torch RNG is restored on return. `groups_val` lets `recalibrate="validation"` average
-    validation rows per operating point. `keep_scalers` keeps the model's input/output standardisation
-    (fine-tuning weights learnt under it, with `config.reinit = False`) instead of refitting it to (x, y).
-    With `config.rollout_horizon` > 0, `windows` (free runs of a dynamic model,
+    global torch RNG is restored on return. `keep_scalers` keeps the model's input/output standardisation
+    (fine-tuning weights learnt under it, with `config.reinit = False`) instead of refitting it to the rows.
+    With `config.rollout_horizon` > 0, `data.windows` (free runs of a dynamic model,
     `activelearn.numerics.multistep`) add their loss to every `rollout_every`-th step,
     `rollout_batch` windows at a time (eager steps: the compiled path trains one-step losses only).
-    A physics-structured model (`[model] kind = "physics"`) first identifies its physical parameters:
-    by free runs along `logs` (each (controls (T, 2), rates (T, 2)) at the log rate) where given, else
-    from the rows; logs flagged in `of_another_car` (a simulated prior grid on another car) only centre
-    the identification's prior (`PhysicsModel.identify`). With `[model] correction_gate`, `groups` and
-    `log_groups` (each log's id among `groups`), a probe trained without a quarter of the maneuvers
-    then decides the share of its correction's mean to keep (`activelearn.numerics.correction_gate`).
+    The model first identifies what its kind knows of the car (`Model.identify`; a no-op for networks),
+    and, where it gates a learnt correction (`Model.gates_correction`), a probe trained without a
+    quarter of the maneuvers then decides the share of the correction's mean to keep
+    (`activelearn.numerics.correction_gate`).
     """
-    x, y = _check_xy(model, x, y, "")
+    return _train(model, data, config, validation, seed, callback, keep_scalers, gate=True)
+
+
+def _train(
+    model: Model,
+    data: TrainingData,
+    config: TrainingConfig,
+    validation: TrainingData | None,
+    seed: int,
+    callback: Callback | None,
+    keep_scalers: bool,
+    *,
+    gate: bool,
+) -> History:
+    """`fit`, with the correction gate where `gate` (its probe trains without one)."""
+    x, y = _check_xy(model, data.x, data.y, "")
+    windows = data.windows
     if config.rollout_horizon and windows is not None:
         if windows.lags.n_inputs != model.n_inputs:
             raise InputError("windows", windows.lags.n_inputs, f"the model reads {model.n_inputs} inputs")
     else:
         windows = None
-    has_val = x_val is not None and y_val is not None
-    if has_val:
-        x_val, y_val = _check_xy(model, x_val, y_val, "_val")  # type: ignore[arg-type]
+    data = replace(data, x=x, y=y, windows=windows)
+    if validation is not None:
+        x_val, y_val = _check_xy(model, validation.x, validation.y, "_val")
+        validation = replace(validation, x=x_val, y=y_val)
+    groups = data.groups
     if groups is not None and len(groups) != len(x):
         raise InputError("groups", len(groups), f"needs one id per row ({len(x)})")
     n = len(x)
     history = History(kl_count=kl_count_value(config.kl_count, n, groups))
     kl_weight = config.kl_weight / history.kl_count
     batch = min(config.batch_size, n)
-    if config.recalibrate == "validation" and not has_val:
+    if config.recalibrate == "validation" and validation is None:
         raise InputError("recalibrate", config.recalibrate, "needs x_val and y_val")
 
     steps_per_epoch = math.ceil(n / batch)
@@ -336,47 +341,32 @@ def fit(
             or (config.compile == "auto" and steps_per_epoch * config.epochs >= AUTO_COMPILE_STEPS)
         )
     )
-    has_gate = hasattr(model, "correction_weight")
-    if has_gate:
-        with torch.no_grad():
-            model.correction_weight.fill_(1.0)  # trained with its whole correction
-    gate = has_gate and model.config.correction_gate and groups is not None and bool(logs)
-    gate = gate and log_groups is not None
-    probe = copy.deepcopy(model) if gate else None  # as it starts training: the probe starts there too
+    model.set_correction_weight(1.0)  # trained with its whole correction (where the kind has one)
+    gated = gate and model.gates_correction(data)
+    probe = copy.deepcopy(model) if gated else None  # as it starts training: the probe starts there too
 
-    def train_probe(rows: np.ndarray, in_probe: np.ndarray, probe_windows: Windows | None) -> Model:
-        keep = np.flatnonzero(in_probe)
-        fit(probe, x[rows], y[rows], config, x_val=x_val, y_val=y_val, groups=groups[rows],  # type: ignore[index]
-            groups_val=groups_val, seed=seed, keep_scalers=keep_scalers, windows=probe_windows,
-            logs=[logs[i] for i in keep],  # type: ignore[index]
-            of_another_car=None if of_another_car is None else [of_another_car[i] for i in keep])  # fmt: skip
-        return probe
+    def train_probe(held_in: TrainingData) -> Model:
+        _train(probe, held_in, config, validation, seed, None, keep_scalers, gate=False)  # type: ignore[arg-type]
+        return probe  # type: ignore[return-value]
 
     with intra_op_threads(config.num_threads), torch.random.fork_rng(devices=[]):
-        _fit(
-            model, x, y, config, x_val, y_val, groups_val, seed, callback,
-            history, kl_weight, batch, use_compile, keep_scalers, windows, logs, of_another_car,
-        )  # fmt: skip
-        if gate:
+        _fit(model, data, config, validation, seed, callback, history, kl_weight, batch, use_compile,
+             keep_scalers)  # fmt: skip
+        if gated:
             chosen = choose_correction_weight(
-                train_probe, groups=groups, logs=logs, log_groups=log_groups, windows=windows, seed=seed,
-                min_held_out=model.config.correction_gate_min_held_out,
-            )  # fmt: skip
+                train_probe, data, seed=seed, min_held_out=model.config.correction_gate_min_held_out
+            )
             if chosen is not None:
                 history.correction_weight, history.gate_errors = chosen
-                with torch.no_grad():
-                    model.correction_weight.fill_(history.correction_weight)
+                model.set_correction_weight(history.correction_weight)
     return history
 
 
 def _fit(
     model: Model,
-    x: np.ndarray,
-    y: np.ndarray,
+    data: TrainingData,
     config: TrainingConfig,
-    x_val: np.ndarray | None,
-    y_val: np.ndarray | None,
-    groups_val: np.ndarray | None,
+    validation: TrainingData | None,
     seed: int,
     callback: Callback | None,
     history: History,
@@ -384,12 +374,10 @@ def _fit(
     batch: int,
     use_compile: bool,
     keep_scalers: bool,
-    windows: Windows | None = None,
-    logs: list[tuple[np.ndarray, np.ndarray]] | None = None,
-    of_another_car: Sequence[bool] | None = None,
 ) -> History:
     """The training loop of `fit` (arguments validated, RNG forked, threads set)."""
-    has_val = x_val is not None and y_val is not None
+    x, y = data.x, data.y
+    has_val = validation is not None
     early_stopping = has_val and config.patience is not None
     torch.manual_seed(seed)
     gen = torch.Generator().manual_seed(seed)
@@ -399,10 +387,10 @@ def _fit(
             model.epistemic_scale.fill_(1.0)
     if not keep_scalers:
         model.set_scalers(x, y)
-    model.identify(x, y, logs, of_another_car)  # a physics-structured model fits its parameters first
+    model.identify(data)  # what the kind knows of the car, before its weights train
     xs = model.standardise_inputs(torch.from_numpy(x)).contiguous()
     ys = ((torch.from_numpy(y) - model.y_mean) / model.y_std).contiguous()
-    stepper = _Stepper(model, config, kl_weight, batch, use_compile, windows, gen)
+    stepper = _Stepper(model, config, kl_weight, batch, use_compile, data.windows, gen)
     best_score, best_state, bad_epochs = math.inf, None, 0
 
     for epoch in range(config.epochs):
@@ -419,7 +407,7 @@ def _fit(
         history.kl.append(metrics["kl"])
         score = train_loss
         if has_val:
-            val_nll, val_rmse = _validate(model, x_val, y_val, config.n_eval_samples, seed)  # type: ignore[arg-type]
+            val_nll, val_rmse = _validate(model, validation.x, validation.y, config.n_eval_samples, seed)  # type: ignore[union-attr]
             metrics["val_nll"], metrics["val_rmse"] = val_nll, val_rmse
             history.val_nll.append(val_nll)
             history.val_rmse.append(val_rmse)
@@ -447,12 +435,9 @@ def _fit(
         history.best_epoch = history.n_epochs - 1
     model.eval()
     if config.recalibrate == "validation":
+        assert validation is not None
         history.epistemic_scale = recalibrate_epistemic(
-            model,
-            x_val,
-            y_val,
-            groups=groups_val,
-            seed=seed,  # type: ignore[arg-type]
+            model, validation.x, validation.y, groups=validation.groups, seed=seed
         )
     return history
 
@@ -473,7 +458,7 @@ class _Stepper:
         self.model, self.config, self.kl_weight, self.batch = model, config, kl_weight, batch
         self.windows, self.gen = windows, gen
         self.n_steps = 0
-        self.variational = kl_weight > 0 and _is_variational(model)
+        self.variational = kl_weight > 0 and model.is_variational()
         self.flat = _FlatTrainer(model, config, kl_weight, compiled=True) if use_compile else None
         self.opt = _optimizer([p for p in model.parameters() if p.requires_grad], config)
 

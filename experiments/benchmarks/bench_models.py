@@ -33,6 +33,7 @@ from activelearn.numerics import synthetic as syn
 from activelearn.numerics.models import build_model
 from activelearn.numerics.threads import intra_op_threads
 from activelearn.numerics.training import fit
+from activelearn.numerics.training_data import TrainingData
 from activelearn.numerics.uncertainty import coverage, epistemic_diagnostic, recalibrate_epistemic
 
 N_ROWS = 60_000
@@ -109,7 +110,7 @@ def _median_epoch(
     cfg = TrainingConfig(
         epochs=epochs, batch_size=batch, patience=None, compile=compiled, num_threads=threads
     )
-    h = fit(model, x, y, cfg)
+    h = fit(model, TrainingData(x, y), cfg)
     return statistics.median(h.epoch_time[1:]), h.epoch_time[0]
 
 
@@ -206,7 +207,7 @@ def predict_speed(quick: bool) -> None:
     hybrid = None
     for kind in kinds[:2] if quick else kinds:
         model = build_model(ModelConfig(kind=kind))
-        fit(model, x, y, TrainingConfig(epochs=1, patience=None))
+        fit(model, TrainingData(x, y), TrainingConfig(epochs=1, patience=None))
         hybrid = model if kind == "hybrid" else hybrid
         times = []
         for backend in ("native", "reference"):
@@ -234,7 +235,7 @@ def simulator_ratio(rounds: int) -> None:
     x, y = syn.uniform_rows(2000, seed=0)
     pts = syn.random_points(MANEUVER_ROWS, steering=(-syn.STEER_MAX, syn.STEER_MAX), seed=1)
     model = build_model(ModelConfig())
-    fit(model, x, y, TrainingConfig(epochs=1, patience=None))
+    fit(model, TrainingData(x, y), TrainingConfig(epochs=1, patience=None))
     maneuvers = [simulator.Maneuver(kind, 0.6, steering, "ccw", 90.0)
                  for kind, steering in (("skidpad", 0.3142), ("slalom", 0.4))]  # fmt: skip
     print(f"\n## 3b. Against MuJoCo: one 90-s maneuver ({MANEUVER_ROWS} steps at 30 Hz) vs predict(S=32)\n")
@@ -288,8 +289,13 @@ def calibration(seeds: list[int]) -> None:
             d = syn.calibration_task(seed)
             model = build_model(ModelConfig(**mkw))
             t0 = time.perf_counter()
-            fit(model, d["x"], d["y"], TrainingConfig(**tkw), x_val=d["val_x"], y_val=d["val_y"],
-                groups=d["groups"], seed=seed)  # fmt: skip
+            fit(
+                model,
+                TrainingData(d["x"], d["y"], groups=d["groups"]),
+                TrainingConfig(**tkw),
+                validation=TrainingData(d["val_x"], d["val_y"]),
+                seed=seed,
+            )  # fmt: skip
             vals["fit_s"].append(time.perf_counter() - t0)
             before = epistemic_diagnostic(d["test_truth"], model.predict(d["test_points"], 64, seed=seed))
             noisy_test, noisy_y, _ = syn.repeated_rows(d["test_points"], 5, seed=seed + 3)

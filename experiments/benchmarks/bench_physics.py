@@ -39,6 +39,7 @@ from activelearn.loop.collection import arrays, control_rate_logs, training_rows
 from activelearn.numerics.diagnostics import free_run_metrics, free_runs, relative_pose
 from activelearn.numerics.models import build_model
 from activelearn.numerics.training import fit
+from activelearn.numerics.training_data import TrainingData
 from simulator.datasheet import LOG_RATE_HZ
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -76,15 +77,19 @@ def trained(campaign: Campaign, variant: str, frames: list[pd.DataFrame], seed: 
     if variant in ("datasheet", "core"):
         model.set_scalers(x, y)
         if variant == "core":
-            model.identify(x, y, logs)
+            model.identify(TrainingData(x, y, logs=logs))
         model.corrected = False
         return model
     horizon = cfg.training.rollout_horizon
     windows = training_windows(frames, cfg.data, horizon) if horizon else None
     groups = rows["run_id"].to_numpy() if "run_id" in rows else None
     log_groups = [int(frame["run_id"].iloc[0]) for frame in frames]
-    fit(model, x, y, cfg.training, groups=groups, seed=seed, windows=windows, logs=logs,
-        log_groups=log_groups)  # fmt: skip
+    fit(
+        model,
+        TrainingData(x, y, groups=groups, windows=windows, logs=logs, log_groups=log_groups),
+        cfg.training,
+        seed=seed,
+    )  # fmt: skip
     return model
 
 

@@ -49,6 +49,7 @@ from activelearn.numerics.models import build_model
 from activelearn.numerics.models.physics import control_box_sweep, runs_out_of_bounds
 from activelearn.numerics.surrogate import path_from_rates, simulate
 from activelearn.numerics.training import fit
+from activelearn.numerics.training_data import TrainingData
 from simulator import Maneuver
 from simulator.datasheet import LOG_RATE_HZ
 
@@ -130,13 +131,10 @@ def train(
     started = time.perf_counter()
     fit(
         model,
-        x,
-        y,
+        TrainingData(x, y, windows=windows, logs=control_rate_logs(frames)),
         TrainingConfig(lr=3e-3, epochs=epochs, batch_size=256, patience=None, lr_schedule="cosine",
                        rollout_horizon=horizon),
         seed=seed,
-        windows=windows,
-        logs=control_rate_logs(frames),  # a physics-structured model identifies itself on them
     )  # fmt: skip
     return model, time.perf_counter() - started, len(x)
 

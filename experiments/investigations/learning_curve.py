@@ -55,6 +55,7 @@ from activelearn.loop.prior import PRIOR_FILE, prior_from_rows
 from activelearn.loop.state import SAMPLES_FILE, CampaignState
 from activelearn.numerics.models import build_model
 from activelearn.numerics.training import fit
+from activelearn.numerics.training_data import TrainingData
 from activelearn.seeds import Stream, derived_seed
 
 VARIANTS = ("base", "fixed_scalers", "pool_x_scaler", "equal_rows", "const_steps", "epochs300", "alt_batch")
@@ -127,7 +128,7 @@ def fit_variant(
         training = training.model_copy(update={"epochs": 2 * training.epochs})
     elif variant != "base":
         raise ValueError(variant)
-    fit(model, x, y, training, groups=groups, seed=seed, keep_scalers=keep_scalers)
+    fit(model, TrainingData(x, y, groups=groups), training, seed=seed, keep_scalers=keep_scalers)
     return model
 
 

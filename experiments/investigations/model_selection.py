@@ -34,6 +34,7 @@ from activelearn.config import ModelConfig, TrainingConfig
 from activelearn.numerics import synthetic as syn
 from activelearn.numerics.models import build_model
 from activelearn.numerics.training import fit
+from activelearn.numerics.training_data import TrainingData
 from activelearn.numerics.uncertainty import epistemic_diagnostic, recalibrate_epistemic, rmse
 
 STEER = syn.STEER_MAX
@@ -69,7 +70,7 @@ def novelty_run(overrides: dict, seed: int, train_kw: dict | None = None) -> dic
     y = syn.observe(x, np.random.default_rng(seed + 1))
     model = build_model(ModelConfig(**overrides))
     t0 = time.perf_counter()
-    fit(model, x, y, _train_cfg(**(train_kw or {})), seed=seed)
+    fit(model, TrainingData(x, y), _train_cfg(**(train_kw or {})), seed=seed)
     secs = time.perf_counter() - t0
     on = syn.grid(np.linspace(0.2, 1.0, 9), np.linspace(0.0, STEER, 9))
     off = syn.grid(np.linspace(-1.0, -0.2, 9), np.linspace(-STEER, 0.0, 9))
@@ -89,7 +90,7 @@ def gap_run(overrides: dict, seed: int, train_kw: dict | None = None) -> dict[st
     x = np.concatenate([rng.uniform(-1, -0.3, 500), rng.uniform(0.3, 1, 500)])[:, None]
     y = np.sin(2.5 * x) + 0.05 * rng.standard_normal(x.shape)
     model = build_model(ModelConfig(**{**overrides, "n_inputs": 1, "n_outputs": 1}))
-    fit(model, x, y, _train_cfg(**(train_kw or {})), seed=seed)
+    fit(model, TrainingData(x, y), _train_cfg(**(train_kw or {})), seed=seed)
     inside = np.concatenate([np.linspace(-0.95, -0.35, 20), np.linspace(0.35, 0.95, 20)])[:, None]
     gap = np.linspace(-0.15, 0.15, 20)[:, None]
     beyond = np.concatenate([np.linspace(-1.8, -1.3, 10), np.linspace(1.3, 1.8, 10)])[:, None]
@@ -108,8 +109,11 @@ def calibration_run(overrides: dict, seed: int, train_kw: dict | None = None) ->
     model = build_model(ModelConfig(**overrides))
     t0 = time.perf_counter()
     fit(
-        model, d["x"], d["y"], _train_cfg(**{"epochs": 200, "patience": 30, **(train_kw or {})}),
-        x_val=d["val_x"], y_val=d["val_y"], groups=d["groups"], seed=seed,
+        model,
+        TrainingData(d["x"], d["y"], groups=d["groups"]),
+        _train_cfg(**{"epochs": 200, "patience": 30, **(train_kw or {})}),
+        validation=TrainingData(d["val_x"], d["val_y"]),
+        seed=seed,
     )  # fmt: skip
     secs = time.perf_counter() - t0
     truth = d["test_truth"]
@@ -330,7 +334,7 @@ def issue_tests(seed: int) -> dict[str, float]:
     gap = gap_run({}, seed, fast)
     x, y = syn.uniform_rows(3000, steering=(-STEER, STEER), seed=seed)
     model = build_model(ModelConfig())
-    fit(model, x, y, TrainingConfig(**fast), seed=seed)
+    fit(model, TrainingData(x, y), TrainingConfig(**fast), seed=seed)
     pts = syn.random_points(300, steering=(-STEER, STEER), seed=seed + 10)
     pred = model.predict(pts, 32)
     true = syn.noise_std(pts)
@@ -342,7 +346,7 @@ def issue_tests(seed: int) -> dict[str, float]:
     err = {}
     for kind in ("hybrid", "dnn"):
         m = build_model(ModelConfig(kind=kind))
-        fit(m, xs, ys, TrainingConfig(**fast), seed=seed)
+        fit(m, TrainingData(xs, ys), TrainingConfig(**fast), seed=seed)
         err[kind] = rmse(syn.steady_state(test), m.predict(test, 32))
     cal = calibration_run({}, seed, _SLOW)  # the default TrainingConfig schedule
     return {

@@ -28,6 +28,7 @@ from activelearn.loop.prior import load_prior
 from activelearn.numerics.diagnostics import free_runs, relative_pose
 from activelearn.numerics.models import build_model
 from activelearn.numerics.training import fit
+from activelearn.numerics.training_data import TrainingData
 from simulator.datasheet import LOG_RATE_HZ
 
 PHYSICS = {"model": {"kind": "physics", "kinematic_feature": False}}
@@ -88,8 +89,12 @@ def main() -> None:
             logs, log_groups, _ = campaign.fitting.identification_logs(empty) or (None,) * 3  # black box
             for seed in range(args.seeds):
                 model = build_model(cfg.model)
-                fit(model, x, y, cfg.training, groups=groups, seed=seed, windows=windows, logs=logs,
-                    log_groups=log_groups)  # fmt: skip
+                fit(
+                    model,
+                    TrainingData(x, y, groups=groups, windows=windows, logs=logs, log_groups=log_groups),
+                    cfg.training,
+                    seed=seed,
+                )  # fmt: skip
                 err, cover = errors(model, test.logs, test.truth_logs)
                 if seed == 0:
                     drawn[name] = free_runs(model, [test.logs[i] for _, i in cases], rate_hz=LOG_RATE_HZ)

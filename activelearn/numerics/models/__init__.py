@@ -15,7 +15,7 @@ from activelearn.numerics.models.networks import (
 )
 from activelearn.numerics.models.persistence import load_model, save_model
 from activelearn.numerics.models.physics import PhysicsModel
-from activelearn.numerics.models.registry import MODEL_CLASSES, build_model
+from activelearn.numerics.models.registry import MODEL_CLASSES, build_model, model_class
 from activelearn.numerics.models.residual import ResidualModel
 
 __all__ = [
@@ -38,6 +38,7 @@ __all__ = [
     "StackModel",
     "build_model",
     "load_model",
+    "model_class",
     "parse_arch",
     "resolve_arch",
     "save_model",

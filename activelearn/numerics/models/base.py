@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import functools
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -17,6 +16,7 @@ from activelearn.errors import InputError
 from activelearn.numerics.lags import N_CONTROLS, Lags, model_lags
 from activelearn.numerics.native import NetworkKernel
 from activelearn.numerics.threads import even_blocks, intra_op_threads
+from activelearn.numerics.training_data import TrainingData
 
 # Rows per block on the torch path of `SampledModel` and `predict`. Blocks bound the S × rows × width
 # activations; the per-sample GEMMs of big blocks split well over torch's intra-op threads, while
@@ -332,17 +332,35 @@ class Model(nn.Module, ABC):
     def reset_parameters(self, generator: torch.Generator | None = None) -> None:
         """Re-initialise every learnable parameter from `generator`."""
 
-    def identify(
-        self,
-        x: np.ndarray,
-        y: np.ndarray,
-        logs: list[tuple[np.ndarray, np.ndarray]] | None = None,
-        of_another_car: Sequence[bool] | None = None,
-    ) -> None:
-        """Fit what the kind knows of the car to the training data before its weights train (a hook of
-        `training.fit`; rows x, y in physical units, `logs` as (controls, rates) per maneuver, flagged
-        True in `of_another_car` where they are of another car, e.g. a simulated prior). Networks know
-        nothing beforehand: a no-op."""
+    # ----- hooks for what only some kinds do (neutral here; `training.fit` and the loop call them) ---
+    # Whether the kind identifies itself on whole logs (`TrainingData.logs`) before its weights train:
+    # the loop then hands it the logs, and a prior of another car only centres that identification.
+    identifies_on_logs: ClassVar[bool] = False
+
+    def identify(self, data: TrainingData) -> None:
+        """Fit what the kind knows of the car to the training data before its weights train (rows in
+        physical units, `data.logs` per maneuver, some flagged as another car's). Networks know nothing
+        beforehand: a no-op."""
+
+    def gates_correction(self, data: TrainingData) -> bool:
+        """Whether `training.fit` chooses, on maneuvers held out of `data`, the share of this model's
+        learnt correction to keep (`activelearn.numerics.correction_gate`). A kind without one: False."""
+        return False
+
+    def set_correction_weight(self, weight: float) -> None:
+        """Keep this share of the learnt correction's mean (a kind without a correction: a no-op)."""
+
+    def round_metrics(self) -> dict[str, float]:
+        """What a campaign round records of the fitted model beyond its evaluation (none here)."""
+        return {}
+
+    def physical_parameters(self) -> dict[str, float]:
+        """The identified physical parameters by name (physical units); none for a network."""
+        return {}
+
+    def is_variational(self) -> bool:
+        """Whether the training loss adds the KL divergence (`kl`) of variational layers."""
+        return False
 
     def open_loop_free_runs(
         self,

@@ -102,6 +102,10 @@ class StackModel(Model):
         if not any(self.variational) and self.n_members is None:
             self.has_epistemic = False  # type: ignore[misc]
 
+    def is_variational(self) -> bool:
+        """Whether any layer is variational (its KL then enters the training loss)."""
+        return any(self.variational)
+
     def _stack_inputs(self, config: ModelConfig) -> int:
         """Width the layer stack reads: the inputs and those derived from them, or a trunk's features."""
         return config.n_inputs + derived_inputs(config)

@@ -25,7 +25,6 @@ bounded correction, which is the epistemic band there.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -33,6 +32,7 @@ from torch import Tensor
 
 from activelearn.config import ModelConfig
 from activelearn.errors import InputError
+from activelearn.names import CORRECTION_WEIGHT
 from activelearn.numerics import buffers, counter_noise, native
 from activelearn.numerics.lags import N_CONTROLS, N_RATES, Lags, model_lags
 from activelearn.numerics.models.base import Model, column_scalers, draw_spread
@@ -52,6 +52,7 @@ from activelearn.numerics.models.single_track import (
     single_track_step,
     split_inputs,
 )
+from activelearn.numerics.training_data import TrainingData
 from simulator import datasheet
 
 N_CORRECTIONS = 4  # steady-state residuals (v, ω) and lag factors (v, ω)
@@ -79,6 +80,7 @@ class PhysicsModel(Model):
     # 2-core machine: 16 per block 6.0 s, 32 per block 3.7 s; one lone block runs on the calling
     # thread, whose torch ops then spin their intra-op threads: 19 s).
     rollout_block = 32
+    identifies_on_logs = True
 
     def __init__(self, config: ModelConfig, *, generator: torch.Generator | None = None) -> None:
         if config.n_inputs == N_CONTROLS or config.n_inputs % (N_CONTROLS + N_RATES):
@@ -124,19 +126,14 @@ class PhysicsModel(Model):
         return dict(zip(PARAMETER_NAMES, self.theta.tolist(), strict=True))
 
     @torch.no_grad()
-    def identify(
-        self,
-        x: np.ndarray,
-        y: np.ndarray,
-        logs: list[tuple[np.ndarray, np.ndarray]] | None = None,
-        of_another_car: Sequence[bool] | None = None,
-    ) -> None:
+    def identify(self, data: TrainingData) -> None:
         """Fit the physical parameters: to whole logs by their free runs (`identify_from_logs`) where
         given, else to one-step rows (`identify`). Logs flagged in `of_another_car` (a simulated prior
         grid) only centre the prior the others are identified under (`identify_on_another_car`). A
         no-op with `identify = false`."""
         if not self.config.identify:
             return
+        logs, of_another_car = data.logs, data.of_another_car
         if logs and of_another_car is not None and any(of_another_car):
             flags = list(of_another_car)
             found = identify_on_another_car(
@@ -146,11 +143,26 @@ class PhysicsModel(Model):
         elif logs:
             found = identify_from_logs(logs)
         else:
-            found = identify(x, y, self.dt, self.rate_at)
+            found = identify(np.asarray(data.x), np.asarray(data.y), self.dt, self.rate_at)
         self.theta.copy_(torch.as_tensor(found.values, dtype=torch.float32))
         self.theta_scale.zero_()
         if self.config.parameter_uncertainty == "by_log":
             self.theta_scale.copy_(torch.as_tensor(cholesky_factor(found.covariance), dtype=torch.float32))
+
+    # ----- the correction gate (`activelearn.numerics.correction_gate`) -------------------------
+    def gates_correction(self, data: TrainingData) -> bool:
+        """With `[model] correction_gate`, where `data` has maneuver ids for its rows and logs."""
+        has_ids = data.groups is not None and data.log_groups is not None
+        return bool(self.config.correction_gate and has_ids and data.logs)
+
+    @torch.no_grad()
+    def set_correction_weight(self, weight: float) -> None:
+        """Keep this share of the correction's posterior mean (each draw's deviation from it stays whole)."""
+        self.correction_weight.fill_(weight)
+
+    def round_metrics(self) -> dict[str, float]:
+        """The share of its correction's mean the model keeps (`correction_weight`)."""
+        return {CORRECTION_WEIGHT: float(self.correction_weight)}
 
     @property
     def has_parameter_spread(self) -> bool:

@@ -12,7 +12,12 @@ from activelearn.numerics.models.physics import PhysicsModel
 MODEL_CLASSES: dict[str, type[Model]] = {**NETWORK_CLASSES, PhysicsModel.kind: PhysicsModel}
 
 
+def model_class(cfg: ModelConfig) -> type[Model]:
+    """The class of the model `cfg.kind` describes (its class attributes say what the kind does)."""
+    return MODEL_CLASSES[cfg.kind]
+
+
 def build_model(cfg: ModelConfig, *, seed: int | None = 0) -> Model:
     """Build the model `cfg.kind` describes, its weights initialised from `seed` (None: global RNG)."""
     gen = torch.Generator().manual_seed(seed) if seed is not None else None
-    return MODEL_CLASSES[cfg.kind](cfg, generator=gen)  # type: ignore[call-arg]
+    return model_class(cfg)(cfg, generator=gen)  # type: ignore[call-arg]

@@ -93,6 +93,14 @@ class ResidualModel(nn.Module):
         """The residual's free-run fan scale (its draws make the fan)."""
         return self.residual.fan_scale
 
+    def round_metrics(self) -> dict[str, float]:
+        """What a campaign round records of the model beyond its evaluation: none of a residual model."""
+        return {}
+
+    def open_loop_free_runs(self, *args: Any, **kwargs: Any) -> None:
+        """None: free runs step base and residual together (`Model.open_loop_free_runs`)."""
+        return None
+
     def base_mean(self, x: np.ndarray) -> np.ndarray:
         """The base model's predictive mean at x (N, d), physical units."""
         return self.base.predict(np.asarray(x, dtype=np.float32), n_samples=BASE_SAMPLES, seed=0).mean

@@ -35,6 +35,7 @@ from optuna.trial import FrozenTrial
 from activelearn.config import CampaignConfig, TuningConfig
 from activelearn.numerics.models import build_model
 from activelearn.numerics.training import fit
+from activelearn.numerics.training_data import TrainingData
 from activelearn.studies.tuning.data import Progress, Split
 from activelearn.studies.tuning.space import make_pruner, make_sampler, sample_params, trial_configs
 from activelearn.studies.tuning.storage import (
@@ -163,14 +164,12 @@ class Objective:
         try:
             model_cfg, training_cfg = trial_configs(job.cfg, model, training)
             net = build_model(model_cfg, seed=job.seed)
-            history = fit(
-                net, split.x_train, split.y_train, training_cfg,
-                x_val=split.x_val, y_val=split.y_val, groups=split.groups_train,
-                groups_val=split.groups_val, seed=job.seed, callback=callback,
-                logs=split.training_logs(),  # a physics-structured model identifies itself on them
-            )  # fmt: skip
-            if hasattr(net, "physical_parameters"):
-                trial.set_user_attr("physical_parameters", net.physical_parameters())
+            # a model that identifies itself on whole logs reads them (`Model.identify`)
+            data = TrainingData(split.x_train, split.y_train, split.groups_train, logs=split.training_logs())
+            validation = TrainingData(split.x_val, split.y_val, split.groups_val)
+            history = fit(net, data, training_cfg, validation=validation, seed=job.seed, callback=callback)
+            if parameters := net.physical_parameters():  # what the kind identified, if anything
+                trial.set_user_attr("physical_parameters", parameters)
             best = history.best_epoch
             # A diverged fit has no finite NLL: +inf ranks it last (NaN would mark the trial FAIL).
             values = [_finite_or_inf(history.val_nll[best]), _finite_or_inf(history.val_rmse[best])]
