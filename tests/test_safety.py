@@ -25,25 +25,19 @@ from activelearn.config import (
 )
 from activelearn.errors import ConfigError
 from activelearn.loop.acquisition import make_strategy
-from activelearn.loop.campaign import Campaign, CampaignState
+from activelearn.loop.campaign import Campaign, CampaignState, config_hash
 from activelearn.loop.collection import rows_per_maneuver
 from activelearn.loop.pool import maneuver_controls
-from activelearn.loop.safety import (
-    REASONS,
+from activelearn.loop.safety.kinematic_bound import (
     SPEED_PER_THROTTLE,
-    Assessment,
-    admissible_duration,
     circles_fit,
-    fan,
     kinematic_bound,
-    live_stop,
-    log_violation,
     monotone_steps,
-    relative_std,
-    stop_rule,
     turn_speed,
-    violating,
 )
+from activelearn.loop.safety.limits import REASONS, log_violation, violating
+from activelearn.loop.safety.live_stop import live_stop, stop_rule
+from activelearn.loop.safety.risk import Assessment, admissible_duration, fan, relative_std
 from activelearn.numerics.models import build_model
 from activelearn.numerics.surrogate import Rollout, simulate
 from activelearn.numerics.training import fit
@@ -401,7 +395,9 @@ def test_a_cut_candidate_is_scored_as_it_would_be_driven(tmp_path):
     cfg = safe_config(tmp_path, pool=pool, tracking={"enabled": False})
     campaign = Campaign(cfg, tmp_path / "c")
     whole = campaign.pool([])
-    pool, safe = campaign.admission.safe_pool(whole, None, 0)  # before any model: the kinematic worst case
+    state = CampaignState(config_hash(cfg), cfg.strategy, cfg.seed)
+    pool, admitted = campaign.admit(state, whole, None, 0)  # before any model: the kinematic worst case
+    safe = admitted.safe
     cut = np.flatnonzero(safe.cut)
     assert len(cut) and np.array_equal(pool.affordable, safe.admissible)
     for i in cut:
@@ -433,7 +429,9 @@ def test_every_strategy_picks_among_admissible_candidates_only(tmp_path):
     model = build_model(cfg.model)
     test = campaign.test_set
     fit(model, test.x, test.y_noisy, cfg.training, groups=test.groups, seed=0)
-    pool, safe = campaign.admission.safe_pool(campaign.pool([], model), model, 1)
+    state = CampaignState(config_hash(cfg), cfg.strategy, cfg.seed)
+    pool, admitted = campaign.admit(state, campaign.pool([], model), model, 1)
+    safe = admitted.safe
     admissible = set(np.flatnonzero(safe.admissible).tolist())
     assert 2 <= len(admissible) < len(campaign.maneuvers) and safe.cut.any()
     assert set(pool.available.tolist()) == admissible
