@@ -20,7 +20,7 @@ from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import SimulationCache
 from activelearn.loop.safety.limits import log_violation, placed_path, violations
 from activelearn.loop.safety.live_stop import braked_paths, live_stop, stop_rule
-from activelearn.loop.state import CampaignState
+from activelearn.loop.state import STATE_FILE, CampaignState
 from simulator import Maneuver, NoiseConfig, StopRule, collect, twin_vehicle
 
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
@@ -292,7 +292,9 @@ def test_propose_plot_draws_where_the_live_stop_brakes(tmp_path, monkeypatch):
         return arena_figure(*args, **kwargs)
 
     monkeypatch.setattr(plots, "arena_figure", spy)
+    committed = (campaign.directory / STATE_FILE).read_bytes()
     path = proposal_figure(campaign, tmp_path / "p.png")
+    assert (campaign.directory / STATE_FILE).read_bytes() == committed  # a figure draws, changes nothing
     assert path.stat().st_size > 10_000
     assert drawn["brake_line"] is not None and drawn["brake_line"][3] == pytest.approx(0.21)
     assert "live stop" in drawn["title"] and "limits only" in drawn["title"]

@@ -37,7 +37,7 @@ from activelearn.loop.safety.kinematic_bound import (
 )
 from activelearn.loop.safety.limits import REASONS, log_violation, violating
 from activelearn.loop.safety.live_stop import live_stop, stop_rule
-from activelearn.loop.safety.risk import Assessment, admissible_duration, fan, relative_std
+from activelearn.loop.safety.risk import Assessment, admissible_duration, fan, relative_std, widened
 from activelearn.numerics.models import build_model
 from activelearn.numerics.surrogate import Rollout, simulate
 from activelearn.numerics.training import fit
@@ -322,6 +322,13 @@ def test_fans_place_the_path_where_the_car_logs_it(tmp_path):
     fit(model, test.x, test.y_noisy, cfg.training, groups=test.groups, seed=0)
     skidpads = [m for m in campaign.maneuvers if m.kind == "skidpad"][:2]
     rollout = fan(model, skidpads, cfg.safety, 30.0, seed=4)
+    # [safety] fan_scale widens a copy of the model: the round's model keeps its own scale
+    scale, wider = float(model.epistemic_scale), cfg.safety.model_copy(update={"fan_scale": 3.0})
+    wide = fan(model, skidpads, wider, 30.0, seed=4)
+    assert float(model.epistemic_scale) == scale and not np.allclose(wide.x, rollout.x)
+    copied = widened(model, 3.0)
+    assert copied is not model and float(copied.epistemic_scale) == pytest.approx(9.0 * scale)
+    np.testing.assert_array_equal(fan(copied, skidpads, wider, 30.0, seed=4, widen=False).x, wide.x)
     controls = [maneuver_controls(m, 30.0) for m in skidpads]
     call = dict(rate_hz=30.0, n_samples=cfg.safety.n_samples, seed=4, initial_yaw=0.5)
     at_cg = simulate(model, controls, lever_arm=cfg.data.pose_lever_arm, **call)
