@@ -446,3 +446,32 @@ def arena_figure(
            + f"mean path and 95 % of the fan (margin {margin:g} m; square = end)")  # fmt: skip
     ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=7, framealpha=0.8)
     return fig
+
+
+def proposals_figure(
+    arena: Sequence[tuple[float, float]],
+    start: tuple[float, float, float],
+    proposals: Sequence[dict[str, Any]],
+    *,
+    name: str,
+    batch: int,
+    delta: float,
+    margin: float,
+    reach: float | None = None,
+    brake_at: float | None = None,
+) -> Figure:
+    """A campaign's pending proposals in its [safety] arena (`campaign propose --plot`): `arena_figure`
+    titled with the campaign's `name`, the `batch` and `delta`. `brake_at` (m from a wall, under a
+    live stop) draws the line where the car brakes, where each proposal's paths end."""
+    from activelearn.config.geometry import polygon_clearance
+
+    title = f"{name}: proposals of batch {batch}, delta {delta:g}"
+    brake_line = None
+    if brake_at is not None:
+        title += (f"\nlive stop: the car brakes within margin + stop_buffer = {brake_at:g} m of a wall"
+                  "\n(dashed), so a path ends there (x); the risk counts the limits only")  # fmt: skip
+        lo, hi = np.min(arena, axis=0), np.max(arena, axis=0)
+        gx, gy = np.meshgrid(np.linspace(lo[0], hi[0], 240), np.linspace(lo[1], hi[1], 240))
+        brake_line = (gx, gy, polygon_clearance(arena, gx, gy), brake_at)
+    return arena_figure(arena, start, proposals, margin=margin, reach=reach, title=title,
+                        brake_line=brake_line)  # fmt: skip

@@ -150,7 +150,7 @@ def test_max_epistemic_prefers_the_unseen_region(cfg, model):
 def test_safe_expander_aims_its_data_where_safety_withholds_seconds(cfg, model):
     """Picks among the admitted candidates those that teach the model where [safety] withholds seconds."""
     from activelearn.loop.admission import withhold
-    from activelearn.loop.safety import Assessment
+    from activelearn.loop.safety.risk import Assessment
 
     pool = _pool(cfg)
     throttle = np.array([m.throttle for m in pool.maneuvers])

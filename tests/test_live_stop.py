@@ -18,8 +18,9 @@ from activelearn.config.safety import braking_distance
 from activelearn.errors import ConfigError
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import SimulationCache
-from activelearn.loop.safety import braked_paths, live_stop, log_violation, placed_path, stop_rule, violations
-from activelearn.loop.state import CampaignState
+from activelearn.loop.safety.limits import log_violation, placed_path, violations
+from activelearn.loop.safety.live_stop import braked_paths, live_stop, stop_rule
+from activelearn.loop.state import STATE_FILE, CampaignState
 from simulator import Maneuver, NoiseConfig, StopRule, collect, twin_vehicle
 
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
@@ -274,14 +275,14 @@ def test_braked_paths_end_each_sampled_path_where_the_car_would_brake():
 
 def test_propose_plot_draws_where_the_live_stop_brakes(tmp_path, monkeypatch):
     import activelearn.plots as plots
-    from activelearn.loop.safety import proposal_figure
+    from activelearn.loop.asktell import proposal_figure
 
     cfg = campaign_config(tmp_path, {"stop": "live", "arena": SMALL},
                           design={"initial": 2, "per_round": 2, "max_maneuvers": 4})  # fmt: skip
     campaign = Campaign(cfg, tmp_path / "c")
     assert campaign.propose(figures=False)  # the initial design: no model yet
-    pending = CampaignState.load(campaign.directory).pending
-    logs = campaign.oracle.answer([campaign.driven(i) for i in pending], cfg.seed)
+    state = CampaignState.load(campaign.directory)
+    logs = campaign.oracle.answer([campaign.driven(i, state) for i in state.pending], cfg.seed)
     assert campaign.tell(logs, figures=False)  # round 0's model judges the next batch
     drawn = {}
     arena_figure = plots.arena_figure
@@ -291,7 +292,9 @@ def test_propose_plot_draws_where_the_live_stop_brakes(tmp_path, monkeypatch):
         return arena_figure(*args, **kwargs)
 
     monkeypatch.setattr(plots, "arena_figure", spy)
+    committed = (campaign.directory / STATE_FILE).read_bytes()
     path = proposal_figure(campaign, tmp_path / "p.png")
+    assert (campaign.directory / STATE_FILE).read_bytes() == committed  # a figure draws, changes nothing
     assert path.stat().st_size > 10_000
     assert drawn["brake_line"] is not None and drawn["brake_line"][3] == pytest.approx(0.21)
     assert "live stop" in drawn["title"] and "limits only" in drawn["title"]

@@ -26,25 +26,19 @@ from activelearn.config import (
 from activelearn.errors import ConfigError
 from activelearn.loop.acquisition import make_strategy
 from activelearn.loop.admission import withhold
-from activelearn.loop.campaign import Campaign, CampaignState
+from activelearn.loop.campaign import Campaign, CampaignState, config_hash
 from activelearn.loop.collection import rows_per_maneuver
 from activelearn.loop.pool import maneuver_controls
-from activelearn.loop.safety import (
-    REASONS,
+from activelearn.loop.safety.kinematic_bound import (
     SPEED_PER_THROTTLE,
-    Assessment,
-    admissible_duration,
     circles_fit,
-    fan,
     kinematic_bound,
-    live_stop,
-    log_violation,
     monotone_steps,
-    relative_std,
-    stop_rule,
     turn_speed,
-    violating,
 )
+from activelearn.loop.safety.limits import REASONS, log_violation, violating
+from activelearn.loop.safety.live_stop import live_stop, stop_rule
+from activelearn.loop.safety.risk import Assessment, admissible_duration, fan, relative_std, widened
 from activelearn.numerics.models import build_model
 from activelearn.numerics.surrogate import Rollout, simulate
 from activelearn.numerics.training import fit
@@ -55,6 +49,11 @@ from simulator import FamilyManeuver, Maneuver, collect
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
 SQUARE = [[-1.5, -1.5], [1.5, -1.5], [1.5, 1.5], [-1.5, 1.5]]
 
+
+
+def worst_case(maneuver, cfg, **options):
+    """The kinematic bound of `maneuver` at the simulator's log rate."""
+    return kinematic_bound(maneuver, cfg, rate_hz=30.0, **options)
 
 def safe_config(tmp_path: Path, safety: dict | None = None, **overrides):
     """The smoke pool with straights, a 3 x 3 m arena around the start, writing under tmp_path."""
@@ -188,17 +187,17 @@ def test_a_skidpad_whose_every_circle_fits_is_driven_whole_before_the_model_know
     cfg = SafetyConfig(arena=SQUARE, start=(0.0, 0.7, 0.0), margin=0.16, path_tolerance=0.04, delta=0.05,
                        max_lateral_acceleration=0.2)  # fmt: skip
     tight = Maneuver("skidpad", 0.4, 0.5236, "cw", 30.0)  # centre 0.25-0.5 m to the right: fits
-    assert circles_fit(tight, cfg) and kinematic_bound(tight, cfg) == (0.0, 30.0, 0.0)
+    assert circles_fit(tight, cfg) and worst_case(tight, cfg) == (0.0, 30.0, 0.0)
     reverse = dataclasses.replace(tight, throttle=-0.4)
-    assert kinematic_bound(reverse, cfg) == (0.0, 30.0, 0.0)
+    assert worst_case(reverse, cfg) == (0.0, 30.0, 0.0)
     left = dataclasses.replace(tight, direction="ccw")  # the circle reaches y = 0.7 + 1.0: the wall
-    assert not circles_fit(left, cfg) and kinematic_bound(left, cfg)[1] < 30.0
+    assert not circles_fit(left, cfg) and worst_case(left, cfg)[1] < 30.0
     wide = dataclasses.replace(tight, steering=0.1047)  # radius 1.35-2.7 m
     straight = Maneuver("straight", 0.4, 0.0, "ccw", 30.0)
     for other in (wide, straight, dataclasses.replace(tight, kind="fishhook")):
-        assert not circles_fit(other, cfg) and kinematic_bound(other, cfg)[1] < 30.0, other
+        assert not circles_fit(other, cfg) and worst_case(other, cfg)[1] < 30.0, other
     fast = dataclasses.replace(tight, throttle=1.0)  # fits, but its worst-case rates break a limit
-    assert circles_fit(fast, cfg) and kinematic_bound(fast, cfg)[1] == 0.0
+    assert circles_fit(fast, cfg) and worst_case(fast, cfg)[1] == 0.0
 
 
 def test_the_worst_case_reads_a_family_schedule_step_by_step():
@@ -209,7 +208,7 @@ def test_the_worst_case_reads_a_family_schedule_step_by_step():
     step = FamilyManeuver("throttle_step", {"throttle_start": 0.2, "throttle_end": 1.0, "switch_time": 20.0,
                                             "ramp_time": 0.0, "steering": 0.0}, "ccw", 30.0)  # fmt: skip
     assert step.throttle == pytest.approx(0.2)
-    assert kinematic_bound(step, cfg) == (1.0, 19.0, 0.0)  # the old bound (median throttle) said 30 s
+    assert worst_case(step, cfg) == (1.0, 19.0, 0.0)  # the old bound (median throttle) said 30 s
     # Staircases whose steering only grows stay inside their first circle: whole, forward or in reverse,
     # where a skidpad at the first level fits; a staircase that eases its steering is no spiral.
     box = SafetyConfig(arena=SQUARE, start=(0.0, 0.0, 0.0), margin=0.16, path_tolerance=0.04,
@@ -221,21 +220,21 @@ def test_the_worst_case_reads_a_family_schedule_step_by_step():
 
     up = stairs(0.45, 0.52)
     assert monotone_steps(up.controls(30.0)) == len(up.controls(30.0))
-    assert circles_fit(up, box, steering=0.45, nested=True) and kinematic_bound(up, box) == (0.0, 30.0, 0.0)
+    assert circles_fit(up, box, steering=0.45, nested=True) and worst_case(up, box) == (0.0, 30.0, 0.0)
     wider = stairs(0.3, 0.52)  # its first circle (centre 0.46-0.91 m aside, radius up to 1 m) does not fit
-    assert not circles_fit(wider, box, steering=0.3, nested=True) and kinematic_bound(wider, box)[1] < 30.0
+    assert not circles_fit(wider, box, steering=0.3, nested=True) and worst_case(wider, box)[1] < 30.0
     down = stairs(0.52, 0.45)
-    assert monotone_steps(down.controls(30.0)) == 4 * 30 and kinematic_bound(down, box)[1] < 30.0
+    assert monotone_steps(down.controls(30.0)) == 4 * 30 and worst_case(down, box)[1] < 30.0
     # A fishhook: its ramp reaches 0.5 rad within 2.5 s at 0.2 rad/s (the rest is a tight circle within
     # reach of the start: whole); at the reference 0.006 rad/s it is a long spiral, cut by its reach.
     fast = FamilyManeuver("fishhook", {"throttle": 0.4, "rate": 0.2, "amplitude": 0.5}, "ccw", 60.0)
     slow = FamilyManeuver("fishhook", {"throttle": 0.4, "rate": 0.006, "amplitude": 0.5}, "ccw", 60.0)
     roomy = box.model_copy(update={"arena": [(-2.0, -2.0), (2.0, -2.0), (2.0, 2.0), (-2.0, 2.0)]})
-    assert kinematic_bound(fast, roomy) == (0.0, 60.0, 0.0)  # within 0.29 m + 2 (0.52 + 0.08) m of the start
-    assert kinematic_bound(fast, box)[1] < 60.0  # 1.48 m: more than the 1.3 m of room in the small box
+    assert worst_case(fast, roomy) == (0.0, 60.0, 0.0)  # within 0.29 m + 2 (0.52 + 0.08) m of the start
+    assert worst_case(fast, box)[1] < 60.0  # 1.48 m: more than the 1.3 m of room in the small box
     room = 2.0 - box.margin
     reach = float(np.floor(room / (0.287 * 0.4) - 1 / 30))  # the last whole second before it, a step short
-    assert kinematic_bound(slow, roomy) == (1.0, reach, 0.0)
+    assert worst_case(slow, roomy) == (1.0, reach, 0.0)
 
 
 def test_the_speed_kept_in_turns_is_measured_on_the_logs_and_bounds_reverse_turns_in_mujoco():
@@ -264,8 +263,8 @@ def test_the_speed_kept_in_turns_is_measured_on_the_logs_and_bounds_reverse_turn
     cfg = SafetyConfig(arena=[[-5, -5], [5, -5], [5, 5], [-5, 5]], start=(0.0, 0.0, 0.0),
                        max_lateral_acceleration=0.12)  # fmt: skip
     tight = Maneuver("skidpad", -0.7, 0.43, "cw", 30.0)  # no loss: 0.201 m/s x 0.65 rad/s = 0.131 m/s^2
-    assert kinematic_bound(tight, cfg)[1] == 0.0
-    assert kinematic_bound(tight, cfg, turn=turn) == (0.0, 30.0, 0.0)
+    assert worst_case(tight, cfg)[1] == 0.0
+    assert worst_case(tight, cfg, turn=turn) == (0.0, 30.0, 0.0)
 
 
 def test_log_violation_reads_the_path_in_the_arena_frame():
@@ -286,10 +285,10 @@ def test_a_live_stop_keeps_the_walls_at_run_time_and_leaves_the_limits_to_the_pl
     straight = Maneuver("straight", 1.0, 0.0, "ccw", 20.0)
     planned = SafetyConfig(arena=SQUARE, min_duration=3.0)
     live = planned.model_copy(update={"stop": "live"})
-    assert 0.0 < kinematic_bound(straight, planned)[1] < 10.0
-    assert kinematic_bound(straight, live) == (0.0, 20.0, 0.0)
+    assert 0.0 < worst_case(straight, planned)[1] < 10.0
+    assert worst_case(straight, live) == (0.0, 20.0, 0.0)
     slow = live.model_copy(update={"max_speed": 0.2})  # 0.287 m/s at full throttle breaks it at once
-    assert kinematic_bound(straight, slow)[1] == 0.0
+    assert worst_case(straight, slow)[1] == 0.0
     # In MuJoCo, closed-loop: the car brakes (throttle 0) once its pose comes within margin + stop_buffer
     # of the wall, the log runs on until it stands, and the whole of it, braking included, violates nothing.
     log = collect(straight, rate_hz=30.0, noise=None)
@@ -330,6 +329,13 @@ def test_fans_place_the_path_where_the_car_logs_it(tmp_path):
     fit(model, TrainingData(test.x, test.y_noisy, groups=test.groups), cfg.training, seed=0)
     skidpads = [m for m in campaign.maneuvers if m.kind == "skidpad"][:2]
     rollout = fan(model, skidpads, cfg.safety, 30.0, seed=4)
+    # [safety] fan_scale widens a copy of the model: the round's model keeps its own scale
+    scale, wider = float(model.epistemic_scale), cfg.safety.model_copy(update={"fan_scale": 3.0})
+    wide = fan(model, skidpads, wider, 30.0, seed=4)
+    assert float(model.epistemic_scale) == scale and not np.allclose(wide.x, rollout.x)
+    copied = widened(model, 3.0)
+    assert copied is not model and float(copied.epistemic_scale) == pytest.approx(9.0 * scale)
+    np.testing.assert_array_equal(fan(copied, skidpads, wider, 30.0, seed=4, widen=False).x, wide.x)
     controls = [maneuver_controls(m, 30.0) for m in skidpads]
     call = dict(rate_hz=30.0, n_samples=cfg.safety.n_samples, seed=4, initial_yaw=0.5)
     at_cg = simulate(model, controls, lever_arm=cfg.model.pose_lever_arm, **call)
@@ -403,7 +409,9 @@ def test_a_cut_candidate_is_scored_as_it_would_be_driven(tmp_path):
     cfg = safe_config(tmp_path, pool=pool, tracking={"enabled": False})
     campaign = Campaign(cfg, tmp_path / "c")
     whole = campaign.pool([])
-    pool, safe = campaign.admission.safe_pool(whole, None, 0)  # before any model: the kinematic worst case
+    state = CampaignState(config_hash(cfg), cfg.strategy, cfg.seed)
+    pool, admitted = campaign.admit(state, whole, None, 0)  # before any model: the kinematic worst case
+    safe = admitted.safe
     cut = np.flatnonzero(safe.cut)
     assert len(cut) and np.array_equal(pool.affordable, safe.admissible)
     for i in cut:
@@ -437,7 +445,9 @@ def test_every_strategy_picks_among_admissible_candidates_only(tmp_path):
     model = build_model(cfg.model)
     test = campaign.test_set
     fit(model, TrainingData(test.x, test.y_noisy, groups=test.groups), cfg.training, seed=0)
-    pool, safe = campaign.admission.safe_pool(campaign.pool([], model), model, 1)
+    state = CampaignState(config_hash(cfg), cfg.strategy, cfg.seed)
+    pool, admitted = campaign.admit(state, campaign.pool([], model), model, 1)
+    safe = admitted.safe
     admissible = set(np.flatnonzero(safe.admissible).tolist())
     assert 2 <= len(admissible) < len(campaign.maneuvers) and safe.cut.any()
     assert set(pool.available.tolist()) == admissible

@@ -159,7 +159,7 @@ def _campaign_propose(args: argparse.Namespace) -> int:
     if cfg.safety is not None:
         _print_safety(campaign, state)
     if plot is not None:
-        from activelearn.loop.safety import proposal_figure
+        from activelearn.loop.asktell import proposal_figure
 
         print(f"wrote {proposal_figure(campaign, plot)}")
     print(f"then: activelearn campaign ingest {directory} LOG...")

@@ -109,7 +109,7 @@ class SafetyConfig(_Section):
     measured_turn_speed: bool = Field(
         True,
         description="The kinematic worst case takes the speed the car kept in its own logged steady turns "
-        "(`activelearn.loop.safety.turn_speed`); false assumes no speed is lost in turns",
+        "(`activelearn.loop.safety.kinematic_bound.turn_speed`); false assumes no speed is lost in turns",
     )
     # Nigel stops within 1.7 cm and 0.17 s from any speed in MuJoCo (results/bench_safety.txt); 2.4 cm from
     # the triggering pose at top speed with the 30-Hz pose's latency (BRAKE_DECELERATION above).

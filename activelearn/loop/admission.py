@@ -1,74 +1,81 @@
-"""[safety] in a round: the pool cut down to what it admits, the risks of the picks, what a round logs.
+"""[safety] in a round: what the assessment admits of the pool, the picks' risks and cuts, what a round logs.
 
-The assessment itself (fans against the arena and the limits) is `activelearn.loop.safety.assess`;
+The admission only returns values: the `Campaign` records them (the one writer of the state). The
+assessment itself (fans against the arena and the limits) is `activelearn.loop.safety.risk.assess`;
 the campaign's `assess` hook calls it (a benchmark's clairvoyant safe set replaces it).
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
 from activelearn.config import CampaignConfig
-from activelearn.loop.budget import Budget
 from activelearn.loop.history import Withheld
-from activelearn.loop.safety import Assessment
+from activelearn.loop.safety.risk import Assessment
 from activelearn.loop.state import CampaignState
 from activelearn.loop.strategy import Pool
 from activelearn.names import VIOLATIONS
 
-Assess = Callable[[Any, int, np.ndarray, "pd.DataFrame | None"], Assessment]
-Rebuild = Callable[..., Pool]
+
+@dataclass(frozen=True)
+class Admitted:
+    """What [safety] admits of a round's pool.
+
+    pool: (enforced) the pool with the affordable candidates and their costs as they would be driven.
+    safe: the assessment. withheld: what it withholds of the open candidates' seconds. costs: (n,)
+    seconds of each candidate as driven (None: not enforced, the whole costs count). driven: the
+    candidates as they would be driven where some are cut (None: none cut); the pool's points must be
+    rebuilt from them.
+    """
+
+    pool: Pool
+    safe: Assessment
+    withheld: Withheld
+    costs: np.ndarray | None = None
+    driven: list[Any] | None = None
+
+    def verdicts(self, picks: Sequence[int], enforce: bool) -> tuple[dict[str, float], dict[str, float]]:
+        """The picks' risks and, where [safety] is enforced, the shorter durations of those cut (pool
+        index -> probability / seconds): what the state records of a proposed batch."""
+        safe = self.safe
+        risks = {str(i): float(safe.cut_risk[i] if safe.admissible[i] else safe.risk[i]) for i in picks}
+        cuts = {str(i): float(safe.duration[i]) for i in picks if safe.cut[i] and enforce}
+        return risks, cuts
 
 
 class Admission:
-    """Applies a campaign's [safety] to its pools and picks (nothing without [safety]).
+    """Applies a campaign's [safety] to its pools (`admit`) and says what a round logs of it (`metrics`)."""
 
-    `assess(model, round_index, open_, samples)`: the assessment of the open candidates; `rebuild(taken,
-    model, maneuvers=...)`: the pool of the candidates as they would be driven (cut ones shorter).
-    """
-
-    def __init__(
-        self, cfg: CampaignConfig, maneuvers: Sequence[Any], budget: Budget, *, assess: Assess,
-        rebuild: Rebuild,
-    ) -> None:  # fmt: skip
+    def __init__(self, cfg: CampaignConfig, maneuvers: Sequence[Any]) -> None:
         self.cfg = cfg
         self.maneuvers = maneuvers
-        self.budget = budget
-        self.assess = assess
-        self.rebuild = rebuild
 
-    def safe_pool(
-        self, pool: Pool, model: Any | None, round_index: int, taken: Sequence[int] = (),
-        samples: pd.DataFrame | None = None,
-    ) -> tuple[Pool, Assessment | None]:  # fmt: skip
-        """The pool restricted to the candidates [safety] admits, and their assessment (None: no [safety])."""
+    def admit(self, pool: Pool, safe: Assessment, spent: float) -> Admitted:
+        """`pool` cut down to what `safe` admits; `spent`: the track seconds the campaign spent so far."""
         safety = self.cfg.safety
-        if safety is None:
-            return pool, None
-        safe = self.assess(model, round_index, ~pool.taken, samples)
+        assert safety is not None
+        withheld = withhold(pool, safe)
         if not safety.enforce:
-            return pool, safe
+            return Admitted(pool, safe, withheld)
+        driven = None
         if safe.cut.any():  # score each candidate as it would be driven: a cut one by its first seconds
             driven = [
                 dataclasses.replace(m, duration=float(safe.duration[i])) if safe.cut[i] else m
                 for i, m in enumerate(self.maneuvers)
             ]
-            rebuilt = self.rebuild(list(np.flatnonzero(pool.taken)), model, maneuvers=driven)
-            fields = {name: getattr(rebuilt, name) for name in ("points", "owner", "weights")}
-            pool = dataclasses.replace(pool, **fields)
         # what each candidate costs as it would be driven (cut short or whole), for the seconds budget
         costs = np.where(safe.admissible, safe.duration, safe.full) + self.cfg.design.setup_seconds
-        self.budget.pick_costs = costs
         affordable = safe.admissible
         budget = self.cfg.design.max_sim_seconds
         if budget is not None:
-            affordable = affordable & (costs <= budget - self.budget.track_seconds(taken) + 1e-9)
-        return dataclasses.replace(pool, affordable=affordable, costs=costs), safe
+            affordable = affordable & (costs <= budget - spent + 1e-9)
+        pool = dataclasses.replace(pool, affordable=affordable, costs=costs)
+        return Admitted(pool, safe, withheld, costs, driven)
 
     @staticmethod
     def metrics(state: CampaignState, safe: Assessment | None, seconds: float) -> dict[str, float]:
@@ -86,13 +93,6 @@ class Admission:
                 safety_seconds=seconds,
             )
         return metrics
-
-    def record(self, state: CampaignState, picks: list[int], safe: Assessment) -> None:
-        """Record the picks' risks and, where [safety] is enforced, the shorter durations of those cut."""
-        for i in picks:
-            state.risks[str(i)] = float(safe.cut_risk[i] if safe.admissible[i] else safe.risk[i])
-            if safe.cut[i] and self.cfg.safety.enforce:  # type: ignore[union-attr]
-                state.cuts[str(i)] = float(safe.duration[i])
 
 
 def withhold(pool: Pool, safe: Assessment) -> Withheld:

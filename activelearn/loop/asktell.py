@@ -8,7 +8,7 @@ ramp, oscillating), within the `[oracle]` tolerances; among the proposals of a f
 fit, the one whose schedule (proposals/round-NNN/*.csv) is closest to the log's commands. Everything
 is checked before anything is written: a malformed or cut-off log, a log already ingested (same
 content) or one that answers no open proposal is one error naming the file and the reason, and the
-campaign directory stays as it was.
+campaign directory stays as it was. `proposal_figure` draws the pending batch for the driver.
 """
 
 from __future__ import annotations
@@ -29,7 +29,9 @@ from activelearn.errors import InputError
 from activelearn.loop import lock
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.pool import maneuver_controls
-from activelearn.loop.state import CONFIG_FILE, STAGED_DIR, STATE_FILE, CampaignState
+from activelearn.loop.proposals import proposal_figure as draw_proposals
+from activelearn.loop.state import CONFIG_FILE, MODEL_FILE, STAGED_DIR, STATE_FILE, CampaignState
+from activelearn.numerics.models import load_model
 from simulator import FamilyManeuver
 
 
@@ -101,10 +103,8 @@ def match_logs(campaign: Campaign, state: CampaignState, logs: Sequence[LogFile]
     safety = campaign.cfg.safety
     live = safety is not None and safety.stop == "live" and safety.enforce
     open_ = [i for i in state.pending if str(i) not in state.staged]
-    expected = {
-        i: signature(maneuver_controls(campaign.driven(i), rate), rate, cfg.steering_tolerance)
-        for i in open_
-    }
+    driven = {i: campaign.driven(i, state) for i in open_}  # as the state says they are driven (cut short)
+    expected = {i: signature(maneuver_controls(driven[i], rate), rate, cfg.steering_tolerance) for i in open_}
     matched: dict[int, LogFile] = {}
     for log in logs:
         if log.digest in seen:
@@ -115,7 +115,7 @@ def match_logs(campaign: Campaign, state: CampaignState, logs: Sequence[LogFile]
         controls = log.table[["throttle", "steering"]].to_numpy(dtype=np.float64)
         got = signature(controls, rate, cfg.steering_tolerance)
         if live:  # a stop at a wall ends a log early: judge it against the proposals' first seconds
-            first = {i: maneuver_controls(campaign.driven(i), rate)[: len(controls)] for i in open_}
+            first = {i: maneuver_controls(driven[i], rate)[: len(controls)] for i in open_}
             expected = {i: signature(first[i], rate, cfg.steering_tolerance) for i in open_}
         candidates = [
             i
@@ -128,15 +128,15 @@ def match_logs(campaign: Campaign, state: CampaignState, logs: Sequence[LogFile]
         ]
         if not candidates:
             still = "; ".join(
-                f"{campaign.driven(i).name} ({_describe(expected[i])})" for i in open_ if i not in matched
+                f"{driven[i].name} ({_describe(expected[i])})" for i in open_ if i not in matched
             )
             raise InputError(
                 "LOG",
                 str(log.path),
                 f"matches no open proposal: it drove {_describe(got)}; open: {still or 'none'}",
             )
-        best = min(candidates, key=lambda i: _closeness(campaign.driven(i), controls, got, expected[i], rate))
-        proposed = campaign.driven(best).duration
+        best = min(candidates, key=lambda i: _closeness(driven[i], controls, got, expected[i], rate))
+        proposed = driven[best].duration
         span = float(log.table["time"].iloc[-1] - log.table["time"].iloc[0])
         if span < (1.0 - cfg.duration_tolerance) * proposed and not live:
             raise InputError("LOG", str(log.path), f"is cut off: {span:.1f} s of the proposed {proposed:g} s")
@@ -186,8 +186,7 @@ def ingest(campaign: Campaign, paths: Sequence[str | Path], *, resume: bool = Fa
     refused (its step must be finished first); `resume=True` finishes it, with or without new logs.
     """
     directory = campaign.directory
-    state = CampaignState.load(directory)
-    campaign.cuts = dict(state.cuts)  # [safety]: proposals cut short are driven (and matched) short
+    state = CampaignState.load(directory)  # [safety]: proposals cut short are driven (and matched) short
     if state.finished:
         raise InputError("DIR", str(directory), f"the campaign has finished ({state.stop_reason})")
     if state.pending is None:
@@ -208,8 +207,8 @@ def ingest(campaign: Campaign, paths: Sequence[str | Path], *, resume: bool = Fa
     for index, log in matched.items():
         write_table(log.table, directory / STAGED_DIR / f"{index}.parquet")
         state.staged[str(index)] = log.digest
-    names = {str(log.path): campaign.driven(i).name for i, log in matched.items()}
-    missing = [campaign.driven(i) for i in state.pending if str(i) not in state.staged]
+    names = {str(log.path): campaign.driven(i, state).name for i, log in matched.items()}
+    missing = [campaign.driven(i, state) for i in state.pending if str(i) not in state.staged]
     state.save(directory)  # staged logs are kept: a later ingest (or --resume) completes the batch
     if missing:
         return IngestReport(names, missing, [], None, False)
@@ -224,3 +223,16 @@ def _report(campaign: Campaign, names: dict[str, str], proposals: list[Any]) -> 
     state = CampaignState.load(campaign.directory)
     path = campaign.proposal_path(state) if proposals else None
     return IngestReport(names, [], proposals, path, state.finished)
+
+
+def proposal_figure(campaign: Campaign, path: str | Path) -> Path:
+    """Draw the pending proposals of a campaign's directory in its arena (`campaign propose --plot`).
+
+    The fans come from the model that judged them: the round's, or a warm start's prior model for the
+    initial design (without either, the kinematic worst case's reach is drawn instead).
+    """
+    state = CampaignState.load(campaign.directory)
+    model_file = campaign.directory / MODEL_FILE
+    model = load_model(model_file) if state.rounds and model_file.exists() else campaign.fitting.prior_model()
+    driven = [campaign.driven(i, state) for i in state.pending or []]
+    return draw_proposals(campaign.cfg, state, model, driven, path)

@@ -7,7 +7,7 @@ maneuver (`[design] setup_seconds`); a seconds budget makes candidates that no l
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -19,32 +19,30 @@ from activelearn.loop.state import CampaignState
 class Budget:
     """How much of a campaign's budget its collected maneuvers spent, and how many the next round may take.
 
-    `costs`: each candidate's seconds whole (duration + set-up); `driven(i)`: candidate i as driven.
-    `pick_costs`: this round's costs as [safety] would drive the candidates (set by the admission),
-    which the seconds budget of the round's picks then counts.
+    `costs`: each candidate's seconds whole (duration + set-up); `maneuvers`: the candidates, whole.
+    What was driven is read off the state: its taken candidates, cut to `state.cuts` where [safety] cut.
     """
 
-    def __init__(self, cfg: CampaignConfig, costs: np.ndarray, driven: Callable[[int], Any]) -> None:
+    def __init__(self, cfg: CampaignConfig, costs: np.ndarray, maneuvers: Sequence[Any]) -> None:
         self.cfg = cfg
         self.costs = costs
-        self.driven = driven
+        self.maneuvers = maneuvers
         self.n_candidates = len(costs)
-        self.pick_costs: np.ndarray | None = None
 
-    def sim_seconds(self, taken: list[int]) -> float:
+    def sim_seconds(self, state: CampaignState) -> float:
         """Seconds of driving the collected maneuvers took (durations as driven)."""
-        return float(sum(self.driven(i).duration for i in taken))
+        return float(sum(state.cuts.get(str(i), self.maneuvers[i].duration) for i in state.taken))
 
-    def track_seconds(self, taken: list[int]) -> float:
+    def track_seconds(self, state: CampaignState) -> float:
         """Seconds of track time spent: durations (as driven) plus the set-up time of every maneuver."""
-        return self.sim_seconds(taken) + self.cfg.design.setup_seconds * len(taken)
+        return self.sim_seconds(state) + self.cfg.design.setup_seconds * len(state.taken)
 
     def affordable(self, state: CampaignState) -> np.ndarray | None:
         """Candidates that still fit the seconds budget (None without one)."""
         budget = self.cfg.design.max_sim_seconds
         if budget is None:
             return None
-        return self.costs <= budget - self.track_seconds(state.taken) + 1e-9
+        return self.costs <= budget - self.track_seconds(state) + 1e-9
 
     def next_batch_size(self, state: CampaignState) -> tuple[int, str | None]:
         """How many maneuvers the next round may collect, or 0 and the reason to stop."""
@@ -70,14 +68,19 @@ class Budget:
             return 0, "pool_exhausted"
         return k, None
 
-    def within_budget(self, state: CampaignState, picks: list[int]) -> list[int]:
-        """The picks, in pick order, that fit the seconds budget together (later ones wait a round)."""
+    def within_budget(
+        self, state: CampaignState, picks: list[int], costs: np.ndarray | None = None
+    ) -> list[int]:
+        """The picks, in pick order, that fit the seconds budget together (later ones wait a round).
+
+        `costs`: this round's costs as [safety] would drive the candidates (default: whole).
+        """
         budget = self.cfg.design.max_sim_seconds
         if budget is None:
             return picks
-        room = budget - self.track_seconds(state.taken) + 1e-9
+        room = budget - self.track_seconds(state) + 1e-9
         kept = []
-        costs = self.costs if self.pick_costs is None else self.pick_costs
+        costs = self.costs if costs is None else costs
         for pick in picks:
             if costs[pick] <= room:
                 kept.append(pick)

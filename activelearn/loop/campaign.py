@@ -39,7 +39,7 @@ from activelearn.data import atomic_write_bytes, read_table, write_table
 from activelearn.errors import ActiveLearnError, InputError
 from activelearn.loop import lock
 from activelearn.loop.acquisition import Pool, Strategy, greedy_maximin, make_strategy
-from activelearn.loop.admission import Admission, withhold
+from activelearn.loop.admission import Admission, Admitted
 from activelearn.loop.budget import Budget, total_rounds
 from activelearn.loop.collection import SimulationCache, TestSet, cache_root, truth_rows
 from activelearn.loop.evaluation import Evaluation, applied_scale
@@ -51,7 +51,10 @@ from activelearn.loop.prior import PRIOR_FILE, Prior, load_prior, prior_from_row
 from activelearn.loop.proposals import proposal_path, write_proposals
 from activelearn.loop.round_figure import draw_round
 from activelearn.loop.run_log import CampaignInterrupted, Progress, RunLog
-from activelearn.loop.safety import Assessment, assess, live_stop, turn_speed, violations
+from activelearn.loop.safety.kinematic_bound import turn_speed
+from activelearn.loop.safety.limits import violations
+from activelearn.loop.safety.live_stop import live_stop
+from activelearn.loop.safety.risk import Assessment, assess
 from activelearn.loop.state import (
     CONFIG_FILE,
     MODEL_FILE,
@@ -143,13 +146,12 @@ class Campaign:
         self.costs = maneuver_costs(cfg, self.maneuvers)
         self.fitting = Fitting(cfg, self.directory)
         self.evaluation = Evaluation(cfg, self.oracle, self.maneuvers, self.fitting.rows)
-        self.budget = Budget(cfg, self.costs, self.driven)
-        self.admission = Admission(cfg, self.maneuvers, self.budget, assess=self.assess, rebuild=self.pool)
+        self.budget = Budget(cfg, self.costs, self.maneuvers)
+        self.admission = Admission(cfg, self.maneuvers)
         self._model: Any | None = None  # the model of the last fitted round, while in memory
         self._target: tuple[np.ndarray, np.ndarray] | None = None
         self._clock = (0.0, time.perf_counter())
         self._truth: CandidateTruth | None = None
-        self.cuts: dict[str, float] = {}  # the state's [safety] cuts (pool index -> seconds)
 
     # Set after construction by commands and scripts; the rooms that use them read them here.
     @property
@@ -187,9 +189,10 @@ class Campaign:
             tagged.append(frame)
         return pd.concat(tagged, ignore_index=True)
 
-    def collect(self, indices: list[int], batch: int) -> pd.DataFrame:
-        """Ask the oracle for the chosen maneuvers (simulated, noised with this campaign's seed)."""
-        chosen = [self.driven(i) for i in indices]
+    def collect(self, indices: list[int], batch: int, state: CampaignState | None = None) -> pd.DataFrame:
+        """Ask the oracle for the chosen maneuvers (simulated, noised with this campaign's seed), as driven
+        under `state`'s [safety] cuts (None: whole)."""
+        chosen = [self.maneuvers[i] if state is None else self.driven(i, state) for i in indices]
         return self.label(self._stopped(self.oracle.answer(chosen, self.cfg.seed)), indices, batch)
 
     def _stopped(self, logs: list[pd.DataFrame]) -> list[pd.DataFrame]:
@@ -204,7 +207,7 @@ class Campaign:
         """The pending batch's logs: those `ingest` took in already (staged), the oracle answers the rest."""
         assert state.pending is not None
         asked = [i for i in state.pending if str(i) not in state.staged]
-        answered = self.oracle.answer([self.driven(i) for i in asked], self.cfg.seed) if asked else []
+        answered = self.oracle.answer([self.driven(i, state) for i in asked], self.cfg.seed) if asked else []
         answered = self._stopped(answered)
         answers = dict(zip(asked, answered, strict=True))
         frames = [
@@ -213,9 +216,9 @@ class Campaign:
         ]
         return self.label(frames, state.pending, len(state.batches))
 
-    def driven(self, index: int) -> Any:
-        """Candidate `index` as it is driven: cut to a shorter duration where [safety] said so."""
-        cut = self.cuts.get(str(index))
+    def driven(self, index: int, state: CampaignState) -> Any:
+        """Candidate `index` as it is driven: cut short where `state` records a [safety] cut."""
+        cut = state.cuts.get(str(index))
         maneuver = self.maneuvers[index]
         return maneuver if cut is None else dataclasses.replace(maneuver, duration=cut)
 
@@ -296,7 +299,7 @@ class Campaign:
         self, state: CampaignState, samples: pd.DataFrame, batch: list[int], round_index: int, model: Any
     ) -> float:
         """Test RMSE of the next round's model if `batch` were collected (`History.trial`)."""
-        new = self.collect(batch, len(state.batches))
+        new = self.collect(batch, len(state.batches), state)
         more = pd.concat([samples, new], ignore_index=True)
         trial = self.fitting.fit(more, round_index + 1, previous=model)
         return self.evaluation.evaluate(trial, rollouts=False)["test_rmse"]
@@ -314,13 +317,30 @@ class Campaign:
         seed = derived_seed(self.cfg.seed, Stream.ROUND, round_index)  # the fan of the round's model
         return assess(model, self.maneuvers, safety, rate_hz=rate, seed=seed, which=open_, turn=turn)
 
-    def _set_pending(self, state: CampaignState, picks: list[int], safe: Assessment | None) -> None:
+    def admit(
+        self, state: CampaignState, pool: Pool, model: Any | None, round_index: int,
+        samples: pd.DataFrame | None = None,
+    ) -> tuple[Pool, Admitted | None]:  # fmt: skip
+        """The pool cut down to what [safety] admits, and the admission (None: no [safety])."""
+        if self.cfg.safety is None:
+            return pool, None
+        safe = self.assess(model, round_index, ~pool.taken, samples)
+        admitted = self.admission.admit(pool, safe, self.budget.track_seconds(state))
+        pool = admitted.pool
+        if admitted.driven is not None:  # the points of the candidates as they would be driven
+            rebuilt = self.pool(list(np.flatnonzero(pool.taken)), model, maneuvers=admitted.driven)
+            fields = {name: getattr(rebuilt, name) for name in ("points", "owner", "weights")}
+            pool = dataclasses.replace(pool, **fields)
+        return pool, admitted
+
+    def _set_pending(self, state: CampaignState, picks: list[int], admitted: Admitted | None) -> None:
         """Propose `picks`; with [safety], record their risks and the shorter durations of those cut."""
         state.pending = picks
-        if safe is None:
+        if admitted is None:
             return
-        self.admission.record(state, picks, safe)
-        self.cuts = dict(state.cuts)
+        risks, cuts = admitted.verdicts(picks, self.cfg.safety.enforce)  # type: ignore[union-attr]
+        state.risks.update(risks)
+        state.cuts.update(cuts)
 
     # ------------------------------------------------------------------ checkpoints
 
@@ -405,14 +425,14 @@ class Campaign:
         """Fit and evaluate the round's model (or take the initial design), then propose the next batch."""
         if not state.batches and self.cfg.design.initial > 0:
             prior_model = self.fitting.prior_model()
-            pool, safe = self.admission.safe_pool(self.pool([]), prior_model, 0, samples=samples)
+            pool, admitted = self.admit(state, self.pool([]), prior_model, 0, samples)
             k = min(self.cfg.design.initial, len(pool.available))  # [safety] may admit fewer
             if k == 0:
                 state.finished, state.stop_reason = True, "nothing_admissible"
                 self._checkpoint(state, None, None)
                 return
             initial = greedy_maximin(pool, k, derived_rng(self.cfg.seed, Stream.INITIAL))
-            self._set_pending(state, initial, safe)
+            self._set_pending(state, initial, admitted)
             self._checkpoint(state, None, None)
             return
         round_index = len(state.rounds)
@@ -432,21 +452,18 @@ class Campaign:
         metrics.update(
             n_samples=len(x),
             n_maneuvers=len(state.taken),
-            sim_seconds=self.budget.sim_seconds(state.taken),
-            track_seconds=self.budget.track_seconds(state.taken),
+            sim_seconds=self.budget.sim_seconds(state),
+            track_seconds=self.budget.track_seconds(state),
         )
         metrics["wall_seconds"] = state.wall_seconds = self._wall()
         k, reason = self.budget.next_batch_size(state)
         pool = self.pool(state.taken, model, self.budget.affordable(state))
-        safe: Assessment | None = None
-        withheld: Withheld | None = None
+        admitted: Admitted | None = None
         if reason is None:
             started = time.perf_counter()
-            whole = pool
-            pool, safe = self.admission.safe_pool(pool, model, round_index, state.taken, samples)
-            withheld = withhold(whole, safe) if safe is not None else None
-            if safe is not None:
-                metrics.update(self.admission.metrics(state, safe, time.perf_counter() - started))
+            pool, admitted = self.admit(state, pool, model, round_index, samples)
+            if admitted is not None:
+                metrics.update(self.admission.metrics(state, admitted.safe, time.perf_counter() - started))
                 k = min(k, len(pool.available))
                 reason = "nothing_admissible" if k <= 0 else None
         elif self.cfg.safety is not None:
@@ -458,21 +475,22 @@ class Campaign:
         picks: list[int] = []
         if reason is None:
             rng = derived_rng(self.cfg.seed, Stream.PICKS, round_index)
+            withheld = admitted.withheld if admitted is not None else None
             history = self.strategy_history(
                 state, withheld, trial=lambda batch: self._trial(state, samples, batch, round_index, model)
             )
             picks = self.strategy.pick(model, pool, k, rng, history)
-            picks = self.budget.within_budget(state, picks)
+            picks = self.budget.within_budget(state, picks, admitted.costs if admitted is not None else None)
             metrics.update(self.strategy.round_metrics())
         if figures:
             draw_round(self.cfg, self.directory, model, maneuvers=self.maneuvers, scale=self.test_set.scale,
-                       taken=state.taken, picks=picks, driven=self.driven,
+                       taken=state.taken, picks=picks, driven=lambda i: self.driven(i, state),
                        prior=list(self.prior.runs) if self.prior is not None else (),
                        round_index=round_index)  # fmt: skip
         state.stamps.extend([int(time.time() * 1000)] * (len(state.rounds) + 1 - len(state.stamps)))
         state.rounds.append(metrics)
         if picks:
-            self._set_pending(state, picks, safe)
+            self._set_pending(state, picks, admitted)
         else:
             state.finished, state.stop_reason = True, reason or "max_sim_seconds"
         self._model = model
@@ -513,7 +531,6 @@ class Campaign:
             if state.rounds and "test_rmse" in state.rounds[-1]:
                 state.rounds.pop()
             state.logged = min(state.logged, len(state.rounds))
-        self.cuts = dict(state.cuts)
         self._clock = (state.wall_seconds, time.perf_counter())
         self.run_log.start(state, self._params)
         if state.rounds:  # a resumed run may hold rounds that never reached MLflow
@@ -559,7 +576,7 @@ class Campaign:
             return []
         assert state.pending is not None
         self._write_proposals(state)
-        return [self.driven(i) for i in state.pending]
+        return [self.driven(i, state) for i in state.pending]
 
     def history(self) -> pd.DataFrame:
         """One row per fitted round with every logged metric (from the directory's state)."""
@@ -571,7 +588,7 @@ class Campaign:
 
     def _write_proposals(self, state: CampaignState) -> Path:
         assert state.pending is not None
-        driven = [self.driven(i) for i in state.pending]
+        driven = [self.driven(i, state) for i in state.pending]
         return write_proposals(self.cfg, self.directory, state, self.maneuvers, driven)
 
     @lock.writer

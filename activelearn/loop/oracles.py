@@ -47,7 +47,7 @@ class Oracle(ABC):
     kind: ClassVar[str]
     automatic: ClassVar[bool] = True  # answers by itself (False: a person drives, `ingest` answers)
     # its answers already hold a live stop's braking (simulated closed-loop); False: a log that passes
-    # the trigger is cut there (`activelearn.loop.safety.live_stop`)
+    # the trigger is cut there (`activelearn.loop.safety.live_stop.live_stop`)
     drives_stop: ClassVar[bool] = False
 
     @abstractmethod
@@ -84,7 +84,7 @@ class SimulatorOracle(Oracle):
     """The MuJoCo model (nominal, or a twin with overrides): simulated once per maneuver, noised per seed.
 
     Under an enforced live stop (`[safety] stop = "live"`) the answers are driven with the stop closed
-    in MuJoCo (`activelearn.loop.safety.stop_rule`): the car brakes near a wall and its log runs on
+    in MuJoCo (`activelearn.loop.safety.live_stop.stop_rule`): the car brakes near a wall and its log runs on
     until it stands. The test set is simulated without it.
     """
 
@@ -92,7 +92,7 @@ class SimulatorOracle(Oracle):
     drives_stop = True
 
     def __init__(self, cfg: CampaignConfig, cache: SimulationCache) -> None:
-        from activelearn.loop.safety import stop_rule
+        from activelearn.loop.safety.live_stop import stop_rule
 
         self.cfg = cfg
         self.cache = cache

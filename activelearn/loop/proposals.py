@@ -3,22 +3,26 @@
 A reference maneuver's row holds the values `activelearn simulate` takes; a family maneuver's row its
 parameters, with its control schedule in proposals/round-NNN/ beside the file (written first). With
 [safety], each row also holds its risk, the duration it was cut from, and (live stop) how close to a
-wall the driver brakes.
+wall the driver brakes; `proposal_figure` draws the batch in the arena.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from math import nan
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
-from activelearn.config import CampaignConfig
+from activelearn.config import CampaignConfig, boundary_distance
 from activelearn.data import atomic_write_bytes
 from activelearn.loop.family_pool import proposal_table, schedule_table
+from activelearn.loop.safety.live_stop import braked_paths
+from activelearn.loop.safety.risk import fan
 from activelearn.loop.state import PROPOSALS_DIR, CampaignState
 from activelearn.names import PROPOSAL_COLUMNS
+from activelearn.seeds import Stream, derived_seed
 from simulator import FamilyManeuver
 
 
@@ -67,3 +71,43 @@ def _reference_proposals(driven: Sequence[Any]) -> pd.DataFrame:
         for m in driven
     ]  # fmt: skip
     return pd.DataFrame(rows, columns=list(PROPOSAL_COLUMNS))
+
+
+def proposal_figure(
+    cfg: CampaignConfig, state: CampaignState, model: Any | None, driven: Sequence[Any], path: str | Path
+) -> Path:
+    """Draw the pending batch `driven` (as driven, cut where [safety] cut) in the [safety] arena; return
+    the path. The fans are `model`'s, the model that judged the batch (None: the kinematic worst case's
+    reach is drawn instead). Reads its arguments and changes none of them."""
+    from activelearn.plots import proposals_figure, save_figure
+
+    safety = cfg.safety
+    assert safety is not None
+    proposals: list[dict[str, Any]] = [
+        {"label": m.name + (" (cut)" if str(i) in state.cuts else ""), "risk": state.risks.get(str(i), nan)}
+        for i, m in zip(state.pending or [], driven, strict=True)
+    ]
+    live = safety.stop == "live" and safety.enforce
+    if model is not None and driven:
+        # the seed of the round whose model this is (its assessment's; the round is the last recorded)
+        seed = derived_seed(cfg.seed, Stream.ROUND, len(state.rounds) - 1)
+        rollout = fan(model, driven, safety, cfg.simulation.rate_hz, seed)
+        for j, proposal in enumerate(proposals):
+            n = int(rollout.lengths[j])
+            x, y = rollout.x[:, j, :n], rollout.y[:, j, :n]
+            if live:  # each path ends where the car would brake: a fan reaching a wall is stopped there
+                mean_x, mean_y, _ = braked_paths(x.mean(axis=0)[None], y.mean(axis=0)[None], safety)
+                proposal.update(mean=(mean_x[0], mean_y[0]))  # the mean path, itself braked
+                x, y, trigger = braked_paths(x, y, safety)
+                hit = trigger >= 0
+                proposal.update(brakes=(x[hit, trigger[hit]], y[hit, trigger[hit]]), n_paths=len(trigger))
+            proposal.update(x=x, y=y)
+    reach = None
+    if model is None:
+        room = float(boundary_distance(safety.arena, safety.start[0], safety.start[1])) - safety.margin
+        reach = max(room, 0.0)
+    fig = proposals_figure(
+        safety.arena, safety.start, proposals, name=cfg.name, batch=len(state.batches), delta=safety.delta,
+        margin=safety.margin, reach=reach, brake_at=safety.margin + safety.stop_buffer if live else None,
+    )  # fmt: skip
+    return save_figure(fig, path, dpi=110)

@@ -39,7 +39,8 @@ from quick import shrink
 from activelearn.config import load_config
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import cache_root
-from activelearn.loop.safety import Assessment, placed_path, violating
+from activelearn.loop.safety.limits import placed_path, violating
+from activelearn.loop.safety.risk import Assessment
 from activelearn.loop.state import CampaignState
 from activelearn.plots import new_figure, save_figure
 from activelearn.studies.compare import compare

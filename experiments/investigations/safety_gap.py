@@ -26,7 +26,7 @@ from activelearn.config import load_config
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import cache_root
 from activelearn.loop.pool import maneuver_controls
-from activelearn.loop.safety import violating
+from activelearn.loop.safety.limits import violating
 from activelearn.loop.state import MODEL_FILE, CampaignState
 from activelearn.numerics.models import load_model
 from simulator.families import FAMILIES

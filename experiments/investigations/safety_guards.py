@@ -4,7 +4,7 @@ The measurement behind the defaults of `[safety] path_tolerance`, `fan_scale` an
 each seed, a round's model (default: the first round's, trained on the warm start's prior grid
 only, as the campaign trains it; `--campaigns DIR`: the last model of each seed's campaign under a
 benchmark directory, judged on the candidates it had not taken) assesses every candidate of the
-pool under each combination of the guards (`activelearn.loop.safety.assess`, the campaign's
+pool under each combination of the guards (`activelearn.loop.safety.risk.assess`, the campaign's
 code). Every admissible candidate is then driven as it would be proposed (cut short where the
 assessment says so): its noise-free MuJoCo log (cached, full length; a cut maneuver is open-loop,
 so its log is the full log's first rows) with the campaign seed's sensor noise, judged by
@@ -36,7 +36,9 @@ from activelearn.config import load_config, polygon_clearance
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import noisy_logs
 from activelearn.loop.prior import load_prior
-from activelearn.loop.safety import assess, log_violation, placed_path, turn_speed
+from activelearn.loop.safety.kinematic_bound import turn_speed
+from activelearn.loop.safety.limits import log_violation, placed_path
+from activelearn.loop.safety.risk import assess
 from activelearn.loop.state import MODEL_FILE, SAMPLES_FILE, CampaignState
 from activelearn.numerics.models import load_model
 from activelearn.seeds import Stream, derived_seed
