@@ -73,4 +73,4 @@ def model_lags(model) -> Lags | None:
         return None
     if n_inputs % (N_CONTROLS + N_RATES):
         raise ValueError(f"a dynamic model has 4k inputs (k controls and rates), got {n_inputs}")
-    return Lags(n_inputs // (N_CONTROLS + N_RATES), int(getattr(model.config, "history_step", 1)))
+    return Lags(n_inputs // (N_CONTROLS + N_RATES), int(model.config.history_step))

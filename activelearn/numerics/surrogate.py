@@ -47,7 +47,6 @@ from activelearn.numerics.models.base import BACKENDS, CHUNK_ROWS, draw_moments
 from activelearn.numerics.threads import even_blocks, intra_op_threads, parallel_map
 
 N_CONTROLS = 2
-TORCH_BLOCK = 16  # maneuvers per task of a sequential rollout on torch (no compiled kernel)
 BANDS = (0.025, 0.25, 0.5, 0.75, 0.975)  # quantiles of the 95% and 50% bands and the median
 MAX_LEVER_ARM = 1.0  # m: a 1:14 car's logged point lies centimetres from its rear axle
 
@@ -201,7 +200,7 @@ def _static_rollout(
     sampled = model.draw(n_samples, seed=seed, backend=backend)
     # The fused kernel reads the two controls; a model that derives inputs from them (the kinematic
     # feature) takes the block path, whose network evaluation is still the compiled one.
-    if sampled.kernel is None or getattr(model, "n_derived", 0):
+    if sampled.kernel is None or model.n_derived:
         return _reference_rollout(sampled, controls, keys, dt, yaw0, lever_arm)
     n_maneuvers, n_steps, _ = controls.shape
     # Reused memory where an earlier rollout's arrays have been dropped: first-touch page faults
@@ -437,7 +436,7 @@ def _sequential_rollout(
         # 0.08-0.15 s; the same numbers bit for bit).
         workers = torch.get_num_threads()  # read before the block sets it to 1
         with intra_op_threads(1):
-            parallel_map(run, even_blocks(n_maneuvers, getattr(model, "rollout_block", TORCH_BLOCK)), workers)
+            parallel_map(run, even_blocks(n_maneuvers, model.rollout_block), workers)
     else:
         parallel_map(run, even_blocks(n_maneuvers, -(-n_maneuvers // torch.get_num_threads())))
     # (T, 2, M) → (M, T, 2); v and ω are (S, M, T) views of the rates.

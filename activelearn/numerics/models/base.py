@@ -280,6 +280,9 @@ class Model(nn.Module, ABC):
     # Whether `training.fit` may compile its step: a compiled step runs a structural twin of the model
     # with only the parameters swapped in, so a kind whose forward pass reads fitted buffers cannot.
     compilable: ClassVar[bool] = True
+    # Maneuvers per task of a free run on torch (no compiled kernel): fixed, so that the numbers do not
+    # depend on the thread count; a kind whose step is many small ops amortises them over wider blocks.
+    rollout_block: ClassVar[int] = 16
 
     def __init__(self, config: ModelConfig) -> None:
         super().__init__()

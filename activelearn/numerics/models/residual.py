@@ -70,6 +70,8 @@ class ResidualModel(nn.Module):
 
     kind: ClassVar[str] = "residual"
     n_members = None
+    n_derived = 0  # free runs feed the two controls: the fused kernel's path where the draw has one
+    rollout_block: ClassVar[int] = Model.rollout_block
 
     def __init__(self, base: Model, residual: Model) -> None:
         super().__init__()
