@@ -154,6 +154,22 @@ def _database_url(variable: str) -> str:
     return url
 
 
+@pytest.fixture(scope="session")
+def c_kernels():
+    """The compiled C kernels (activelearn/numerics/native), for every test that runs or compares them.
+
+    The one rule for a machine without a C compiler (cc, gcc or clang): such a test is skipped on a
+    developer machine, with the reason, and fails in CI (`CI` set), where the compiler is part of the
+    set-up; everything else runs on the torch path, as activelearn itself does there.
+    """
+    from activelearn.numerics import native  # here, not at the top: conftest imports no torch
+
+    lib = native.library()
+    if lib is None:
+        skip_or_fail("no working C compiler (cc, gcc or clang): the compiled kernels cannot be built")
+    return lib
+
+
 def flat_weights(model):
     """Every parameter of a torch model, flattened into one vector (a tensor)."""
     import torch
