@@ -40,7 +40,7 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 LONGEST_FILES = (
     "test_benchmarks.py", "test_campaign.py", "test_tuning.py", "test_ray.py", "test_calibration.py",
     "test_dynamics.py", "test_tracking_outage.py", "test_campaign_lock.py", "test_checkpoint_faults.py",
-    "test_physics.py", "test_surrogate.py", "test_safety.py", "test_asktell.py",
+    "test_physics.py", "test_fans.py", "test_surrogate.py", "test_safety.py", "test_asktell.py",
 )  # fmt: skip
 
 
