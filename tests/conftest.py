@@ -40,7 +40,7 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 LONGEST_FILES = (
     "test_benchmarks.py", "test_campaign.py", "test_tuning.py", "test_ray.py", "test_calibration.py",
     "test_dynamics.py", "test_tracking_outage.py", "test_campaign_lock.py", "test_checkpoint_faults.py",
-    "test_physics.py", "test_surrogate.py", "test_safety.py", "test_asktell.py",
+    "test_physics.py", "test_fans.py", "test_surrogate.py", "test_safety.py", "test_asktell.py",
 )  # fmt: skip
 
 
@@ -152,6 +152,22 @@ def _database_url(variable: str) -> str:
     if not url:
         skip_or_fail(f"{variable} is not set: run the suite through .ci/run, which starts PostgreSQL")
     return url
+
+
+@pytest.fixture(scope="session")
+def c_kernels():
+    """The compiled C kernels (activelearn/numerics/native), for every test that runs or compares them.
+
+    The one rule for a machine without a C compiler (cc, gcc or clang): such a test is skipped on a
+    developer machine, with the reason, and fails in CI (`CI` set), where the compiler is part of the
+    set-up; everything else runs on the torch path, as activelearn itself does there.
+    """
+    from activelearn.numerics import native  # here, not at the top: conftest imports no torch
+
+    lib = native.library()
+    if lib is None:
+        skip_or_fail("no working C compiler (cc, gcc or clang): the compiled kernels cannot be built")
+    return lib
 
 
 def flat_weights(model):

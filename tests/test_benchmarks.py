@@ -1,45 +1,99 @@
 """Every maintained benchmark (experiments/benchmarks/) still runs end to end: its `--quick` mode.
 
-A quick run measures nothing; it drives the same code as a full one (MuJoCo, training, campaigns,
+A quick run measures little; it drives the same code as a full one (MuJoCo, training, campaigns,
 comparisons, studies) on a handful of maneuvers and epochs, so a change that breaks a benchmark fails
-here rather than on the day someone measures. Each runs in a process of its own, in a scratch folder.
+here rather than on the day someone measures. Each runs in a process of its own, in a scratch folder,
+and one figure of its printout must be finite and within a stated range: a quick run that prints
+nonsense (a NaN, an error off by orders of magnitude, a violation where there was none) fails too.
+The ranges hold the quick runs' figures on a loaded 2-core machine with room to spare (timings by a
+factor of 20); they are not the benchmarks' targets, which only full runs measure.
 """
 
 from __future__ import annotations
 
+import math
+import re
 import subprocess
 import sys
 from pathlib import Path
+from typing import NamedTuple
 
 import pytest
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "experiments" / "benchmarks"
 
-# benchmark -> what its printout must hold (and whether it takes --out)
+
+class Figure(NamedTuple):
+    """One number of a quick run's printout: the first match of `pattern` (group 1), in [low, high]."""
+
+    what: str
+    pattern: str
+    low: float
+    high: float
+
+
+NUMBER = r"([-+]?(?:\d[\d.]*(?:e[-+]?\d+)?|nan|inf))"  # as printed; nan or inf fail the test
+
+# benchmark -> (a line its printout must hold, whether it takes --out, the figure checked)
 EXPECTED = {
-    "bench_simulator": ("ratio collect / raw", False),
-    "bench_models": ("## 4. Accuracy and epistemic calibration", False),
-    "bench_physics": ("gated / physics per seed (paired)", False),
-    "bench_surrogate": ("speed against MuJoCo", False),
-    "bench_tuning": ("ratio 2 workers / 1 worker", True),
-    "bench_warm_start": ("the rule for a default", True),
-    "bench_safety": ("violations", True),
-    "bench_sample_efficiency": ("paired test_rmse differences against uniform", True),
-    "bench_scaleout": ("where one campaign's time goes", True),
-}
+    "bench_simulator": ("ratio collect / raw", False, Figure(
+        "the simulator's steady speeds against the reference, max error in %",
+        rf"max error {NUMBER} %", 0.0, 5.0)),  # the benchmark's own limit; quick 0.05
+    "bench_models": ("## 4. Accuracy and epistemic calibration", False, Figure(
+        "the default hybrid's RMSE on held-out operating points",
+        rf"\| hybrid default \(kl_count=sqrt\) \| {NUMBER} \|", 0.0, 0.2)),  # quick 0.05
+    "bench_physics": ("gated / physics per seed (paired)", False, Figure(
+        "the physics kind's 30-s position error on Nigel, m (the black box's: 1.4)",
+        rf"nominal seed 0 physics\s+30-s error {NUMBER} m", 0.0, 0.1)),  # quick 0.0096
+    "bench_surrogate": ("speed against MuJoCo", False, Figure(
+        "the physics kind's 30-s error on the slalom as a ratio of the static map's",
+        rf"^slalom\s+{NUMBER}\s+{NUMBER}\s+{NUMBER}", 0.0, 0.5)),  # columns history, markov, physics
+    "bench_tuning": ("ratio 2 workers / 1 worker", True, Figure(
+        "trials per minute of one worker",
+        rf"^1 worker\(s\): .* = {NUMBER} trials/min", 0.5, 1e4)),  # quick 24 (2 epochs a trial)
+    "bench_warm_start": ("the rule for a default", True, Figure(
+        "the scratch campaigns' final test_rmse on odd_expansion",
+        rf"^scratch\s+\S+\s+\S+\s+{NUMBER}", 0.0, 10.0)),  # quick 2.8
+    "bench_safety": ("violations", True, Figure(
+        "violations of the safe campaigns",
+        rf"^safe \(delta [\d.]+\): violations {NUMBER}", 0.0, 0.0)),
+    "bench_sample_efficiency": ("paired test_rmse differences against uniform", True, Figure(
+        "uniform's final test_rmse on the skidpad",
+        rf"^\s+uniform\s+1\s+{NUMBER}", 0.0, 50.0)),  # quick 7.05
+    "bench_scaleout": ("where one campaign's time goes", True, Figure(
+        "smoke campaigns per hour on one process worker",
+        rf"process\s+1 worker\(s\):\s+{NUMBER} campaigns/hour", 10.0, 1e5)),  # quick 238
+}  # fmt: skip
+
+
+def figure(printout: str, figure: Figure) -> float:
+    """The figure's value in a printout (the last group of its pattern's first match)."""
+    match = re.search(figure.pattern, printout, flags=re.MULTILINE)
+    assert match is not None, f"{figure.what}: no line matches {figure.pattern!r}"
+    return float(match.groups()[-1])
 
 
 def test_every_benchmark_is_listed():
     assert {p.stem for p in BENCHMARKS.glob("bench_*.py")} == set(EXPECTED)
 
 
+def test_a_figure_is_read_and_a_nan_is_not_finite():
+    check = EXPECTED["bench_physics"][2]
+    assert figure("nominal seed 0 physics    30-s error 0.0096 m, fan", check) == 0.0096
+    assert not math.isfinite(figure("nominal seed 0 physics    30-s error nan m, fan", check))
+    with pytest.raises(AssertionError, match="no line matches"):
+        figure("nominal seed 0 black box  30-s error 1.43 m", check)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(EXPECTED))
 def test_a_benchmark_runs_in_its_quick_mode(name: str, tmp_path: Path) -> None:
-    text, takes_out = EXPECTED[name]
+    text, takes_out, check = EXPECTED[name]
     command = [sys.executable, str(BENCHMARKS / f"{name}.py"), "--quick"]
     if takes_out:
         command += ["--out", str(tmp_path / "out")]
     done = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=1200)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     assert text in done.stdout, done.stdout[-3000:]
+    value = figure(done.stdout, check)
+    assert math.isfinite(value) and check.low <= value <= check.high, (check.what, value, done.stdout[-3000:])

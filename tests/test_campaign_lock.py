@@ -6,7 +6,9 @@ both are; then both call the CLI's `main` at once. Each race runs RACES times (A
 5; the issue's check is 20 in a row). A race records every log exactly once, or the command that lost
 exits non-zero and says to retry; at least one wins.
 The lease tests stall a holder whose OS lock does not reach the other process (as on a file system
-whose locks stay on one host) and check that a takeover stops it without writing.
+whose locks stay on one host) and check that a takeover stops it without writing; they follow the
+processes by the lines those print (and a flag in a shared file), never by sleeps.
+Only the races and the tests that start the CLI are slow: the lock's own tests run in `make test-fast`.
 """
 
 from __future__ import annotations
@@ -34,8 +36,6 @@ from activelearn.loop.state import CampaignState
 from activelearn.studies.tracking import Tracker
 from tests import racers
 from tests.test_asktell import _drive
-
-pytestmark = pytest.mark.slow  # processes racing for one campaign directory
 
 RACES = int(os.environ.get("ACTIVELEARN_RACES", "5"))
 OUTCOMES = os.environ.get("ACTIVELEARN_RACES_LOG")  # a file to append each race's outcome to
@@ -122,6 +122,7 @@ def simulated(tmp_path_factory):
     return _proposed(tmp_path_factory.mktemp("lock") / "simulated", "simulator")
 
 
+@pytest.mark.slow  # processes racing for one campaign directory
 @pytest.mark.parametrize("race", range(RACES))
 def test_two_ingests_of_one_batch_record_both_logs(external, tmp_path, race, capsys):
     _, template, logs = external
@@ -146,6 +147,7 @@ def test_two_ingests_of_one_batch_record_both_logs(external, tmp_path, race, cap
     assert not (directory / HOLDER_FILE).exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("race", range(RACES))
 def test_an_ingest_during_campaign_run_resume(simulated, tmp_path, race):
     config, template, logs = simulated
@@ -172,6 +174,7 @@ def test_an_ingest_during_campaign_run_resume(simulated, tmp_path, race):
         assert _digest(logs[0]) not in state.ingested and not took_log
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("race", range(RACES))
 def test_two_proposes_make_one_campaign_and_one_mlflow_run(simulated, tmp_path, race):
     config = tmp_path / "race.toml"
@@ -197,6 +200,7 @@ def test_two_proposes_make_one_campaign_and_one_mlflow_run(simulated, tmp_path, 
     assert len(state.pending) == 2 and not (directory / HOLDER_FILE).exists()
 
 
+@pytest.mark.slow  # the CLI in a subprocess, and a 2-s wait
 def test_a_second_writer_waits_names_the_holder_then_exits_2(tmp_path):
     directory = tmp_path / "campaign"
     holder = subprocess.Popen([sys.executable, "-c", _HOLD, str(directory), "60"], stdout=subprocess.PIPE,
@@ -259,36 +263,56 @@ with hold({str(directory)!r}, wait=0):
 # A process holding DIR's lock with a short lease, for the lease tests. It drops its OS lock first: on a
 # file system whose locks stay on one host (sshfs, SMB without byte-range locks, FUSE object stores) a
 # writer on another host gets the flock too, and only the lease record keeps it out. Dropping this
-# process's flock (`local`) makes every other process here such a writer. It then waits for a line on
-# stdin, computes (spins, holding the GIL) until the time that line names, and commits a campaign state
-# (exit 3 with the message if it was taken over meanwhile).
+# process's flock (`local`) makes every other process here such a writer. With `renewals` it prints a
+# line at each renewal of its lease (the lock's own method, observed). It then waits for a line on stdin:
+# empty, it commits a campaign state at once; a file's name, it says "computing" and computes (spins,
+# holding the GIL, as in a training step) until the file's first byte is no longer 0, then commits.
+# Taken over meanwhile, it exits 3 with the message.
 _LEASED = """
-import fcntl, sys, time
+import fcntl, mmap, sys, threading
 from pathlib import Path
-from activelearn.loop.lock import CampaignLocked, hold
+from activelearn.loop.lock import CampaignLocked, DirectoryLock, hold
 from activelearn.loop.state import CampaignState
-directory, lease, name, wait, local = Path(sys.argv[1]), float(sys.argv[2]), *sys.argv[3:]
-with hold(directory, wait=float(wait), lease=lease,
-          on_wait=lambda holder: print("waiting", holder.pid, flush=True)) as held:
+directory, lease, name, wait, local, renewals = Path(sys.argv[1]), float(sys.argv[2]), *sys.argv[3:]
+lines = threading.Lock()  # the renewer thread prints too: whole lines, one at a time
+
+def say(*words):
+    with lines:
+        sys.stdout.write(" ".join(map(str, words)) + "\\n")
+        sys.stdout.flush()
+
+if renewals == "renewals":
+    renew = DirectoryLock._renew_lease
+
+    def renew_and_say(lock):
+        renew(lock)
+        say("renewed", repr(lock._written))
+
+    DirectoryLock._renew_lease = renew_and_say
+with hold(directory, wait=float(wait), lease=lease, on_wait=lambda h: say("waiting", h.pid)) as held:
     if local == "local":
         fcntl.flock(held._fd, fcntl.LOCK_UN)  # a file system whose locks do not reach other hosts
-    print("holds", held._holder.token, flush=True)
-    until = float(sys.stdin.readline().strip() or 0)
-    while time.time() < until:  # busy, as in a training step: the lock's renewer runs only between
-        pass
+    say("holds", held._holder.token)
+    flag = sys.stdin.readline().strip()
+    if flag:
+        with open(flag, "rb") as f, mmap.mmap(f.fileno(), 1, access=mmap.ACCESS_READ) as raised:
+            say("computing")
+            while raised[0] == 0:  # busy: the lock's renewer runs only between (a read, no system call)
+                pass
     try:
         CampaignState(config_hash=name, strategy="uniform", seed=0).save(directory)
     except CampaignLocked as exc:
-        print(exc, flush=True)
+        say(exc)
         sys.exit(3)
-    print("wrote", flush=True)
+    say("wrote")
 """
 
 _TAKE = """
 import sys
 from activelearn.loop.lock import CampaignLocked, hold
+tell = (lambda holder: print("waiting", holder.pid, flush=True)) if sys.argv[3:] == ["tell"] else None
 try:
-    with hold(sys.argv[1], wait=float(sys.argv[2])):
+    with hold(sys.argv[1], wait=float(sys.argv[2]), on_wait=tell):
         print("taken", flush=True)
 except CampaignLocked as exc:
     print(exc, flush=True)
@@ -296,9 +320,10 @@ except CampaignLocked as exc:
 """
 
 
-def _leased(directory: Path, lease: float, name: str, wait: float = 0.0, local: bool = False
-            ) -> subprocess.Popen:  # fmt: skip
-    argv = [str(directory), str(lease), name, str(wait), "local" if local else "shared"]
+def _leased(directory: Path, lease: float, name: str, wait: float = 0.0, local: bool = False,
+            renewals: bool = False) -> subprocess.Popen:  # fmt: skip
+    argv = [str(directory), str(lease), name, str(wait), "local" if local else "shared",
+            "renewals" if renewals else "quiet"]  # fmt: skip
     return subprocess.Popen([sys.executable, "-c", _LEASED, *argv],
                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)  # fmt: skip
@@ -313,6 +338,17 @@ def _line(proc: subprocess.Popen, prefix: str) -> list[str]:
     return line.split()
 
 
+def _tell(proc: subprocess.Popen, line: str) -> None:
+    proc.stdin.write(f"{line}\n")
+    proc.stdin.flush()
+
+
+def _raise(flag: Path) -> None:
+    """End a `_LEASED` computation: its flag's first byte, written in place (the holder maps the file)."""
+    with open(flag, "r+b") as f:
+        f.write(b"\1")
+
+
 def _stall(proc: subprocess.Popen) -> None:
     """Stop `proc` (SIGSTOP) and return once it is stopped: the record then holds the last it wrote."""
     os.kill(proc.pid, signal.SIGSTOP)
@@ -321,28 +357,26 @@ def _stall(proc: subprocess.Popen) -> None:
 
 
 def test_a_holder_renews_its_short_lease_and_keeps_another_process_out(tmp_path):
-    directory, lease = tmp_path / "d", 0.6
+    """Renewed every lease / 3 (0.5 s), the lease keeps a taker waiting two leases out; the holder's
+    renewer would have to miss two renewals in a row on a loaded machine for the taker to get in."""
+    directory, lease = tmp_path / "d", 1.5
     directory.mkdir()
-    holder = _leased(directory, lease, "holder", local=True)  # no flock: only the renewed lease holds
+    holder = _leased(directory, lease, "holder", local=True, renewals=True)  # no flock: only the lease holds
     try:
         token = _line(holder, "holds")[1]
-        taker = subprocess.Popen([sys.executable, "-c", _TAKE, str(directory), str(4 * lease)],
+        taker = subprocess.Popen([sys.executable, "-c", _TAKE, str(directory), str(2 * lease), "tell"],
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
-        renewals, started = set(), time.time()
-        while taker.poll() is None or time.time() < started + 6 * lease:
-            record, now = read_holder(directory), time.time()
-            assert record is not None and record.token == token and record.pid == holder.pid
-            assert not record.stale(now), (now - record.renewed, lease)
-            renewals.add(record.renewed)
-            time.sleep(0.05)
-        out, err = taker.communicate(timeout=60)
-        # the taker waited its 4 leases and gave up, naming the holder
+        assert _line(taker, "waiting")[1] == str(holder.pid)  # it found the holder's lease live ...
+        out, err = taker.communicate(timeout=120)
+        # ... waited its 2 leases and gave up, naming the holder
         assert taker.returncode == 3 and f"pid {holder.pid}" in out and "retry" in out, (out, err)
-        assert len(renewals) >= 10 and max(renewals) - min(renewals) >= 4 * lease, sorted(renewals)
         assert read_holder(directory).token == token
-        holder.stdin.write("\n")
-        holder.stdin.flush()
-        _line(holder, "wrote")  # its lease held throughout: it still commits
+        _tell(holder, "")
+        renewals = []
+        while (words := _line(holder, ""))[0] == "renewed":
+            renewals.append(float(words[1]))
+        assert words == ["wrote"], words  # its lease held throughout: it still commits
+        assert len(renewals) >= 5 and max(renewals) - min(renewals) >= 2 * lease, renewals
         assert holder.wait(timeout=60) == 0
         assert json.loads((directory / "state.json").read_text())["config_hash"] == "holder"
         assert not (directory / HOLDER_FILE).exists()
@@ -360,9 +394,10 @@ def test_a_stalled_holder_taken_over_stops_without_writing(tmp_path):
         stalled_token = _line(stalled, "holds")[1]
         taker = _leased(directory, 60.0, "taker", wait=60)
         assert _line(taker, "waiting")[1] == str(stalled.pid)  # the fresh lease keeps it out (no flock)
-        stalled.stdin.write(f"{time.time() + 0.5}\n")  # it computes for half a second ...
-        stalled.stdin.flush()
-        time.sleep(0.2)
+        flag = tmp_path / "flag"
+        flag.write_bytes(b"\0")
+        _tell(stalled, str(flag))
+        _line(stalled, "computing")  # it computes until the flag is raised ...
         _stall(stalled)  # ... and is stalled in the middle, for longer than its lease
         last = read_holder(directory)
         assert last.token == stalled_token
@@ -371,6 +406,7 @@ def test_a_stalled_holder_taken_over_stops_without_writing(tmp_path):
         assert taken.token == taker_token and taken.since - last.renewed > lease  # once the lease ran out
         # Resumed, the stalled holder finishes its step at once and commits, before its renewer thread
         # gets a turn: it must find out itself that it was taken over.
+        _raise(flag)
         os.kill(stalled.pid, signal.SIGCONT)
         message = " ".join(_line(stalled, f"{directory}:"))
         assert "took this campaign over" in message and "stops without writing" in message, message
@@ -379,8 +415,7 @@ def test_a_stalled_holder_taken_over_stops_without_writing(tmp_path):
         # Its renewer woke with it and did not write its record back, nor did its release remove the taker's.
         record = read_holder(directory)
         assert (record.token, record.pid, record.since) == (taker_token, taker.pid, taken.since), record
-        taker.stdin.write("\n")
-        taker.stdin.flush()
+        _tell(taker, "")
         _line(taker, "wrote")  # the taker still holds the directory and commits
         assert taker.wait(timeout=60) == 0
         assert json.loads((directory / "state.json").read_text())["config_hash"] == "taker"
@@ -404,8 +439,7 @@ def test_a_stalled_holder_whose_taker_came_and_went_stops_without_writing(tmp_pa
                                text=True, timeout=120)  # fmt: skip
         assert taker.stdout == "taken\n", taker.stderr  # it took the stale lease over, and released it
         assert not (directory / HOLDER_FILE).exists()
-        stalled.stdin.write("\n")
-        stalled.stdin.flush()
+        _tell(stalled, "")
         os.kill(stalled.pid, signal.SIGCONT)
         message = " ".join(_line(stalled, f"{directory}:"))
         assert "took this campaign over" in message and "stops without writing" in message, message

@@ -55,7 +55,7 @@ def test_the_feature_is_the_newest_speed_times_tan_steering(lags, speed_column):
 
 @pytest.mark.parametrize("n_inputs", [2, 4])
 @pytest.mark.parametrize("kind", ["hybrid", "ensemble"])
-def test_compiled_and_reference_paths_agree_with_the_feature(n_inputs, kind):
+def test_compiled_and_reference_paths_agree_with_the_feature(n_inputs, kind, c_kernels):
     config = ModelConfig(n_inputs=n_inputs, kind=kind, kinematic_feature=True)
     model = _with_scalers(build_model(config), n_inputs)
     x = RNG.normal(size=(64, n_inputs)) * 0.3

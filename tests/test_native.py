@@ -37,10 +37,8 @@ def untrained_model():
 
 
 @pytest.fixture(scope="module")
-def kernel():
-    lib = native.library()
-    assert lib is not None, "the C kernel must build on the test machines (gcc is part of the set-up)"
-    return lib
+def kernel(c_kernels):
+    return c_kernels
 
 
 def _unit_network(kernel, n_samples: int = 1) -> native.NetworkKernel:
@@ -121,7 +119,7 @@ def test_counter_noise_is_standard_normal_and_independent():
     np.testing.assert_array_equal(short_v, zv[:, :700])
 
 
-def test_kernel_builds_once_into_the_cache(tmp_path, monkeypatch):
+def test_kernel_builds_once_into_the_cache(tmp_path, monkeypatch, c_kernels):
     monkeypatch.setattr(native, "CACHE_DIR", tmp_path)
     native.library.cache_clear()
     try:
@@ -137,7 +135,7 @@ def test_kernel_builds_once_into_the_cache(tmp_path, monkeypatch):
         native.library.cache_clear()
 
 
-def test_a_failing_compiler_warns_and_falls_back(tmp_path, monkeypatch, untrained_model):
+def test_a_failing_compiler_warns_and_falls_back(tmp_path, monkeypatch, untrained_model, c_kernels):
     monkeypatch.setattr(native, "CACHE_DIR", tmp_path)
     monkeypatch.setattr(native, "COMPILERS", ("false",))  # on every machine, and fails every compile
     native.library.cache_clear()
@@ -155,7 +153,7 @@ def test_a_failing_compiler_warns_and_falls_back(tmp_path, monkeypatch, untraine
     np.testing.assert_allclose(fallback.x, compiled.x, atol=1e-5)
 
 
-def test_loading_the_kernel_leaves_the_processs_floating_point_mode_alone():
+def test_loading_the_kernel_leaves_the_processs_floating_point_mode_alone(c_kernels):
     """Linked with -ffast-math, the library switched the whole process to flush subnormals to zero."""
     script = (
         "import numpy as np, torch\n"

@@ -28,9 +28,7 @@ CASES = {
 }
 
 
-@pytest.fixture(scope="module", autouse=True)
-def compiled():
-    assert native.library() is not None, "the C kernel must build on the test machines"
+pytestmark = pytest.mark.usefixtures("c_kernels")  # every test here compares or runs the C kernels
 
 
 def _model(config: dict, seed: int = 0):

@@ -12,7 +12,7 @@ from activelearn.config import DataConfig, ModelConfig, TrainingConfig, load_con
 from activelearn.errors import ConfigError, InputError
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import arrays, control_rate_logs, training_rows
-from activelearn.numerics import correction_gate, native
+from activelearn.numerics import correction_gate
 from activelearn.numerics.models import PhysicsModel, build_model, load_model, physics, save_model
 from activelearn.numerics.models import single_track as st
 from activelearn.numerics.models.base import Model
@@ -366,12 +366,11 @@ def _busy_controls() -> list[np.ndarray]:
     [(1.0, "none", 1.0), (0.5, "none", 1.0), (0.0, "none", 1.0), (1.0, "mirror", 1.0), (0.5, "mirror", 1.0),
      (1.0, "none", 9.0), (0.5, "mirror", 9.0)],
 )  # fmt: skip
+@pytest.mark.usefixtures("c_kernels")
 def test_free_runs_of_a_control_correction_agree_between_the_kernel_and_torch(weight, symmetry, scale):
     """physics_rollout.c and its torch twin draw the same free runs (float rounding apart), with the
     gate at any share, the correction mirror-symmetric or not, the draws widened (the [safety] fan's
     epistemic scale of 9) or not, and the pose (headings, lever arm) integrated inside the kernel."""
-    if native.library() is None:
-        pytest.skip("no C compiler: the torch path is the only one")
     model, controls = _perturbed_control_model(symmetry=symmetry), _busy_controls()
     model.correction_weight.fill_(weight)
     model.epistemic_scale.fill_(scale)
@@ -387,13 +386,13 @@ def test_free_runs_of_a_control_correction_agree_between_the_kernel_and_torch(we
 
 @pytest.mark.parametrize(("inputs", "backend"), [("history", "reference"), ("control", "reference"),
                                                ("control", "native")])  # fmt: skip
-def test_a_widened_fan_stays_as_bounded_as_its_draws(inputs, backend):
+def test_a_widened_fan_stays_as_bounded_as_its_draws(inputs, backend, request):
     """The [safety] fan widens the draws' epistemic spread (scale 9, a std x 3). Widening each draw's
     whole deviation from the average at every step compounded the deviations its past already
     carried (the aleatoric noise fed back), and the free runs ran to infinity; widened as a
     correction, they stay within the physical bounds of the unwidened draws."""
-    if backend == "native" and native.library() is None:
-        pytest.skip("no C compiler")
+    if backend == "native":
+        request.getfixturevalue("c_kernels")
     model, controls = _perturbed_control_model(inputs), _busy_controls()
     plain = simulate(model, controls, rate_hz=30.0, n_samples=16, seed=3, backend=backend)
     model.epistemic_scale.fill_(9.0)

@@ -230,7 +230,7 @@ def test_rollout_is_seeded_and_independent_of_the_thread_count(skidpad_model):
     np.testing.assert_array_equal(one.mean_rates[1, 120:], np.broadcast_to(one.mean_rates[1, 119], (60, 2)))
 
 
-def test_compiled_kernel_and_reference_give_the_same_rollout(skidpad_model):
+def test_compiled_kernel_and_reference_give_the_same_rollout(skidpad_model, c_kernels):
     # Three lengths (a partial last tile, padding) and a heading per maneuver.
     t = np.linspace(0.0, 20.0, 600)
     controls = [
