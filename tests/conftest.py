@@ -38,9 +38,10 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 # The longest files go first (longest-processing-time-first scheduling), so that no worker is left
 # running one of them alone at the end; measured on 2 cores (three workers), longest first.
 LONGEST_FILES = (
-    "test_benchmarks.py", "test_campaign.py", "test_tuning.py", "test_ray.py", "test_calibration.py",
-    "test_dynamics.py", "test_tracking_outage.py", "test_campaign_lock.py", "test_checkpoint_faults.py",
-    "test_physics.py", "test_fans.py", "test_surrogate.py", "test_safety.py", "test_asktell.py",
+    "test_benchmarks.py", "test_benchmarks_campaigns.py", "test_campaign.py", "test_tuning.py",
+    "test_ray.py", "test_calibration.py", "test_dynamics.py", "test_tracking_outage.py",
+    "test_campaign_lock.py", "test_checkpoint_faults.py", "test_physics.py", "test_fans.py",
+    "test_surrogate.py", "test_safety.py", "test_asktell.py",
 )  # fmt: skip
 
 

@@ -85,9 +85,13 @@ def test_a_figure_is_read_and_a_nan_is_not_finite():
         figure("nominal seed 0 black box  30-s error 1.43 m", check)
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("name", sorted(EXPECTED))
-def test_a_benchmark_runs_in_its_quick_mode(name: str, tmp_path: Path) -> None:
+# The campaign benchmarks run from tests/test_benchmarks_campaigns.py: a file of their own, so that
+# `make test`'s workers (a file each at a time) share the quick runs instead of one worker taking all.
+CAMPAIGN_BENCHMARKS = ("bench_warm_start", "bench_safety", "bench_sample_efficiency", "bench_scaleout")
+
+
+def run_quick(name: str, tmp_path: Path) -> None:
+    """Run benchmark `name` in its quick mode; check its printout's line and figure."""
     text, takes_out, check = EXPECTED[name]
     command = [sys.executable, str(BENCHMARKS / f"{name}.py"), "--quick"]
     if takes_out:
@@ -97,3 +101,13 @@ def test_a_benchmark_runs_in_its_quick_mode(name: str, tmp_path: Path) -> None:
     assert text in done.stdout, done.stdout[-3000:]
     value = figure(done.stdout, check)
     assert math.isfinite(value) and check.low <= value <= check.high, (check.what, value, done.stdout[-3000:])
+
+
+def test_the_two_files_run_every_benchmark_once():
+    assert set(CAMPAIGN_BENCHMARKS) <= set(EXPECTED)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(set(EXPECTED) - set(CAMPAIGN_BENCHMARKS)))
+def test_a_benchmark_runs_in_its_quick_mode(name: str, tmp_path: Path) -> None:
+    run_quick(name, tmp_path)
