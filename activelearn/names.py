@@ -108,6 +108,24 @@ _ALL: tuple[Metric, ...] = (
 )
 METRICS: dict[str, Metric] = {m.name: m for m in _ALL}
 
+# The budget's and the test set's metrics by name (the loop writes them; studies and figures read them).
+ROUND = "round"
+N_SAMPLES = "n_samples"
+N_MANEUVERS = "n_maneuvers"
+SIM_SECONDS = "sim_seconds"
+TRACK_SECONDS = "track_seconds"
+WALL_SECONDS = "wall_seconds"
+TEST_RMSE = "test_rmse"
+TEST_RMSE_V = "test_rmse_v"
+TEST_RMSE_W = "test_rmse_w"
+TEST_NLL = "test_nll"
+TEST_CRPS = "test_crps"
+COVERAGE_95 = "coverage_95"
+EPISTEMIC_STD_MEAN = "epistemic_std_mean"
+EPISTEMIC_STD_MAX = "epistemic_std_max"
+ALEATORIC_STD_MEAN = "aleatoric_std_mean"
+POOL_EPISTEMIC_STD_MAX = "pool_epistemic_std_max"
+ROLLOUT_SECONDS = "rollout_seconds"
 # The free-run metrics by name (`activelearn.numerics.diagnostics.free_run_metrics` writes them).
 ROLLOUT_POS_ERR_10S = "rollout_pos_err_10s"
 ROLLOUT_POS_ERR_30S = "rollout_pos_err_30s"

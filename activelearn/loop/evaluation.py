@@ -23,11 +23,21 @@ from activelearn.loop.pool import evaluation_grid
 from activelearn.loop.state import CampaignState
 from activelearn.loop.strategy import Pool
 from activelearn.names import (
+    ALEATORIC_STD_MEAN,
     CALIB_PREFIX,
+    COVERAGE_95,
+    EPISTEMIC_STD_MAX,
+    EPISTEMIC_STD_MEAN,
     PREQUENTIAL_FAN_SCALE,
     PREQUENTIAL_POINTS,
     PREQUENTIAL_SCALE,
     PREQUENTIAL_SPEARMAN,
+    ROLLOUT_SECONDS,
+    TEST_CRPS,
+    TEST_NLL,
+    TEST_RMSE,
+    TEST_RMSE_V,
+    TEST_RMSE_W,
 )
 from activelearn.numerics import uncertainty
 from activelearn.numerics.diagnostics import fan_scale_needed, free_run_metrics
@@ -94,12 +104,12 @@ class Evaluation:
         clean, noisy = test.y_clean / test.scale, test.y_noisy / test.scale
         err = pred.mean - test.y_clean
         metrics = {
-            "test_rmse": float(np.sqrt(np.mean((std_pred.mean - clean) ** 2))),
-            "test_rmse_v": float(np.sqrt(np.mean(err[:, 0] ** 2))),  # m/s
-            "test_rmse_w": float(np.sqrt(np.mean(err[:, 1] ** 2))),  # rad/s
-            "test_nll": float(uncertainty.gaussian_nll(noisy, std_pred)),
-            "test_crps": float(uncertainty.crps(noisy, std_pred)),
-            "coverage_95": float(uncertainty.coverage(noisy, std_pred, level=0.95)),
+            TEST_RMSE: float(np.sqrt(np.mean((std_pred.mean - clean) ** 2))),
+            TEST_RMSE_V: float(np.sqrt(np.mean(err[:, 0] ** 2))),  # m/s
+            TEST_RMSE_W: float(np.sqrt(np.mean(err[:, 1] ** 2))),  # rad/s
+            TEST_NLL: float(uncertainty.gaussian_nll(noisy, std_pred)),
+            TEST_CRPS: float(uncertainty.crps(noisy, std_pred)),
+            COVERAGE_95: float(uncertainty.coverage(noisy, std_pred, level=0.95)),
         }
         diag = uncertainty.epistemic_diagnostic(clean, std_pred)
         metrics.update({f"{CALIB_PREFIX}{k}": float(v) for k, v in diag.items() if np.isscalar(v)})
@@ -108,9 +118,9 @@ class Evaluation:
             model.predict(model_inputs(model, grid), n_samples=EVAL_SAMPLES, seed=0), test.scale
         )
         epi = np.sqrt(grid_pred.epistemic_var).mean(axis=1)
-        metrics["epistemic_std_mean"] = float(epi.mean())
-        metrics["epistemic_std_max"] = float(epi.max())
-        metrics["aleatoric_std_mean"] = float(np.sqrt(grid_pred.aleatoric_var).mean())
+        metrics[EPISTEMIC_STD_MEAN] = float(epi.mean())
+        metrics[EPISTEMIC_STD_MAX] = float(epi.max())
+        metrics[ALEATORIC_STD_MEAN] = float(np.sqrt(grid_pred.aleatoric_var).mean())
         if rollouts and test.logs and self.cfg.test.rollout_samples:
             # Free runs of the whole test maneuvers: what a surrogate that simulates is for. Timed,
             # so a round's log says what the rollouts cost beside the fit.
@@ -125,7 +135,7 @@ class Evaluation:
                     seed=0,
                 )
             )
-            metrics["rollout_seconds"] = time.perf_counter() - started
+            metrics[ROLLOUT_SECONDS] = time.perf_counter() - started
         return metrics
 
     def pool_epistemic_max(self, model: Any, pool: Pool) -> float:
