@@ -310,10 +310,10 @@ def compare(
             tracker.log_metrics(
                 parent_run_id,
                 {
-                    f"{row.strategy}/final_rmse": row.final_rmse,
-                    f"{row.strategy}/final_rmse_v_mps": row.final_rmse_v,
-                    f"{row.strategy}/final_rmse_w_radps": row.final_rmse_w,
-                    f"{row.strategy}/rmse_auc": row.rmse_auc,
+                    f"summary/{row.strategy}_final_rmse": row.final_rmse,
+                    f"summary/{row.strategy}_final_rmse_v_mps": row.final_rmse_v,
+                    f"summary/{row.strategy}_final_rmse_w_radps": row.final_rmse_w,
+                    f"summary/{row.strategy}_rmse_auc": row.rmse_auc,
                 },
                 step=0,
             )
