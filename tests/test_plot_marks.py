@@ -21,8 +21,8 @@ def test_every_strategy_has_a_colour_of_its_own() -> None:
 
 def test_a_strategy_keeps_its_colour_whatever_else_is_compared() -> None:
     def colours(strategies: tuple[str, ...]) -> dict[str, str]:
-        curves = pd.DataFrame([{"strategy": s, "seed": 0, "round": r, "n_maneuvers": r, "test_rmse": 1.0 / (r + 1)}
-                               for s in strategies for r in range(2)])  # fmt: skip
+        curves = pd.DataFrame([{"strategy": s, "seed": 0, "round": r, "n_maneuvers": r,
+                                "test_rmse": 1.0 / (r + 1)} for s in strategies for r in range(2)])
         fig = comparison_figure(curves, ["test_rmse"])
         return {line.get_label().split(" ")[0]: to_hex(line.get_color()) for line in fig.axes[0].lines}
 
@@ -49,10 +49,11 @@ def test_a_dynamics_map_tells_collected_and_each_family_apart() -> None:
     fig = epistemic_map(grid, grid - 0.6, np.ones((3, 3)), taken=taken, picks=picks)
     legend = fig.legends[0]
     entries = dict(zip([t.get_text() for t in legend.get_texts()], legend.legend_handles, strict=True))
-    assert list(entries) == ["collected", "chosen this round", "shape: chirp", "shape: prbs", "shape: skidpad",
-                             "shape: throttle_step"]  # fmt: skip
+    assert list(entries) == ["collected", "chosen this round", "shape: chirp", "shape: prbs",
+                             "shape: skidpad", "shape: throttle_step"]  # fmt: skip
     # the groups are fills (no shape that could be read as a kind); each kind an outline of its own
-    assert isinstance(entries["collected"], Patch) and to_hex(entries["collected"].get_facecolor()) == "#ffffff"
+    collected = entries["collected"]
+    assert isinstance(collected, Patch) and to_hex(collected.get_facecolor()) == "#ffffff"
     shapes = [h.get_marker() for label, h in entries.items() if label.startswith("shape:")]
     assert all(isinstance(entries[k], Line2D) for k in entries if k.startswith("shape:"))
     assert len(set(shapes)) == 4

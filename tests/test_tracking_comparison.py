@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from activelearn.config import load_config
-from activelearn.studies.compare import band_series, comparison_note, comparison_params, compare, config_hash
+from activelearn.studies.compare import band_series, compare, comparison_note, comparison_params, config_hash
 from activelearn.studies.tracking import NOTE_TAG, Tracker
 
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
@@ -26,7 +26,7 @@ def _curves() -> pd.DataFrame:
 def test_band_series_is_each_strategys_mean_and_standard_error_at_each_maneuver_count() -> None:
     rows = band_series(_curves(), ["test_rmse"])
     assert [step for step, _ in rows] == [3, 5, 7]  # maneuvers collected, not training rows
-    step, values = rows[1]
+    _, values = rows[1]
     seeds = np.array([0.25, 0.26, 0.27])
     sem = seeds.std(ddof=1) / np.sqrt(3)
     assert values["uniform/test_rmse_mean"] == pytest.approx(seeds.mean())
@@ -72,13 +72,15 @@ def test_a_comparison_shows_its_curves_on_the_parent_run_of_a_sqlite_store(tmp_p
     # the note: what was compared and where the figure is
     note = parent.data.tags[NOTE_TAG]
     assert tracker.note(result.parent_run_id) == note
-    assert "`uniform`" in note and "`max_epistemic`" in note and "seeds 0, 1" in note and "comparison.png" in note
+    for text in ("`uniform`", "`max_epistemic`", "seeds 0, 1", "comparison.png"):
+        assert text in note, text
     assert "| uniform |" in note  # the final values, once finished
     assert "comparison.png" in {a.path for a in tracker.client.list_artifacts(result.parent_run_id)}
 
     # every child: named strategy/seed, tagged with its strategy, stepped by maneuvers collected
     children = [tracker.client.get_run(r) for r in tracker.child_runs(result.parent_run_id)]
-    assert sorted(c.info.run_name for c in children) == sorted(f"{s}/seed{k}" for s in strategies for k in seeds)
+    names = sorted(c.info.run_name for c in children)
+    assert names == sorted(f"{s}/seed{k}" for s in strategies for k in seeds)
     child_steps = set()
     for child in children:
         strategy = child.data.tags["strategy"]

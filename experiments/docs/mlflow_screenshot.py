@@ -4,7 +4,8 @@ Starts `mlflow ui` on the store, finds the newest run tagged kind = comparison, 
 "Model metrics" page in headless Chromium (the OS package: `apt-get install chromium`) and writes a
 PNG; then stops the server. It makes the tutorial's screenshot from `make demo`'s own store:
 
-    .venv/bin/python experiments/docs/mlflow_screenshot.py sqlite:///mlruns/mlflow.db docs/img/mlflow-comparison.png
+    .venv/bin/python experiments/docs/mlflow_screenshot.py sqlite:///mlruns/mlflow.db \\
+        docs/img/mlflow-comparison.png
 
 `--page overview` takes the run's overview (its description, params and artifacts) instead, and
 `--page chart` the experiment's chart view of every run.
@@ -65,7 +66,7 @@ def screenshot(url: str, out: Path, size: str, budget_ms: int) -> None:
             browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
             "--disable-background-networking", "--disable-component-update", "--disable-sync",
             f"--user-data-dir={profile}", f"--window-size={size}", f"--virtual-time-budget={budget_ms}",
-            "--hide-scrollbars", f"--screenshot={out.resolve()}", url,
+            f"--screenshot={out.resolve()}", url,
         ]  # fmt: skip
         subprocess.run(command, check=True, capture_output=True, timeout=300)
     if not out.exists() or out.stat().st_size == 0:
@@ -80,6 +81,7 @@ def main() -> None:
     parser.add_argument("--run", default=None, help="a parent run id (default: the newest comparison)")
     parser.add_argument("--page", choices=tuple(PAGES), default="metrics")
     parser.add_argument("--port", type=int, default=5077)
+    parser.add_argument("--settle", type=float, default=30.0, help="seconds to wait after the server answers")
     parser.add_argument("--size", default="1400,1100", help="browser window, width,height in pixels")
     parser.add_argument("--wait-ms", type=int, default=60000, help="how long the page may render (virtual)")
     args = parser.parse_args()
@@ -100,9 +102,12 @@ def main() -> None:
     )  # fmt: skip
     try:
         wait_for(url, 120.0)
+        time.sleep(args.settle)  # its workers answer /health before they answer chart queries quickly
         args.out.parent.mkdir(parents=True, exist_ok=True)
         page = PAGES[args.page].format(experiment=experiment, run=run)
-        screenshot(f"{url}/{page}", args.out, args.size, args.wait_ms)
+        # Twice: a cold server answers the first load's chart queries after Chromium has drawn spinners.
+        for _ in range(2):
+            screenshot(f"{url}/{page}", args.out, args.size, args.wait_ms)
     finally:
         os.killpg(server.pid, signal.SIGTERM)
         try:
