@@ -10,12 +10,41 @@ import numpy as np
 import pandas as pd
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
 from matplotlib.ticker import FormatStrFormatter, LogLocator, MaxNLocator, NullFormatter
 
 from activelearn.data import write_atomically
 from activelearn.names import REFERENCE_STRATEGY, metric_label
 
 _MAX_LEGEND = 8
+
+# One colour per strategy, the same in every figure the project draws (a test checks that every strategy
+# has one and no two share it). The reference (uniform) is black; the model-based rules warm colours.
+STRATEGY_COLOURS: dict[str, str] = {
+    "grid": "#8c8c8c",
+    "uniform": "#000000",
+    "random": "#bcbd22",
+    "sobol": "#17becf",
+    "lhs": "#8c564b",
+    "max_epistemic": "#d62728",
+    "epistemic_maximin": "#ff7f0e",
+    "max_total": "#e377c2",
+    "bald": "#9467bd",
+    "integrated_variance": "#2ca02c",
+    "safe_expander": "#98df8a",
+    "igs": "#1f77b4",
+    "lcmd": "#c5b0d5",
+    "auto": "#006d77",
+    "switch": "#ffbb78",
+    "oracle_error": "#7b4173",
+    "oracle_lookahead": "#393b79",
+}
+
+
+def strategy_colour(strategy: str, fallback: str = "#a0a0a0") -> str:
+    """The colour `strategy` has in every figure (`fallback` for a name no strategy has, e.g. a label)."""
+    return STRATEGY_COLOURS.get(strategy, fallback)
 
 
 def new_figure(width: float, height: float) -> Figure:
@@ -83,7 +112,14 @@ def plot_log(table: pd.DataFrame, title: str | None = None) -> Figure:
 
 # ------------------------------------------------------------------------------------- campaign figures
 
-_KIND_MARKERS = {"straight": "s", "skidpad": "o", "fishhook": "^", "slalom": "D", "eight": "P"}
+# One marker shape per maneuver kind: the reference kinds (simulator.KINDS) and the families of a
+# `dynamics` pool (simulator.families.FAMILIES); a test checks every kind has its own. The fill says
+# which group a maneuver is in (prior, collected, chosen), so no shape doubles as a group's key.
+_KIND_MARKERS = {
+    "straight": "s", "skidpad": "o", "fishhook": "^", "slalom": "D", "eight": "P",
+    "throttle_step": ">", "chirp": "v", "multisine": "<", "prbs": "*", "staircase": "h", "figure_eight": "X",
+}  # fmt: skip
+_OTHER_MARKER = "p"  # a kind no entry names
 
 
 def _signed_steering(maneuver: Any) -> float:
@@ -124,35 +160,37 @@ def epistemic_map(
     for group, style in styles:
         for kind in sorted({m.kind for m in group}):
             pts = np.array([(_signed_steering(m), m.throttle) for m in group if m.kind == kind])
-            ax.scatter(pts[:, 0], pts[:, 1], marker=_KIND_MARKERS.get(kind, "o"), **style)
-    # Fill says what a marker is (only the groups drawn), shape which kind of maneuver it is.
+            ax.scatter(pts[:, 0], pts[:, 1], marker=_KIND_MARKERS.get(kind, _OTHER_MARKER), **style)
+    # Fill says what a marker is (only the groups drawn), shape which kind of maneuver it is. With one
+    # kind the group's key is that kind's marker; with several, a swatch of the fill (a marker would
+    # read as one of the kinds) and one outline per kind.
     kinds = sorted({m.kind for m in [*prior, *taken, *picks]})
-    shape = _KIND_MARKERS.get(kinds[0], "o") if len(kinds) == 1 else "o"
     only = f" ({kinds[0]})" if len(kinds) == 1 else ""
-    for group, style, label in zip(
-        (prior, taken, picks),
-        (st for _, st in styles),
-        ("prior (known)", "collected", "chosen this round"),
-        strict=True,
+    handles: list[Any] = []
+    for group, (_, style), label in zip(
+        (prior, taken, picks), styles, ("prior (known)", "collected", "chosen this round"), strict=True
     ):
-        if len(group):
-            ax.scatter([], [], marker=shape, label=label + only, **{**style, "s": 36})
+        if not len(group):
+            continue
+        colours = {"facecolor": style["facecolor"], "edgecolor": style["edgecolor"]}
+        if len(kinds) == 1:
+            marker = _KIND_MARKERS.get(kinds[0], _OTHER_MARKER)
+            handles.append(Line2D([], [], linestyle="none", marker=marker, markersize=7, label=label + only,
+                                  markerfacecolor=colours["facecolor"], markeredgecolor=colours["edgecolor"]))
+        else:
+            handles.append(Patch(**colours, label=label))
     if len(kinds) > 1:
-        for kind in kinds:
-            ax.scatter(
-                [],
-                [],
-                marker=_KIND_MARKERS.get(kind, "o"),
-                facecolor="none",
-                edgecolor="black",
-                label=f"shape: {kind}",
-            )
+        handles += [
+            Line2D([], [], linestyle="none", marker=_KIND_MARKERS.get(kind, _OTHER_MARKER), markersize=7,
+                   markerfacecolor="none", markeredgecolor="black", label=f"shape: {kind}")
+            for kind in kinds
+        ]  # fmt: skip
     ax.set_xlabel("signed steering (rad, + = left, ccw)")
     ax.set_ylabel("throttle")
     ax.set_title(title)
-    handles = ax.get_legend_handles_labels()[0]
     if handles:  # an empty map (nothing collected or chosen yet) has nothing to explain
-        panel.legend(loc="outside lower center", ncols=min(4, len(handles)), fontsize=9, frameon=False)
+        panel.legend(handles=handles, loc="outside lower center", ncols=min(4, len(handles)), fontsize=9,
+                     frameon=False)  # fmt: skip
     return fig
 
 
@@ -215,7 +253,7 @@ def comparison_figure(
                     x=(budget, "mean"), mean=(metric, "mean"), std=(metric, "std"), count=(metric, "count")
                 )
                 sem = (stats["std"] / np.sqrt(stats["count"])).fillna(0.0)
-                color = f"C{i % 10}"
+                color = strategy_colour(strategy, fallback=f"C{i % 10}")
                 style = {"linewidth": 2.6, "linestyle": "--"} if strategy == reference else {"linewidth": 1.6}
                 label = f"{strategy} (reference)" if strategy == reference else strategy
                 ax.plot(stats["x"], stats["mean"], color=color, label=label, **style)

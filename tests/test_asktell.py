@@ -109,7 +109,7 @@ def test_propose_drive_ingest_propose_round_trip(proposed, capsys):
     # every round reached the same MLflow run, which is finished now
     tracker = Tracker(f"sqlite:///{tmp_path}/mlruns/mlflow.db")
     assert [n for n, _ in tracker.metric_history(state.run_id, "n_maneuvers")] == [
-        int(r["n_samples"]) for r in state.rounds
+        int(r["n_maneuvers"]) for r in state.rounds
     ]
     assert tracker.run_status(state.run_id) == "FINISHED"
 

@@ -54,10 +54,12 @@ def test_smoke_campaign_logs_every_round_metric_to_sqlite(tmp_path):
     for name in ROUND_METRICS:
         steps = [step for step, _ in tracker.metric_history(run_id, name)]
         assert len(steps) >= 2, name
-    # step = number of training samples, growing with the data
+    # step = maneuvers collected, growing with the budget; the training rows are a metric of their own
     steps = [step for step, _ in tracker.metric_history(run_id, "test_rmse")]
     assert steps == sorted(steps) and steps[0] < steps[-1]
-    assert result.history["n_samples"].tolist() == steps
+    assert result.history["n_maneuvers"].tolist() == steps == [3, 5]
+    rows = tracker.metric_history(run_id, "n_samples")
+    assert rows == [(s, float(n)) for s, n in zip(steps, result.history["n_samples"], strict=True)]
     assert (tmp_path / "c" / "figures" / "epistemic_round01.png").exists()
     assert len(result.state.taken) == 5 and len(set(result.state.taken)) == 5
 

@@ -98,4 +98,4 @@ def test_a_failed_write_at_each_checkpoint_write_resumes_to_the_same_campaign(se
             for key in ("test_rmse", "n_maneuvers", "prequential_spearman"):
                 if key in record:
                     steps = [s for s, _ in tracker.metric_history(state.run_id, key)]
-                    assert steps.count(record["n_samples"]) == 1, (fail_at, key, steps)
+                    assert steps.count(record["n_maneuvers"]) == 1, (fail_at, key, steps)

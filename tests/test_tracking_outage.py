@@ -153,7 +153,7 @@ def test_a_server_lost_mid_campaign_costs_no_round_and_logs_each_once(tmp_path, 
     for record in state.rounds:  # every metric of every round (prequential checks included), once
         for key, value in record.items():
             history = tracker.metric_history(state.run_id, key)
-            history = [v for step, v in history if step == record["n_samples"]]
+            history = [v for step, v in history if step == record["n_maneuvers"]]
             assert history == [pytest.approx(value, nan_ok=True)], (key, record["round"], history)
     steps = [step for step, _ in tracker.metric_history(state.run_id, "test_rmse")]
-    assert steps == [r["n_samples"] for r in state.rounds]
+    assert steps == [r["n_maneuvers"] for r in state.rounds]

@@ -4,6 +4,10 @@ The tracker is handed in (`activelearn.studies.tracking.Tracker`, the only MLflo
 one nothing is logged. A tracking server that goes away mid-campaign costs one warning: the campaign
 goes on, counts in its state what reached MLflow (`state.logged`), and logs the rest once the server
 answers again or at `--resume`.
+
+Every round is logged at step = the maneuvers collected so far (`n_maneuvers`, the campaign's budget),
+so the runs of a comparison line up on MLflow's charts whatever their rows per maneuver; the training
+rows are a metric of their own (`n_samples`).
 """
 
 from __future__ import annotations
@@ -17,6 +21,11 @@ from activelearn.errors import ActiveLearnError, CampaignStopped, TrackingUnavai
 from activelearn.loop.state import CampaignState
 
 Progress = Callable[[dict[str, Any]], None]
+
+
+def round_step(record: dict[str, Any]) -> int:
+    """The MLflow step of a round's metrics: the maneuvers collected so far."""
+    return int(record["n_maneuvers"])
 
 
 class CampaignInterrupted(ActiveLearnError):
@@ -72,7 +81,9 @@ class RunLog:
 
     def _open_run(self, state: CampaignState, params: Callable[[], dict[str, Any]]) -> None:
         assert self.tracker is not None
-        name = f"{self.cfg.name}-{self.cfg.strategy}-seed{self.cfg.seed}"
+        # Nested under a comparison, the strategy first: MLflow's chart legends read `uniform/seed0`.
+        name = (f"{self.cfg.strategy}/seed{self.cfg.seed}" if self.parent_run_id is not None
+                else f"{self.cfg.name}-{self.cfg.strategy}-seed{self.cfg.seed}")  # fmt: skip
         state.run_id = self.tracker.start_run(
             name,
             parent_run_id=self.parent_run_id,
@@ -95,7 +106,7 @@ class RunLog:
         assert self.tracker is not None and state.run_id is not None
         record = state.rounds[index]
         stamp = state.stamps[index] if index < len(state.stamps) else None
-        self.tracker.log_metrics(state.run_id, record, step=int(record["n_samples"]), timestamp=stamp)
+        self.tracker.log_metrics(state.run_id, record, step=round_step(record), timestamp=stamp)
         figure_path = self.directory / "figures" / f"epistemic_round{int(record['round']):02d}.png"
         if figure_path.exists():
             self.tracker.log_artifact(state.run_id, figure_path, "figures")
@@ -104,7 +115,7 @@ class RunLog:
         """Log the prequential checks of the last round at its step (the round again, later, on failure)."""
         if self.tracker is None or state.run_id is None:
             return
-        tracker, run_id, step = self.tracker, state.run_id, int(state.rounds[-1]["n_samples"])
+        tracker, run_id, step = self.tracker, state.run_id, round_step(state.rounds[-1])
         stamp = state.stamps[-1] if len(state.stamps) == len(state.rounds) else None
         if not self.track(lambda: tracker.log_metrics(run_id, checks, step=step, timestamp=stamp)):
             state.logged = min(state.logged, len(state.rounds) - 1)  # the round again, later

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -23,6 +24,7 @@ from activelearn.names import CURVE_METRICS, RANKING_METRICS, REFERENCE_STRATEGY
 from activelearn.studies.executors import check_executor, run_jobs
 
 Progress = Callable[[dict[str, Any]], None]
+FIGURE_ARTIFACT = "comparison.png"  # the figure in the comparison directory and on the parent run
 
 
 @dataclass(frozen=True)
@@ -196,6 +198,7 @@ def compare(
                         "--out", str(directory), "holds campaigns already; pass --resume or another --out"
                     )
     workers = max(1, min(workers or os.cpu_count() or 1, len(strategies) * len(seeds)))
+    reference = REFERENCE_STRATEGY if REFERENCE_STRATEGY in strategies else strategies[0]
 
     tracker, parent_run_id = None, None
     tracking = tracking and cfg.tracking.enabled  # `[tracking] enabled = false` holds here too
@@ -229,10 +232,8 @@ def compare(
         parent_run_id = tracker.start_run(
             f"compare-{cfg.name}", tags={"kind": "comparison"}, resume_run_id=previous
         )
-        tracker.log_params(
-            parent_run_id,
-            {"strategies": list(strategies), "seeds": list(seeds), **cfg.model_dump(mode="json")},
-        )
+        tracker.log_params(parent_run_id, comparison_params(cfg, strategies, seeds, metric, reference))
+        tracker.set_note(parent_run_id, comparison_note(cfg, strategies, seeds, metric, reference))
     directory.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(
         manifest,
@@ -286,7 +287,6 @@ def compare(
 
     records = [{"strategy": s, "seed": seed, **r} for (s, seed), rounds in results.items() for r in rounds]
     curves = pd.DataFrame(records).sort_values(["strategy", "seed", "round"]).reset_index(drop=True)
-    reference = REFERENCE_STRATEGY if REFERENCE_STRATEGY in strategies else strategies[0]
     if metric not in curves:
         raise InputError("--metric", metric, "these campaigns did not log it (a test set without logs?)")
     table = _summary(curves, reference, metric)
@@ -300,21 +300,123 @@ def compare(
         curves, shown, reference=reference, title=cfg.name,
         seconds="track_seconds" in curves,
     )  # fmt: skip
-    figure_path = save_figure(fig, directory / "comparison.png", dpi=110)
+    figure_path = save_figure(fig, directory / FIGURE_ARTIFACT, dpi=110)
     if tracker is not None and parent_run_id is not None:
-        tracker.log_figure(parent_run_id, fig, "comparison.png")
+        tracker.log_figure(parent_run_id, fig, FIGURE_ARTIFACT)
         tracker.log_artifact(parent_run_id, directory / "summary.csv")
         tracker.log_artifact(parent_run_id, directory / "curves.csv")
+        tracker.log_metric_series(parent_run_id, band_series(curves, dict.fromkeys((metric, "test_rmse"))))
         for row in table.itertuples():
             tracker.log_metrics(
                 parent_run_id,
                 {
-                    f"{row.strategy}.final_rmse": row.final_rmse,
-                    f"{row.strategy}.final_rmse_v_mps": row.final_rmse_v,
-                    f"{row.strategy}.final_rmse_w_radps": row.final_rmse_w,
-                    f"{row.strategy}.rmse_auc": row.rmse_auc,
+                    f"summary/{row.strategy}_final_rmse": row.final_rmse,
+                    f"summary/{row.strategy}_final_rmse_v_mps": row.final_rmse_v,
+                    f"summary/{row.strategy}_final_rmse_w_radps": row.final_rmse_w,
+                    f"summary/{row.strategy}_rmse_auc": row.rmse_auc,
                 },
                 step=0,
             )
+        tracker.set_note(parent_run_id, comparison_note(cfg, strategies, seeds, metric, reference, table))
         tracker.end_run(parent_run_id, "FINISHED")
     return Comparison(curves, table, figure_path, directory, parent_run_id)
+
+
+# ------------------------------------------------------------------------------- the parent MLflow run
+
+def config_hash(cfg: CampaignConfig) -> str:
+    """A short hash of what every campaign of a comparison shares: the config without strategy and seed."""
+    shared = cfg.model_dump(mode="json", exclude={"strategy", "seed"})
+    return hashlib.sha256(json.dumps(shared, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def comparison_params(
+    cfg: CampaignConfig, strategies: Sequence[str], seeds: Sequence[int], metric: str, reference: str
+) -> dict[str, Any]:
+    """The parent run's params: what is true of the whole comparison (the strategies, the seeds, the
+    config every campaign shares, its hash), never one campaign's `strategy` or `seed`."""
+    return {
+        "strategies": list(strategies),
+        "seeds": list(seeds),
+        "campaigns": len(strategies) * len(seeds),
+        "config": cfg.name,
+        "config_hash": config_hash(cfg),
+        "metric": metric,
+        "reference": reference,
+        **cfg.model_dump(mode="json", exclude={"strategy", "seed", "name"}),
+    }
+
+
+def _budget(cfg: CampaignConfig) -> str:
+    design = cfg.design
+    parts = [f"{design.initial} initial maneuvers, then {design.per_round} a round"]
+    if design.max_maneuvers is not None:
+        parts.append(f"up to {design.max_maneuvers} maneuvers")
+    if design.max_rounds is not None:
+        parts.append(f"up to {design.max_rounds} rounds")
+    if design.max_sim_seconds is not None:
+        parts.append(f"up to {design.max_sim_seconds:g} track seconds")
+    prior = " (on top of a prior the model already knows)" if design.prior is not None else ""
+    return ", ".join(parts) + prior
+
+
+def comparison_note(
+    cfg: CampaignConfig,
+    strategies: Sequence[str],
+    seeds: Sequence[int],
+    metric: str,
+    reference: str,
+    table: pd.DataFrame | None = None,
+) -> str:
+    """The parent run's description (MLflow's note, Markdown): what was compared, where the figure and
+    the charts are; with the summary `table`, each strategy's final value of `metric`."""
+    lines = [
+        f"**Strategy comparison** on config `{cfg.name}` (hash `{config_hash(cfg)}`): "
+        f"{', '.join(f'`{s}`' for s in strategies)} × seeds {', '.join(map(str, seeds))} "
+        f"({len(strategies) * len(seeds)} campaigns, the nested runs `<strategy>/seed<k>`), "
+        f"ranked by `{metric}` against `{reference}`.",
+        "",
+        f"Budget: {_budget(cfg)}.",
+        "",
+        f"**Figure**: the artifact `{FIGURE_ARTIFACT}` (Artifacts tab): learning curves, mean ± 1 s.e. over "
+        "seeds.",
+        "",
+        f"**Charts**: this run's *Model metrics* tab holds each strategy's `<strategy>/{metric}_mean`, `_lo` "
+        "and `_hi` (mean ± 1 s.e. over seeds) at step = maneuvers collected. The nested runs log every "
+        "round at the same steps: on the experiment's *Chart* view, *Group by* → tag `strategy` draws one "
+        "line and band per strategy.",
+    ]
+    if table is not None and "final_rmse" in table:
+        final = "final_rmse" if metric == "test_rmse" else "final_metric"
+        spread = "final_rmse_sem" if metric == "test_rmse" else "final_metric_sem"
+        lines += ["", f"| strategy | final {metric} | ± s.e. | maneuvers to reach {reference} |",
+                  "|---|---|---|---|"]  # fmt: skip
+        for row in table.itertuples():
+            lines.append(
+                f"| {row.strategy} | {getattr(row, final):.4g} | {getattr(row, spread):.2g} "
+                f"| {row.maneuvers_to_target:.3g} ({row.reached}) |"
+            )
+    return "\n".join(lines)
+
+
+def band_series(curves: pd.DataFrame, metrics: Sequence[str]) -> list[tuple[int, dict[str, float]]]:
+    """Each strategy's mean ± 1 s.e. over seeds of `metrics`, as (step, metrics) rows for MLflow.
+
+    Step = maneuvers collected (`n_maneuvers`), the step of every round of the nested runs; a step is
+    averaged over the seeds that reached it. Keys `<strategy>/<metric>_mean`, `_lo`, `_hi`; one seed
+    gives a band of width 0.
+    """
+    rows: dict[int, dict[str, float]] = {}
+    for (strategy, step), part in curves.groupby(["strategy", "n_maneuvers"], sort=True):
+        values = rows.setdefault(int(step), {})
+        for metric in metrics:
+            if metric not in part:
+                continue
+            column = part[metric].to_numpy(float)
+            column = column[np.isfinite(column)]
+            if not len(column):
+                continue
+            mean, sem = float(column.mean()), _sem(column)
+            values.update({f"{strategy}/{metric}_mean": mean, f"{strategy}/{metric}_lo": mean - sem,
+                           f"{strategy}/{metric}_hi": mean + sem})  # fmt: skip
+    return sorted(rows.items())

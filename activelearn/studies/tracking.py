@@ -39,6 +39,8 @@ os.environ.setdefault("MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR", "1")
 DEFAULT_TRACKING_URI = "sqlite:///mlruns/mlflow.db"
 DEFAULT_EXPERIMENT = "activelearn"
 _MAX_PARAM_LENGTH = 6000  # MLflow's limit on a param value
+_MAX_TAG_LENGTH = 8000  # and on a tag value
+NOTE_TAG = "mlflow.note.content"  # the tag MLflow's UI shows as a run's description
 _BATCH = 100  # MLflow accepts at most 100 params per log_batch call
 _METRIC_BATCH = 1000  # and at most 1000 metrics
 SERVER_TIMEOUT = 5.0  # s: an unreachable tracking server is one clear error, not minutes of retries
@@ -271,6 +273,14 @@ class Tracker:
         """Set string tags on a run."""
         for key, value in tags.items():
             self._call(lambda key=key, value=value: self.client.set_tag(run_id, key, str(value)))
+
+    def set_note(self, run_id: str, text: str) -> None:
+        """Set a run's description (MLflow's note, shown as Markdown on the run's page)."""
+        self._call(lambda: self.client.set_tag(run_id, NOTE_TAG, text[:_MAX_TAG_LENGTH]))
+
+    def note(self, run_id: str) -> str | None:
+        """A run's description (None when it has none)."""
+        return self._call(lambda: self.client.get_run(run_id)).data.tags.get(NOTE_TAG)
 
     def log_metrics(
         self, run_id: str, metrics: Mapping[str, float], step: int, timestamp: int | None = None
