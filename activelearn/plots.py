@@ -15,7 +15,7 @@ from matplotlib.patches import Patch
 from matplotlib.ticker import FormatStrFormatter, LogLocator, MaxNLocator, NullFormatter
 
 from activelearn.data import write_atomically
-from activelearn.names import REFERENCE_STRATEGY, metric_label
+from activelearn.names import N_MANEUVERS, REFERENCE_STRATEGY, ROUND, TEST_NLL, TRACK_SECONDS, metric_label
 
 _MAX_LEGEND = 8
 
@@ -240,7 +240,7 @@ def comparison_figure(
     reference strategy is drawn dashed and thicker. With `seconds`, a second row of panels draws the
     same metrics against the track seconds spent (`track_seconds`, averaged over seeds per round).
     """
-    budgets = ["n_maneuvers", *(["track_seconds"] if seconds else [])]
+    budgets = [N_MANEUVERS, *([TRACK_SECONDS] if seconds else [])]
     fig = new_figure(3.4 * len(metrics), 3.0 * len(budgets) + 0.6)
     grid = fig.subplots(len(budgets), len(metrics), squeeze=False)
     strategies = list(dict.fromkeys(curves["strategy"]))
@@ -249,7 +249,7 @@ def comparison_figure(
         for ax, metric in zip(axes, metrics, strict=True):
             for i, strategy in enumerate(strategies):
                 part = curves[curves["strategy"] == strategy]
-                stats = part.groupby("round").agg(
+                stats = part.groupby(ROUND).agg(
                     x=(budget, "mean"), mean=(metric, "mean"), std=(metric, "std"), count=(metric, "count")
                 )
                 sem = (stats["std"] / np.sqrt(stats["count"])).fillna(0.0)
@@ -259,10 +259,10 @@ def comparison_figure(
                 ax.plot(stats["x"], stats["mean"], color=color, label=label, **style)
                 ax.fill_between(stats["x"], stats["mean"] - sem, stats["mean"] + sem, color=color, alpha=0.2)
             ax.set_xlabel(metric_label(budget))
-            if budget == "n_maneuvers":
+            if budget == N_MANEUVERS:
                 ax.xaxis.set_major_locator(MaxNLocator(integer=True))
             ax.set_ylabel(metric_label(metric), fontsize=8.5)
-            if metric != "test_nll":
+            if metric != TEST_NLL:
                 ax.set_yscale("log")
                 # plain decimals at 1-2-5 steps: the default gives "1.3 x 10^-1"-style labels; minor
                 # ticks are labelled only when the range spans less than a decade (else they crowd)

@@ -75,6 +75,8 @@ def test_a_comparison_shows_its_curves_on_the_parent_run_of_a_sqlite_store(tmp_p
     for text in ("`uniform`", "`max_epistemic`", "seeds 0, 1", "comparison.png"):
         assert text in note, text
     assert "| uniform |" in note  # the final values, once finished
+    # and the figure itself, drawn by MLflow's page from the run's own artifact
+    assert f"(get-artifact?path=comparison.png&run_uuid={result.parent_run_id})" in note
     assert "comparison.png" in {a.path for a in tracker.client.list_artifacts(result.parent_run_id)}
 
     # every child: named strategy/seed, tagged with its strategy, stepped by maneuvers collected

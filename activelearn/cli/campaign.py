@@ -18,7 +18,17 @@ from activelearn.cli.common import (
     red,
     ui_hint,
 )
-from activelearn.names import METRICS, ROLLOUT_METRICS, ROUND_TABLE, STRATEGY_NAMES
+from activelearn.names import (
+    METRICS,
+    N_MANEUVERS,
+    N_SAMPLES,
+    ROLLOUT_COVERAGE_95,
+    ROLLOUT_METRICS,
+    ROUND,
+    ROUND_TABLE,
+    STRATEGY_NAMES,
+    TEST_RMSE,
+)
 
 
 def round_columns(cfg: Any, history: Any) -> dict[str, str]:
@@ -26,8 +36,8 @@ def round_columns(cfg: Any, history: Any) -> dict[str, str]:
     coverage first when it ranks by a free run, then the one-step metrics."""
     columns = {k: METRICS[k].column for k in ROUND_TABLE}
     if cfg.test.metric in ROLLOUT_METRICS:
-        first = {k: columns.pop(k) for k in ("round", "n_maneuvers", "n_samples")}
-        ranked = {k: METRICS[k].column for k in (cfg.test.metric, "rollout_coverage_95")}
+        first = {k: columns.pop(k) for k in (ROUND, N_MANEUVERS, N_SAMPLES)}
+        ranked = {k: METRICS[k].column for k in (cfg.test.metric, ROLLOUT_COVERAGE_95)}
         columns = {**first, **ranked, **columns}
     return {k: v for k, v in columns.items() if k in history}
 
@@ -244,8 +254,8 @@ def _campaign_run(args: argparse.Namespace) -> int:
             bar.refresh()
         elif event["event"] == "round":
             bar.update(1)
-            bar.set_postfix(maneuvers=event["n_maneuvers"], samples=event["n_samples"],
-                            rmse=f"{event['test_rmse']:.4f}")
+            bar.set_postfix(maneuvers=event[N_MANEUVERS], samples=event[N_SAMPLES],
+                            rmse=f"{event[TEST_RMSE]:.4f}")
 
     campaign.progress, campaign.lock_wait = progress, args.wait
     try:

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from activelearn.cli.common import add_config_options, load_campaign_config, output_path, red, ui_hint
-from activelearn.names import STRATEGY_NAMES
+from activelearn.names import STRATEGY_NAMES, TEST_RMSE
 
 # The comparison table's columns as printed.
 SUMMARY_COLUMNS = {
@@ -80,7 +80,7 @@ def _compare(args: argparse.Namespace) -> int:
         elif event["event"] == "job":
             bar = bars.setdefault("jobs", tqdm(total=n_jobs, unit="campaign", desc="campaigns", disable=None))
             bar.update(1)
-            bar.set_postfix(last=f"{event['strategy']}/seed{event['seed']}", rmse=f"{event['test_rmse']:.4f}")
+            bar.set_postfix(last=f"{event['strategy']}/seed{event['seed']}", rmse=f"{event[TEST_RMSE]:.4f}")
 
     try:
         result = compare(cfg, strategies, list(range(args.seeds)), directory=directory, workers=args.workers,
@@ -96,7 +96,7 @@ def _compare(args: argparse.Namespace) -> int:
             bar.close()
     table = result.table
     metric = table.attrs["metric"]
-    if metric == "test_rmse":
+    if metric == TEST_RMSE:
         print(f"target: {table.attrs['reference']}'s final RMSE {table.attrs['target_rmse']:.4g} "
               "(standardised; RMSE of v in m/s and ω in rad/s beside it)")
     else:

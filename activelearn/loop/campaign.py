@@ -64,7 +64,16 @@ from activelearn.loop.state import (
     STATE_FILE,
     CampaignState,
 )
-from activelearn.names import EPISTEMIC_SCALE, FAN_SCALE, PREQUENTIAL_FAN_SCALE
+from activelearn.names import (
+    EPISTEMIC_SCALE,
+    FAN_SCALE,
+    N_MANEUVERS,
+    POOL_EPISTEMIC_STD_MAX,
+    PREQUENTIAL_FAN_SCALE,
+    ROUND,
+    TEST_RMSE,
+    WALL_SECONDS,
+)
 from activelearn.numerics.models import load_model, save_model
 from activelearn.numerics.surrogate import model_inputs
 from activelearn.seeds import Stream, derived_rng, derived_seed
@@ -302,7 +311,7 @@ class Campaign:
         new = self.collect(batch, len(state.batches), state)
         more = pd.concat([samples, new], ignore_index=True)
         trial = self.fitting.fit(more, round_index + 1, previous=model)
-        return self.evaluation.evaluate(trial, rollouts=False)["test_rmse"]
+        return self.evaluation.evaluate(trial, rollouts=False)[TEST_RMSE]
 
     def assess(
         self, model: Any | None, round_index: int, open_: np.ndarray, samples: pd.DataFrame | None
@@ -436,7 +445,7 @@ class Campaign:
             self._checkpoint(state, None, None)
             return
         round_index = len(state.rounds)
-        self.progress({"event": "fit", "round": round_index, "n_maneuvers": len(state.taken)})
+        self.progress({"event": "fit", ROUND: round_index, N_MANEUVERS: len(state.taken)})
         scale = applied_scale(state) if self.cfg.design.recalibrate == "prequential" else 1.0
         previous = self.fitting.previous_model(round_index)
         model = self.fitting.fit(samples, round_index, scale, previous=previous)
@@ -446,7 +455,7 @@ class Campaign:
             with torch.no_grad():
                 model.fan_scale.fill_(fans[FAN_SCALE])
         x, _, _ = self.fitting.training_data(samples)
-        metrics: dict[str, Any] = {"round": round_index, EPISTEMIC_SCALE: scale, **fans}
+        metrics: dict[str, Any] = {ROUND: round_index, EPISTEMIC_SCALE: scale, **fans}
         metrics.update(model.round_metrics())  # what only some kinds record (a correction's kept share)
         metrics.update(self.evaluation.evaluate(model))
         metrics.update(
@@ -455,7 +464,7 @@ class Campaign:
             sim_seconds=self.budget.sim_seconds(state),
             track_seconds=self.budget.track_seconds(state),
         )
-        metrics["wall_seconds"] = state.wall_seconds = self._wall()
+        metrics[WALL_SECONDS] = state.wall_seconds = self._wall()
         k, reason = self.budget.next_batch_size(state)
         pool = self.pool(state.taken, model, self.budget.affordable(state))
         admitted: Admitted | None = None
@@ -469,8 +478,8 @@ class Campaign:
         elif self.cfg.safety is not None:
             metrics.update(self.admission.metrics(state, None, 0.0))
         if reason is None and self.cfg.design.stop_epistemic_std is not None:
-            metrics["pool_epistemic_std_max"] = self.evaluation.pool_epistemic_max(model, pool)
-            if metrics["pool_epistemic_std_max"] < self.cfg.design.stop_epistemic_std:
+            metrics[POOL_EPISTEMIC_STD_MAX] = self.evaluation.pool_epistemic_max(model, pool)
+            if metrics[POOL_EPISTEMIC_STD_MAX] < self.cfg.design.stop_epistemic_std:
                 reason = "stop_epistemic_std"
         picks: list[int] = []
         if reason is None:
@@ -497,7 +506,7 @@ class Campaign:
         self.fitting.keep_warm_model(model, round_index)
         self._checkpoint(state, None, model)
         self.run_log.flush(state)
-        self.progress({"event": "round", **metrics, "picks": [self.maneuvers[i].name for i in picks]})
+        self.progress({"event": ROUND, **metrics, "picks": [self.maneuvers[i].name for i in picks]})
 
     def _receive(self, state: CampaignState, samples: pd.DataFrame, new: pd.DataFrame) -> pd.DataFrame:
         """Append the logs of the pending batch; measure the prequential scale on them if asked."""
@@ -528,7 +537,7 @@ class Campaign:
             # [safety] stopped it; [safety] may have changed since (it is not in the config hash):
             # the last round is fitted and judged again (its metrics are logged again at that step).
             state.finished, state.stop_reason = False, None
-            if state.rounds and "test_rmse" in state.rounds[-1]:
+            if state.rounds and TEST_RMSE in state.rounds[-1]:
                 state.rounds.pop()
             state.logged = min(state.logged, len(state.rounds))
         self._clock = (state.wall_seconds, time.perf_counter())

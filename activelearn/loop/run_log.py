@@ -19,13 +19,14 @@ from typing import Any
 from activelearn.config import CampaignConfig
 from activelearn.errors import ActiveLearnError, CampaignStopped, TrackingUnavailable
 from activelearn.loop.state import CampaignState
+from activelearn.names import N_MANEUVERS, ROUND
 
 Progress = Callable[[dict[str, Any]], None]
 
 
 def round_step(record: dict[str, Any]) -> int:
     """The MLflow step of a round's metrics: the maneuvers collected so far."""
-    return int(record["n_maneuvers"])
+    return int(record[N_MANEUVERS])
 
 
 class CampaignInterrupted(ActiveLearnError):
@@ -107,7 +108,7 @@ class RunLog:
         record = state.rounds[index]
         stamp = state.stamps[index] if index < len(state.stamps) else None
         self.tracker.log_metrics(state.run_id, record, step=round_step(record), timestamp=stamp)
-        figure_path = self.directory / "figures" / f"epistemic_round{int(record['round']):02d}.png"
+        figure_path = self.directory / "figures" / f"epistemic_round{int(record[ROUND]):02d}.png"
         if figure_path.exists():
             self.tracker.log_artifact(state.run_id, figure_path, "figures")
 

@@ -20,7 +20,18 @@ from activelearn.errors import InputError
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.lock import DEFAULT_WAIT
 from activelearn.loop.state import STATE_FILE
-from activelearn.names import CURVE_METRICS, RANKING_METRICS, REFERENCE_STRATEGY
+from activelearn.names import (
+    CURVE_METRICS,
+    N_MANEUVERS,
+    RANKING_METRICS,
+    REFERENCE_STRATEGY,
+    ROUND,
+    TEST_NLL,
+    TEST_RMSE,
+    TEST_RMSE_V,
+    TEST_RMSE_W,
+    TRACK_SECONDS,
+)
 from activelearn.studies.executors import check_executor, run_jobs
 
 Progress = Callable[[dict[str, Any]], None]
@@ -75,30 +86,30 @@ def _sem(values: np.ndarray) -> float:
     return float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) > 1 else 0.0
 
 
-def _summary(curves: pd.DataFrame, reference: str, metric: str = "test_rmse") -> pd.DataFrame:
+def _summary(curves: pd.DataFrame, reference: str, metric: str = TEST_RMSE) -> pd.DataFrame:
     """Per strategy: final RMSE (standardised, and v in m/s, ω in rad/s), NLL, area under the RMSE
     curve, and the maneuvers and track seconds each seed needed to reach the reference's final value
     of `metric` (lower is better). Another metric than test_rmse adds its final mean, s.e.m. and
     area as `final_metric`, `final_metric_sem` and `metric_auc`."""
     rows = []
     ref = curves[curves["strategy"] == reference]
-    ref_final = ref.sort_values("n_maneuvers").groupby("seed").last()
+    ref_final = ref.sort_values(N_MANEUVERS).groupby("seed").last()
     target = float(ref_final[metric].mean()) if len(ref_final) else math.nan
-    ref_budget = float(ref_final["n_maneuvers"].mean()) if len(ref_final) else math.nan
-    has_seconds = "track_seconds" in curves
-    ref_seconds = float(ref_final["track_seconds"].mean()) if has_seconds and len(ref_final) else math.nan
+    ref_budget = float(ref_final[N_MANEUVERS].mean()) if len(ref_final) else math.nan
+    has_seconds = TRACK_SECONDS in curves
+    ref_seconds = float(ref_final[TRACK_SECONDS].mean()) if has_seconds and len(ref_final) else math.nan
     for strategy, part in curves.groupby("strategy", sort=False):
-        finals = part.sort_values("n_maneuvers").groupby("seed").last()
+        finals = part.sort_values(N_MANEUVERS).groupby("seed").last()
         aucs, metric_aucs, reach, reach_s = [], [], [], []
         for _, run in part.groupby("seed"):
-            run = run.sort_values("n_maneuvers")
-            n, rmse = run["n_maneuvers"].to_numpy(float), run["test_rmse"].to_numpy(float)
+            run = run.sort_values(N_MANEUVERS)
+            n, rmse = run[N_MANEUVERS].to_numpy(float), run[TEST_RMSE].to_numpy(float)
             ranked = run[metric].to_numpy(float)
             aucs.append(_area(n, rmse))
             metric_aucs.append(_area(n, ranked))
             reach.append(_first_reach(n, ranked, target))
             if has_seconds:
-                reach_s.append(_first_reach(run["track_seconds"].to_numpy(float), ranked, target))
+                reach_s.append(_first_reach(run[TRACK_SECONDS].to_numpy(float), ranked, target))
         reach_arr = np.array(reach)
         reached = reach_arr[~np.isnan(reach_arr)]
         seconds = np.array(reach_s)
@@ -106,15 +117,15 @@ def _summary(curves: pd.DataFrame, reference: str, metric: str = "test_rmse") ->
         row = {
             "strategy": strategy,
             "seeds": len(finals),
-            "final_rmse": float(finals["test_rmse"].mean()),
-            "final_rmse_sem": _sem(finals["test_rmse"].to_numpy()),
-            "final_rmse_v": float(finals["test_rmse_v"].mean()),
-            "final_rmse_w": float(finals["test_rmse_w"].mean()),
-            "final_nll": float(finals["test_nll"].mean()),
+            "final_rmse": float(finals[TEST_RMSE].mean()),
+            "final_rmse_sem": _sem(finals[TEST_RMSE].to_numpy()),
+            "final_rmse_v": float(finals[TEST_RMSE_V].mean()),
+            "final_rmse_w": float(finals[TEST_RMSE_W].mean()),
+            "final_nll": float(finals[TEST_NLL].mean()),
             "rmse_auc": float(np.mean(aucs)),
             **(
                 {}
-                if metric == "test_rmse"
+                if metric == TEST_RMSE
                 else {
                     "final_metric": float(finals[metric].mean()),
                     "final_metric_sem": _sem(finals[metric].to_numpy()),
@@ -270,7 +281,7 @@ def compare(
                 "total": len(jobs),
                 "strategy": key[0],
                 "seed": key[1],
-                "test_rmse": rounds[-1]["test_rmse"],
+                TEST_RMSE: rounds[-1][TEST_RMSE],
             }
         )
 
@@ -286,7 +297,7 @@ def compare(
         raise
 
     records = [{"strategy": s, "seed": seed, **r} for (s, seed), rounds in results.items() for r in rounds]
-    curves = pd.DataFrame(records).sort_values(["strategy", "seed", "round"]).reset_index(drop=True)
+    curves = pd.DataFrame(records).sort_values(["strategy", "seed", ROUND]).reset_index(drop=True)
     if metric not in curves:
         raise InputError("--metric", metric, "these campaigns did not log it (a test set without logs?)")
     table = _summary(curves, reference, metric)
@@ -298,14 +309,14 @@ def compare(
     shown = (metric, *(m for m in CURVE_METRICS if m != metric and m in curves))
     fig = comparison_figure(
         curves, shown, reference=reference, title=cfg.name,
-        seconds="track_seconds" in curves,
+        seconds=TRACK_SECONDS in curves,
     )  # fmt: skip
     figure_path = save_figure(fig, directory / FIGURE_ARTIFACT, dpi=110)
     if tracker is not None and parent_run_id is not None:
         tracker.log_figure(parent_run_id, fig, FIGURE_ARTIFACT)
         tracker.log_artifact(parent_run_id, directory / "summary.csv")
         tracker.log_artifact(parent_run_id, directory / "curves.csv")
-        tracker.log_metric_series(parent_run_id, band_series(curves, dict.fromkeys((metric, "test_rmse"))))
+        tracker.log_metric_series(parent_run_id, band_series(curves, dict.fromkeys((metric, TEST_RMSE))))
         for row in table.itertuples():
             tracker.log_metrics(
                 parent_run_id,
@@ -317,7 +328,8 @@ def compare(
                 },
                 step=0,
             )
-        tracker.set_note(parent_run_id, comparison_note(cfg, strategies, seeds, metric, reference, table))
+        note = comparison_note(cfg, strategies, seeds, metric, reference, table, parent_run_id)
+        tracker.set_note(parent_run_id, note)
         tracker.end_run(parent_run_id, "FINISHED")
     return Comparison(curves, table, figure_path, directory, parent_run_id)
 
@@ -367,9 +379,11 @@ def comparison_note(
     metric: str,
     reference: str,
     table: pd.DataFrame | None = None,
+    run_id: str | None = None,
 ) -> str:
     """The parent run's description (MLflow's note, Markdown): what was compared, where the figure and
-    the charts are; with the summary `table`, each strategy's final value of `metric`."""
+    the charts are; with the summary `table`, each strategy's final value of `metric`, and with the
+    parent's `run_id` the figure itself (MLflow's page draws an image of the run's own artifact)."""
     lines = [
         f"**Strategy comparison** on config `{cfg.name}` (hash `{config_hash(cfg)}`): "
         f"{', '.join(f'`{s}`' for s in strategies)} × seeds {', '.join(map(str, seeds))} "
@@ -378,8 +392,8 @@ def comparison_note(
         "",
         f"Budget: {_budget(cfg)}.",
         "",
-        f"**Figure**: the artifact `{FIGURE_ARTIFACT}` (Artifacts tab): learning curves, mean ± 1 s.e. over "
-        "seeds.",
+        f"**Figure**: at the end of this description (*Show more*), and the artifact `{FIGURE_ARTIFACT}` "
+        "(Artifacts tab): learning curves, mean ± 1 s.e. over seeds.",
         "",
         f"**Charts**: this run's *Model metrics* tab holds each strategy's `<strategy>/{metric}_mean`, `_lo` "
         "and `_hi` (mean ± 1 s.e. over seeds) at step = maneuvers collected. The nested runs log every "
@@ -387,8 +401,8 @@ def comparison_note(
         "line and band per strategy.",
     ]
     if table is not None and "final_rmse" in table:
-        final = "final_rmse" if metric == "test_rmse" else "final_metric"
-        spread = "final_rmse_sem" if metric == "test_rmse" else "final_metric_sem"
+        final = "final_rmse" if metric == TEST_RMSE else "final_metric"
+        spread = "final_rmse_sem" if metric == TEST_RMSE else "final_metric_sem"
         lines += ["", f"| strategy | final {metric} | ± s.e. | maneuvers to reach {reference} |",
                   "|---|---|---|---|"]  # fmt: skip
         for row in table.itertuples():
@@ -396,6 +410,9 @@ def comparison_note(
                 f"| {row.strategy} | {getattr(row, final):.4g} | {getattr(row, spread):.2g} "
                 f"| {row.maneuvers_to_target:.3g} ({row.reached}) |"
             )
+    if run_id is not None:
+        lines += ["", f"![learning curves, mean ± 1 s.e. over seeds](get-artifact?path={FIGURE_ARTIFACT}"
+                      f"&run_uuid={run_id})"]  # fmt: skip
     return "\n".join(lines)
 
 
@@ -407,7 +424,7 @@ def band_series(curves: pd.DataFrame, metrics: Sequence[str]) -> list[tuple[int,
     gives a band of width 0.
     """
     rows: dict[int, dict[str, float]] = {}
-    for (strategy, step), part in curves.groupby(["strategy", "n_maneuvers"], sort=True):
+    for (strategy, step), part in curves.groupby(["strategy", N_MANEUVERS], sort=True):
         values = rows.setdefault(int(step), {})
         for metric in metrics:
             if metric not in part:

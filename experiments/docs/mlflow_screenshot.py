@@ -1,14 +1,15 @@
 """Screenshot MLflow's own page of a comparison: the latest `compare` parent run's metric charts.
 
 Starts `mlflow ui` on the store, finds the newest run tagged kind = comparison, loads the run's
-"Model metrics" page in headless Chromium (the OS package: `apt-get install chromium`) and writes a
-PNG; then stops the server. It makes the tutorial's screenshot from `make demo`'s own store:
+overview (its description draws the comparison figure) in headless Chromium (the OS package:
+`apt-get install chromium`, driven by Playwright: `pip install playwright`) and writes a PNG; then
+stops the server. It makes the tutorial's screenshot from `make demo`'s own store:
 
     .venv/bin/python experiments/docs/mlflow_screenshot.py sqlite:///mlruns/mlflow.db \\
         docs/img/mlflow-comparison.png
 
-`--page overview` takes the run's overview (its description, params and artifacts) instead, and
-`--page chart` the experiment's chart view of every run.
+`--page metrics` takes the run's *Model metrics* charts instead, and `--page chart` the
+experiment's chart view of every run.
 """
 
 from __future__ import annotations
@@ -19,7 +20,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import tempfile
 import time
 import urllib.error
 import urllib.request
@@ -56,19 +56,41 @@ def wait_for(url: str, seconds: float) -> None:
     sys.exit(f"mlflow ui did not answer at {url} within {seconds:g} s")
 
 
-def screenshot(url: str, out: Path, size: str, budget_ms: int) -> None:
-    """Load `url` in headless Chromium and write what it shows to `out` (PNG)."""
-    browser = next((b for b in BROWSERS if shutil.which(b)), None)
+def screenshot(url: str, out: Path, size: str, wait_s: float) -> None:
+    """Load `url` in headless Chromium (driven by Playwright) and write what it shows to `out` (PNG).
+
+    MLflow 3 opens on its GenAI pages with its assistant's panel open: the page is switched to *Model
+    training* and the panel closed, as a user does once; then the run's page is loaded again, its
+    description expanded (*Show more*: the comparison figure) and its charts given time to draw.
+    """
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        sys.exit("needs Playwright's Python package: .venv/bin/pip install playwright (it drives the OS "
+                 "package's Chromium; no browser is downloaded)")  # fmt: skip
+    browser = next((shutil.which(b) for b in BROWSERS if shutil.which(b)), None)
     if browser is None:
         sys.exit("no Chromium found: apt-get install chromium")
-    with tempfile.TemporaryDirectory(prefix="mlflow-shot-") as profile:
-        command = [
-            browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-            "--disable-background-networking", "--disable-component-update", "--disable-sync",
-            f"--user-data-dir={profile}", f"--window-size={size}", f"--virtual-time-budget={budget_ms}",
-            f"--screenshot={out.resolve()}", url,
-        ]  # fmt: skip
-        subprocess.run(command, check=True, capture_output=True, timeout=300)
+    width, height = (int(v) for v in size.split(","))
+    flags = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+             "--disable-background-networking", "--disable-component-update", "--disable-sync"]  # fmt: skip
+    with sync_playwright() as driver:
+        chromium = driver.chromium.launch(executable_path=browser, args=flags)
+        page = chromium.new_page(viewport={"width": width, "height": height})
+        page.goto(url, wait_until="load", timeout=120_000)
+        page.wait_for_timeout(wait_s * 1000)
+        for label in ("Model training",):
+            if page.get_by_text(label, exact=True).count():
+                page.get_by_text(label, exact=True).first.click()
+        if page.locator("[aria-label=Close]").count():
+            page.locator("[aria-label=Close]").first.click()
+        page.goto(url, wait_until="load", timeout=120_000)
+        page.wait_for_timeout(wait_s * 1000)
+        if page.get_by_text("Show more", exact=True).count():
+            page.get_by_text("Show more", exact=True).first.click()
+            page.wait_for_timeout(2000)
+        page.screenshot(path=str(out))
+        chromium.close()
     if not out.exists() or out.stat().st_size == 0:
         sys.exit(f"Chromium wrote no screenshot to {out}")
 
@@ -79,11 +101,10 @@ def main() -> None:
     parser.add_argument("out", type=Path, help="the PNG to write")
     parser.add_argument("--experiment", default=DEFAULT_EXPERIMENT)
     parser.add_argument("--run", default=None, help="a parent run id (default: the newest comparison)")
-    parser.add_argument("--page", choices=tuple(PAGES), default="metrics")
+    parser.add_argument("--page", choices=tuple(PAGES), default="overview")
     parser.add_argument("--port", type=int, default=5077)
-    parser.add_argument("--settle", type=float, default=30.0, help="seconds to wait after the server answers")
-    parser.add_argument("--size", default="1400,1100", help="browser window, width,height in pixels")
-    parser.add_argument("--wait-ms", type=int, default=60000, help="how long the page may render (virtual)")
+    parser.add_argument("--size", default="1700,1250", help="browser window, width,height in pixels")
+    parser.add_argument("--wait", type=float, default=10.0, help="seconds a page may take to draw")
     args = parser.parse_args()
 
     experiment, run = latest_comparison(args.store, args.experiment)
@@ -102,12 +123,9 @@ def main() -> None:
     )  # fmt: skip
     try:
         wait_for(url, 120.0)
-        time.sleep(args.settle)  # its workers answer /health before they answer chart queries quickly
         args.out.parent.mkdir(parents=True, exist_ok=True)
         page = PAGES[args.page].format(experiment=experiment, run=run)
-        # Twice: a cold server answers the first load's chart queries after Chromium has drawn spinners.
-        for _ in range(2):
-            screenshot(f"{url}/{page}", args.out, args.size, args.wait_ms)
+        screenshot(f"{url}/{page}", args.out, args.size, args.wait)
     finally:
         os.killpg(server.pid, signal.SIGTERM)
         try:
