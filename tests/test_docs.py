@@ -8,6 +8,7 @@ and every project path the pages name exists.
 from __future__ import annotations
 
 import importlib.util
+import os
 import re
 from pathlib import Path
 
@@ -32,27 +33,31 @@ def _pages() -> list[Path]:
 
 def test_the_configuration_reference_is_generated_from_the_current_models() -> None:
     generator = _generator()
-    committed = (DOCS / "reference" / "configuration.md").read_text()
-    assert committed == generator.render(), (
-        "docs/reference/configuration.md is stale: run .venv/bin/python docs/gen_config_reference.py"
+    assert not generator.stale(), (
+        f"{generator.stale()} stale: run .venv/bin/python docs/gen_config_reference.py"
     )
+    assert len(generator.render()) > 10  # the index and a page per section
 
 
 def test_the_configuration_reference_covers_every_key_with_its_default_and_description() -> None:
     from activelearn.config import CampaignConfig, ModelConfig, PoolConfig, SafetyConfig, TuningConfig
 
-    page = _generator().render()
+    pages = _generator().render()
     for section, model in (("pool", PoolConfig), ("model", ModelConfig), ("safety", SafetyConfig),
                            ("tuning", TuningConfig), ("", CampaignConfig)):  # fmt: skip
-        title = f"## [{section}]" if section else "## Top level"
-        table = page.split(title, 1)[1].split("\n## ", 1)[0]
+        if section:
+            table = pages[f"configuration/{section}.md"].split(f"# [{section}]", 1)[1].split("\n## ", 1)[0]
+            assert f"[`[{section}]`](configuration/{section}.md)" in pages["configuration.md"]
+        else:
+            table = pages["configuration.md"].split("## Top level", 1)[1]
         for name in model.model_fields:
-            assert f"| `{name}` |" in table, (section, name)
-    kl = next(line for line in page.splitlines() if line.startswith("| `kl_samples` |"))
+            assert f"| `{name}`<br>" in table, (section, name)
+    lines = "\n".join(pages.values()).splitlines()
+    kl = next(line for line in lines if line.startswith("| `kl_samples`<br>"))
     assert "`1`" in kl and "weight draws per step for the Monte Carlo KL" in kl  # Field(description=...)
-    seed = next(line for line in page.splitlines() if line.startswith("| `seed` |"))
+    seed = next(line for line in lines if line.startswith("| `seed`<br>"))
     assert "in [0, 2**32)" in seed  # Field(ge=0, lt=2**32)
-    arena = next(line for line in page.splitlines() if line.startswith("| `arena` |"))
+    arena = next(line for line in lines if line.startswith("| `arena`<br>"))
     assert "*required*" in arena
 
 
@@ -106,3 +111,67 @@ def test_every_project_path_a_page_names_exists(page: Path) -> None:
             continue
         base = page.parent if path.startswith("files/") else ROOT
         assert (base / path).exists(), path
+
+
+def _paragraphs(text: str) -> list[str]:
+    """The plain paragraphs of a Markdown page: runs of lines between blank lines, outside fenced code,
+    that are not headings, list items, tables, quotes, admonitions, HTML, images or the indented
+    lines that continue a list item or an admonition. A paragraph right before a `text` block is left
+    out too: its sentence may go on in the block (a formula)."""
+    blocks: list[list[str]] = []
+    block: list[str] = []
+    fenced = False
+    for line in [*text.splitlines(), ""]:
+        if line.lstrip().startswith(("```", "~~~")):
+            if not fenced and block:
+                blocks.append(block)
+            if not fenced and blocks and line.strip() in ("```text", "~~~text"):
+                blocks.pop()  # the sentence goes on in the formula below
+            fenced, block = not fenced, []
+            continue
+        if fenced:
+            continue
+        if line.strip():
+            block.append(line)
+            continue
+        if block:
+            blocks.append(block)
+        block = []
+    skip = re.compile(r"(#|[-*+] |\d+[.)] |\||>|!!!|\?\?\?|<|\s|!\[)")
+    return ["\n".join(b) for b in blocks if not skip.match(b[0])]
+
+
+def test_paragraph_detection_skips_what_is_not_prose() -> None:
+    page = (
+        "# Title\n\nA sentence.\n\nCut off mid\nsentence\n\n- a list\n- item\n\n| a | b |\n|---|---|\n\n"
+        "```bash\nmake demo\n```\n\nThe commands:\n\n![a figure](files/x.png)\n\n!!! note\n    body\n\n"
+        "With the draws,\n\n```text\nC = (C⁻¹ + P)⁻¹\n```\n\nstore `x` (a fragment).\n"
+    )
+    paragraphs = ["A sentence.", "Cut off mid\nsentence", "The commands:", "store `x` (a fragment)."]
+    assert _paragraphs(page) == paragraphs
+
+
+@pytest.mark.parametrize("page", _pages(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_paragraph_ends_with_a_full_stop(page: Path) -> None:
+    """A paragraph cut mid-sentence (an edit that lost its end) fails here: each ends with `.`, `?` or
+    `!` (closing brackets, quotes and emphasis after it allowed), or `:` where it introduces what
+    follows (a list, a table, a code block), and starts as a sentence does (not in lower case)."""
+    cut = [p for p in _paragraphs(page.read_text()) if not re.search(r"[.?!:][)\]*_`\"'”’]*$", p.rstrip())]
+    assert not cut, "paragraphs without a full stop:\n\n" + "\n\n".join(cut)
+    # and none starts in the middle of a sentence (a stray fragment of a cut one)
+    fragments = [p for p in _paragraphs(page.read_text()) if p[0].islower()]
+    assert not fragments, "paragraphs that start mid-sentence:\n\n" + "\n\n".join(fragments)
+
+
+@pytest.mark.parametrize("page", _pages(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_image_a_page_shows_is_a_file_of_the_site(page: Path) -> None:
+    """An image path must name a file under docs/ (the site serves nothing else; docs/results/files is
+    the results folder, linked in), so a repository path like `../../experiments/...` or a missing
+    file fails here rather than as a broken picture."""
+    text = page.read_text()
+    images = re.findall(r"!\[[^\]]*\]\(([^)\s]+)", text) + re.findall(r"<img[^>]+src=\"([^\"]+)\"", text)
+    for image in images:
+        assert not re.match(r"[a-z]+:", image), f"{image}: an image from outside the site"
+        target = Path(os.path.normpath(page.parent / image.split("#")[0]))
+        assert target.is_relative_to(DOCS), f"{image}: outside docs/"
+        assert target.is_file(), f"{image}: no such file"
