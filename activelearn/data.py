@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from activelearn.errors import DataFormatError, InputError
-from activelearn.names import CONTROLS, RATES, RECORDED_COLUMNS
+from activelearn.names import CONTROLS, RATES, RECORDED_COLUMNS, STEERING, THROTTLE
 from simulator.collect import AUTODRIVE_COLUMNS, EXTRA_COLUMNS
 
 # The AutoDRIVE layout is the simulator's own log layout: one definition, in `simulator`.
@@ -196,9 +196,9 @@ def read_autodrive_log(path: str | Path) -> pd.DataFrame:
     if "direction" not in table:
         table["direction"] = "unknown"
     if "op_throttle" not in table:
-        table["op_throttle"] = float(np.median(table["throttle"]))
+        table["op_throttle"] = float(np.median(table[THROTTLE]))
     if "op_steering" not in table:
-        table["op_steering"] = float(np.max(np.abs(table["steering"])))
+        table["op_steering"] = float(np.max(np.abs(table[STEERING])))
     if "run_id" not in table:
         table["run_id"] = f"{path.parent.name}/{path.stem}" if path.parent.name else path.stem
     if "diverged" not in table:

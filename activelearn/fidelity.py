@@ -22,6 +22,7 @@ import pandas as pd
 import simulator
 from activelearn.data import read_recorded_log
 from activelearn.errors import DataFormatError, InputError
+from activelearn.names import SPEED, STEERING, THROTTLE, YAW_RATE
 from simulator.datasheet import LOG_RATE_HZ
 
 _RESPONSES = ("v_sim", "v_log", "w_sim", "w_log")
@@ -79,8 +80,8 @@ def read_log_file(path: str | Path) -> pd.DataFrame:
 def stretches(table: pd.DataFrame, log: str, settings: FidelitySettings) -> list[Stretch]:
     """The stretches of constant, non-zero throttle in a log long enough to give a steady response."""
     t = table["time"].to_numpy(dtype=np.float64)
-    u = table["throttle"].to_numpy(dtype=np.float64)
-    d = table["steering"].to_numpy(dtype=np.float64)
+    u = table[THROTTLE].to_numpy(dtype=np.float64)
+    d = table[STEERING].to_numpy(dtype=np.float64)
     found: list[Stretch] = []
     i = 0
     while i < len(t):
@@ -103,7 +104,7 @@ def stretches(table: pd.DataFrame, log: str, settings: FidelitySettings) -> list
 def _window_means(table: pd.DataFrame, start: float, end: float) -> tuple[float, float]:
     t = table["time"].to_numpy()
     rows = (t >= start - 1e-9) & (t <= end + 1e-9)
-    return float(table["speed"].to_numpy()[rows].mean()), float(table["angZ"].to_numpy()[rows].mean())
+    return float(table[SPEED].to_numpy()[rows].mean()), float(table[YAW_RATE].to_numpy()[rows].mean())
 
 
 def replay_of(table: pd.DataFrame, label: str, rate_hz: float) -> simulator.Replay:
@@ -111,8 +112,8 @@ def replay_of(table: pd.DataFrame, label: str, rate_hz: float) -> simulator.Repl
     t = table["time"].to_numpy(dtype=np.float64)
     grid = np.arange(int(np.floor((t[-1] - t[0]) * rate_hz + 1e-9)) + 1) / rate_hz + t[0]
     held = np.searchsorted(t, grid + 1e-9, side="right") - 1
-    throttle = table["throttle"].to_numpy(dtype=np.float64)[held]
-    steering = table["steering"].to_numpy(dtype=np.float64)[held]
+    throttle = table[THROTTLE].to_numpy(dtype=np.float64)[held]
+    steering = table[STEERING].to_numpy(dtype=np.float64)[held]
     try:
         return simulator.Replay(label, throttle, steering, rate_hz)
     except simulator.ManeuverError as exc:
@@ -156,7 +157,7 @@ def compare(
         rows.append(dict(log=s.log, start=s.start, end=s.end, throttle=s.throttle, steering=s.steering,
                          v_sim=v_sim, v_log=v_log, w_sim=w_sim, w_log=w_log))  # fmt: skip
     frame = pd.DataFrame(rows)
-    frame["turn"] = frame["steering"].abs() > settings.steering_tolerance
+    frame["turn"] = frame[STEERING].abs() > settings.steering_tolerance
     frame["seconds"] = frame["end"] - frame["start"]
     points = _points(frame, sim_straight, settings)
     return FidelityReport(frame, points, vehicle_name)
@@ -166,23 +167,23 @@ def _points(
     frame: pd.DataFrame, sim_straight: dict[float, float], settings: FidelitySettings
 ) -> pd.DataFrame:
     """Operating points: stretches with the same commands (to 2 and 3 decimals) averaged, time-weighted."""
-    frame = frame.assign(key_u=frame["throttle"].round(2), key_d=frame["steering"].round(3))
+    frame = frame.assign(key_u=frame[THROTTLE].round(2), key_d=frame[STEERING].round(3))
     rows = []
     for (u, d), part in frame.groupby(["key_u", "key_d"], sort=True):
         weight = part["seconds"].to_numpy()
-        mean = {c: float(np.average(part[c], weights=weight)) for c in ("throttle", *_RESPONSES)}
+        mean = {c: float(np.average(part[c], weights=weight)) for c in (THROTTLE, *_RESPONSES)}
         row = dict(throttle=float(u), steering=float(d), stretches=len(part), seconds=float(weight.sum()), **{
             k: v for k, v in mean.items() if k != "throttle"})  # fmt: skip
         if abs(d) > settings.steering_tolerance:
-            near = (frame["throttle"] - mean["throttle"]).abs() <= settings.throttle_tolerance
+            near = (frame[THROTTLE] - mean[THROTTLE]).abs() <= settings.throttle_tolerance
             straight_log = frame[~frame["turn"] & near]
             if len(straight_log):
                 v0_log = float(np.average(straight_log["v_log"], weights=straight_log["seconds"]))
                 source = "log"
             else:
-                v0_log = float(simulator.reference_speed(mean["throttle"]))
+                v0_log = float(simulator.reference_speed(mean[THROTTLE]))
                 source = "reference"
-            v0_sim = sim_straight[min(sim_straight, key=lambda k: abs(k - mean["throttle"]))]
+            v0_sim = sim_straight[min(sim_straight, key=lambda k: abs(k - mean[THROTTLE]))]
             row.update(loss_sim=v0_sim - row["v_sim"], loss_log=v0_log - row["v_log"], straight_source=source)
         else:
             row.update(loss_sim=np.nan, loss_log=np.nan, straight_source="")

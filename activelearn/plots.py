@@ -15,7 +15,22 @@ from matplotlib.patches import Patch
 from matplotlib.ticker import FormatStrFormatter, LogLocator, MaxNLocator, NullFormatter
 
 from activelearn.data import write_atomically
-from activelearn.names import N_MANEUVERS, REFERENCE_STRATEGY, ROUND, TEST_NLL, TRACK_SECONDS, metric_label
+from activelearn.names import (
+    N_MANEUVERS,
+    POS_X,
+    POS_Y,
+    POSE,
+    REFERENCE_STRATEGY,
+    ROUND,
+    SPEED,
+    STEERING,
+    TEST_NLL,
+    THROTTLE,
+    TRACK_SECONDS,
+    YAW,
+    YAW_RATE,
+    metric_label,
+)
 
 _MAX_LEGEND = 8
 
@@ -83,13 +98,13 @@ def plot_log(table: pd.DataFrame, title: str | None = None) -> Figure:
         stamps = run["timestamp"].to_numpy()
         t = run["time"].to_numpy() if "time" in run else stamps - stamps[0]
         label = None if run_id is None or len(run_ids) > _MAX_LEGEND else str(run_id)
-        ax_xy.plot(run["posX"], run["posY"], color=color, lw=1.0, label=label)
-        ax_xy.plot(run["posX"].iloc[:1], run["posY"].iloc[:1], "o", color=color, ms=4)
-        ax_v.plot(t, run["speed"], color=color, lw=0.8)
-        ax_w.plot(t, run["angZ"], color=color, lw=0.8)
-        ax_yaw.plot(t, np.unwrap(run["yaw"].to_numpy()), color=color, lw=0.8)
-        ax_u.plot(t, run["throttle"], color=color, lw=1.0)
-        ax_s.plot(t, run["steering"], color=color, lw=1.0)
+        ax_xy.plot(run[POS_X], run[POS_Y], color=color, lw=1.0, label=label)
+        ax_xy.plot(run[POS_X].iloc[:1], run[POS_Y].iloc[:1], "o", color=color, ms=4)
+        ax_v.plot(t, run[SPEED], color=color, lw=0.8)
+        ax_w.plot(t, run[YAW_RATE], color=color, lw=0.8)
+        ax_yaw.plot(t, np.unwrap(run[YAW].to_numpy()), color=color, lw=0.8)
+        ax_u.plot(t, run[THROTTLE], color=color, lw=1.0)
+        ax_s.plot(t, run[STEERING], color=color, lw=1.0)
 
     ax_xy.set(xlabel="posX (m)", ylabel="posY (m)", title="trajectory (o = start)")
     ax_xy.set_aspect("equal", adjustable="datalim")
@@ -299,8 +314,8 @@ def surrogate_figure(rollout: Any, index: int, truth: pd.DataFrame, *, title: st
     fig = new_figure(13.0, 6.5)
     grid = fig.add_gridspec(2, 2, width_ratios=(1.0, 1.3))
     ax_xy = fig.add_subplot(grid[:, 0])
-    x0, y0, yaw0 = (truth[c].to_numpy()[0] for c in ("posX", "posY", "yaw"))
-    dx, dy = truth["posX"].to_numpy()[:n] - x0, truth["posY"].to_numpy()[:n] - y0
+    x0, y0, yaw0 = (truth[c].to_numpy()[0] for c in POSE)
+    dx, dy = truth[POS_X].to_numpy()[:n] - x0, truth[POS_Y].to_numpy()[:n] - y0
     c, s = np.cos(-yaw0), np.sin(-yaw0)
     for k in range(rollout.x.shape[0]):
         ax_xy.plot(rollout.x[k, index, :n], rollout.y[k, index, :n], color="C0", alpha=0.12, linewidth=0.8)
@@ -312,7 +327,7 @@ def surrogate_figure(rollout: Any, index: int, truth: pd.DataFrame, *, title: st
     ax_xy.set_xlabel("x (m, start frame)")
     ax_xy.set_ylabel("y (m)")
     ax_xy.legend(fontsize=8)
-    for row, (name, column, label) in enumerate((("v", "speed", "v (m/s)"), ("w", "angZ", "ω (rad/s)"))):
+    for row, (name, column, label) in enumerate((("v", SPEED, "v (m/s)"), ("w", YAW_RATE, "ω (rad/s)"))):
         ax = fig.add_subplot(grid[row, 1])
         q = rollout.quantiles(name, index)[:, :n]
         ax.fill_between(t, q[0], q[4], color="C0", alpha=0.18, label="95% band")
@@ -340,12 +355,12 @@ def paths_figure(
     grid = fig.subplots(len(cases), len(rollouts), squeeze=False)
     for row, (label, index) in enumerate(cases):
         truth = truths[index]
-        x0, y0, yaw0 = (truth[c].to_numpy()[0] for c in ("posX", "posY", "yaw"))
+        x0, y0, yaw0 = (truth[c].to_numpy()[0] for c in POSE)
         c, s = np.cos(-yaw0), np.sin(-yaw0)
         for col, (name, rollout) in enumerate(rollouts.items()):
             ax = grid[row, col]
             n = min(int(rollout.lengths[index]), round(seconds / rollout.dt) + 1)
-            dx, dy = truth["posX"].to_numpy()[:n] - x0, truth["posY"].to_numpy()[:n] - y0
+            dx, dy = truth[POS_X].to_numpy()[:n] - x0, truth[POS_Y].to_numpy()[:n] - y0
             for k in range(rollout.x.shape[0]):
                 ax.plot(rollout.x[k, index, :n], rollout.y[k, index, :n], color="C0", alpha=0.1, lw=0.7)
             mx, my = rollout.mean_path(index)
@@ -382,15 +397,15 @@ def fidelity_figure(points: pd.DataFrame, title: str = "") -> Figure:
         ("w", "steady yaw rate angZ (rad/s)"),
         ("loss", "speed loss in turns (m/s)"),
     )
-    for i, throttle in enumerate(sorted(points["throttle"].unique())):
-        part = points[points["throttle"] == throttle].sort_values("steering")
+    for i, throttle in enumerate(sorted(points[THROTTLE].unique())):
+        part = points[points[THROTTLE] == throttle].sort_values("steering")
         color = f"C{i % 10}"
         for ax, (name, _) in zip(axes, panels, strict=True):
             rows = part if name != "loss" else part[part["loss_sim"].notna()]
             if not len(rows):
                 continue
             ax.plot(
-                rows["steering"],
+                rows[STEERING],
                 rows[f"{name}_sim"],
                 "-x",
                 color=color,
@@ -398,7 +413,7 @@ def fidelity_figure(points: pd.DataFrame, title: str = "") -> Figure:
                 ms=5,
                 label=f"throttle {throttle:g}" if name == "v" else None,
             )
-            ax.plot(rows["steering"], rows[f"{name}_log"], "o", color=color, ms=5, mfc="none")
+            ax.plot(rows[STEERING], rows[f"{name}_log"], "o", color=color, ms=5, mfc="none")
     for ax, (_, label) in zip(axes, panels, strict=True):
         ax.set(xlabel="steering (rad, + left)", ylabel=label)
         ax.grid(True, alpha=0.3)

@@ -31,6 +31,7 @@ from activelearn.loop.campaign import Campaign
 from activelearn.loop.pool import maneuver_controls
 from activelearn.loop.proposals import proposal_figure as draw_proposals
 from activelearn.loop.state import CONFIG_FILE, MODEL_FILE, STAGED_DIR, STATE_FILE, CampaignState
+from activelearn.names import CONTROLS
 from activelearn.numerics.models import load_model
 from simulator import FamilyManeuver
 
@@ -112,7 +113,7 @@ def match_logs(campaign: Campaign, state: CampaignState, logs: Sequence[LogFile]
                 "LOG", str(log.path), "was ingested already (the same content as an earlier log)"
             )
         seen.add(log.digest)
-        controls = log.table[["throttle", "steering"]].to_numpy(dtype=np.float64)
+        controls = log.table[list(CONTROLS)].to_numpy(dtype=np.float64)
         got = signature(controls, rate, cfg.steering_tolerance)
         if live:  # a stop at a wall ends a log early: judge it against the proposals' first seconds
             first = {i: maneuver_controls(driven[i], rate)[: len(controls)] for i in open_}

@@ -23,7 +23,7 @@ import simulator
 from activelearn.config import CampaignConfig, DataConfig, NoiseSettings, SimulationConfig
 from activelearn.data import read_table, write_table
 from activelearn.loop.history import CandidateTruth
-from activelearn.names import CONTROLS, PREVIOUS_RATES, RATES
+from activelearn.names import CONTROLS, PREVIOUS_RATES, RATES, SPEED, YAW_RATE
 from activelearn.numerics.lags import Lags
 from activelearn.numerics.multistep import Windows, windows_from_logs
 from activelearn.seeds import Stream, derived_seed
@@ -176,8 +176,8 @@ def training_rows(frame: pd.DataFrame, cfg: DataConfig) -> pd.DataFrame:
     for a history config the lagged controls and rates it reads (rows without a full history dropped).
     """
     frame = frame.reset_index(drop=True).copy()
-    frame["prev_speed"] = frame["speed"].shift(1)
-    frame["prev_angZ"] = frame["angZ"].shift(1)
+    frame[PREVIOUS_RATES[0]] = frame[SPEED].shift(1)
+    frame[PREVIOUS_RATES[1]] = frame[YAW_RATE].shift(1)
     lags = data_lags(cfg)
     first = 1
     if lags is not None:

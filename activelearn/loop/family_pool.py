@@ -23,6 +23,7 @@ import pandas as pd
 from scipy.stats import qmc
 
 from activelearn.config import PoolConfig
+from activelearn.names import STEERING, THROTTLE, TIME
 from activelearn.seeds import Stream, derived_rng
 from simulator import KINDS, FamilyManeuver, Maneuver, ManeuverError, as_family
 from simulator.families import FAMILIES
@@ -154,5 +155,5 @@ def schedule_table(maneuver: FamilyManeuver, rate_hz: float) -> pd.DataFrame:
     """The commands to drive: time (s), throttle, steering (rad, + left), each held until the next row."""
     controls = maneuver.controls(rate_hz)
     return pd.DataFrame(
-        {"time": np.arange(len(controls)) / rate_hz, "throttle": controls[:, 0], "steering": controls[:, 1]}
+        {TIME: np.arange(len(controls)) / rate_hz, THROTTLE: controls[:, 0], STEERING: controls[:, 1]}
     )

@@ -32,6 +32,7 @@ from activelearn.loop.collection import (
     test_set_from_logs,
 )
 from activelearn.loop.pool import KIND_ORDER, pool_maneuvers, test_maneuvers
+from activelearn.names import CONTROLS, STEERING, THROTTLE
 from activelearn.seeds import Stream, derived_rng
 
 _LOG_FOLDER = re.compile(r"^(?P<kind>[a-z]+)_(?P<rate>\d+(?:\.\d+)?)_hz$")
@@ -199,17 +200,17 @@ class RecordedManeuver:
 
 def recorded_maneuver(kind: str, table: pd.DataFrame, path: str) -> RecordedManeuver:
     """Describe a recorded log as a candidate: kind, median throttle, steering amplitude, direction."""
-    steering = table["steering"].to_numpy(dtype=np.float64)
+    steering = table[STEERING].to_numpy(dtype=np.float64)
     amplitude = (
         float(np.quantile(np.abs(steering), 0.95)) if kind != "fishhook" else float(np.abs(steering).max())
     )
     first_turn = steering[np.abs(steering) > 0.2 * max(amplitude, 1e-9)]
     direction = "cw" if len(first_turn) and first_turn[0] < 0 else "ccw"
     span = float(table["time"].iloc[-1] - table["time"].iloc[0]) if len(table) > 1 else 0.0
-    controls = table[["throttle", "steering"]].to_numpy(dtype=np.float64)
+    controls = table[list(CONTROLS)].to_numpy(dtype=np.float64)
     return RecordedManeuver(
         kind,
-        round(float(np.median(table["throttle"])), 4),
+        round(float(np.median(table[THROTTLE])), 4),
         round(amplitude if kind != "straight" else 0.0, 4),
         direction,
         span,

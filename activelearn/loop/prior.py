@@ -23,7 +23,7 @@ from activelearn.errors import InputError
 from activelearn.loop.collection import SimulationCache, noisy_logs
 from activelearn.loop.pool import KIND_ORDER, grid_maneuvers
 from activelearn.loop.state import SAMPLES_FILE, CampaignState
-from activelearn.names import RECORDED_COLUMNS
+from activelearn.names import RECORDED_COLUMNS, SPEED, STEERING, THROTTLE, YAW_RATE
 
 PRIOR_FILE = "prior.parquet"  # the prior rows a campaign directory keeps (resume never re-reads sources)
 # Where prior runs sit in a sample table: pool_index = -1 - run number, batch = -1.
@@ -126,10 +126,10 @@ def _check_run(field: str, path: Path, frame: pd.DataFrame, rate_hz: float) -> N
             f"is logged at {1 / step:.3g} Hz, the config at {rate_hz:g} Hz (simulation.rate_hz)",
         )
     checks = (
-        ("throttle", 1.0 + 1e-6, "throttle must lie in [-1, 1]"),
-        ("steering", MAX_STEERING + 1e-3, f"steering must be in rad within ±{MAX_STEERING} (degrees?)"),
-        ("speed", _MAX_SPEED, f"speed beyond {_MAX_SPEED} m/s: not m/s, or not a 1:14 car"),
-        ("angZ", _MAX_YAW_RATE, f"yaw rate beyond {_MAX_YAW_RATE} rad/s: not rad/s (deg/s?)"),
+        (THROTTLE, 1.0 + 1e-6, "throttle must lie in [-1, 1]"),
+        (STEERING, MAX_STEERING + 1e-3, f"steering must be in rad within ±{MAX_STEERING} (degrees?)"),
+        (SPEED, _MAX_SPEED, f"speed beyond {_MAX_SPEED} m/s: not m/s, or not a 1:14 car"),
+        (YAW_RATE, _MAX_YAW_RATE, f"yaw rate beyond {_MAX_YAW_RATE} rad/s: not rad/s (deg/s?)"),
     )
     for column, bound, reason in checks:
         worst = float(np.abs(frame[column]).max())
@@ -141,9 +141,9 @@ def _run_of(frame: pd.DataFrame) -> PriorRun:
     """Kind and operating point of one prior run, from its recorded columns."""
     kind = str(frame["maneuver"].iloc[0]) if "maneuver" in frame else "unknown"
     kind = kind if kind in KIND_ORDER else "unknown"
-    steering = frame["steering"].to_numpy(dtype=np.float64)
+    steering = frame[STEERING].to_numpy(dtype=np.float64)
     throttle = (
-        float(frame["op_throttle"].iloc[0]) if "op_throttle" in frame else float(np.median(frame["throttle"]))
+        float(frame["op_throttle"].iloc[0]) if "op_throttle" in frame else float(np.median(frame[THROTTLE]))
     )
     amplitude = (
         float(frame["op_steering"].iloc[0]) if "op_steering" in frame else float(np.max(np.abs(steering)))

@@ -19,6 +19,8 @@ import torch
 from activelearn.errors import InputError
 from activelearn.names import (
     CONTROLS,
+    POS_X,
+    POS_Y,
     RATES,
     ROLLOUT_COVERAGE_95,
     ROLLOUT_HEADING_ERR_30S,
@@ -29,6 +31,7 @@ from activelearn.names import (
     ROLLOUT_RMSE_W,
     SPEED,
     TRUTH_COLUMNS,
+    YAW,
     YAW_RATE,
 )
 from activelearn.numerics.surrogate import Rollout, simulate
@@ -69,7 +72,7 @@ def track_metrics(
     Truth positions are taken relative to the start, rotated into the start heading `yaw[0]`.
     """
     n = int(rollout.lengths[index])
-    true_v, true_w = truth["speed"][:n], truth["angZ"][:n]
+    true_v, true_w = truth[SPEED][:n], truth[YAW_RATE][:n]
     true_x, true_y, _ = relative_pose(truth, n)
     mean_v, mean_w = rollout.mean_rates[index, :n, 0], rollout.mean_rates[index, :n, 1]
     mx, my = (a[:n] for a in rollout.mean_path(index))
@@ -93,9 +96,9 @@ def track_metrics(
 
 def relative_pose(truth: dict[str, np.ndarray], n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """x, y and unwrapped heading of the first n steps of a log, relative to its start pose."""
-    dx, dy = truth["posX"][:n] - truth["posX"][0], truth["posY"][:n] - truth["posY"][0]
-    c, s = np.cos(-truth["yaw"][0]), np.sin(-truth["yaw"][0])
-    heading = np.unwrap(truth["yaw"][:n]) - truth["yaw"][0]
+    dx, dy = truth[POS_X][:n] - truth[POS_X][0], truth[POS_Y][:n] - truth[POS_Y][0]
+    c, s = np.cos(-truth[YAW][0]), np.sin(-truth[YAW][0])
+    heading = np.unwrap(truth[YAW][:n]) - truth[YAW][0]
     return c * dx - s * dy, s * dx + c * dy, heading
 
 
@@ -145,7 +148,7 @@ def fan_widening_needed(
         tx, ty, _ = relative_pose({c: table[c].to_numpy(dtype=np.float64) for c in TRUTH_COLUMNS}, n)
         noise_x = noise_y = np.zeros(n)  # σ² of the logged relative position, per axis
         if noise is not None and noise.enabled:
-            speed = table["speed"].to_numpy(dtype=np.float64)[:n]
+            speed = table[SPEED].to_numpy(dtype=np.float64)[:n]
             position, heading = (noise_std(noise, field, speed) for field in ("position", "angle"))
             both = position**2 + position[0] ** 2  # step k's and the start's
             # a start heading error ε moves (x, y) by ε (−y, x)

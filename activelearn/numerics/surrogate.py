@@ -41,6 +41,7 @@ import numpy as np
 import torch
 
 from activelearn.errors import InputError
+from activelearn.names import POS_X, POS_Y, YAW, YAW_RATE
 from activelearn.numerics import buffers, counter_noise, native
 from activelearn.numerics.lags import Lags, model_lags
 from activelearn.numerics.models.base import BACKENDS, CHUNK_ROWS, draw_moments
@@ -474,8 +475,8 @@ def estimate_lever_arm(logs: Sequence, *, rate_hz: float, min_yaw_rate: float = 
     """
     lateral, rates = [], []
     for table in logs:
-        x, y = (table[c].to_numpy(dtype=np.float64) for c in ("posX", "posY"))
-        yaw, w = np.unwrap(table["yaw"].to_numpy(dtype=np.float64)), table["angZ"].to_numpy(dtype=np.float64)
+        x, y = (table[c].to_numpy(dtype=np.float64) for c in (POS_X, POS_Y))
+        yaw, w = np.unwrap(table[YAW].to_numpy(dtype=np.float64)), table[YAW_RATE].to_numpy(dtype=np.float64)
         if len(x) < 3:
             continue
         vx, vy = np.gradient(x) * rate_hz, np.gradient(y) * rate_hz

@@ -23,6 +23,7 @@ import pandas as pd
 from activelearn.config import POSE_LEVER_ARM, SafetyConfig, boundary_distance, polygon_clearance
 from activelearn.loop.pool import maneuver_controls
 from activelearn.loop.safety.limits import smooth
+from activelearn.names import SPEED, STEERING, THROTTLE
 
 SPEED_PER_THROTTLE = 0.287  # m/s: above every point of the reference throttle -> speed table
 WHEELBASE = 0.1415  # m, Nigel (reference/nigel.md)
@@ -64,19 +65,19 @@ def turn_speed(logs: pd.DataFrame | None, rate_hz: float, window: float) -> Turn
     0.05) and one signed steering for at least TURN_SPEED_MIN_SECONDS, so its speed has settled. Its
     share is the largest `window`-s mean |speed| over SPEED_PER_THROTTLE x |throttle|.
     """
-    if logs is None or logs.empty or not {"throttle", "steering", "speed"} <= set(logs.columns):
+    if logs is None or logs.empty or not {THROTTLE, STEERING, SPEED} <= set(logs.columns):
         return None
     key = "pool_index" if "pool_index" in logs.columns else "run_id"
     steps = max(1, round(window * rate_hz))
     best: dict[float, float] = {}
     runs = 0
     for _, run in logs.groupby(key, sort=False):
-        throttle, steering = run["throttle"].to_numpy(np.float64), run["steering"].to_numpy(np.float64)
+        throttle, steering = run[THROTTLE].to_numpy(np.float64), run[STEERING].to_numpy(np.float64)
         if len(run) < TURN_SPEED_MIN_SECONDS * rate_hz or abs(throttle[0]) < 0.05:
             continue
         if np.ptp(throttle) > 1e-9 or np.ptp(steering) > 1e-9:
             continue
-        speed = smooth(np.abs(run["speed"].to_numpy(np.float64)), steps)
+        speed = smooth(np.abs(run[SPEED].to_numpy(np.float64)), steps)
         share = float(speed.max()) / (SPEED_PER_THROTTLE * abs(throttle[0]))
         level = round(abs(float(steering[0])), 4)
         best[level] = max(best.get(level, 0.0), share)

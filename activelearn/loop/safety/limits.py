@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from activelearn.config import SafetyConfig, polygon_clearance
+from activelearn.names import POSE, SPEED, YAW_RATE
 from simulator.stop import place
 
 REASONS = ("arena", "speed", "yaw_rate", "lateral", "diverged")  # diverged: a fan's NaN or inf
@@ -59,14 +60,14 @@ def placed_path(log: pd.DataFrame, cfg: SafetyConfig) -> tuple[np.ndarray, np.nd
     A simulator log (starting at the origin) and a car's log (in its own frame) are thus judged
     alike, and where the simulated live stop places them.
     """
-    px, py, yaw = (log[c].to_numpy(dtype=np.float64) for c in ("posX", "posY", "yaw"))
+    px, py, yaw = (log[c].to_numpy(dtype=np.float64) for c in POSE)
     return place(px, py, (px[0], py[0], yaw[0]), cfg.start)
 
 
 def log_violation(log: pd.DataFrame, cfg: SafetyConfig, rate_hz: float) -> str:
     """What a driven maneuver's log violated first ("" if nothing): arena, speed, yaw_rate or lateral."""
     x, y = placed_path(log, cfg)
-    code = violating(x, y, log["speed"].to_numpy(np.float64), log["angZ"].to_numpy(np.float64), cfg, rate_hz)
+    code = violating(x, y, log[SPEED].to_numpy(np.float64), log[YAW_RATE].to_numpy(np.float64), cfg, rate_hz)
     bad = np.flatnonzero(code)
     return REASONS[int(code[bad[0]]) - 1] if len(bad) else ""
 

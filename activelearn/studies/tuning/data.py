@@ -29,7 +29,7 @@ from activelearn.loop.collection import (
     training_rows,
 )
 from activelearn.loop.pool import pool_maneuvers
-from activelearn.names import RECORDED_COLUMNS
+from activelearn.names import RECORDED_COLUMNS, STEERING, THROTTLE
 
 _DATA_VERSION = 1  # bump when the way a dataset is assembled changes (invalidates cached tables)
 
@@ -230,7 +230,7 @@ def load_dataset(paths: Sequence[str | Path], cfg: CampaignConfig) -> TuningData
         for column, default in (("maneuver", "unknown"), ("direction", "unknown"), ("run_id", path.stem)):
             if column not in table.columns:
                 table[column] = default
-        for column, values in (("op_throttle", table["throttle"]), ("op_steering", table["steering"].abs())):
+        for column, values in (("op_throttle", table[THROTTLE]), ("op_steering", table[STEERING].abs())):
             if column not in table.columns:
                 table[column] = table.groupby("run_id")[values.name].transform("median")
         table["run_id"] = f"{index}:" + table["run_id"].astype(str)
