@@ -8,8 +8,8 @@ stops the server. It makes the tutorial's screenshot from `make demo`'s own stor
     .venv/bin/python experiments/docs/mlflow_screenshot.py sqlite:///mlruns/mlflow.db \\
         docs/img/mlflow-comparison.png
 
-`--page metrics` takes the run's *Model metrics* charts instead, and `--page chart` the
-experiment's chart view of every run.
+`--page metrics` takes the run's *Model metrics* charts instead, `--page runs` the experiment's
+list of runs and `--page chart` its chart view of every run.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ import time
 import urllib.error
 import urllib.request
 from pathlib import Path
+from typing import Any
 
 from activelearn.studies.tracking import DEFAULT_EXPERIMENT, Tracker
 
@@ -31,6 +32,7 @@ PAGES = {
     "metrics": "#/experiments/{experiment}/runs/{run}/model-metrics",
     "overview": "#/experiments/{experiment}/runs/{run}",
     "chart": "#/experiments/{experiment}/runs?compareRunsMode=CHART",
+    "runs": "#/experiments/{experiment}/runs",
 }
 BROWSERS = ("chromium", "chromium-browser", "google-chrome")
 
@@ -56,6 +58,17 @@ def wait_for(url: str, seconds: float) -> None:
     sys.exit(f"mlflow ui did not answer at {url} within {seconds:g} s")
 
 
+def click(locator: Any) -> bool:
+    """Click the first visible element `locator` finds; False where none shows within 5 s."""
+    for i in range(locator.count()):
+        try:
+            locator.nth(i).click(timeout=5000)
+            return True
+        except Exception:  # not visible or not clickable: try the next one
+            continue
+    return False
+
+
 def screenshot(url: str, out: Path, size: str, wait_s: float) -> None:
     """Load `url` in headless Chromium (driven by Playwright) and write what it shows to `out` (PNG).
 
@@ -79,15 +92,11 @@ def screenshot(url: str, out: Path, size: str, wait_s: float) -> None:
         page = chromium.new_page(viewport={"width": width, "height": height})
         page.goto(url, wait_until="load", timeout=120_000)
         page.wait_for_timeout(wait_s * 1000)
-        for label in ("Model training",):
-            if page.get_by_text(label, exact=True).count():
-                page.get_by_text(label, exact=True).first.click()
-        if page.locator("[aria-label=Close]").count():
-            page.locator("[aria-label=Close]").first.click()
+        click(page.get_by_text("Model training", exact=True))
+        click(page.locator("[aria-label=Close]"))
         page.goto(url, wait_until="load", timeout=120_000)
         page.wait_for_timeout(wait_s * 1000)
-        if page.get_by_text("Show more", exact=True).count():
-            page.get_by_text("Show more", exact=True).first.click()
+        if click(page.get_by_text("Show more", exact=True)):
             page.wait_for_timeout(2000)
         page.screenshot(path=str(out))
         chromium.close()
