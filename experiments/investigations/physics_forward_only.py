@@ -28,7 +28,6 @@ from activelearn.loop.prior import load_prior
 from activelearn.numerics.diagnostics import free_runs, relative_pose
 from activelearn.numerics.models import build_model
 from activelearn.numerics.training import fit
-from activelearn.numerics.training_data import TrainingData
 from simulator.datasheet import LOG_RATE_HZ
 
 PHYSICS = {"model": {"kind": "physics", "kinematic_feature": False}}
@@ -84,17 +83,10 @@ def main() -> None:
             campaign = Campaign(cfg, Path(tmp) / name.replace(" ", "_"), cache_dir=Path("runs/cache"))
             campaign.prior = load_prior(cfg, campaign.nominal)  # the forward reference grid, simulated once
             empty = campaign.fitting.with_prior(pd.DataFrame()).iloc[:0]
-            x, y, groups = campaign.fitting.training_data(empty)
-            windows = campaign.fitting.training_windows(empty)
-            logs, log_groups, _ = campaign.fitting.identification_logs(empty) or (None,) * 3  # black box
+            data = campaign.fitting.data(empty)  # the grid's rows, windows and (physics kind) logs
             for seed in range(args.seeds):
                 model = build_model(cfg.model)
-                fit(
-                    model,
-                    TrainingData(x, y, groups=groups, windows=windows, logs=logs, log_groups=log_groups),
-                    cfg.training,
-                    seed=seed,
-                )  # fmt: skip
+                fit(model, data, cfg.training, seed=seed)
                 err, cover = errors(model, test.logs, test.truth_logs)
                 if seed == 0:
                     drawn[name] = free_runs(model, [test.logs[i] for _, i in cases], rate_hz=LOG_RATE_HZ)
