@@ -198,10 +198,10 @@ class Campaign:
             tagged.append(frame)
         return pd.concat(tagged, ignore_index=True)
 
-    def collect(self, indices: list[int], batch: int, state: CampaignState | None = None) -> pd.DataFrame:
+    def collect(self, indices: list[int], batch: int, state: CampaignState) -> pd.DataFrame:
         """Ask the oracle for the chosen maneuvers (simulated, noised with this campaign's seed), as driven
-        under `state`'s [safety] cuts (None: whole)."""
-        chosen = [self.maneuvers[i] if state is None else self.driven(i, state) for i in indices]
+        under `state`'s [safety] cuts."""
+        chosen = [self.driven(i, state) for i in indices]
         return self.label(self._stopped(self.oracle.answer(chosen, self.cfg.seed)), indices, batch)
 
     def _stopped(self, logs: list[pd.DataFrame]) -> list[pd.DataFrame]:
@@ -506,7 +506,7 @@ class Campaign:
         self.fitting.keep_warm_model(model, round_index)
         self._checkpoint(state, None, model)
         self.run_log.flush(state)
-        self.progress({"event": ROUND, **metrics, "picks": [self.maneuvers[i].name for i in picks]})
+        self.progress({"event": "round", **metrics, "picks": [self.maneuvers[i].name for i in picks]})
 
     def _receive(self, state: CampaignState, samples: pd.DataFrame, new: pd.DataFrame) -> pd.DataFrame:
         """Append the logs of the pending batch; measure the prequential scale on them if asked."""

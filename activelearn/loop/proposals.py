@@ -89,8 +89,9 @@ def proposal_figure(
     ]
     live = safety.stop == "live" and safety.enforce
     if model is not None and driven:
-        # the seed of the round whose model this is (its assessment's; the round is the last recorded)
-        seed = derived_seed(cfg.seed, Stream.ROUND, len(state.rounds) - 1)
+        # the seed of the assessment that judged the batch: the last recorded round's (round 0's for the
+        # initial design, judged by a warm start's prior model before any round was recorded)
+        seed = derived_seed(cfg.seed, Stream.ROUND, max(len(state.rounds) - 1, 0))
         rollout = fan(model, driven, safety, cfg.simulation.rate_hz, seed)
         for j, proposal in enumerate(proposals):
             n = int(rollout.lengths[j])

@@ -211,7 +211,7 @@ def main() -> None:
                         continue
                     names = [m.name for m in campaign.maneuvers]
                     picks = [names.index(name) for name in args.alt.split(",")]
-                    alt = campaign.collect(picks, r - 1)
+                    alt = campaign.collect(picks, r - 1, state)
                     data = pd.concat([samples[samples["batch"] < r - 1], alt], ignore_index=True)
                 for t in train_seeds:
                     key = f"{seed}|{r}|{v}|{t}"
