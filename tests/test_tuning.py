@@ -346,6 +346,35 @@ def test_two_workers_on_sqlite_finish_exactly_the_requested_trials(tmp_path, dat
     assert sorted(int(c.data.tags["optuna.trial"]) for c in children) == list(range(5))
 
 
+def _pop_queued_trials(url: str, queue) -> None:
+    study = optuna.load_study(study_name="race", storage=open_storage(url))
+    popped = []
+    while (trial_id := study._pop_waiting_trial_id()) is not None:  # what every `study.ask()` does first
+        popped.append(trial_id)
+    queue.put(popped)
+
+
+def test_sqlite_workers_never_take_the_same_queued_trial(tmp_path):
+    # Optuna's row lock is a no-op on SQLite; without IMMEDIATE transactions 4 processes popping 300
+    # queued trials took 19-24 of them twice (two workers then trained one trial, and the second
+    # to finish failed the study with "Cannot tell a COMPLETE trial").
+    import multiprocessing
+
+    url = sqlite_url(tmp_path)
+    study = optuna.create_study(study_name="race", storage=open_storage(url))
+    for i in range(200):
+        study.enqueue_trial({"x": float(i)}, skip_if_exists=False)
+    context = multiprocessing.get_context("fork")  # the popper needs nothing of a fresh interpreter
+    queue = context.Queue()
+    workers = [context.Process(target=_pop_queued_trials, args=(url, queue)) for _ in range(4)]
+    for worker in workers:
+        worker.start()
+    popped = [trial_id for _ in workers for trial_id in queue.get(timeout=120)]
+    for worker in workers:
+        worker.join(timeout=30)
+    assert sorted(popped) == sorted(t._trial_id for t in study.get_trials(deepcopy=False))
+
+
 def test_postgres_study_with_two_workers_records_every_trial_once(
     tmp_path, data_file, mlflow_uri, postgres_url
 ):
