@@ -1,0 +1,215 @@
+"""Where a campaign's time goes: one campaign per config, its wall time split by section, per round.
+
+Runs each config's campaign (one strategy and seed, no tracking, no figures) with its sections timed:
+the fit (identification, one-step steps, multi-step windows, the correction gate's probe, validation,
+calibration), the evaluation (the test set's free runs), acquisition (candidates' predicted paths, the
+strategy's pick), [safety], the oracle's simulations, checkpoints. A section is timed where it is
+entered from outside itself (nested calls count once), so sub-sections sum to at most their parent.
+Prints, per config: a table of seconds, calls and share of the wall time, then each round's wall
+seconds and the epochs its fits ran.
+
+With `--variant NAME=FILE.toml` (repeatable) every config also runs with those overrides, and the
+table puts the variants' seconds side by side with their ratio to the first (as configured).
+
+Usage: python experiments/benchmarks/bench_campaign.py [--configs dynamics,demo] [--strategy uniform]
+       [--seed 1] [--variant fast=fast.toml] [--quick] [--out DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import tempfile
+import time
+import tomllib
+from collections import defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from quick import shrink
+
+from activelearn.config import CampaignConfig, load_config
+from activelearn.loop import campaign as campaign_module
+from activelearn.loop.evaluation import Evaluation
+from activelearn.loop.fitting import Fitting
+from activelearn.loop.oracles import Oracle
+from activelearn.numerics import training
+from activelearn.numerics.models.base import Model
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+
+@dataclass
+class Clock:
+    """Seconds and calls per section; a section re-entered from inside itself counts once."""
+
+    seconds: dict[str, float] = field(default_factory=lambda: defaultdict(float))
+    calls: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    depth: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    fits: list[tuple[float, int]] = field(default_factory=list)  # each round's fit: seconds, epochs
+
+    def timed(self, section: str, function: Callable) -> Callable:
+        @functools.wraps(function)
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
+            self.calls[section] += 1
+            if self.depth[section]:
+                return function(*args, **kwargs)
+            self.depth[section] += 1
+            started = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                self.seconds[section] += time.perf_counter() - started
+                self.depth[section] -= 1
+
+        return wrapper
+
+
+# (section, owner, attribute): what is timed. Owners are the classes and modules the loop calls
+# through, so wrapping their attribute times every call the campaign makes.
+SECTIONS: tuple[tuple[str, Any, str], ...] = (
+    ("fit", Fitting, "fit"),
+    ("fit / identification", Model, "identify"),
+    ("fit / epochs", training._Stepper, "epoch"),
+    ("fit / epochs / multi-step windows", training, "window_loss"),
+    ("fit / correction gate's probe", training, "choose_correction_weight"),
+    ("fit / validation", training, "_validate"),
+    ("fit / calibration", training, "recalibrate_epistemic"),
+    ("evaluation (test set's free runs)", Evaluation, "evaluate"),
+    ("evaluation / prequential fans", Evaluation, "prequential"),
+    ("acquisition / candidates' paths", campaign_module.Campaign, "pool"),
+    ("safety admission", campaign_module.Campaign, "admit"),
+    ("oracle (simulations)", campaign_module.Campaign, "_answer"),
+    ("test set (simulated once, cached)", Oracle, "test_set"),
+    ("checkpoints", campaign_module.Campaign, "_checkpoint"),
+)
+
+
+def _instrumented(clock: Clock) -> list[tuple[Any, str, Any]]:
+    """Wrap every section (and each subclass's override of it); returns what to restore."""
+    saved = []
+    owners: list[tuple[str, Any, str]] = []
+    for section, owner, name in SECTIONS:
+        owners.append((section, owner, name))
+        if isinstance(owner, type):  # e.g. each model kind's own `identify`, each oracle's `test_set`
+            owners += [(section, sub, name) for sub in _subclasses(owner) if name in vars(sub)]
+    for section, owner, name in owners:
+        original = owner.__dict__[name] if isinstance(owner, type) else getattr(owner, name)
+        saved.append((owner, name, original))
+        setattr(owner, name, clock.timed(section, getattr(owner, name)))
+    return saved
+
+
+def _subclasses(cls: type) -> list[type]:
+    found = []
+    for sub in cls.__subclasses__():
+        found += [sub, *_subclasses(sub)]
+    return found
+
+
+def _restore(saved: list[tuple[Any, str, Any]]) -> None:
+    for owner, name, original in reversed(saved):
+        setattr(owner, name, original)
+
+
+Run = tuple[Clock, float, list[dict[str, Any]], str]  # clock, wall s, rounds' metrics, the ranking metric
+
+
+def profile(cfg: CampaignConfig, directory: Path) -> Run:
+    """Run one campaign with its sections timed: the clock, wall seconds and the rounds' metrics."""
+    clock = Clock()
+    saved = _instrumented(clock)
+    fit = Fitting.fit
+
+    def counted_fit(self: Fitting, *args: Any, **kwargs: Any) -> Any:
+        epochs = clock.calls["fit / epochs"]
+        started = time.perf_counter()
+        try:
+            return fit(self, *args, **kwargs)
+        finally:
+            clock.fits.append((time.perf_counter() - started, clock.calls["fit / epochs"] - epochs))
+
+    Fitting.fit = counted_fit  # type: ignore[method-assign]
+    try:
+        started = time.perf_counter()
+        result = campaign_module.Campaign(cfg, directory).run(figures=False, log_model=False)
+        wall = time.perf_counter() - started
+    finally:
+        Fitting.fit = fit  # type: ignore[method-assign]
+        _restore(saved)
+    return clock, wall, list(result.state.rounds), cfg.test.metric
+
+
+def _config(name: str, seed: int, strategy: str, overrides: dict[str, Any], out: Path, quick: bool) -> CampaignConfig:
+    cfg = load_config(CONFIGS / f"{name}.toml", overrides={
+        **overrides, "seed": seed, "strategy": strategy, "output_dir": str(out),
+        "tracking": {"enabled": False}})  # fmt: skip
+    return shrink(cfg, out) if quick else cfg
+
+
+def _table(name: str, runs: dict[str, Run]) -> str:
+    variants = list(runs)
+    first = variants[0]
+    sections = [s for s, _, _ in SECTIONS]
+    head = f"{'section':42s}" + "".join(f"{v + ' s':>12s}{'share':>7s}" for v in variants)
+    if len(variants) > 1:
+        head += "".join(f"{'x ' + v:>10s}" for v in variants[1:])
+    lines = [head]
+    for section in ["wall", *sections]:
+        cells, base = "", None
+        for variant in variants:
+            clock, wall, _, _ = runs[variant]
+            seconds = wall if section == "wall" else clock.seconds.get(section, 0.0)
+            base = seconds if variant == first else base
+            cells += f"{seconds:12.1f}{100 * seconds / wall:6.0f}%"
+        if all(section != "wall" and runs[v][0].calls.get(section, 0) == 0 for v in variants):
+            continue  # a section this config never enters
+        ratios = ""
+        for variant in variants[1:]:
+            clock, wall, _, _ = runs[variant]
+            seconds = wall if section == "wall" else clock.seconds.get(section, 0.0)
+            ratios += f"{(base / seconds if seconds > 0 else float('nan')):10.1f}"
+        lines.append(f"{section:42s}{cells}{ratios}")
+    for variant in variants:
+        clock, wall, rounds, metric = runs[variant]
+        walls = [r["wall_seconds"] for r in rounds]
+        per_round = [b - a for a, b in zip([0.0, *walls[:-1]], walls, strict=True)]
+        fits = clock.fits[: len(rounds)]
+        lines.append(f"{variant}: {len(rounds)} rounds, wall s by round " + " ".join(f"{s:.1f}" for s in per_round)
+                     + f" (mean {sum(per_round) / max(len(per_round), 1):.1f} s per round)")  # fmt: skip
+        lines.append(f"{variant}: fit s by round " + " ".join(f"{s:.1f}" for s, _ in fits)
+                     + "; epochs by round " + " ".join(str(e) for _, e in fits))  # fmt: skip
+        if rounds and metric in rounds[-1]:
+            lines.append(f"{variant}: final {metric} {rounds[-1][metric]:.4g}")
+    return f"== {name}\n" + "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--configs", default="dynamics,demo", help="comma-separated config names")
+    parser.add_argument("--strategy", default="uniform")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--variant", action="append", default=[], metavar="NAME=FILE.toml",
+                        help="also run every config with these overrides (a TOML file, as --params)")  # fmt: skip
+    parser.add_argument("--quick", action="store_true", help="quick sizes (checks the benchmark runs)")
+    parser.add_argument("--out", type=Path, default=None, help="scratch directory (default: a temporary one)")
+    args = parser.parse_args()
+    variants: dict[str, dict[str, Any]] = {"as configured": {}}
+    for spec in args.variant:
+        name, _, path = spec.partition("=")
+        variants[name] = tomllib.loads(Path(path).read_text())
+    with tempfile.TemporaryDirectory() as tmp:
+        out = args.out or Path(tmp)
+        for config in args.configs.split(","):
+            runs = {}
+            for variant, overrides in variants.items():
+                directory = out / config / variant.replace(" ", "_")
+                cfg = _config(config, args.seed, args.strategy, overrides, directory, args.quick)
+                runs[variant] = profile(cfg, directory / "campaign")
+            print(_table(f"{config}: {args.strategy}, seed {args.seed}", runs), flush=True)
+
+
+if __name__ == "__main__":
+    main()
