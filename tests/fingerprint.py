@@ -37,7 +37,8 @@ _DYNAMIC = {
 }  # fmt: skip
 
 # (name, config, overrides): each small, together the loop's paths: a black box chosen by uncertainty
-# and by space filling, auto with a warm start, the physics kind free-running, the safety admission.
+# and by space filling, auto with a warm start, the physics kind free-running (chosen by uncertainty,
+# and warm-started rounds chosen by maximin), the safety admission.
 SETTINGS: tuple[tuple[str, str, dict[str, Any]], ...] = (
     ("smoke_max_epistemic", "smoke.toml", {"strategy": "max_epistemic", **_SMALL}),
     ("smoke_uniform", "smoke.toml", {"strategy": "uniform", **_SMALL}),
@@ -46,6 +47,9 @@ SETTINGS: tuple[tuple[str, str, dict[str, Any]], ...] = (
     ("physics_dynamic", "smoke.toml", {"strategy": "max_epistemic", **_DYNAMIC, "model": {
         "kind": "physics", "kinematic_feature": False, "correction_gate": True,
         "correction_gate_min_held_out": 2, "arch": "D16-V8-V"}}),
+    ("physics_dynamic_warm_uniform", "smoke.toml", {"strategy": "uniform", **_DYNAMIC, "model": {
+        "kind": "physics", "kinematic_feature": False, "arch": "D16-V8-V"},
+        "training": {"epochs": 15, "warm_start": True}}),
     ("safety_uniform", "smoke.toml", {"strategy": "uniform", **_SMALL, "pool": {
         "kinds": ["straight", "skidpad"]}, "safety": {"arena": _SQUARE, "start": [0.0, 0.0, 0.0],
         "min_duration": 3.0, "n_samples": 16}}),

@@ -119,6 +119,61 @@ def test_identification_recovers_the_parameters_of_its_own_structure():
     assert np.all(found.stderr < 0.05 * np.maximum(truth, 0.1))
 
 
+def test_a_search_from_the_last_solution_lands_where_the_datasheets_does_in_fewer_runs():
+    """A warm-started round searches from the last round's parameters: same objective and prior, so the
+    same optimum (to the solver's tolerance), reached with fewer free runs of the logs."""
+    truth = np.array([0.8, 1.1, 0.2, 1.2, 1.15, 0.08, 3.0])
+    controls = _box_controls(4, 8)
+    noise = np.random.default_rng(1)
+    runs = st.run_single_track(controls, np.zeros((8, 2)), truth, 1 / 30)[0]
+    runs = runs + noise.normal(0.0, [0.005, 0.02], runs.shape)
+    logs = list(zip(controls, runs, strict=True))
+    last_round = st.identify_from_logs(logs[:6])  # the round before had six of the eight logs
+    counted = {"runs": 0}
+    original = st.run_single_track
+
+    def counting(*args, **kwargs):
+        counted["runs"] += 1
+        return original(*args, **kwargs)
+
+    cold_runs, warm_runs = 0, 0
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(st, "run_single_track", counting)
+        cold = st.identify_from_logs(logs)
+        cold_runs, counted["runs"] = counted["runs"], 0
+        warm = st.identify_from_logs(logs, search_from=last_round.values)
+        warm_runs = counted["runs"]
+    np.testing.assert_allclose(warm.values, cold.values, rtol=2e-3, atol=1e-4)
+    np.testing.assert_allclose(warm.stderr, cold.stderr, rtol=0.05)
+    assert warm_runs < cold_runs
+
+
+def test_another_cars_estimate_is_computed_once_per_set_of_logs():
+    """A campaign's prior grid is the same every round: its estimate is reused, the car's own refitted."""
+    car = np.array([1.0, 1.1, 0.1, 1.2, 1.15, 0.05, 3.0])
+    controls = _box_controls(5, 4)
+    rates = st.run_single_track(controls, np.zeros((4, 2)), car, 1 / 30)[0]
+    rates = rates + np.random.default_rng(2).normal(0.0, [0.005, 0.02], rates.shape)
+    logs = list(zip(controls, rates, strict=True))
+    own, others = logs[:1], logs[1:]
+    fits = []
+    original = st.identify_from_logs
+
+    def counting(fitted, **kwargs):
+        fits.append(len(fitted))
+        return original(fitted, **kwargs)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(st, "identify_from_logs", counting)
+        first = st.identify_on_another_car(own, others)
+        again = st.identify_on_another_car(own, others)
+        moved = st.identify_on_another_car(own, [(u, y + 0.01) for u, y in others])
+    assert fits == [3, 1, 1, 3, 1]  # the other car's 3 logs fitted once until they change
+    np.testing.assert_array_equal(again.values, first.values)
+    np.testing.assert_array_equal(again.covariance, first.covariance)
+    assert not np.array_equal(moved.values, first.values)
+
+
 def test_the_covariance_widens_where_the_logs_disagree():
     """Half the logs from a car with scrub 0.8, half from one with 1.6: the single track fits neither,
     and the cluster-robust standard error of the scrub is of the size of that disagreement (the

@@ -255,7 +255,8 @@ class TrainingConfig(_Section):
     warm_start: bool = Field(
         False,
         description="Campaigns: start each round from the previous round's weights (and scalers) and train "
-        "`warm_epochs` epochs, instead of a fresh model for `epochs`",
+        "`warm_epochs` epochs, instead of a fresh model for `epochs`; a kind that identifies physical "
+        "parameters searches from the previous round's (same prior, same objective)",
     )
     warm_epochs: int | None = Field(
         None, description="Epochs of a warm-started round (`warm_start`); none: a quarter of `epochs`"

@@ -269,6 +269,13 @@ class Campaign:
             pool, points=model_inputs(model, pool.points), target=model_inputs(model, pool.target)
         )
 
+    def _scoring_model(self, model: Any | None) -> Any | None:
+        """The model whose inputs the pool's points are (None: the candidates' own geometry). A strategy
+        that never reads them (`Strategy.uses_model` false: uniform, random) is spared the model's
+        free runs of every candidate, unless a stop rule reads them."""
+        needed = self.strategy.uses_model or self.cfg.design.stop_epistemic_std is not None
+        return model if needed else None
+
     @property
     def _scores_paths(self) -> bool:
         """Whether candidates are scored along the dynamic model's own free runs of them."""
@@ -337,7 +344,8 @@ class Campaign:
         admitted = self.admission.admit(pool, safe, self.budget.track_seconds(state))
         pool = admitted.pool
         if admitted.driven is not None:  # the points of the candidates as they would be driven
-            rebuilt = self.pool(list(np.flatnonzero(pool.taken)), model, maneuvers=admitted.driven)
+            taken = list(np.flatnonzero(pool.taken))
+            rebuilt = self.pool(taken, self._scoring_model(model), maneuvers=admitted.driven)
             fields = {name: getattr(rebuilt, name) for name in ("points", "owner", "weights")}
             pool = dataclasses.replace(pool, **fields)
         return pool, admitted
@@ -466,7 +474,7 @@ class Campaign:
         )
         metrics[WALL_SECONDS] = state.wall_seconds = self._wall()
         k, reason = self.budget.next_batch_size(state)
-        pool = self.pool(state.taken, model, self.budget.affordable(state))
+        pool = self.pool(state.taken, self._scoring_model(model), self.budget.affordable(state))
         admitted: Admitted | None = None
         if reason is None:
             started = time.perf_counter()

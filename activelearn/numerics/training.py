@@ -387,7 +387,8 @@ def _fit(
             model.epistemic_scale.fill_(1.0)
     if not keep_scalers:
         model.set_scalers(x, y)
-    model.identify(data)  # what the kind knows of the car, before its weights train
+    # what the kind knows of the car, before its weights train (from its last solution when warm)
+    model.identify(data, warm=not config.reinit)
     xs = model.standardise_inputs(torch.from_numpy(x)).contiguous()
     ys = ((torch.from_numpy(y) - model.y_mean) / model.y_std).contiguous()
     stepper = _Stepper(model, config, kl_weight, batch, use_compile, data.windows, gen)

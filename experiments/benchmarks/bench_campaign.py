@@ -142,7 +142,9 @@ def profile(cfg: CampaignConfig, directory: Path) -> Run:
     return clock, wall, list(result.state.rounds), cfg.test.metric
 
 
-def _config(name: str, seed: int, strategy: str, overrides: dict[str, Any], out: Path, quick: bool) -> CampaignConfig:
+def _config(
+    name: str, seed: int, strategy: str, overrides: dict[str, Any], out: Path, quick: bool
+) -> CampaignConfig:
     cfg = load_config(CONFIGS / f"{name}.toml", overrides={
         **overrides, "seed": seed, "strategy": strategy, "output_dir": str(out),
         "tracking": {"enabled": False}})  # fmt: skip
@@ -177,8 +179,9 @@ def _table(name: str, runs: dict[str, Run]) -> str:
         walls = [r["wall_seconds"] for r in rounds]
         per_round = [b - a for a, b in zip([0.0, *walls[:-1]], walls, strict=True)]
         fits = clock.fits[: len(rounds)]
-        lines.append(f"{variant}: {len(rounds)} rounds, wall s by round " + " ".join(f"{s:.1f}" for s in per_round)
-                     + f" (mean {sum(per_round) / max(len(per_round), 1):.1f} s per round)")  # fmt: skip
+        mean = sum(per_round) / max(len(per_round), 1)
+        walls_text = " ".join(f"{s:.1f}" for s in per_round)
+        lines.append(f"{variant}: {len(rounds)} rounds, wall s by round {walls_text} (mean {mean:.1f})")
         lines.append(f"{variant}: fit s by round " + " ".join(f"{s:.1f}" for s, _ in fits)
                      + "; epochs by round " + " ".join(str(e) for _, e in fits))  # fmt: skip
         if rounds and metric in rounds[-1]:
@@ -187,12 +190,16 @@ def _table(name: str, runs: dict[str, Run]) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--configs", default="dynamics,demo", help="comma-separated config names")
     parser.add_argument("--strategy", default="uniform")
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--variant", action="append", default=[], metavar="NAME=FILE.toml",
-                        help="also run every config with these overrides (a TOML file, as --params)")  # fmt: skip
+    parser.add_argument(
+        "--variant", action="append", default=[], metavar="NAME=FILE.toml",
+        help="also run every config with these overrides (a TOML file, as --params)",
+    )  # fmt: skip
     parser.add_argument("--quick", action="store_true", help="quick sizes (checks the benchmark runs)")
     parser.add_argument("--out", type=Path, default=None, help="scratch directory (default: a temporary one)")
     args = parser.parse_args()

@@ -9,8 +9,10 @@ and trains `warm_epochs` epochs), and prints, per config:
 The rule for making warm starts a config's default: at least 2x the campaigns per hour at an equal
 final error (the paired difference within 1 s.e.m.).
 
+Per seed, both modes' finals; for dynamic models, the fans' coverage of the test set by round.
+
 Usage: python experiments/benchmarks/bench_warm_start.py [--configs odd_expansion,dynamics]
-       [--strategy uniform] [--seeds 10] [--workers 2] [--warm-epochs N]
+       [--strategy uniform] [--seeds 10] [--first-seed 0] [--workers 2] [--warm-epochs N]
 """
 
 from __future__ import annotations
@@ -33,8 +35,11 @@ def _sem(values: np.ndarray) -> float:
     return float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) > 1 else float("nan")
 
 
+COVERAGE = "rollout_coverage_95"  # the fans' share of the test set's 95 % bands (dynamic models)
+
+
 def run(
-    config: str, strategy: str, seeds: int, workers: int, warm_epochs: int | None, out: Path,
+    config: str, strategy: str, seeds: list[int], workers: int, warm_epochs: int | None, out: Path,
     quick: bool = False,
 ) -> None:  # fmt: skip
     """Both modes of one config, then its printout."""
@@ -42,20 +47,23 @@ def run(
     if quick:
         base = shrink(base, out / "runs")
     metric = base.test.metric
-    finals, walls = {}, {}
+    finals, walls, fans = {}, {}, {}
     for mode, warm in (("scratch", False), ("warm", True)):
         training = {"warm_start": warm, **({"warm_epochs": warm_epochs} if warm and warm_epochs else {})}
         cfg = base.model_copy(update={"training": base.training.model_copy(update=training)})
-        result = compare(cfg, [strategy], list(range(seeds)), directory=out / config / mode, workers=workers,
+        result = compare(cfg, [strategy], seeds, directory=out / config / mode, workers=workers,
                          tracking=False)  # fmt: skip
-        last = result.curves.sort_values("round").groupby("seed").last()
+        curves = result.curves.sort_values("round")
+        last = curves.groupby("seed").last()
         finals[mode], walls[mode] = last[metric], last["wall_seconds"]
+        if COVERAGE in curves:
+            fans[mode] = curves.groupby("round")[COVERAGE].mean()
     scratch, warm = finals["scratch"], finals["warm"]
     diff = (warm - scratch).to_numpy()
     speed = walls["scratch"].mean() / walls["warm"].mean()
     epochs = warm_epochs or max(1, base.training.epochs // 4)
-    print(f"\n{config}: {strategy}, {seeds} seeds, metric {metric}; warm rounds train {epochs} of "
-          f"{base.training.epochs} epochs")  # fmt: skip
+    print(f"\n{config}: {strategy}, seeds {seeds[0]}-{seeds[-1]}, metric {metric}; "
+          f"warm rounds train {epochs} of {base.training.epochs} epochs")  # fmt: skip
     table = pd.DataFrame(
         {
             "wall s / campaign": [walls["scratch"].mean(), walls["warm"].mean()],
@@ -66,6 +74,11 @@ def run(
         index=["scratch", "warm"],
     )
     print(table.to_string(float_format="%.4g"))
+    for mode in finals:
+        print(f"  {mode} final by seed: " + " ".join(f"{v:.4g}" for v in finals[mode].to_numpy()))
+        if mode in fans:
+            by_round = " ".join(f"{v:.3f}" for v in fans[mode])
+            print(f"  {mode} {COVERAGE} by round, mean over seeds: {by_round}")
     print(f"  speed-up x{speed:.2f}; paired difference warm - scratch {diff.mean():+.4g} ± {_sem(diff):.2g} "
           f"(warm better on {int((diff < 0).sum())}/{len(diff)} seeds)")  # fmt: skip
     equal = abs(diff.mean()) <= _sem(diff)
@@ -78,6 +91,9 @@ def main() -> None:
     parser.add_argument("--configs", default="odd_expansion,dynamics")
     parser.add_argument("--strategy", default="uniform")
     parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument(
+        "--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1"
+    )
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--warm-epochs", type=int, default=None)
     parser.add_argument("--out", type=Path, default=None, help="keep the campaigns (default: a temp dir)")
@@ -91,7 +107,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as scratch:
         out = args.out or Path(scratch)
         for config in args.configs.split(","):
-            run(config, args.strategy, args.seeds, args.workers, args.warm_epochs, out, args.quick)
+            seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+            run(config, args.strategy, seeds, args.workers, args.warm_epochs, out, args.quick)
 
 
 if __name__ == "__main__":

@@ -340,9 +340,10 @@ class Model(nn.Module, ABC):
     # the loop then hands it the logs, and a prior of another car only centres that identification.
     identifies_on_logs: ClassVar[bool] = False
 
-    def identify(self, data: TrainingData) -> None:
+    def identify(self, data: TrainingData, *, warm: bool = False) -> None:
         """Fit what the kind knows of the car to the training data before its weights train (rows in
-        physical units, `data.logs` per maneuver, some flagged as another car's). Networks know nothing
+        physical units, `data.logs` per maneuver, some flagged as another car's); `warm`: start the
+        search from what this model identified before (a warm-started round). Networks know nothing
         beforehand: a no-op."""
 
     def gates_correction(self, data: TrainingData) -> bool:

@@ -126,22 +126,25 @@ class PhysicsModel(Model):
         return dict(zip(PARAMETER_NAMES, self.theta.tolist(), strict=True))
 
     @torch.no_grad()
-    def identify(self, data: TrainingData) -> None:
+    def identify(self, data: TrainingData, *, warm: bool = False) -> None:
         """Fit the physical parameters: to whole logs by their free runs (`identify_from_logs`) where
         given, else to one-step rows (`identify`). Logs flagged in `of_another_car` (a simulated prior
-        grid) only centre the prior the others are identified under (`identify_on_another_car`). A
-        no-op with `identify = false`."""
+        grid) only centre the prior the others are identified under (`identify_on_another_car`). `warm`:
+        the search starts from `theta` (the last round's solution; the prior is unchanged). A no-op
+        with `identify = false`."""
         if not self.config.identify:
             return
         logs, of_another_car = data.logs, data.of_another_car
+        search_from = self.theta.double().numpy() if warm else None
         if logs and of_another_car is not None and any(of_another_car):
             flags = list(of_another_car)
             found = identify_on_another_car(
                 [log for log, other in zip(logs, flags, strict=True) if not other],
                 [log for log, other in zip(logs, flags, strict=True) if other],
+                search_from=search_from,
             )
         elif logs:
-            found = identify_from_logs(logs)
+            found = identify_from_logs(logs, search_from=search_from)
         else:
             found = identify(np.asarray(data.x), np.asarray(data.y), self.dt, self.rate_at)
         self.theta.copy_(torch.as_tensor(found.values, dtype=torch.float32))
