@@ -60,6 +60,9 @@ EXPECTED = {
     "bench_sample_efficiency": ("paired test_rmse differences against uniform", True, Figure(
         "uniform's final test_rmse on the skidpad",
         rf"^\s+uniform\s+1\s+{NUMBER}", 0.0, 50.0)),  # quick 7.05
+    "bench_campaign": ("wall s by round", True, Figure(
+        "the dynamics campaign's share of wall time in its fits, %",
+        rf"^fit\s+{NUMBER}\s+{NUMBER}%", 1.0, 100.0)),  # quick 69
     "bench_scaleout": ("where one campaign's time goes", True, Figure(
         "smoke campaigns per hour on one process worker",
         rf"process\s+1 worker\(s\):\s+{NUMBER} campaigns/hour", 10.0, 1e5)),  # quick 238
