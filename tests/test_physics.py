@@ -119,6 +119,21 @@ def test_identification_recovers_the_parameters_of_its_own_structure():
     assert np.all(found.stderr < 0.05 * np.maximum(truth, 0.1))
 
 
+def test_free_runs_of_many_parameter_sets_are_the_step_by_steps_to_the_last_bit():
+    """`run_single_track` computes the table's speed once for all steps of the controls: the same
+    numbers as the step computes by itself (throttle 0, the brake, included)."""
+    rng = np.random.default_rng(3)
+    controls = rng.uniform([-1.0, -0.52], [1.0, 0.52], (7, 300, 2))
+    controls[:, ::17, 0] = 0.0
+    sets = st.NOMINAL * rng.uniform(0.8, 1.2, (5, 7))
+    start = rng.normal(0.0, 0.1, (7, 2))
+    runs = st.run_single_track(controls, start, sets, 1 / 30)
+    v, w = (np.broadcast_to(start[:, j], (5, 7)) for j in range(2))
+    for k in range(1, 300):
+        v, w = st.single_track_step(controls[:, k, 0], controls[:, k, 1], v, w, sets[:, None], 1 / 30)
+        assert np.array_equal(runs[:, :, k, 0], v) and np.array_equal(runs[:, :, k, 1], w)
+
+
 def test_a_search_from_the_last_solution_lands_where_the_datasheets_does_in_fewer_runs():
     """A warm-started round searches from the last round's parameters: same objective and prior, so the
     same optimum (to the solver's tolerance), reached with fewer free runs of the logs."""

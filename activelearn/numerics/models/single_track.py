@@ -92,6 +92,9 @@ def _table(dtype: torch.dtype) -> tuple[Tensor, Tensor]:
     return speed, torch.diff(speed)
 
 
+_NUMPY_SLOPE = np.diff(datasheet.REFERENCE_SPEED)  # the table's slope per 0.1 of throttle (NumPy)
+
+
 def _table_speed(throttle: Array) -> Array:
     """The datasheet's steady forward speed at |throttle| (m/s), interpolated linearly (τ in [0, 1])."""
     xp = _namespace(throttle)
@@ -101,7 +104,7 @@ def _table_speed(throttle: Array) -> Array:
         speed, slope = _table(throttle.dtype)
         index = i.long()
     else:
-        speed, slope = datasheet.REFERENCE_SPEED, np.diff(datasheet.REFERENCE_SPEED)
+        speed, slope = datasheet.REFERENCE_SPEED, _NUMPY_SLOPE
         index = i.astype(np.intp)
     return speed[index] + (x - i) * slope[index]
 
@@ -115,19 +118,22 @@ def single_track_step(
     dt: float,
     corrections: tuple[Tensor, Tensor, Tensor, Tensor] | None = None,
     residual_bound: float = 0.0,
+    table_speed: Array | None = None,
 ) -> tuple[Array, Array]:
     """Next (v, ω) after `dt` s of the control (throttle, steering) from rates (v, ω), broadcast.
 
     `theta` holds the seven `PARAMETERS` along its last axis; `corrections` the network's raw outputs
     (steady speed, steady yaw rate, speed lag, yaw lag), each squashed into its range (None: pure
     physics). Tensors (training, free runs) or NumPy arrays (identification, several times faster on
-    its small arrays), not mixed.
+    its small arrays), not mixed. `table_speed`: `_table_speed(throttle)`, where the caller has it
+    (a free run over many parameter sets computes it once per step of the controls).
     """
     xp = _namespace(throttle)
     gain_f, gain_r, t_v, scrub, understeer, t_w, brake = (theta[..., i] for i in range(len(PARAMETERS)))
     tan_d = xp.tan(steering)
     gain = xp.where(throttle >= 0, gain_f, gain_r)
-    v_ss = xp.sign(throttle) * gain * _table_speed(throttle) / (1.0 + scrub * tan_d * tan_d)
+    table = _table_speed(throttle) if table_speed is None else table_speed
+    v_ss = xp.sign(throttle) * gain * table / (1.0 + scrub * tan_d * tan_d)
     if corrections is not None:
         z_v, z_w, z_tv, z_tw = corrections
         v_ss = v_ss + residual_bound * datasheet.MAX_SPEED * xp.tanh(z_v)
@@ -194,8 +200,10 @@ def run_single_track(controls: np.ndarray, start: np.ndarray, theta: np.ndarray,
     out = np.empty((len(sets), n_runs, n_steps, 2))
     v, w = (np.broadcast_to(start[:, j], (len(sets), n_runs)) for j in range(2))
     out[:, :, 0, 0], out[:, :, 0, 1] = v, w
+    table = _table_speed(controls[:, :, 0])  # (M, T): elementwise, the same numbers as step by step
     for k in range(1, n_steps):
-        v, w = single_track_step(controls[:, k, 0], controls[:, k, 1], v, w, sets, dt)
+        u = controls[:, k]
+        v, w = single_track_step(u[:, 0], u[:, 1], v, w, sets, dt, table_speed=table[:, k])
         out[:, :, k, 0], out[:, :, k, 1] = v, w
     return out
 
