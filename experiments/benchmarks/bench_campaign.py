@@ -1,10 +1,11 @@
 """Where a campaign's time goes: one campaign per config, its wall time split by section, per round.
 
-Runs each config's campaign (one strategy and seed, no tracking, no figures) with its sections timed:
+Runs each config's campaign (one strategy and seed, no figures) with its sections timed:
 the fit (identification, one-step steps, multi-step windows, the correction gate's probe, validation,
 calibration), the evaluation (the test set's free runs), acquisition (candidates' predicted paths, the
-strategy's pick), [safety], the oracle's simulations, checkpoints. A section is timed where it is
-entered from outside itself (nested calls count once), so sub-sections sum to at most their parent.
+strategy's pick), [safety], the oracle's simulations, checkpoints and, with `--tracking`, MLflow. A
+section is timed where it is entered from outside itself (nested calls count once), so sub-sections sum
+to at most their parent.
 Prints, per config: a table of seconds, calls and share of the wall time, then each round's wall
 seconds and the epochs its fits ran. The test set is simulated before the campaign starts (once per
 config and cached: in a comparison every seed after the first finds it so) and its seconds are
@@ -15,7 +16,7 @@ those overrides, and the table puts the variants' seconds side by side and, per 
 campaign's seconds over the variant's ("conf/NAME"; 0.4: the configured one takes 0.4 of the time).
 
 Usage: python experiments/benchmarks/bench_campaign.py [--configs dynamics,demo] [--strategy uniform]
-       [--seed 1] [--variant fresh:training.warm_start=false] [--quick] [--out DIR]
+       [--seed 1] [--variant fresh:training.warm_start=false] [--tracking] [--quick] [--out DIR]
 """
 
 from __future__ import annotations
@@ -37,6 +38,8 @@ from activelearn.config import CampaignConfig, load_config
 from activelearn.loop import campaign as campaign_module
 from activelearn.loop.evaluation import Evaluation
 from activelearn.loop.fitting import Fitting
+from activelearn.loop.run_log import RunLog
+from activelearn.loop.strategy import Strategy
 from activelearn.numerics import training
 from activelearn.numerics.models.base import Model
 
@@ -82,9 +85,13 @@ SECTIONS: tuple[tuple[str, Any, str], ...] = (
     ("evaluation (test set's free runs)", Evaluation, "evaluate"),
     ("evaluation / prequential fans", Evaluation, "prequential"),
     ("acquisition / candidates' paths", campaign_module.Campaign, "pool"),
+    ("acquisition / the strategy's pick", Strategy, "pick"),
     ("safety admission", campaign_module.Campaign, "admit"),
     ("oracle (simulations)", campaign_module.Campaign, "_answer"),
     ("checkpoints", campaign_module.Campaign, "_checkpoint"),
+    ("tracking (MLflow, with --tracking)", RunLog, "flush"),
+    ("tracking (MLflow, with --tracking)", RunLog, "start"),
+    ("tracking (MLflow, with --tracking)", RunLog, "finish"),
 )
 
 
@@ -119,8 +126,9 @@ def _restore(saved: list[tuple[Any, str, Any]]) -> None:
 Run = tuple[Clock, float, list[dict[str, Any]], str, float]
 
 
-def profile(cfg: CampaignConfig, directory: Path) -> Run:
-    """Run one campaign with its sections timed: the clock, wall seconds and the rounds' metrics."""
+def profile(cfg: CampaignConfig, directory: Path, tracking: str | None = None) -> Run:
+    """Run one campaign with its sections timed: the clock, wall seconds and the rounds' metrics;
+    `tracking`: an MLflow store URI to log it to, as `activelearn campaign run` does (None: not logged)."""
     clock = Clock()
     saved = _instrumented(clock)
     fit = Fitting.fit
@@ -135,7 +143,12 @@ def profile(cfg: CampaignConfig, directory: Path) -> Run:
 
     Fitting.fit = counted_fit  # type: ignore[method-assign]
     try:
-        campaign = campaign_module.Campaign(cfg, directory)
+        tracker = None
+        if tracking is not None:
+            from activelearn.studies.tracking import Tracker
+
+            tracker = Tracker(tracking, cfg.tracking.experiment)
+        campaign = campaign_module.Campaign(cfg, directory, tracker=tracker)
         started = time.perf_counter()
         campaign.test_set  # noqa: B018 (simulated once per config and cached)
         test_set = time.perf_counter() - started
@@ -160,7 +173,7 @@ def _config(
 def _table(name: str, runs: dict[str, Run]) -> str:
     variants = list(runs)
     first = variants[0]
-    sections = [s for s, _, _ in SECTIONS]
+    sections = list(dict.fromkeys(s for s, _, _ in SECTIONS))  # a section may wrap several methods
     head = f"{'section':42s}" + "".join(f"{v + ' s':>12s}{'share':>7s}" for v in variants)
     if len(variants) > 1:
         head += "".join(f"{'conf/' + v:>11s}" for v in variants[1:])
@@ -221,6 +234,9 @@ def main() -> None:
         "--variant", action="append", default=[], metavar="NAME:SECTION.KEY=VALUE[,...]",
         help="also run every config with these overrides (values in TOML)",
     )  # fmt: skip
+    parser.add_argument(
+        "--tracking", action="store_true", help="log each campaign to MLflow (SQLite, in the scratch dir)"
+    )
     parser.add_argument("--quick", action="store_true", help="quick sizes (checks the benchmark runs)")
     parser.add_argument("--out", type=Path, default=None, help="scratch directory (default: a temporary one)")
     args = parser.parse_args()
@@ -235,7 +251,8 @@ def main() -> None:
             for variant, overrides in variants.items():
                 directory = out / config / variant.replace(" ", "_")
                 cfg = _config(config, args.seed, args.strategy, overrides, directory, args.quick)
-                runs[variant] = profile(cfg, directory / "campaign")
+                store = f"sqlite:///{out / 'mlruns.db'}" if args.tracking else None
+                runs[variant] = profile(cfg, directory / "campaign", store)
             print(_table(f"{config}: {args.strategy}, seed {args.seed}", runs), flush=True)
 
 
