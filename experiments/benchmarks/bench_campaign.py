@@ -40,6 +40,7 @@ from activelearn.loop.evaluation import Evaluation
 from activelearn.loop.fitting import Fitting
 from activelearn.loop.run_log import RunLog
 from activelearn.loop.strategy import Strategy
+from activelearn.names import WALL_SECONDS
 from activelearn.numerics import training
 from activelearn.numerics.models.base import Model
 
@@ -195,7 +196,7 @@ def _table(name: str, runs: dict[str, Run]) -> str:
         lines.append(f"{section:42s}{cells}{ratios}")
     for variant in variants:
         clock, wall, rounds, metric, test_set = runs[variant]
-        walls = [r["wall_seconds"] for r in rounds]
+        walls = [r[WALL_SECONDS] for r in rounds]
         per_round = [b - a for a, b in zip([0.0, *walls[:-1]], walls, strict=True)]
         fits = clock.fits[: len(rounds)]
         mean = sum(per_round) / max(len(per_round), 1)

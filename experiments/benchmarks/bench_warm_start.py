@@ -26,6 +26,7 @@ import pandas as pd
 from quick import shrink
 
 from activelearn.config import load_config
+from activelearn.names import ROLLOUT_COVERAGE_95, WALL_SECONDS
 from activelearn.studies.compare import compare
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -35,7 +36,7 @@ def _sem(values: np.ndarray) -> float:
     return float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) > 1 else float("nan")
 
 
-COVERAGE = "rollout_coverage_95"  # the fans' share of the test set's 95 % bands (dynamic models)
+COVERAGE = ROLLOUT_COVERAGE_95  # the fans' share of the test set's 95 % bands (dynamic models)
 
 
 def run(
@@ -55,7 +56,7 @@ def run(
                          tracking=False)  # fmt: skip
         curves = result.curves.sort_values("round")
         last = curves.groupby("seed").last()
-        finals[mode], walls[mode] = last[metric], last["wall_seconds"]
+        finals[mode], walls[mode] = last[metric], last[WALL_SECONDS]
         if COVERAGE in curves:
             fans[mode] = curves.groupby("round")[COVERAGE].mean()
     scratch, warm = finals["scratch"], finals["warm"]

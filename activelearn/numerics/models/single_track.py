@@ -275,7 +275,7 @@ _OTHERS: dict[str, Identified] = {}  # the other car's estimate by its logs' dig
 
 def _others_estimate(others: list[tuple[np.ndarray, np.ndarray]], **kwargs) -> Identified:
     """`identify_from_logs(others)`, computed once per set of logs: a campaign's prior grid is the same
-    every round (dynamics_warm: 35 logs, about 0.9 s a round)."""
+    every round (35 logs of 30 s, as dynamics_warm's grid: about 1 s a round)."""
     digest = hashlib.sha256(repr(sorted(kwargs.items())).encode())
     for u, y in others:
         digest.update(np.ascontiguousarray(u, np.float64).tobytes())
