@@ -46,7 +46,7 @@ from simulator.families import FamilyManeuver
 from simulator.maneuvers import Maneuver, Replay, open_loop_steering
 from simulator.noise import NoiseConfig, is_int, is_real, noisy_columns
 from simulator.stop import StopRule, brake_on_trigger, end_when_standing
-from simulator.vehicle import ENCODER_CPR, Vehicle
+from simulator.vehicle import Vehicle
 
 AUTODRIVE_COLUMNS = (
     "timestamp",
@@ -181,6 +181,20 @@ def _check_args(
     return list(maneuvers)
 
 
+def _check_steering(maneuvers: list[Maneuver | Replay | FamilyManeuver], limit: float) -> None:
+    """Every maneuver's steering within the car's limit (maneuvers are built before the car is known)."""
+    for m in maneuvers:
+        if isinstance(m, Replay):
+            largest = float(np.abs(m.steerings).max())
+        elif isinstance(m, Maneuver):
+            largest = m.op_steering
+        else:
+            continue  # a family clips its own schedule
+        if largest > limit:
+            name = m.label if isinstance(m, Replay) else m.name
+            raise ManeuverError("steering", largest, f"must be <= the car's limit {limit:g} rad ({name})")
+
+
 _DEFAULT_VEHICLE: Vehicle | None = None
 
 
@@ -230,6 +244,7 @@ def collect(
     dt = vehicle.timestep
     physics_rate = 1.0 / dt
     maneuvers = _check_args(maneuvers, rate_hz, seed, noise, threads, on_divergence, physics_rate, stop)
+    _check_steering(maneuvers, vehicle.steering_limit)
     rate_hz = float(rate_hz)
     if not maneuvers:
         return _empty_table()
@@ -501,7 +516,7 @@ def _assemble(
         cols = {c: ch[c] for c in AUTODRIVE_COLUMNS if c in ch}
         with np.errstate(invalid="ignore"):
             for column, wheel in (("leftTicks", "wheel_left"), ("rightTicks", "wheel_right")):
-                ticks = np.nan_to_num(ch[wheel] * (ENCODER_CPR / (2.0 * np.pi)))
+                ticks = np.nan_to_num(ch[wheel] * (vehicle.encoder_cpr / (2.0 * np.pi)))
                 cols[column] = np.rint(ticks).astype(np.int64)
         if noise is not None and noise.enabled:
             noisy_columns(cols, noise, np.random.default_rng(children[run.index]))

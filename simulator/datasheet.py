@@ -1,40 +1,37 @@
-"""Nigel's datasheet (`shared/reference/nigel.md`): the one place its figures are written down.
+"""Nigel's datasheet, read from its vehicle file (`simulator/vehicles/nigel.toml`).
 
-Plain numbers, no MuJoCo: the simulator builds its model from them and the physics-structured
-surrogate (`activelearn.numerics.models.physics`) takes them as its prior.
+Plain numbers, no MuJoCo: module constants for the code that was written for Nigel before vehicles
+became data (the physics prior, maneuver grids). New code takes a `VehicleSpec` instead.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-THROTTLE_LIMIT = 1.0
-STEERING_LIMIT = 0.5236  # rad
-MAX_SPEED = 0.2670  # m/s, reference linear velocity limit
-MAX_YAW_RATE = 0.8051  # rad/s, reference angular velocity limit
-LF = 0.06226  # m, CG to front axle
-LR = 0.07929  # m, CG to rear axle
-WHEELBASE = 0.14155  # m, lf + lr (the table rounds it to 0.1415)
-TRACK = 0.153  # m
-WHEEL_RADIUS = 0.0325  # m
-MASS = 2.68  # kg
-YAW_INERTIA = 0.01944  # kg m^2
-CORNERING_STIFFNESS = 22.4768  # N/rad per tyre, identified on polished concrete
-FRICTION = 0.4  # tyre-floor friction coefficient, same floor
-GRAVITY = 9.81  # m/s^2
-LOG_RATE_HZ = 30.0  # the AutoDRIVE logs' nominal rate
+from simulator.vehicles.spec import GRAVITY, load_vehicle
+
+NIGEL = load_vehicle("nigel")
+
+THROTTLE_LIMIT = 1.0  # the normalised throttle of every car: -1 … 1, 0 brakes
+STEERING_LIMIT = NIGEL.steering.limit.value  # rad
+MAX_SPEED = NIGEL.max_speed  # m/s, reference linear velocity limit
+MAX_YAW_RATE = NIGEL.max_yaw_rate  # rad/s, reference angular velocity limit
+LF = NIGEL.geometry.lf.value  # m, CG to front axle
+LR = NIGEL.geometry.lr.value  # m, CG to rear axle
+WHEELBASE = NIGEL.wheelbase  # m, lf + lr
+TRACK = NIGEL.geometry.track.value  # m
+WHEEL_RADIUS = NIGEL.geometry.wheel_radius.value  # m
+MASS = NIGEL.inertia.mass.value  # kg
+YAW_INERTIA = NIGEL.inertia.yaw_inertia.value  # kg m^2
+CORNERING_STIFFNESS = NIGEL.tyres.cornering_stiffness_front.value / 2.0  # N/rad per tyre
+FRICTION = NIGEL.tyres.friction.value  # tyre-floor friction coefficient
+LOG_RATE_HZ = NIGEL.log_rate_hz  # the AutoDRIVE logs' nominal rate
+GRAVITY = GRAVITY  # m/s^2 (re-exported)
 
 # Calibration target: steady straight-line speed for each throttle (steering 0).
-REFERENCE_THROTTLE = np.round(np.arange(0.0, 1.01, 0.1), 1)
-REFERENCE_SPEED = np.array(
-    [0.0, 0.02867, 0.05685, 0.08457, 0.11185, 0.13871, 0.16516, 0.19122, 0.21688, 0.24215, 0.26703]
-)
+REFERENCE_THROTTLE, REFERENCE_SPEED = (np.array(a) for a in NIGEL.speed_map)
 
 
 def understeer_gradient() -> float:
-    """The linear single track's understeer gradient K (rad per m/s²) from mass, lf, lr and stiffness.
-
-    δ = L/R + K·a_y with K = (m / L)(lr / C_f − lf / C_r), each axle two tyres of the datasheet's stiffness.
-    """
-    axle = 2.0 * CORNERING_STIFFNESS
-    return MASS / WHEELBASE * (LR / axle - LF / axle)
+    """The linear single track's understeer gradient K (rad per m/s²): δ = L/R + K·a_y."""
+    return NIGEL.understeer_gradient()

@@ -78,8 +78,8 @@ class Maneuver:
         steering = _check_real("steering", self.steering)
         if steering < 0.0:
             raise ManeuverError("steering", self.steering, "must be >= 0 (direction carries the sign)")
-        if steering > STEERING_LIMIT:
-            raise ManeuverError("steering", self.steering, f"must be <= {STEERING_LIMIT} rad")
+        if steering >= 0.5 * math.pi:
+            raise ManeuverError("steering", self.steering, "must be < pi/2 rad (collect checks the car's)")
         if not isinstance(self.direction, str) or self.direction not in DIRECTIONS:
             raise ManeuverError("direction", self.direction, "must be 'cw' or 'ccw'")
         duration = _check_real("duration", self.duration)
@@ -146,7 +146,7 @@ class Replay:
             arrays[field] = values
         if len(arrays["throttles"]) != len(arrays["steerings"]):
             raise ManeuverError("steerings", len(arrays["steerings"]), "must be as long as throttles")
-        for field, limit in (("throttles", THROTTLE_LIMIT), ("steerings", STEERING_LIMIT)):
+        for field, limit in (("throttles", THROTTLE_LIMIT), ("steerings", 0.5 * math.pi)):
             largest = float(np.abs(arrays[field]).max())
             if largest > limit:
                 raise ManeuverError(field, largest, f"must lie in [-{limit}, {limit}]")

@@ -1,4 +1,4 @@
-"""Twins: Nigel's model with parameter overrides, a stand-in for a real car that differs from nominal.
+"""Twins: a car's model with parameter overrides, a stand-in for a real car that differs from nominal.
 
 Every parameter is a scale of a nominal model quantity (1 = nominal) or an additive offset (0 =
 nominal); `TWIN_PARAMETERS` documents its meaning, unit and allowed range. `twin_vehicle` applies
@@ -12,11 +12,13 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from numbers import Real
+from pathlib import Path
 
 import mujoco
 
 from simulator.errors import OverrideError
 from simulator.vehicle import Vehicle
+from simulator.vehicles.spec import VehicleSpec
 
 
 @dataclass(frozen=True)
@@ -36,7 +38,7 @@ TWIN_PARAMETERS: dict[str, TwinParameter] = {
     for p in (
         TwinParameter(
             "tire_friction",
-            "scale of the sliding friction coefficient of every tyre-floor contact (nominal 0.4)",
+            "scale of the tyre-road friction coefficient (the vehicle file's tyres.friction)",
             "scale",
             1.0,
             0.25,
@@ -44,7 +46,7 @@ TWIN_PARAMETERS: dict[str, TwinParameter] = {
         ),
         TwinParameter(
             "mass",
-            "scale of the chassis mass (nominal 2.52 kg of the car's 2.68 kg), a payload at the CG: "
+            "scale of the chassis mass (the car less its wheels), a payload at the CG: "
             "the inertia is unchanged (see yaw_inertia)",
             "scale",
             1.0,
@@ -53,8 +55,8 @@ TWIN_PARAMETERS: dict[str, TwinParameter] = {
         ),
         TwinParameter(
             "yaw_inertia",
-            "scale of the whole car's yaw inertia about its CG (nominal 0.01944 kg m^2); the chassis "
-            "takes the change",
+            "scale of the whole car's yaw inertia about its CG (the vehicle file's inertia.yaw_inertia); "
+            "the chassis takes the change",
             "scale",
             1.0,
             0.5,
@@ -89,7 +91,7 @@ TWIN_PARAMETERS: dict[str, TwinParameter] = {
         TwinParameter(
             "latency",
             "actuation delay of throttle and steering (the control applied at time t is the command of "
-            "t - latency), rounded to the 1/300 s physics step",
+            "t - latency), rounded to the car's physics step",
             "s",
             0.0,
             0.0,
@@ -117,10 +119,12 @@ def check_overrides(overrides: Mapping[str, float]) -> dict[str, float]:
     return checked
 
 
-def twin_vehicle(overrides: Mapping[str, float] | None = None) -> Vehicle:
+def twin_vehicle(
+    overrides: Mapping[str, float] | None = None, spec: VehicleSpec | str | Path = "nigel"
+) -> Vehicle:
     """A Vehicle with the overrides applied to its private model copy (nominal when none are given)."""
     values = check_overrides(overrides or {})
-    vehicle = Vehicle()
+    vehicle = Vehicle(spec=spec)
     m = vehicle.model
     scale = {name: values.get(name, spec.nominal) for name, spec in TWIN_PARAMETERS.items()}
     if scale["tire_friction"] != 1.0:

@@ -1,4 +1,5 @@
-"""Nigel's MuJoCo model: loading, the (throttle, steering) -> actuator map, rest state and sensor decoding."""
+"""A car whose tyres are MuJoCo's contacts (Nigel): loading, the (throttle, steering) -> actuator map, rest
+state and sensor decoding. The car's figures come from its vehicle file (`simulator.vehicles`)."""
 
 from __future__ import annotations
 
@@ -8,9 +9,11 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-MODEL_PATH = Path(__file__).resolve().parent / "assets" / "nigel.xml"
+from simulator.vehicles.spec import VehicleSpec, load_vehicle
 
-# Limits and facts from shared/reference/nigel.md (simulator.datasheet holds them; re-exported here).
+MODEL_PATH = load_vehicle("nigel").truth_file()
+
+# Nigel's limits and facts (simulator.datasheet reads them from its vehicle file; re-exported here).
 from simulator.datasheet import (  # noqa: E402, F401
     MAX_SPEED,
     MAX_YAW_RATE,
@@ -23,12 +26,13 @@ from simulator.datasheet import (  # noqa: E402, F401
     WHEELBASE,
 )
 
-ENCODER_CPR = 1920  # wheel encoder counts per revolution
+ENCODER_CPR = int(load_vehicle("nigel").sensors.encoder_cpr.value)  # Nigel's encoder counts per revolution
 
 # Calibration target of issue 15: steady turn speeds (steering rad, speed m/s) of the real car at
 # throttle 1.0, read from the public AutoDRIVE Nigel parking log. The model is fitted to within 0.01 m/s.
-REFERENCE_TURNS_THROTTLE = 1.0
-REFERENCE_TURNS = ((0.21, 0.26), (0.31, 0.23), (0.36, 0.22))
+_TURNS = load_vehicle("nigel").truth.reference_turns
+REFERENCE_TURNS_THROTTLE = _TURNS.throttle
+REFERENCE_TURNS = tuple(zip(_TURNS.steering, _TURNS.speed, strict=True))
 
 # Actuator order of the control vector (see assets/nigel.xml).
 ACTUATORS = (
@@ -83,7 +87,7 @@ def quat_to_rpy(quat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 class Vehicle:
-    """One Nigel model: its control map, rest state, state layout and sensor layout.
+    """One car of a 'mujoco-contacts' truth (Nigel): its control map, rest state, state and sensor layout.
 
     `model` is a private copy; tests and studies may edit it (friction, gains, ...) before the first
     rollout. The rest state is computed lazily, so it reflects such edits.
@@ -94,8 +98,12 @@ class Vehicle:
     command of t - latency, rounded to physics steps; before a run starts the command is the brake).
     """
 
-    def __init__(self, xml_path: str | Path = MODEL_PATH) -> None:
+    def __init__(self, xml_path: str | Path | None = None, spec: VehicleSpec | str | Path = "nigel") -> None:
+        self.spec = load_vehicle(spec)
+        xml_path = xml_path if xml_path is not None else self.spec.truth_file()
         self.model = mujoco.MjModel.from_xml_path(str(xml_path))
+        self.steering_limit = self.spec.steering.limit.value  # rad
+        self.encoder_cpr = int(self.spec.sensors.encoder_cpr.value)
         self.steering_gain = 1.0
         self.steering_offset = 0.0  # rad
         self.latency = 0.0  # s

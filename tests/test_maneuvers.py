@@ -23,7 +23,7 @@ from simulator import STEERING_LIMIT, Maneuver, ManeuverError, nominal_controls,
         ({"throttle": "0.5"}, "throttle", "0.5"),
         ({"throttle": True}, "throttle", True),
         ({"steering": -0.1}, "steering", -0.1),
-        ({"steering": 0.5237}, "steering", 0.5237),
+        ({"steering": 1.6}, "steering", 1.6),
         ({"steering": float("inf")}, "steering", float("inf")),
         ({"direction": "left"}, "direction", "left"),
         ({"duration": 0.0}, "duration", 0.0),
@@ -39,6 +39,15 @@ def test_invalid_values_raise_an_error_naming_field_and_value(kwargs: dict, fiel
     if value is not None:
         assert info.value.value == value
         assert repr(value) in str(info.value)
+
+
+def test_collect_checks_steering_against_the_cars_own_limit() -> None:
+    """A maneuver is built before the car is known: collect refuses one beyond the car's lock, naming it."""
+    from simulator import collect
+
+    with pytest.raises(ManeuverError) as info:
+        collect([Maneuver("skidpad", 0.5, 0.5237, "ccw", 0.1)], noise=None)
+    assert info.value.field == "steering" and "0.5236" in str(info.value) and "skidpad_ccw" in str(info.value)
 
 
 def test_limits_are_inclusive() -> None:

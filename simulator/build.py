@@ -1,0 +1,27 @@
+"""Build the truth simulator of any car from its vehicle file, with twin overrides.
+
+A 'mujoco-contacts' car (Nigel) is its MJCF model (`simulator.vehicle.Vehicle`); a 'mujoco-tyres'
+car is a rigid MuJoCo car on frictionless wheels with a magic-formula tyre (`simulator.tyre_car`).
+Both answer `collect` the same way.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+from simulator.twin import check_overrides, twin_vehicle
+from simulator.vehicle import Vehicle
+from simulator.vehicles.spec import VehicleSpec, load_vehicle
+
+
+def build_vehicle(
+    vehicle: VehicleSpec | str | Path = "nigel", overrides: Mapping[str, float] | None = None
+) -> Vehicle:
+    """The car of a vehicle file (a shipped name or a path), twin overrides applied (nominal when none)."""
+    spec = load_vehicle(vehicle)
+    if spec.truth.engine == "mujoco-contacts":
+        return twin_vehicle(overrides, spec)
+    from simulator.tyre_car import TyreCar
+
+    return TyreCar(spec, check_overrides(overrides or {}))
