@@ -1,8 +1,10 @@
-"""MuJoCo simulator of AutoDRIVE's Nigel: benchmark maneuvers logged in the AutoDRIVE layout.
+"""MuJoCo simulator of cars described by vehicle files (Nigel, a 1:10 racing car, a full-size car):
+benchmark maneuvers logged in the AutoDRIVE layout.
 
 Knows nothing about learning; `activelearn` reaches MuJoCo only through this package.
 """
 
+from simulator.build import build_vehicle
 from simulator.collect import AUTODRIVE_COLUMNS, COLUMNS, EXTRA_COLUMNS, collect
 from simulator.errors import DivergenceError, DivergenceWarning, ManeuverError, OverrideError, SimulatorError
 from simulator.families import FAMILIES, Family, FamilyManeuver, as_family, family
@@ -30,6 +32,7 @@ from simulator.vehicle import (
     model_xml,
     reference_speed,
 )
+from simulator.vehicles import VehicleFileError, VehicleSpec, load_vehicle, shipped_vehicles
 
 __version__ = "0.1.0"
 
@@ -59,14 +62,18 @@ __all__ = [
     "StopRule",
     "TwinParameter",
     "Vehicle",
+    "VehicleFileError",
+    "VehicleSpec",
     "__version__",
     "ackermann_angles",
     "add_noise",
     "as_family",
+    "build_vehicle",
     "check_overrides",
     "check_schedule",
     "collect",
     "family",
+    "load_vehicle",
     "member_from_name",
     "model_xml",
     "noise_std",
@@ -75,5 +82,6 @@ __all__ = [
     "reference_speed",
     "sample_times",
     "schedule_maneuver",
+    "shipped_vehicles",
     "twin_vehicle",
 ]

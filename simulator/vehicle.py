@@ -4,17 +4,14 @@ state and sensor decoding. The car's figures come from its vehicle file (`simula
 from __future__ import annotations
 
 import functools
+import string
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
-from simulator.vehicles.spec import VehicleSpec, load_vehicle
-
-MODEL_PATH = load_vehicle("nigel").truth_file()
-
 # Nigel's limits and facts (simulator.datasheet reads them from its vehicle file; re-exported here).
-from simulator.datasheet import (  # noqa: E402, F401
+from simulator.datasheet import (  # noqa: F401
     MAX_SPEED,
     MAX_YAW_RATE,
     REFERENCE_SPEED,
@@ -25,6 +22,7 @@ from simulator.datasheet import (  # noqa: E402, F401
     WHEEL_RADIUS,
     WHEELBASE,
 )
+from simulator.vehicles.spec import VehicleFileError, VehicleSpec, load_vehicle
 
 ENCODER_CPR = int(load_vehicle("nigel").sensors.encoder_cpr.value)  # Nigel's encoder counts per revolution
 
@@ -51,9 +49,39 @@ CONTACT_SENSORS = ("contact_fl", "contact_fr", "contact_rl", "contact_rr")
 _SETTLE_TIME = 0.5  # s
 
 
-def model_xml() -> str:
-    """Text of the MJCF model file (for fingerprints of cached simulations)."""
-    return MODEL_PATH.read_text()
+def model_xml(spec: VehicleSpec | str | Path = "nigel") -> str:
+    """The car's MJCF text, its template filled from the vehicle file (also the simulation cache's key)."""
+    spec = load_vehicle(spec)
+    template = string.Template(spec.truth_file().read_text())
+    try:
+        return template.substitute(_mjcf_figures(spec))
+    except (KeyError, ValueError) as exc:
+        reason = f"template placeholder {exc} not filled"
+        raise VehicleFileError(spec.truth_file(), "truth.model", reason) from None
+
+
+def _mjcf_figures(spec: VehicleSpec) -> dict[str, str]:
+    """The template's figures: the file's, and the chassis's share of mass and inertia after the wheels.
+
+    The chassis's inertial puts the whole car's CG at the body origin (x) and at the file's CG height,
+    and gives the whole car the file's yaw inertia. Derived values are written to the precision the
+    model has always used (so Nigel's model, and its logs, stay the same to the last bit).
+    """
+    g, truth = spec.geometry, spec.truth
+    lf, lr, half_track = g.lf.value, g.lr.value, 0.5 * g.track.value
+    mass, wheel = spec.inertia.mass.value, truth.wheel_mass.value
+    chassis = mass - 4.0 * wheel
+    chassis_x = -2.0 * wheel * (lf - lr) / chassis
+    chassis_z = (g.cg_height.value - g.wheel_radius.value) * mass / chassis
+    wheels_izz = wheel * 2.0 * (lf**2 + lr**2 + 2.0 * half_track**2) + 4.0 * truth.wheel_yaw_inertia.value
+    chassis_izz = spec.inertia.yaw_inertia.value - wheels_izz - chassis * chassis_x**2
+    return {
+        "wheel_radius": repr(g.wheel_radius.value), "friction": repr(spec.tyres.friction.value),
+        "lf": repr(lf), "lr": repr(lr), "half_track": repr(half_track),
+        "wheel_mass": repr(wheel), "wheel_izz": repr(truth.wheel_yaw_inertia.value),
+        "chassis_mass": f"{chassis:.10g}", "chassis_x": f"{chassis_x:.8f}", "chassis_z": f"{chassis_z:.6f}",
+        "chassis_izz": f"{chassis_izz:.6f}",
+    }
 
 
 def reference_speed(throttle: np.ndarray | float) -> np.ndarray:
@@ -100,8 +128,10 @@ class Vehicle:
 
     def __init__(self, xml_path: str | Path | None = None, spec: VehicleSpec | str | Path = "nigel") -> None:
         self.spec = load_vehicle(spec)
-        xml_path = xml_path if xml_path is not None else self.spec.truth_file()
-        self.model = mujoco.MjModel.from_xml_path(str(xml_path))
+        if xml_path is not None:
+            self.model = mujoco.MjModel.from_xml_path(str(xml_path))
+        else:
+            self.model = mujoco.MjModel.from_xml_string(model_xml(self.spec))
         self.steering_limit = self.spec.steering.limit.value  # rad
         self.encoder_cpr = int(self.spec.sensors.encoder_cpr.value)
         self.steering_gain = 1.0

@@ -185,6 +185,8 @@ class MujocoContacts(_Strict):
 
     engine: Literal["mujoco-contacts"]
     model: str = Field(description="MJCF file, relative to the vehicle file")
+    wheel_mass: PositiveFigure = Field(description="one wheel with its tyre (kg); the chassis has the rest")
+    wheel_yaw_inertia: PositiveFigure = Field(description="one wheel about its vertical axis (kg m^2)")
     reference_turns: TurnTable | None = Field(None, description="steady turn speeds the MJCF was fitted to")
 
 
