@@ -4,7 +4,7 @@ benchmark maneuvers logged in the AutoDRIVE layout.
 Knows nothing about learning; `activelearn` reaches MuJoCo only through this package.
 """
 
-from simulator.build import build_vehicle
+from simulator.build import build_vehicle, truth_text
 from simulator.collect import AUTODRIVE_COLUMNS, COLUMNS, EXTRA_COLUMNS, collect
 from simulator.errors import DivergenceError, DivergenceWarning, ManeuverError, OverrideError, SimulatorError
 from simulator.families import FAMILIES, Family, FamilyManeuver, as_family, family
@@ -83,5 +83,6 @@ __all__ = [
     "sample_times",
     "schedule_maneuver",
     "shipped_vehicles",
+    "truth_text",
     "twin_vehicle",
 ]

@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from simulator.twin import check_overrides, twin_vehicle
-from simulator.vehicle import Vehicle
+from simulator.vehicle import Vehicle, model_xml
 from simulator.vehicles.spec import VehicleSpec, load_vehicle
 
 
@@ -25,3 +25,16 @@ def build_vehicle(
     from simulator.tyre_car import TyreCar
 
     return TyreCar(spec, check_overrides(overrides or {}))
+
+
+def truth_text(vehicle: VehicleSpec | str | Path = "nigel") -> str:
+    """Everything that decides what the car's simulator computes, as text (the cache's key).
+
+    A 'mujoco-contacts' car: its filled MJCF. A 'mujoco-tyres' car: its figures and the tyre model's code.
+    """
+    spec = load_vehicle(vehicle)
+    if spec.truth.engine == "mujoco-contacts":
+        return model_xml(spec)
+    from simulator import tyre_car
+
+    return spec.model_dump_json() + Path(tyre_car.__file__).read_text()

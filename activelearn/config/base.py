@@ -1,4 +1,4 @@
-"""What every config section shares: the strict base model, Nigel's limits and constrained types."""
+"""What every config section shares: the strict base model, the default car's figures, constrained types."""
 
 from __future__ import annotations
 
@@ -6,8 +6,11 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-MAX_STEERING = 0.5236  # rad, Nigel's steering limit
-POSE_LEVER_ARM = 0.07929  # m, Nigel's CG (where its pose is logged) ahead of the rear axle
+from simulator.vehicles import load_vehicle
+
+_NIGEL = load_vehicle("nigel")  # the default car ([vehicle] sets another; its file holds every figure)
+MAX_STEERING = _NIGEL.steering.limit.value  # rad, the default car's full lock
+POSE_LEVER_ARM = _NIGEL.geometry.lr.value  # m, the default car's CG (its logged pose) ahead of its rear axle
 
 
 class _Section(BaseModel):
@@ -25,7 +28,7 @@ NonNegative = Annotated[float, Field(ge=0)]
 # the campaign; below 2**64): 32 bits keep every derived seed in range.
 Seed = Annotated[int, Field(ge=0, lt=2**32)]
 Throttle = Annotated[float, Field(ge=-1.0, le=1.0)]
-Steering = Annotated[float, Field(ge=0.0, le=MAX_STEERING)]
+Steering = Annotated[float, Field(ge=0.0, lt=1.5708)]  # below pi/2; within the car's lock: [vehicle]
 Kind = Literal["straight", "skidpad", "fishhook", "slalom", "eight"]
 # The families of simulator.families.FAMILIES (tests/test_families.py keeps the two lists equal).
 FamilyName = Literal[

@@ -20,6 +20,7 @@ from activelearn.config.sections import (
     SimulationConfig,
 )
 from activelearn.config.tuning import TuningConfig
+from activelearn.config.vehicle import VehicleConfig, car_defaults
 from activelearn.errors import ConfigError
 from activelearn.names import STRATEGY_NAMES
 
@@ -46,6 +47,9 @@ class CampaignConfig(_Section):
         "runs",
         description="Root folder of the outputs: campaigns in `<output_dir>/<name>/<strategy>/seed<N>`, "
         "comparisons, tuning results and the simulation cache (`<output_dir>/cache`)",
+    )
+    vehicle: VehicleConfig = Field(
+        VehicleConfig(), description="The car: a shipped vehicle's name or a vehicle file (default Nigel)"
     )
     pool: PoolConfig = Field(PoolConfig(), description="The candidate maneuvers strategies choose from")
     simulation: SimulationConfig = Field(
@@ -94,6 +98,12 @@ class CampaignConfig(_Section):
 
     @model_validator(mode="before")
     @classmethod
+    def _raw_defaults(cls, value: Any) -> Any:
+        # The car's defaults ([vehicle]) after `pose_lever_arm` has found its section.
+        value = cls._lever_arm_in_model(value)
+        return car_defaults(value) if isinstance(value, dict) else value
+
+    @classmethod
     def _lever_arm_in_model(cls, value: Any) -> Any:
         # `pose_lever_arm` lives in [model]. Configs and stored campaigns that set it in [data], where it
         # lived before, are read with it moved to [model]; set in both with two values, it is an error.
@@ -112,6 +122,25 @@ class CampaignConfig(_Section):
                 "pose_lever_arm belongs in [model] only"
             )
         return {**value, "data": data, "model": {**model, "pose_lever_arm": arm}}
+
+    @model_validator(mode="after")
+    def _within_the_cars_lock(self) -> CampaignConfig:
+        lock = self.vehicle.spec.steering.limit.value
+        if self.model.vehicle != self.vehicle.name:
+            name = self.vehicle.name
+            raise ConfigError("model.vehicle", self.model.vehicle, f"must be [vehicle]'s {name!r}")
+        grid = self.design.prior.grid if self.design.prior is not None else None
+        checks = {
+            "pool.steerings": self.pool.steerings, "pool.steering_range": self.pool.steering_range,
+            "pool.full_lock": [self.pool.full_lock], "test.steerings": self.test.steerings,
+            "test.full_lock": [self.test.full_lock], "target.steering_range": self.target.steering_range,
+            "design.prior.grid.steerings": grid.steerings if grid is not None else None,
+        }
+        for field, values in checks.items():
+            worst = max((v for v in values or () if v is not None), default=0.0)
+            if worst > lock + 1e-12:
+                raise ConfigError(field, worst, f"is beyond the car's full lock {lock:g} rad ([vehicle])")
+        return self
 
     @model_validator(mode="after")
     def _inputs_match_model(self) -> CampaignConfig:
@@ -133,11 +162,13 @@ class CampaignConfig(_Section):
 
 def _as_config_error(exc: ValidationError) -> ConfigError:
     error = exc.errors()[0]
-    field = ".".join(str(p) for p in error["loc"]) or "config"
+    field = ".".join(str(p) for p in error["loc"])
     cause = (error.get("ctx") or {}).get("error")
     if isinstance(getattr(cause, "field", None), str) and hasattr(cause, "reason"):
         # a validator's own field-naming error (e.g. the simulator's OverrideError) names a sub-key
-        return ConfigError(f"{field}.{cause.field}", cause.value, cause.reason)  # type: ignore[union-attr]
+        name = f"{field}.{cause.field}" if field else cause.field  # type: ignore[union-attr]
+        return ConfigError(name, cause.value, cause.reason)  # type: ignore[union-attr]
+    field = field or "config"
     return ConfigError(field, error.get("input"), error["msg"].removeprefix("Value error, "))
 
 

@@ -17,6 +17,7 @@ from activelearn.config.base import (
     _Section,
     _unique,
 )
+from activelearn.config.vehicle import DEFAULT_CAR, test_steerings
 from activelearn.names import RANKING_METRICS
 
 
@@ -80,8 +81,12 @@ class TestSetConfig(_Section):
         [0.3, 0.5, 0.7, 0.9], description="Throttle values of the test grid (share of full throttle)"
     )
     steerings: list[Steering] = Field(
-        [0.05, 0.1571, 0.2618, 0.3665, 0.4712],
-        description="Unsigned steering amplitudes of the test grid (rad)",
+        test_steerings(DEFAULT_CAR),
+        description="Unsigned steering amplitudes of the test grid (rad); default: the car's, full lock × "
+        "(0.1 to 2 decimals, 0.3, 0.5, 0.7, 0.9) (Nigel's shown)",
+    )
+    full_lock: Steering | None = Field(
+        None, description="Steering (rad) a test fishhook ramps to; unset: the car's full lock ([vehicle])"
     )
     duration: Positive = Field(30.0, description="Seconds each test maneuver lasts")
     noise_seed: Seed = Field(

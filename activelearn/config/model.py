@@ -69,11 +69,16 @@ class ModelConfig(_Section):
     # A kinematic car's rear axle does not slip sideways, so a point `a` ahead of it moves sideways at a·ω
     # in a turn; free runs integrate v along the heading at the axle and place the path there. It lives
     # here, not in [data], because the saved model carries it to every free run.
-    pose_lever_arm: Annotated[float, Field(ge=-1.0, le=1.0)] = Field(
+    vehicle: str = Field(
+        "nigel",
+        description="The car the model is of: [vehicle]'s name, which a campaign sets here so that the saved "
+        "model carries its car (the physics kind's prior, its limits) to every free run",
+    )
+    pose_lever_arm: Annotated[float, Field(ge=-10.0, le=10.0)] = Field(
         POSE_LEVER_ARM,
         description="Metres the logged pose (posX, posY) lies ahead of the rear axle, where free runs place "
-        "their paths (`activelearn.numerics.surrogate`): Nigel's IMU at the CG, 0.0793 m; 0 integrates v "
-        "along the heading at the logged point itself",
+        "their paths (`activelearn.numerics.surrogate`): default the car's CG to rear axle, lr (the logs' "
+        "pose is the CG's); 0 integrates v along the heading at the logged point itself",
     )
     hidden_size: int = Field(
         32,

@@ -21,6 +21,7 @@ from activelearn.config.base import (
     _Section,
     _unique,
 )
+from activelearn.config.vehicle import DEFAULT_CAR, pool_steerings
 from activelearn.errors import ConfigError
 from activelearn.names import SWITCH_RULES
 
@@ -49,8 +50,9 @@ class PoolConfig(_Section):
         description="Throttle values of the grid (share of full throttle, negative reverses; 0 is skipped)",
     )
     steerings: list[Steering] | None = Field(
-        [0.1047, 0.2094, 0.3142, 0.4189, 0.5236],
-        description="Unsigned steering amplitudes of the grid (rad, at most Nigel's full lock 0.5236)",
+        pool_steerings(DEFAULT_CAR),
+        description="Unsigned steering amplitudes of the grid (rad, at most the car's full lock); default: "
+        "the car's reference grid, full lock × (0.2, 0.4, 0.6, 0.8, 1) to 4 decimals (Nigel's shown)",
     )
     throttle_range: tuple[Throttle, Throttle] | None = Field(
         None, description="Continuous pool: [low, high] throttle of the Sobol operating points"
@@ -80,6 +82,9 @@ class PoolConfig(_Section):
     )
     families: list[FamilyName] = Field(
         [], description="Maneuver families (`simulator.families`) of a family pool; empty: kinds and the grid"
+    )
+    full_lock: Steering | None = Field(
+        None, description="Steering (rad) a fishhook ramps to; unset: the car's full lock ([vehicle])"
     )
     ranges: dict[FamilyName, dict[str, tuple[float, float]]] = Field(
         {},

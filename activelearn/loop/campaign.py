@@ -41,7 +41,7 @@ from activelearn.loop import lock
 from activelearn.loop.acquisition import Pool, Strategy, greedy_maximin, make_strategy
 from activelearn.loop.admission import Admission, Admitted
 from activelearn.loop.budget import Budget, total_rounds
-from activelearn.loop.collection import SimulationCache, TestSet, cache_root, truth_rows
+from activelearn.loop.collection import TestSet, cache_root, car_cache, truth_rows
 from activelearn.loop.evaluation import Evaluation, applied_scale
 from activelearn.loop.fitting import Fitting
 from activelearn.loop.history import CandidateTruth, History, Withheld
@@ -51,7 +51,7 @@ from activelearn.loop.prior import PRIOR_FILE, Prior, load_prior, prior_from_row
 from activelearn.loop.proposals import proposal_path, write_proposals
 from activelearn.loop.round_figure import draw_round
 from activelearn.loop.run_log import CampaignInterrupted, Progress, RunLog
-from activelearn.loop.safety.kinematic_bound import turn_speed
+from activelearn.loop.safety.kinematic_bound import Car, turn_speed
 from activelearn.loop.safety.limits import violations
 from activelearn.loop.safety.live_stop import live_stop
 from activelearn.loop.safety.risk import Assessment, assess
@@ -139,7 +139,7 @@ class Campaign:
         self.directory = Path(directory)
         self.strategy: Strategy = make_strategy(cfg.strategy, cfg.acquisition)
         cache = Path(cache_dir) if cache_dir else cache_root(cfg)
-        self.nominal = SimulationCache(cache, cfg.simulation)  # prior grids: the nominal simulator
+        self.nominal = car_cache(cache, cfg)  # prior grids: the car's nominal simulator
         self.oracle: Oracle = make_oracle(cfg, cache)
         self.progress: Progress = progress or (lambda event: None)
         self.run_log = RunLog(cfg, self.directory, tracker=tracker, parent_run_id=parent_run_id,
@@ -326,12 +326,12 @@ class Campaign:
         """[safety]'s assessment of the open candidates (a benchmark's clairvoyant safe set overrides it)."""
         safety = self.cfg.safety
         assert safety is not None
-        rate = self.cfg.simulation.rate_hz
+        rate, car = self.cfg.simulation.rate_hz, Car.of(self.cfg.vehicle.spec)
         turn = None
         if safety.measured_turn_speed:
-            turn = turn_speed(self.fitting.known_logs(samples), rate, safety.limit_window)
+            turn = turn_speed(self.fitting.known_logs(samples), rate, safety.limit_window, car)
         seed = derived_seed(self.cfg.seed, Stream.ROUND, round_index)  # the fan of the round's model
-        return assess(model, self.maneuvers, safety, rate_hz=rate, seed=seed, which=open_, turn=turn)
+        return assess(model, self.maneuvers, safety, rate_hz=rate, seed=seed, which=open_, turn=turn, car=car)
 
     def admit(
         self, state: CampaignState, pool: Pool, model: Any | None, round_index: int,

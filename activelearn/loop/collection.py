@@ -21,6 +21,7 @@ import pandas as pd
 
 import simulator
 from activelearn.config import CampaignConfig, DataConfig, NoiseSettings, SimulationConfig
+from activelearn.config.vehicle import DEFAULT_VEHICLE
 from activelearn.data import read_table, write_table
 from activelearn.loop.history import CandidateTruth
 from activelearn.names import CONTROLS, PREVIOUS_RATES, RATES, SPEED, YAW_RATE
@@ -28,6 +29,7 @@ from activelearn.numerics.lags import Lags
 from activelearn.numerics.multistep import Windows, windows_from_logs
 from activelearn.seeds import Stream, derived_seed
 from simulator import Maneuver
+from simulator.vehicles import VehicleSpec, load_vehicle
 
 FEATURES: tuple[str, ...] = CONTROLS  # a static model's inputs
 TARGETS: tuple[str, ...] = RATES  # every model's outputs
@@ -46,9 +48,9 @@ def cache_root(cfg: CampaignConfig) -> Path:
     return Path(shared) if shared else Path(cfg.output_dir) / "cache"
 
 
-def simulator_fingerprint() -> str:
-    """Short hash of the vehicle model and simulator code version: cache entries depend on both."""
-    digest = hashlib.sha256(simulator.model_xml().encode())
+def simulator_fingerprint(spec: VehicleSpec | str = DEFAULT_VEHICLE) -> str:
+    """Short hash of the car's truth model and the simulator's version: cache entries depend on both."""
+    digest = hashlib.sha256(simulator.truth_text(spec).encode())
     digest.update(getattr(simulator, "__version__", "0").encode())
     return digest.hexdigest()[:12]
 
@@ -74,7 +76,8 @@ class SimulationCache:
         suffix = f"-{variant}" if variant else ""
         if stop is not None:
             suffix += f"-stop-{stop.key()}"
-        self.root = self.base / f"sim-{simulator_fingerprint()}{suffix}-{settings.rate_hz:g}hz"
+        spec = vehicle.spec if vehicle is not None else DEFAULT_VEHICLE
+        self.root = self.base / f"sim-{simulator_fingerprint(spec)}{suffix}-{settings.rate_hz:g}hz"
 
     def stopped(self, stop: simulator.StopRule | None) -> SimulationCache:
         """The same simulator's cache with every maneuver driven under `stop` (None: without a stop)."""
@@ -116,12 +119,27 @@ def twin_variant(overrides: dict[str, float]) -> str:
     return "twin-" + hashlib.sha256(text.encode()).hexdigest()[:10]
 
 
+def car_cache(
+    root: str | Path, cfg: CampaignConfig, overrides: dict[str, float] | None = None
+) -> SimulationCache:
+    """The simulation cache of the config's car ([vehicle]), a twin of it with `overrides`.
+
+    The default car's nominal model is the simulator's own default (the cache's original folder); any
+    other car, or a twin, is built from its vehicle file and named in the folder (`variant`)."""
+    spec = cfg.vehicle.spec
+    overrides = dict(overrides or {})
+    if not overrides and spec.name == DEFAULT_VEHICLE and spec.path == load_vehicle(DEFAULT_VEHICLE).path:
+        return SimulationCache(root, cfg.simulation)
+    parts = [] if spec.name == DEFAULT_VEHICLE else [spec.name]
+    if overrides:
+        parts.append(twin_variant(overrides))
+    vehicle = simulator.build_vehicle(spec, overrides)
+    return SimulationCache(root, cfg.simulation, vehicle=vehicle, variant="-".join(parts))
+
+
 def twin_cache(root: str | Path, cfg: CampaignConfig) -> SimulationCache:
     """The simulation cache of a config's twin oracle: its own vehicle, its own folder under `root`."""
-    overrides = dict(cfg.oracle.overrides)
-    return SimulationCache(
-        root, cfg.simulation, vehicle=simulator.twin_vehicle(overrides), variant=twin_variant(overrides)
-    )
+    return car_cache(root, cfg, dict(cfg.oracle.overrides))
 
 
 def noise_seed(seed: int, maneuver: Maneuver) -> int:

@@ -28,6 +28,7 @@ from activelearn.loop.collection import (
     SimulationCache,
     TestSet,
     build_test_set,
+    car_cache,
     noisy_logs,
     test_set_from_logs,
 )
@@ -333,5 +334,5 @@ def make_oracle(cfg: CampaignConfig, cache_root: Path) -> Oracle:
         from activelearn.loop.collection import twin_cache
 
         return TwinOracle(cfg, twin_cache(cache_root, cfg))
-    cache = SimulationCache(cache_root, cfg.simulation)
+    cache = car_cache(cache_root, cfg)
     return ExternalOracle(cfg, cache) if kind == "external" else SimulatorOracle(cfg, cache)

@@ -44,12 +44,15 @@ def _expand(
     directions: Sequence[str],
     points: Sequence[tuple[float, float]],
     duration: float | Callable[[str], float],
+    full_lock: float | None = None,
 ) -> list[Maneuver]:
     """All maneuvers of the given kinds over the operating points, without duplicates.
 
     Straight maneuvers have no steering and no direction; fishhooks ramp to full lock whatever the
-    grid says, so they vary in throttle and direction only. `duration` is seconds, or seconds per kind.
+    grid says, so they vary in throttle and direction only. `duration` is seconds, or seconds per kind;
+    `full_lock` the steering a fishhook ramps to (None: the default car's).
     """
+    lock = MAX_STEERING if full_lock is None else full_lock
     seconds = duration if callable(duration) else (lambda kind: float(duration))
     seen: set[str] = set()
     maneuvers: list[Maneuver] = []
@@ -61,7 +64,7 @@ def _expand(
                 if kind == "straight":
                     m = Maneuver(kind, throttle, 0.0, "ccw", seconds(kind))
                 elif kind == "fishhook":
-                    m = Maneuver(kind, throttle, MAX_STEERING, direction, seconds(kind))
+                    m = Maneuver(kind, throttle, lock, direction, seconds(kind))
                 else:
                     m = Maneuver(kind, throttle, steering, direction, seconds(kind))
                 if m.name not in seen:
@@ -77,7 +80,7 @@ def pool_maneuvers(cfg: PoolConfig) -> list[Any]:
     """
     if cfg.families:
         return list(family_maneuvers(cfg))
-    return _expand(cfg.kinds, cfg.directions, _operating_points(cfg), cfg.duration_of)
+    return _expand(cfg.kinds, cfg.directions, _operating_points(cfg), cfg.duration_of, cfg.full_lock)
 
 
 def grid_maneuvers(
@@ -86,15 +89,17 @@ def grid_maneuvers(
     throttles: Sequence[float],
     steerings: Sequence[float],
     duration: float,
+    full_lock: float | None = None,
 ) -> list[Maneuver]:
     """The maneuvers of a kinds x directions x throttles x steerings grid (test sets, prior grids)."""
     points = [(float(t), float(s)) for t in throttles for s in steerings]
-    return _expand(kinds, directions, points, duration)
+    return _expand(kinds, directions, points, duration, full_lock)
 
 
 def test_maneuvers(cfg: TestSetConfig) -> list[Maneuver]:
     """The fixed test maneuvers: a grid independent of every campaign seed."""
-    return grid_maneuvers(cfg.kinds, cfg.directions, cfg.throttles, cfg.steerings, cfg.duration)
+    c = cfg
+    return grid_maneuvers(c.kinds, c.directions, c.throttles, c.steerings, c.duration, c.full_lock)
 
 
 test_maneuvers.__test__ = False  # type: ignore[attr-defined]  # not a pytest test
@@ -117,7 +122,7 @@ def evaluation_grid(
     maneuvers = pool_maneuvers(cfg.pool) if maneuvers is None else maneuvers
     controls = np.concatenate([maneuver_controls(m, 1.0) for m in maneuvers])
     t_low, t_high = float(controls[:, 0].min()), float(controls[:, 0].max())
-    s_max = float(np.abs(controls[:, 1]).max()) or MAX_STEERING
+    s_max = float(np.abs(controls[:, 1]).max()) or cfg.vehicle.spec.steering.limit.value
     s_low = -s_max if (controls[:, 1] < 0).any() or "cw" in cfg.pool.directions else 0.0
     s_high = s_max if (controls[:, 1] >= 0).any() else 0.0
     throttles = np.linspace(t_low, t_high, cfg.acquisition.grid_throttles)

@@ -17,20 +17,21 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from activelearn.config import MAX_STEERING, CampaignConfig, PriorConfig
+from activelearn.config import CampaignConfig, PriorConfig
 from activelearn.data import read_autodrive_log, read_table
 from activelearn.errors import InputError
 from activelearn.loop.collection import SimulationCache, noisy_logs
 from activelearn.loop.pool import KIND_ORDER, grid_maneuvers
 from activelearn.loop.state import SAMPLES_FILE, CampaignState
 from activelearn.names import RECORDED_COLUMNS, SPEED, STEERING, THROTTLE, YAW_RATE
+from simulator.vehicles import VehicleSpec
 
 PRIOR_FILE = "prior.parquet"  # the prior rows a campaign directory keeps (resume never re-reads sources)
 # Where prior runs sit in a sample table: pool_index = -1 - run number, batch = -1.
 PRIOR_BATCH = -1
-# Plausibility bounds of a 1:14 car in SI units: a prior beyond them is in other units or of another car.
-_MAX_SPEED = 3.0  # m/s (Nigel tops out at 0.27 m/s)
-_MAX_YAW_RATE = 10.0  # rad/s (Nigel: 0.81 rad/s)
+# Plausibility bounds in SI units: a prior beyond this many times the car's own limits is in other units
+# or of another car.
+_PLAUSIBLE = 10.0
 
 
 @dataclass(frozen=True)
@@ -111,7 +112,7 @@ def _read_source(field: str, path: Path) -> list[pd.DataFrame]:
     return [part.reset_index(drop=True) for _, part in table.groupby(key, sort=False)]
 
 
-def _check_run(field: str, path: Path, frame: pd.DataFrame, rate_hz: float) -> None:
+def _check_run(field: str, path: Path, frame: pd.DataFrame, rate_hz: float, spec: VehicleSpec) -> None:
     """Reject runs that cannot be this config's data: NaNs, another log rate, other units."""
     values = frame[list(RECORDED_COLUMNS)].to_numpy(dtype=np.float64)
     if not np.isfinite(values).all():
@@ -125,11 +126,13 @@ def _check_run(field: str, path: Path, frame: pd.DataFrame, rate_hz: float) -> N
             str(path),
             f"is logged at {1 / step:.3g} Hz, the config at {rate_hz:g} Hz (simulation.rate_hz)",
         )
+    lock = spec.steering.limit.value
+    top, turn = _PLAUSIBLE * spec.max_speed, _PLAUSIBLE * spec.max_yaw_rate
     checks = (
         (THROTTLE, 1.0 + 1e-6, "throttle must lie in [-1, 1]"),
-        (STEERING, MAX_STEERING + 1e-3, f"steering must be in rad within ±{MAX_STEERING} (degrees?)"),
-        (SPEED, _MAX_SPEED, f"speed beyond {_MAX_SPEED} m/s: not m/s, or not a 1:14 car"),
-        (YAW_RATE, _MAX_YAW_RATE, f"yaw rate beyond {_MAX_YAW_RATE} rad/s: not rad/s (deg/s?)"),
+        (STEERING, lock + 1e-3, f"steering must be in rad within ±{lock} (degrees?)"),
+        (SPEED, top, f"speed beyond {top:.3g} m/s: not m/s, or not this car ([vehicle] {spec.name})"),
+        (YAW_RATE, turn, f"yaw rate beyond {turn:.3g} rad/s: not rad/s (deg/s?)"),
     )
     for column, bound, reason in checks:
         worst = float(np.abs(frame[column]).max())
@@ -162,7 +165,8 @@ def load_prior(cfg: CampaignConfig, nominal: SimulationCache) -> Prior | None:
     frames: list[pd.DataFrame] = []
     if prior.grid is not None:
         g = prior.grid
-        maneuvers = grid_maneuvers(g.kinds, g.directions, g.throttles, g.steerings, g.duration)
+        lock = cfg.vehicle.spec.steering.limit.value
+        maneuvers = grid_maneuvers(g.kinds, g.directions, g.throttles, g.steerings, g.duration, lock)
         if not maneuvers:
             raise InputError(
                 "design.prior.grid", g.throttles, "the grid holds no maneuver (throttle 0 only?)"
@@ -170,7 +174,7 @@ def load_prior(cfg: CampaignConfig, nominal: SimulationCache) -> Prior | None:
         frames.extend(noisy_logs(nominal.get(maneuvers), maneuvers, cfg.simulation.noise, g.noise_seed))
     for field, path in _sources(prior):
         for frame in _read_source(field, path):
-            _check_run(field, path, frame, cfg.simulation.rate_hz)
+            _check_run(field, path, frame, cfg.simulation.rate_hz, cfg.vehicle.spec)
             frames.append(frame)
     if prior.use == "data" and not frames:
         raise InputError("design.prior", prior.paths, "holds no rows")

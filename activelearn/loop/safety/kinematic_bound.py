@@ -1,7 +1,7 @@
 """The kinematic worst case: how long a candidate may be driven, read off its control schedule alone.
 
 It stands in for the fan before the first model, and must hold beside it where the model
-extrapolates. Step by step: speed at most SPEED_PER_THROTTLE x the largest |throttle| so far (times
+extrapolates. Step by step: speed at most the car's speed_per_throttle x the largest |throttle| so far (times
 the share the car kept in its own logged steady turns at the smallest |steering| so far, `turn_speed`:
 speed falls as the steering grows), yaw rate at most v tan|steering| / L (no-slip kinematics; an
 understeering car turns slower), any heading. The candidate may be driven up to the last whole second
@@ -24,9 +24,29 @@ from activelearn.config import POSE_LEVER_ARM, SafetyConfig, boundary_distance, 
 from activelearn.loop.pool import maneuver_controls
 from activelearn.loop.safety.limits import smooth
 from activelearn.names import SPEED, STEERING, THROTTLE
+from simulator.vehicles import VehicleSpec, load_vehicle
 
-SPEED_PER_THROTTLE = 0.287  # m/s: above every point of the reference throttle -> speed table
-WHEELBASE = 0.1415  # m, Nigel (reference/nigel.md)
+
+@dataclass(frozen=True)
+class Car:
+    """What the kinematic worst case needs of the car: its wheelbase (m) and a speed envelope per unit
+    throttle (m/s) at or above every point of its throttle -> steady speed map, rounded up to 3 digits."""
+
+    wheelbase: float
+    speed_per_throttle: float
+
+    @classmethod
+    def of(cls, vehicle: VehicleSpec | str) -> Car:
+        """The envelope of a vehicle file (a spec, a shipped name or a path)."""
+        spec = load_vehicle(vehicle)
+        throttle, speed = spec.speed_map
+        ratio = float(np.max(speed[1:] / throttle[1:]))
+        digits = 2 - math.floor(math.log10(ratio))
+        return cls(spec.wheelbase, math.ceil(ratio * 10**digits - 1e-9) / 10**digits)
+
+
+DEFAULT_CAR = Car.of("nigel")
+SPEED_PER_THROTTLE = DEFAULT_CAR.speed_per_throttle  # m/s, the default car's (Nigel: 0.287)
 UNDERSTEER_MAX = 2.0  # a turn's radius at most this many times the kinematic one (docs/results/safety.md)
 # The measured turn speed (`TurnSpeed`) is raised by this share of the envelope for throttles and
 # directions the logs did not hold.
@@ -36,7 +56,7 @@ TURN_SPEED_MIN_SECONDS = 5.0  # s: a run shorter than this may not have settled 
 
 @dataclass(frozen=True)
 class TurnSpeed:
-    """The share of the speed envelope (SPEED_PER_THROTTLE x |throttle|) the car keeps in a steady turn,
+    """The share of the speed envelope (speed_per_throttle x |throttle|) the car keeps in a steady turn,
     measured on its own logs (`turn_speed`).
 
     steerings: ascending |steering| levels of the runs held at one throttle and one steering (0 for
@@ -58,12 +78,14 @@ class TurnSpeed:
         return np.where(level >= 0, self.keep[np.maximum(level, 0)], 1.0)
 
 
-def turn_speed(logs: pd.DataFrame | None, rate_hz: float, window: float) -> TurnSpeed | None:
+def turn_speed(
+    logs: pd.DataFrame | None, rate_hz: float, window: float, car: Car = DEFAULT_CAR
+) -> TurnSpeed | None:
     """The speed the car kept in its logged steady turns (None: no qualifying run).
 
     A run (one `pool_index`, else one `run_id`) qualifies when it holds one throttle (|throttle| >=
     0.05) and one signed steering for at least TURN_SPEED_MIN_SECONDS, so its speed has settled. Its
-    share is the largest `window`-s mean |speed| over SPEED_PER_THROTTLE x |throttle|.
+    share is the largest `window`-s mean |speed| over the car's speed_per_throttle x |throttle|.
     """
     if logs is None or logs.empty or not {THROTTLE, STEERING, SPEED} <= set(logs.columns):
         return None
@@ -78,7 +100,7 @@ def turn_speed(logs: pd.DataFrame | None, rate_hz: float, window: float) -> Turn
         if np.ptp(throttle) > 1e-9 or np.ptp(steering) > 1e-9:
             continue
         speed = smooth(np.abs(run[SPEED].to_numpy(np.float64)), steps)
-        share = float(speed.max()) / (SPEED_PER_THROTTLE * abs(throttle[0]))
+        share = float(speed.max()) / (car.speed_per_throttle * abs(throttle[0]))
         level = round(abs(float(steering[0])), 4)
         best[level] = max(best.get(level, 0.0), share)
         runs += 1
@@ -91,7 +113,7 @@ def turn_speed(logs: pd.DataFrame | None, rate_hz: float, window: float) -> Turn
 
 def kinematic_bound(
     maneuver: Any, cfg: SafetyConfig, lever_arm: float = POSE_LEVER_ARM, *, rate_hz: float,
-    turn: TurnSpeed | None = None,
+    turn: TurnSpeed | None = None, car: Car = DEFAULT_CAR,
 ) -> tuple[float, float, float]:  # fmt: skip
     """Risk, admissible duration and its risk by the kinematic worst case of the maneuver's schedule.
 
@@ -100,17 +122,17 @@ def kinematic_bound(
     """
     controls = maneuver_controls(maneuver, rate_hz)
     full = float(maneuver.duration)
-    speed = SPEED_PER_THROTTLE * np.maximum.accumulate(np.abs(controls[:, 0]))
+    speed = car.speed_per_throttle * np.maximum.accumulate(np.abs(controls[:, 0]))
     if turn is not None:
         speed = speed * turn.factor(np.minimum.accumulate(np.abs(controls[:, 1])))
-    yaw = speed * np.tan(np.abs(controls[:, 1])) / WHEELBASE
+    yaw = speed * np.tan(np.abs(controls[:, 1])) / car.wheelbase
     over = (speed > cfg.max_speed) | (yaw > cfg.max_yaw_rate) | (speed * yaw > cfg.max_lateral_acceleration)
     room = max(float(boundary_distance(cfg.arena, cfg.start[0], cfg.start[1])) - cfg.margin, 0.0)
     reach = np.cumsum(speed) / rate_hz  # the most path covered by the end of each step
     if cfg.stop == "live":  # the walls are kept at run time: the limits alone bound the schedule
         room, held = math.inf, np.zeros(len(controls), dtype=bool)
     else:
-        held = contained(controls, maneuver, cfg, lever_arm, reach)
+        held = contained(controls, maneuver, cfg, lever_arm, reach, car.wheelbase)
     bad = over | ((reach > room) & ~held)
     first = int(np.argmax(bad)) if bad.any() else len(bad)
     if first >= len(bad):
@@ -133,8 +155,9 @@ def monotone_steps(controls: np.ndarray) -> int:
 
 
 def contained(
-    controls: np.ndarray, maneuver: Any, cfg: SafetyConfig, lever_arm: float, reach: np.ndarray
-) -> np.ndarray:
+    controls: np.ndarray, maneuver: Any, cfg: SafetyConfig, lever_arm: float, reach: np.ndarray,
+    wheelbase: float = DEFAULT_CAR.wheelbase,
+) -> np.ndarray:  # fmt: skip
     """(T,) True at the steps where the worst case keeps the car `margin + path_tolerance` off the walls
     whatever its speed: the schedule's monotone part after a step whose circle holds the rest of it.
 
@@ -151,12 +174,15 @@ def contained(
     if first != 0.0:
         constant = bool(np.all(controls[:steps, 1] == first))
         side = float(np.sign(first))
-        if circles_fit(maneuver, cfg, lever_arm, steering=abs(first), nested=not constant, side=side):
+        fit = circles_fit(
+            maneuver, cfg, lever_arm, steering=abs(first), nested=not constant, side=side, wheelbase=wheelbase
+        )
+        if fit:
             held[:steps] = True
             return held
     magnitude = np.abs(controls[:steps, 1])
     with np.errstate(divide="ignore"):
-        radius = np.where(magnitude > 0, UNDERSTEER_MAX * WHEELBASE / np.tan(magnitude), np.inf)
+        radius = np.where(magnitude > 0, UNDERSTEER_MAX * wheelbase / np.tan(magnitude), np.inf)
     extent = np.minimum.accumulate(reach[:steps] + 2.0 * (radius + lever_arm))
     held[:steps] = extent <= room
     return held
@@ -164,7 +190,7 @@ def contained(
 
 def circles_fit(
     maneuver: Any, cfg: SafetyConfig, lever_arm: float = POSE_LEVER_ARM, *, steering: float | None = None,
-    nested: bool = False, side: float | None = None,
+    nested: bool = False, side: float | None = None, wheelbase: float = DEFAULT_CAR.wheelbase,
 ) -> bool:  # fmt: skip
     """True where every possible circle of a constant steering from the start keeps `margin +
     path_tolerance` from the walls (a skidpad; `steering` a staircase's first level).
@@ -183,7 +209,7 @@ def circles_fit(
         return False
     x0, y0, yaw0 = cfg.start
     heading, left = np.array([math.cos(yaw0), math.sin(yaw0)]), np.array([-math.sin(yaw0), math.cos(yaw0)])
-    kinematic = WHEELBASE / math.tan(steering)
+    kinematic = wheelbase / math.tan(steering)
     radii = np.linspace(kinematic, UNDERSTEER_MAX * kinematic, 64)[:, None]
     sign = maneuver.sign if side is None else float(side)
     cx = x0 - lever_arm * heading[0] + sign * radii * left[0]

@@ -26,7 +26,7 @@ import torch
 
 from activelearn.config import POSE_LEVER_ARM, SafetyConfig
 from activelearn.loop.pool import maneuver_controls
-from activelearn.loop.safety.kinematic_bound import TurnSpeed, kinematic_bound
+from activelearn.loop.safety.kinematic_bound import DEFAULT_CAR, Car, TurnSpeed, kinematic_bound
 from activelearn.loop.safety.limits import violating
 from activelearn.numerics.surrogate import Rollout, simulate
 
@@ -144,6 +144,7 @@ def assess(
     seed: int = 0,
     which: np.ndarray | None = None,
     turn: TurnSpeed | None = None,
+    car: Car = DEFAULT_CAR,
 ) -> Assessment:
     """Admissibility of every candidate in `maneuvers` (only those in `which`; the rest are not admissible).
 
@@ -155,7 +156,7 @@ def assess(
     risk, duration, cut_risk = np.full(n, np.nan), np.zeros(n), np.full(n, np.nan)
     todo = np.arange(n) if which is None else np.flatnonzero(which)
     arm = float(getattr(getattr(model, "config", None), "pose_lever_arm", POSE_LEVER_ARM))
-    bounds = {"rate_hz": rate_hz, "turn": turn}
+    bounds = {"rate_hz": rate_hz, "turn": turn, "car": car}
     if model is None:
         for i in todo:
             risk[i], duration[i], cut_risk[i] = kinematic_bound(maneuvers[i], cfg, arm, **bounds)

@@ -20,9 +20,9 @@ from activelearn.errors import DataFormatError, InputError
 from activelearn.loop.collection import (
     FEATURES,
     TARGETS,
-    SimulationCache,
     arrays,
     cache_root,
+    car_cache,
     control_rate_logs,
     noisy_logs,
     simulator_fingerprint,
@@ -166,7 +166,7 @@ def dataset_key(cfg: CampaignConfig) -> str:
     return content_hash(
         {
             "version": _DATA_VERSION,
-            "simulator": simulator_fingerprint(),
+            "simulator": simulator_fingerprint(cfg.vehicle.spec),
             "seed": cfg.seed,
             "pool": cfg.pool.model_dump(mode="json"),
             "simulation": cfg.simulation.model_dump(mode="json"),
@@ -195,7 +195,7 @@ def collect_dataset(
         if progress is not None:
             progress({"event": "sim_progress", "done": done, "total": total})
 
-    clean = SimulationCache(root, cfg.simulation).get(maneuvers, progress=sim_progress)
+    clean = car_cache(root, cfg).get(maneuvers, progress=sim_progress)
     frames = noisy_logs(clean, maneuvers, cfg.simulation.noise, cfg.seed)
     rows = pd.concat([training_rows(f, cfg.data) for f in frames], ignore_index=True)
     rows["point"] = operating_points(rows)

@@ -1,0 +1,95 @@
+"""[vehicle]: which car a campaign drives, and the figures of it the other sections default to.
+
+A shipped vehicle's name (`nigel`, `f1tenth`, `bmw320i`) or the path of a vehicle file
+(`simulator/vehicles/*.toml` shows the layout; a relative path is read from the working directory).
+The file is read and checked when the config is: a bad one is a ConfigError naming the file and the
+field. The steering grids the pool and the test set default to are the car's reference grids: its
+full lock × (0.2, 0.4, 0.6, 0.8, 1) for the pool (Nigel's 6°…30°, to 4 decimals) and × (≈0.1, 0.3,
+0.5, 0.7, 0.9) for the test set.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import Field, field_validator
+
+from activelearn.config.base import _Section
+from simulator.vehicles import VehicleFileError, VehicleSpec, load_vehicle
+
+DEFAULT_VEHICLE = "nigel"
+DEFAULT_CAR = load_vehicle(DEFAULT_VEHICLE)  # the figures the sections' defaults show
+
+
+class VehicleConfig(_Section):
+    """The car: a shipped vehicle's name or a vehicle file's path."""
+
+    name: str = Field(
+        DEFAULT_VEHICLE,
+        min_length=1,
+        description="A shipped vehicle (`nigel`, `f1tenth`, `bmw320i`) or the path of a vehicle file "
+        "(TOML: geometry, mass, tyres, drivetrain, steering, sensors, each figure with its source)",
+    )
+
+    @field_validator("name")
+    @classmethod
+    def _readable(cls, value: str) -> str:
+        try:
+            load_vehicle(value)
+        except VehicleFileError as exc:
+            raise ValueError(str(exc)) from None
+        return value
+
+    @property
+    def spec(self) -> VehicleSpec:
+        """The vehicle file's figures."""
+        return load_vehicle(self.name)
+
+
+def pool_steerings(spec: VehicleSpec) -> list[float]:
+    """The pool's default steering grid: full lock × (0.2, 0.4, 0.6, 0.8, 1), to 4 decimals (rad)."""
+    lock = spec.steering.limit.value
+    return [round(lock * k / 5.0, 4) for k in range(1, 6)]
+
+
+def test_steerings(spec: VehicleSpec) -> list[float]:
+    """The test set's default steering grid: full lock × (0.1 to 2 decimals, 0.3, 0.5, 0.7, 0.9) (rad)."""
+    lock = spec.steering.limit.value
+    return [round(lock * 0.1, 2), *(round(lock * k / 10.0, 4) for k in (3, 5, 7, 9))]
+
+
+test_steerings.__test__ = False  # type: ignore[attr-defined]  # not a pytest test
+
+
+def car_defaults(data: dict[str, Any]) -> dict[str, Any]:
+    """A raw config with the defaults that depend on the car filled in from [vehicle] (given keys stay).
+
+    Only values that differ from the default car's are written, so a Nigel config reads (and dumps) as
+    it always has."""
+    vehicle = data.get("vehicle")
+    name = vehicle.get("name", DEFAULT_VEHICLE) if isinstance(vehicle, dict) else DEFAULT_VEHICLE
+    if not isinstance(name, str):
+        return data
+    try:
+        spec = load_vehicle(name)
+    except VehicleFileError:
+        return data  # [vehicle] reports it
+    fills = {
+        "pool": {"steerings": (pool_steerings(spec), pool_steerings(DEFAULT_CAR)),
+                 "full_lock": (spec.steering.limit.value, DEFAULT_CAR.steering.limit.value)},
+        "test": {"steerings": (test_steerings(spec), test_steerings(DEFAULT_CAR)),
+                 "full_lock": (spec.steering.limit.value, DEFAULT_CAR.steering.limit.value)},
+        "model": {"vehicle": (name, DEFAULT_VEHICLE),
+                  "pose_lever_arm": (spec.geometry.lr.value, DEFAULT_CAR.geometry.lr.value)},
+    }
+    out = dict(data)
+    for section, keys in fills.items():
+        given = out.get(section, {})
+        if not isinstance(given, dict):
+            continue
+        added = {k: car for k, (car, default) in keys.items() if k not in given and car != default}
+        if section == "pool" and {"steering_range", "families"} & set(given):
+            added.pop("steerings", None)
+        if added:
+            out[section] = {**given, **added}
+    return out
