@@ -1,13 +1,20 @@
-"""Fidelity report: replay a car's logged commands in the simulator and compare the steady responses.
+"""Fidelity report: replay a car's logged commands in the simulator and compare the two runs.
 
-Every log is cut into stretches of constant commands (throttle and steering within a tolerance of
-the stretch's first command). A stretch long enough to settle is an operating point: after `settle`
-seconds the mean speed and yaw rate over the rest of it are its steady response. The simulator
-replays the log's commands exactly as logged (held from one logged sample to the next, resampled
-at the simulator's log rate), and the same time windows of the simulated log give the simulated
-response. Speed loss in a turn is the straight-line speed at the same throttle minus the turn's
-speed: simulated straights for the simulator; for the log, its own straight stretches at that
-throttle when it has some, else the reference throttle map (`straight_source` says which).
+Whole log: the simulator replays each log's commands, held between samples, on the simulator's grid
+(`activelearn.replay.on_grid`), from rest (MuJoCo starts standing; a log that does not start at rest
+is replayed from rest all the same, and its `start_speed` says by how much the first seconds must
+differ); the path (each run relative to its own start pose), speed and yaw rate are compared along
+the whole log: the position error over time, its end, mean and largest value, and the rms speed and
+yaw-rate errors. This serves any log, manual driving included.
+
+Steady stretches: every log is cut into stretches of constant commands (throttle and steering within
+a tolerance of the stretch's first command). A stretch long enough to settle is an operating point:
+after `settle` seconds the mean speed and yaw rate over the rest of it are its steady response. The
+same replay's windows at the same times give the simulated response (a log without such a stretch
+gives none: the whole-log comparison still serves it). Speed loss in a turn is the straight-line
+speed at the same throttle minus the turn's speed: simulated straights for the simulator; for the
+log, its own straight stretches at that throttle when it has some, else the reference throttle map
+(`straight_source` says which).
 """
 
 from __future__ import annotations
@@ -22,7 +29,8 @@ import pandas as pd
 import simulator
 from activelearn.data import read_recorded_log
 from activelearn.errors import DataFormatError, InputError
-from activelearn.names import SPEED, STEERING, THROTTLE, YAW_RATE
+from activelearn.names import POSE, SPEED, STEERING, THROTTLE, YAW_RATE
+from activelearn.replay import held_index, on_grid, relative_pose
 from simulator.datasheet import LOG_RATE_HZ
 
 _RESPONSES = ("v_sim", "v_log", "w_sim", "w_log")
@@ -61,11 +69,20 @@ class Stretch:
 
 @dataclass
 class FidelityReport:
-    """Per-stretch and per-operating-point comparison of simulator and logs."""
+    """Whole-log, per-stretch and per-operating-point comparison of simulator and logs."""
 
     stretches: pd.DataFrame  # one row per stretch: log, window, commands, sim and log responses
     points: pd.DataFrame  # one row per operating point (throttle, steering): means over its stretches
     vehicle: str  # "nominal" or the twin's overrides
+    replays: pd.DataFrame  # one row per log: the whole-log comparison (`REPLAY_COLUMNS`)
+    traces: dict[str, pd.DataFrame]  # per log, per grid step: both paths, rates and the position error
+
+
+REST_SPEED = 0.02  # m/s: a log whose first |speed| is above this does not start at rest
+REPLAY_COLUMNS = ("log", "seconds", "start_speed", "error_end", "error_mean", "error_max", "rms_v", "rms_w")
+_STRETCH_COLUMNS = ("log", "start", "end", THROTTLE, STEERING, *_RESPONSES, "turn", "seconds")
+_POINT_COLUMNS = (THROTTLE, STEERING, "stretches", "seconds", *_RESPONSES, "loss_sim", "loss_log",
+                  "straight_source", "dv", "dw", "dloss")  # fmt: skip
 
 
 def read_log_file(path: str | Path) -> pd.DataFrame:
@@ -108,10 +125,9 @@ def _window_means(table: pd.DataFrame, start: float, end: float) -> tuple[float,
 
 
 def replay_of(table: pd.DataFrame, label: str, rate_hz: float) -> simulator.Replay:
-    """The log's commands as a simulator Replay: each logged command held until the next one."""
-    t = table["time"].to_numpy(dtype=np.float64)
-    grid = np.arange(int(np.floor((t[-1] - t[0]) * rate_hz + 1e-9)) + 1) / rate_hz + t[0]
-    held = np.searchsorted(t, grid + 1e-9, side="right") - 1
+    """The log's commands as a simulator Replay: each logged command held until the next one
+    (`activelearn.replay.held_index`)."""
+    held = held_index(table["time"].to_numpy(dtype=np.float64), rate_hz)
     throttle = table[THROTTLE].to_numpy(dtype=np.float64)[held]
     steering = table[STEERING].to_numpy(dtype=np.float64)[held]
     try:
@@ -128,16 +144,10 @@ def compare(
     settings: FidelitySettings = FidelitySettings(),  # frozen dataclass: a safe shared default
     threads: int | None = None,
 ) -> FidelityReport:
-    """Replay every (name, table) log in the simulator and compare steady speed, yaw rate and speed loss."""
-    found: list[Stretch] = []
-    for name, table in logs:
-        mine = stretches(table, name, settings)
-        if not mine:
-            raise InputError(
-                "LOG", name,
-                f"no stretch of constant non-zero throttle lasts {settings.settle + settings.min_window:g} s",
-            )  # fmt: skip
-        found.extend(mine)
+    """Replay every (name, table) log in the simulator and compare the whole runs, and the steady
+    speed, yaw rate and speed loss of its stretches of constant commands (none where none settles)."""
+    found = [s for name, table in logs for s in stretches(table, name, settings)]
+    recorded = {name: on_grid(table, settings.rate_hz, name) for name, table in logs}  # gaps refused here
     replays = [replay_of(table, name, settings.rate_hz) for name, table in logs]
     turn_throttles = sorted({round(s.throttle, 4) for s in found})
     straights = [simulator.Maneuver("straight", u, duration=_STRAIGHT_SECONDS) for u in turn_throttles]
@@ -145,6 +155,11 @@ def compare(
         [*replays, *straights], rate_hz=settings.rate_hz, noise=None, threads=threads, vehicle=vehicle
     )
     by_run = {run_id: part.reset_index(drop=True) for run_id, part in simulated.groupby("run_id", sort=False)}
+    traces = {name: _trace(by_run[name], recorded[name]) for name, _ in logs}
+    whole = pd.DataFrame([_whole_log(name, traces[name]) for name, _ in logs], columns=list(REPLAY_COLUMNS))
+    if not found:
+        empty = pd.DataFrame(columns=list(_STRETCH_COLUMNS)), pd.DataFrame(columns=list(_POINT_COLUMNS))
+        return FidelityReport(*empty, vehicle_name, whole, traces)
     sim_straight = {
         u: _window_means(by_run[m.name], _STRAIGHT_SECONDS / 2, _STRAIGHT_SECONDS)[0]
         for u, m in zip(turn_throttles, straights, strict=True)
@@ -160,7 +175,31 @@ def compare(
     frame["turn"] = frame[STEERING].abs() > settings.steering_tolerance
     frame["seconds"] = frame["end"] - frame["start"]
     points = _points(frame, sim_straight, settings)
-    return FidelityReport(frame, points, vehicle_name)
+    return FidelityReport(frame, points, vehicle_name, whole, traces)
+
+
+def _trace(sim: pd.DataFrame, log: pd.DataFrame) -> pd.DataFrame:
+    """The simulated and the recorded run step by step, each path relative to its own start pose."""
+    n = min(len(sim), len(log))  # a diverged simulation stops early
+    sim_x, sim_y, _ = relative_pose({c: sim[c].to_numpy(dtype=np.float64) for c in POSE}, n)
+    log_x, log_y, _ = relative_pose({c: log[c].to_numpy(dtype=np.float64) for c in POSE}, n)
+    return pd.DataFrame({
+        "time": log["time"].to_numpy()[:n], "x_sim": sim_x, "y_sim": sim_y, "x_log": log_x, "y_log": log_y,
+        "v_sim": sim[SPEED].to_numpy()[:n], "v_log": log[SPEED].to_numpy()[:n],
+        "w_sim": sim[YAW_RATE].to_numpy()[:n], "w_log": log[YAW_RATE].to_numpy()[:n],
+        "error": np.hypot(sim_x - log_x, sim_y - log_y),
+    })  # fmt: skip
+
+
+def _whole_log(name: str, trace: pd.DataFrame) -> dict[str, object]:
+    """One log's whole-run comparison: position error (end, mean, largest), rms speed and yaw-rate error."""
+    error = trace["error"].to_numpy()
+    return dict(
+        log=name, seconds=float(trace["time"].iloc[-1]), start_speed=float(trace["v_log"].iloc[0]),
+        error_end=float(error[-1]), error_mean=float(error.mean()), error_max=float(error.max()),
+        rms_v=float(np.sqrt(np.mean((trace["v_sim"] - trace["v_log"]) ** 2))),
+        rms_w=float(np.sqrt(np.mean((trace["w_sim"] - trace["w_log"]) ** 2))),
+    )  # fmt: skip
 
 
 def _points(

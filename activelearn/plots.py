@@ -303,11 +303,16 @@ def comparison_figure(
 # ------------------------------------------------------------------------------------ surrogate figure
 
 
-def surrogate_figure(rollout: Any, index: int, truth: pd.DataFrame, *, title: str = "") -> Figure:
+def surrogate_figure(
+    rollout: Any, index: int, truth: pd.DataFrame, *, title: str = "", truth_label: str = "MuJoCo",
+    outside: Sequence[Any] = (),
+) -> Figure:  # fmt: skip
     """Surrogate against ground truth for one maneuver: path fan, v(t) and ω(t) with 50/95% bands.
 
     The path panel draws every sampled trajectory faintly (one posterior draw each), the mean path
-    and the true path; the rate panels shade the 95% and 50% bands over samples.
+    and the true path (`truth_label`); the rate panels shade the 95% and 50% bands over samples.
+    `outside` (`diagnostics.Excursion`s) marks where the truth leaves a fan: red spans on the rate
+    panels (the channel's, both for position) and the true path red there.
     """
     n = int(rollout.lengths[index])
     t = rollout.time[:n]
@@ -317,23 +322,31 @@ def surrogate_figure(rollout: Any, index: int, truth: pd.DataFrame, *, title: st
     x0, y0, yaw0 = (truth[c].to_numpy()[0] for c in POSE)
     dx, dy = truth[POS_X].to_numpy()[:n] - x0, truth[POS_Y].to_numpy()[:n] - y0
     c, s = np.cos(-yaw0), np.sin(-yaw0)
+    tx, ty = c * dx - s * dy, s * dx + c * dy
     for k in range(rollout.x.shape[0]):
         ax_xy.plot(rollout.x[k, index, :n], rollout.y[k, index, :n], color="C0", alpha=0.12, linewidth=0.8)
     mx, my = rollout.mean_path(index)
     ax_xy.plot(mx[:n], my[:n], color="C0", linewidth=2.0, label="surrogate mean")
-    ax_xy.plot(c * dx - s * dy, s * dx + c * dy, color="black", linewidth=1.5, linestyle="--", label="MuJoCo")
+    ax_xy.plot(tx, ty, color="black", linewidth=1.5, linestyle="--", label=truth_label)
+    for i, e in enumerate(e for e in outside if e.channel == "position"):
+        part = (t >= e.start - 1e-9) & (t <= e.end + 1e-9)
+        ax_xy.plot(tx[part], ty[part], color="C3", linewidth=2.0, label=None if i else "outside the 95% fan")
     ax_xy.plot([], [], color="C0", alpha=0.3, label=f"{rollout.x.shape[0]} sampled paths")
     ax_xy.set_aspect("equal", adjustable="datalim")
     ax_xy.set_xlabel("x (m, start frame)")
     ax_xy.set_ylabel("y (m)")
     ax_xy.legend(fontsize=8)
-    for row, (name, column, label) in enumerate((("v", SPEED, "v (m/s)"), ("w", YAW_RATE, "ω (rad/s)"))):
+    panels = (("v", SPEED, "v (m/s)", "speed"), ("w", YAW_RATE, "ω (rad/s)", "yaw rate"))
+    for row, (name, column, label, channel) in enumerate(panels):
         ax = fig.add_subplot(grid[row, 1])
         q = rollout.quantiles(name, index)[:, :n]
         ax.fill_between(t, q[0], q[4], color="C0", alpha=0.18, label="95% band")
         ax.fill_between(t, q[1], q[3], color="C0", alpha=0.35, label="50% band")
         ax.plot(t, rollout.mean_rates[index, :n, row], color="C0", linewidth=1.4, label="surrogate mean")
-        ax.plot(t, truth[column].to_numpy()[:n], color="black", linewidth=0.9, label="MuJoCo")
+        ax.plot(t, truth[column].to_numpy()[:n], color="black", linewidth=0.9, label=truth_label)
+        for e in outside:
+            if e.channel in (channel, "position"):
+                ax.axvspan(e.start, e.end, color="C3", alpha=0.12 if e.channel == channel else 0.05, lw=0)
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
         if row == 0:
@@ -388,7 +401,7 @@ def paths_figure(
 def fidelity_figure(points: pd.DataFrame, title: str = "") -> Figure:
     """Fidelity figure: steady speed, yaw rate and turn speed loss against steering, sim (line) vs log (dots).
 
-    `points` is `FidelityReport.points`; one colour per throttle.
+    `points` is `FidelityReport.points` (empty: the panels say so); one colour per throttle.
     """
     fig = new_figure(14.5, 4.2)
     axes = fig.subplots(1, 3)
@@ -417,6 +430,9 @@ def fidelity_figure(points: pd.DataFrame, title: str = "") -> Figure:
     for ax, (_, label) in zip(axes, panels, strict=True):
         ax.set(xlabel="steering (rad, + left)", ylabel=label)
         ax.grid(True, alpha=0.3)
+    if not len(points):
+        axes[1].text(0.5, 0.5, "no stretch of constant commands\nsettles in these logs", ha="center",
+                     va="center", transform=axes[1].transAxes)
     # Colour is the throttle; the marker says which side a point comes from.
     handles, labels = axes[0].get_legend_handles_labels()
     handles += [
@@ -427,6 +443,33 @@ def fidelity_figure(points: pd.DataFrame, title: str = "") -> Figure:
     fig.legend(handles, labels, loc="outside right upper", fontsize="medium", frameon=False)
     if title:
         fig.suptitle(title)
+    return fig
+
+
+def replay_figure(traces: dict[str, pd.DataFrame], *, most: int = 6, title: str = "") -> Figure:
+    """Whole-log replays, one row per log (the first `most`): both paths in the start frame, speed and
+    yaw rate against time, and the distance between the paths. `traces` is `FidelityReport.traces`."""
+    shown = list(traces.items())[:most]
+    fig = new_figure(16.0, 3.2 * len(shown) + 0.6)
+    axes = fig.subplots(len(shown), 4, squeeze=False, width_ratios=(1.0, 1.3, 1.3, 1.3))
+    for row, (name, trace) in enumerate(shown):
+        ax_xy, ax_v, ax_w, ax_e = axes[row]
+        t = trace["time"]
+        ax_xy.plot(trace["x_log"], trace["y_log"], color="black", lw=1.3, ls="--", label="recorded log")
+        ax_xy.plot(trace["x_sim"], trace["y_sim"], color="C0", lw=1.5, label="simulator")
+        ax_xy.set_aspect("equal", adjustable="datalim")
+        ax_xy.set(xlabel="x (m, start frame)", ylabel=f"{Path(name).name}\ny (m)")
+        for ax, side, label in ((ax_v, "v", "speed (m/s)"), (ax_w, "w", "yaw rate angZ (rad/s)")):
+            ax.plot(t, trace[f"{side}_log"], color="black", lw=0.9)
+            ax.plot(t, trace[f"{side}_sim"], color="C0", lw=1.0)
+            ax.set(xlabel="time (s)", ylabel=label)
+        ax_e.plot(t, trace["error"], color="C3", lw=1.2)
+        ax_e.set(xlabel="time (s)", ylabel="position error (m)")
+        for ax in axes[row]:
+            ax.grid(True, alpha=0.3)
+    axes[0, 0].legend(fontsize="small", loc="best")
+    more = f" (the first {most} of {len(traces)} logs)" if len(traces) > most else ""
+    fig.suptitle((title or "simulator replaying the logs' commands") + more)
     return fig
 
 

@@ -149,6 +149,11 @@ def _violations(importers: str, forbidden: tuple[str, ...]) -> list[str]:
             ("activelearn.loop", "activelearn.studies", "activelearn.cli", "activelearn.plots"),
         ),
         ("activelearn.data", ("activelearn.loop", "activelearn.studies", "activelearn.numerics")),
+        # a log on a grid serves the simulator's replay (fidelity) and the surrogate's (loop.benchmark)
+        ("activelearn.replay", ("activelearn.loop", "activelearn.studies", "activelearn.numerics",
+                                "activelearn.cli", "activelearn.fidelity", "simulator")),
+        ("activelearn.fidelity", ("activelearn.loop", "activelearn.studies", "activelearn.numerics",
+                                  "activelearn.cli")),
         ("activelearn.plots", ("activelearn.loop", "activelearn.studies", "activelearn.numerics")),
         # the names everything shares import nothing of the project (the CLI's help reads them cheaply)
         ("activelearn.names", ("activelearn", "simulator")),

@@ -75,6 +75,16 @@ def output_path(
     return path
 
 
+def print_table(
+    header: Sequence[str], lines: Sequence[Sequence[str]], *, left: int = 0, indent: str = ""
+) -> None:
+    """Columns right-aligned under their headers (the first `left` columns left-aligned), two spaces apart."""
+    widths = [max(len(h), *(len(line[i]) for line in lines)) for i, h in enumerate(header)]
+    for line in (header, *lines):
+        print(indent + "  ".join(c.ljust(w) if i < left else c.rjust(w)
+                                 for i, (c, w) in enumerate(zip(line, widths, strict=True))))  # fmt: skip
+
+
 PLOT_SUFFIXES = (".png", ".pdf", ".svg")
 CACHE_NOTE = ("simulated maneuvers are cached in the config's output_dir/cache (default ./runs/cache), "
               "whatever --out says, or in $ACTIVELEARN_CACHE_DIR when set")

@@ -19,14 +19,19 @@ MANEUVER_OPTIONS = {
 }
 
 
-def add_maneuver_options(p: argparse.ArgumentParser) -> None:
-    """The options that define one maneuver (simulate, predict): a reference kind, or a schedule file."""
+def add_maneuver_options(p: argparse.ArgumentParser, log: bool = False) -> None:
+    """The options that define one maneuver (simulate, predict): a reference kind, or a schedule file;
+    with `log`, also a recorded log whose commands are replayed (predict)."""
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--maneuver", metavar="KIND", help="straight, skidpad, fishhook, slalom or eight")
     which.add_argument("--schedule", metavar="CSV",
                        help="drive this schedule open loop instead: columns time (s, from 0, one row per "
                             "log sample), throttle, steering (rad, + left), each command held until the next "
                             "row; e.g. a proposal's schedule file written by `campaign propose`")
+    if log:
+        which.add_argument("--log", metavar="FILE",
+                           help="replay a recorded log's commands instead (AutoDRIVE CSV, our CSV or "
+                                "Parquet) and compare with what it recorded: no MuJoCo")
     p.add_argument("--throttle", type=float, default=None, metavar="T",
                    help="throttle in [-1, 1] (required with --maneuver)")
     p.add_argument("--steering", type=float, default=None, metavar="S",
@@ -60,6 +65,16 @@ def maneuver_from_args(args: argparse.Namespace):
         raise InputError(MANEUVER_OPTIONS.get(exc.field, exc.field), exc.value, exc.reason) from None
 
 
+def no_maneuver_options(args: argparse.Namespace, given: str) -> None:
+    """Refuse --throttle, --steering, --direction and --duration beside `given` (a file that sets them)."""
+    from activelearn.errors import InputError
+
+    for option in ("throttle", "steering", "direction", "duration"):
+        if getattr(args, option) is not None:
+            raise InputError(f"--{option}", getattr(args, option),
+                             f"the {given[2:]} sets the {option}: drop --{option} (or drop {given})")
+
+
 def schedule_from_args(args: argparse.Namespace, rate_hz: float, fixed_rate: bool = False):
     """What --schedule FILE drives at `rate_hz`: the proposal it is (a family member) or a Replay of its rows.
 
@@ -73,10 +88,7 @@ def schedule_from_args(args: argparse.Namespace, rate_hz: float, fixed_rate: boo
     from simulator import ManeuverError
     from simulator.schedules import schedule_maneuver
 
-    for option in ("throttle", "steering", "direction", "duration"):
-        if getattr(args, option) is not None:
-            raise InputError(f"--{option}", getattr(args, option),
-                             f"the schedule sets the {option}: drop --{option} (or drop --schedule)")
+    no_maneuver_options(args, "--schedule")
     path = Path(args.schedule)
     if not path.exists():
         raise InputError("--schedule", str(path), "no such file")

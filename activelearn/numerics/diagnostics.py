@@ -19,8 +19,6 @@ import torch
 from activelearn.errors import InputError
 from activelearn.names import (
     CONTROLS,
-    POS_X,
-    POS_Y,
     RATES,
     ROLLOUT_COVERAGE_95,
     ROLLOUT_HEADING_ERR_30S,
@@ -31,22 +29,25 @@ from activelearn.names import (
     ROLLOUT_RMSE_W,
     SPEED,
     TRUTH_COLUMNS,
-    YAW,
     YAW_RATE,
 )
 from activelearn.numerics.surrogate import Rollout, simulate
+from activelearn.replay import relative_pose
 from simulator import noise_std
 
 FAN_SCALE_RANGE = (1e-2, 1e3)  # free-run fan scales beyond these mean a broken model, not a fan
 
 __all__ = [
     "ROLLOUT_METRICS",
+    "Excursion",
     "TrackMetrics",
     "calibrate_fan",
+    "fan_excursions",
     "fan_scale_needed",
     "fan_widening_needed",
     "free_run_metrics",
     "free_runs",
+    "inside_fans",
     "relative_pose",
     "track_metrics",
 ]
@@ -62,25 +63,81 @@ class TrackMetrics:
     coverage_v: float  # fraction of true steps inside the 95% band
     coverage_w: float
     coverage_position: float  # fraction of steps whose true (x, y) lies inside both 95% bands
+    mean_position_error: float  # metres between mean path and true path, averaged over the steps
+
+
+@dataclass(frozen=True)
+class Excursion:
+    """A stretch of time where the truth stays outside a channel's 95 % fan (an anomaly to look at)."""
+
+    channel: str  # "position", "speed" or "yaw rate"
+    start: float  # s, first step outside
+    end: float  # s, last step outside
+
+    @property
+    def seconds(self) -> float:
+        """How long it lasts (one step counts as none)."""
+        return self.end - self.start
+
+
+def inside_fans(
+    rollout: Rollout, index: int, truth: dict[str, np.ndarray], noise: Any | None = None
+) -> dict[str, np.ndarray]:
+    """Per channel ("speed", "yaw rate", "position"), per step of maneuver `index`: whether the truth
+    lies inside the 95 % fan (position: inside both the x and the y band, in the start frame).
+
+    With `noise` (a measured log's sensor noise, a `simulator.NoiseConfig`) a logged position counts
+    as inside within two standard deviations of its noise beyond a band: the pose fan is the true
+    path's, and a free run's first steps have a fan narrower than the noise. The sampled rates carry
+    the noise the model learnt, so their bands are taken as they are.
+    """
+    n = int(rollout.lengths[index])
+    q = {name: rollout.quantiles(name, index)[:, :n] for name in ("v", "w", "x", "y")}
+
+    def inside(values: np.ndarray, name: str, allowed: np.ndarray | float = 0.0) -> np.ndarray:
+        return (values >= q[name][0] - allowed) & (values <= q[name][-1] + allowed)
+
+    true_x, true_y, _ = relative_pose(truth, n)
+    var_x, var_y = _position_noise_variance(truth[SPEED][:n], true_x, true_y, noise)
+    return {
+        "speed": inside(truth[SPEED][:n], "v"),
+        "yaw rate": inside(truth[YAW_RATE][:n], "w"),
+        "position": inside(true_x, "x", 2.0 * np.sqrt(var_x)) & inside(true_y, "y", 2.0 * np.sqrt(var_y)),
+    }
+
+
+def fan_excursions(
+    rollout: Rollout, index: int, truth: dict[str, np.ndarray], min_seconds: float = 0.5,
+    noise: Any | None = None,
+) -> list[Excursion]:  # fmt: skip
+    """The stretches of at least `min_seconds` where the truth leaves a 95 % fan (`inside_fans`), by
+    channel, in time order. A 95 % band misses one step in twenty by design: shorter stretches are
+    mostly those misses."""
+    found = []
+    for channel, inside in inside_fans(rollout, index, truth, noise).items():
+        edges = np.flatnonzero(np.diff(np.concatenate(([0], (~inside).astype(np.int8), [0]))))
+        for first, stop in zip(edges[::2], edges[1::2], strict=True):
+            start, end = first * rollout.dt, (stop - 1) * rollout.dt
+            if end - start >= min_seconds - 1e-9:
+                found.append(Excursion(channel, float(start), float(end)))
+    return sorted(found, key=lambda e: (e.start, e.channel))
 
 
 def track_metrics(
-    rollout: Rollout, index: int, truth: dict[str, np.ndarray], times: Sequence[float] = (10.0, 30.0)
-) -> TrackMetrics:
+    rollout: Rollout, index: int, truth: dict[str, np.ndarray], times: Sequence[float] = (10.0, 30.0),
+    noise: Any | None = None,
+) -> TrackMetrics:  # fmt: skip
     """Compare maneuver `index` of a rollout with ground truth arrays `speed`, `angZ`, `posX`, `posY`.
 
-    Truth positions are taken relative to the start, rotated into the start heading `yaw[0]`.
+    Truth positions are taken relative to the start, rotated into the start heading `yaw[0]`; the
+    coverages are `inside_fans`' (`noise`: a measured log's sensor noise).
     """
     n = int(rollout.lengths[index])
     true_v, true_w = truth[SPEED][:n], truth[YAW_RATE][:n]
     true_x, true_y, _ = relative_pose(truth, n)
     mean_v, mean_w = rollout.mean_rates[index, :n, 0], rollout.mean_rates[index, :n, 1]
     mx, my = (a[:n] for a in rollout.mean_path(index))
-    q = {name: rollout.quantiles(name, index)[:, :n] for name in ("v", "w", "x", "y")}
-
-    def inside(values: np.ndarray, name: str) -> np.ndarray:
-        return (values >= q[name][0]) & (values <= q[name][-1])
-
+    inside = inside_fans(rollout, index, truth, noise)
     errors = np.hypot(mx - true_x, my - true_y)
     marks = {float(t): float(errors[min(round(t / rollout.dt), n - 1)]) for t in times if t < n * rollout.dt}
     marks[float((n - 1) * rollout.dt)] = float(errors[-1])
@@ -88,18 +145,11 @@ def track_metrics(
         rmse_v=float(np.sqrt(np.mean((mean_v - true_v) ** 2))),
         rmse_w=float(np.sqrt(np.mean((mean_w - true_w) ** 2))),
         position_error=marks,
-        coverage_v=float(inside(true_v, "v").mean()),
-        coverage_w=float(inside(true_w, "w").mean()),
-        coverage_position=float((inside(true_x, "x") & inside(true_y, "y")).mean()),
+        coverage_v=float(inside["speed"].mean()),
+        coverage_w=float(inside["yaw rate"].mean()),
+        coverage_position=float(inside["position"].mean()),
+        mean_position_error=float(errors.mean()),
     )
-
-
-def relative_pose(truth: dict[str, np.ndarray], n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """x, y and unwrapped heading of the first n steps of a log, relative to its start pose."""
-    dx, dy = truth[POS_X][:n] - truth[POS_X][0], truth[POS_Y][:n] - truth[POS_Y][0]
-    c, s = np.cos(-truth[YAW][0]), np.sin(-truth[YAW][0])
-    heading = np.unwrap(truth[YAW][:n]) - truth[YAW][0]
-    return c * dx - s * dy, s * dx + c * dy, heading
 
 
 def free_runs(
@@ -118,6 +168,20 @@ def free_runs(
         model, controls, rate_hz=rate_hz, n_samples=n_samples, seed=seed, initial_rates=initial,
         fan_scale=fan_scale,
     )  # fmt: skip
+
+
+def _position_noise_variance(
+    speed: np.ndarray, tx: np.ndarray, ty: np.ndarray, noise: Any | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """σ² per axis of a logged position relative to the log's start (tx, ty), from the sensor noise:
+    step k's and the start's position noise, and the start heading's noise turned through the
+    distance driven. Zero without noise."""
+    if noise is None or not noise.enabled:
+        return np.zeros_like(tx), np.zeros_like(ty)
+    position, heading = (noise_std(noise, field, speed) for field in ("position", "angle"))
+    both = position**2 + position[0] ** 2  # step k's and the start's
+    # a start heading error ε moves (x, y) by ε (−y, x)
+    return both + heading[0] ** 2 * ty**2, both + heading[0] ** 2 * tx**2
 
 
 def fan_widening_needed(
@@ -146,14 +210,8 @@ def fan_widening_needed(
     for i, table in enumerate(truth_logs):
         n = int(rollout.lengths[i])
         tx, ty, _ = relative_pose({c: table[c].to_numpy(dtype=np.float64) for c in TRUTH_COLUMNS}, n)
-        noise_x = noise_y = np.zeros(n)  # σ² of the logged relative position, per axis
-        if noise is not None and noise.enabled:
-            speed = table[SPEED].to_numpy(dtype=np.float64)[:n]
-            position, heading = (noise_std(noise, field, speed) for field in ("position", "angle"))
-            both = position**2 + position[0] ** 2  # step k's and the start's
-            # a start heading error ε moves (x, y) by ε (−y, x)
-            noise_x = both + heading[0] ** 2 * ty**2
-            noise_y = both + heading[0] ** 2 * tx**2
+        speed = table[SPEED].to_numpy(dtype=np.float64)[:n]
+        noise_x, noise_y = _position_noise_variance(speed, tx, ty, noise)
         per_axis = []
         for truth, centre, band, allowed in (
             (tx, mean_x[i, :n], band_x[:, i, :n], noise_x),
