@@ -174,7 +174,8 @@ def compare(
     frame = pd.DataFrame(rows)
     frame["turn"] = frame[STEERING].abs() > settings.steering_tolerance
     frame["seconds"] = frame["end"] - frame["start"]
-    points = _points(frame, sim_straight, settings)
+    spec = vehicle.spec if vehicle is not None else simulator.load_vehicle("nigel")
+    points = _points(frame, sim_straight, settings, spec)
     return FidelityReport(frame, points, vehicle_name, whole, traces)
 
 
@@ -203,8 +204,9 @@ def _whole_log(name: str, trace: pd.DataFrame) -> dict[str, object]:
 
 
 def _points(
-    frame: pd.DataFrame, sim_straight: dict[float, float], settings: FidelitySettings
-) -> pd.DataFrame:
+    frame: pd.DataFrame, sim_straight: dict[float, float], settings: FidelitySettings,
+    spec: simulator.VehicleSpec,
+) -> pd.DataFrame:  # fmt: skip
     """Operating points: stretches with the same commands (to 2 and 3 decimals) averaged, time-weighted."""
     frame = frame.assign(key_u=frame[THROTTLE].round(2), key_d=frame[STEERING].round(3))
     rows = []
@@ -220,7 +222,7 @@ def _points(
                 v0_log = float(np.average(straight_log["v_log"], weights=straight_log["seconds"]))
                 source = "log"
             else:
-                v0_log = float(simulator.reference_speed(mean[THROTTLE]))
+                v0_log = float(spec.steady_speed(mean[THROTTLE]))
                 source = "reference"
             v0_sim = sim_straight[min(sim_straight, key=lambda k: abs(k - mean[THROTTLE]))]
             row.update(loss_sim=v0_sim - row["v_sim"], loss_log=v0_log - row["v_log"], straight_source=source)

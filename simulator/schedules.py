@@ -36,8 +36,11 @@ def _first(mask: np.ndarray) -> int:
     return int(np.argmax(mask))
 
 
-def check_schedule(time: np.ndarray, throttle: np.ndarray, steering: np.ndarray, rate_hz: float) -> None:
-    """Raise a ManeuverError naming the column (or rate_hz) unless the rows are a schedule at rate_hz."""
+def check_schedule(
+    time: np.ndarray, throttle: np.ndarray, steering: np.ndarray, rate_hz: float, lock: float = STEERING_LIMIT
+) -> None:
+    """Raise a ManeuverError naming the column (or rate_hz) unless the rows are a schedule at rate_hz
+    within the car's full `lock` (rad; default the default car's)."""
     rate = _check_real("rate_hz", rate_hz)
     if rate <= 0.0:
         raise ManeuverError("rate_hz", rate_hz, "must be > 0")
@@ -75,11 +78,10 @@ def check_schedule(time: np.ndarray, throttle: np.ndarray, steering: np.ndarray,
         k = _first(outside)
         raise ManeuverError("throttle", float(u[k]), f"must lie in [-{THROTTLE_LIMIT:g}, {THROTTLE_LIMIT:g}] "
                                                      f"(row {k + 1})")  # fmt: skip
-    outside = np.abs(s) > STEERING_LIMIT
+    outside = np.abs(s) > lock
     if outside.any():
         k = _first(outside)
-        raise ManeuverError("steering", float(s[k]), f"must lie in [-{STEERING_LIMIT}, {STEERING_LIMIT}] "
-                                                     f"rad (row {k + 1})")  # fmt: skip
+        raise ManeuverError("steering", float(s[k]), f"must lie in [-{lock}, {lock}] rad (row {k + 1})")
 
 
 def member_from_name(name: str) -> FamilyManeuver | None:
@@ -113,14 +115,15 @@ def member_from_name(name: str) -> FamilyManeuver | None:
 
 
 def schedule_maneuver(
-    label: str, time: np.ndarray, throttle: np.ndarray, steering: np.ndarray, rate_hz: float
-) -> FamilyManeuver | Replay:
+    label: str, time: np.ndarray, throttle: np.ndarray, steering: np.ndarray, rate_hz: float,
+    lock: float = STEERING_LIMIT,
+) -> FamilyManeuver | Replay:  # fmt: skip
     """What `collect` runs for these schedule rows: the member `label` names if the rows are its schedule.
 
     `label` is the schedule's name (a file's stem); a leading "NN-" (a proposal's number) is ignored
     when reading it as a member name. Anything else is a `Replay` of the rows labelled `label`.
     """
-    check_schedule(time, throttle, steering, rate_hz)
+    check_schedule(time, throttle, steering, rate_hz, lock)
     commands = np.column_stack([np.asarray(throttle, np.float64), np.asarray(steering, np.float64)])
     member = member_from_name(_ORDINAL.sub("", label, count=1)) if isinstance(label, str) else None
     if member is not None:

@@ -22,7 +22,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("logs", nargs="+", metavar="LOG", help="log files, or folders searched for .csv/.parquet")
     p.add_argument("--config", default=None, metavar="CONFIG",
-                   help="campaign config: its [oracle] twin (overrides) and log rate (default: nominal car)")
+                   help="campaign config: its car ([vehicle]), [oracle] twin (overrides) and log rate "
+                        "(default: the nominal car of --vehicle)")
+    p.add_argument("--vehicle", default=None, metavar="NAME|TOML",
+                   help="the car: a shipped vehicle (nigel, f1tenth, bmw320i) or a vehicle file (default: "
+                        "nigel, or the --config's)")
     p.add_argument("--plot", default=None, metavar="PNG",
                    help="also draw the steady operating points (.png, .pdf, .svg)")
     p.add_argument("--replay-plot", default=None, metavar="PNG",
@@ -70,19 +74,26 @@ def _fidelity(args: argparse.Namespace) -> int:
         raise InputError("--settle", args.settle, "must be a finite number of seconds >= 0")
     if not math.isfinite(args.min_window) or args.min_window <= 0:
         raise InputError("--min-window", args.min_window, "must be a finite number of seconds > 0")
-    from simulator.datasheet import LOG_RATE_HZ
+    from activelearn.cli.maneuver_args import vehicle_from_args
+    from simulator import build_vehicle
 
-    vehicle, name, rate = None, "nominal", LOG_RATE_HZ
+    spec = vehicle_from_args(args)
+    overrides: dict[str, float] = {}
+    rate = spec.log_rate_hz
     if args.config is not None:
         from activelearn.config import load_config
 
         cfg = load_config(args.config)
-        rate = cfg.simulation.rate_hz
+        if args.vehicle is not None and vehicle_from_args(args).name != cfg.vehicle.spec.name:
+            raise InputError("--vehicle", args.vehicle, f"the config drives {cfg.vehicle.name}: drop one")
+        spec, rate = cfg.vehicle.spec, cfg.simulation.rate_hz
         if cfg.oracle.kind == "twin":
-            from simulator import twin_vehicle
-
-            vehicle = twin_vehicle(cfg.oracle.overrides)
-            name = "twin " + ", ".join(f"{k}={v:g}" for k, v in sorted(cfg.oracle.overrides.items()))
+            overrides = dict(cfg.oracle.overrides)
+    vehicle = None if spec.name == "nigel" and not overrides else build_vehicle(spec, overrides)
+    name = "nominal" if spec.name == "nigel" else spec.name
+    if overrides:
+        name = ("" if spec.name == "nigel" else f"{spec.name} ") + "twin " + ", ".join(
+            f"{k}={v:g}" for k, v in sorted(overrides.items()))
     logs = [(str(path), read_log_file(path)) for path in log_files(args.logs)]  # all read before simulating
     settings = FidelitySettings(settle=args.settle, min_window=args.min_window, rate_hz=rate)
     report = compare(logs, vehicle=vehicle, vehicle_name=name, settings=settings)

@@ -32,19 +32,37 @@ def add_maneuver_options(p: argparse.ArgumentParser, log: bool = False) -> None:
         which.add_argument("--log", metavar="FILE",
                            help="replay a recorded log's commands instead (AutoDRIVE CSV, our CSV or "
                                 "Parquet) and compare with what it recorded: no MuJoCo")
+    p.add_argument("--vehicle", default=None, metavar="NAME|TOML",
+                   help="the car: a shipped vehicle (nigel, f1tenth, bmw320i) or a vehicle file "
+                        "(default: nigel; predict: the model's car)")
     p.add_argument("--throttle", type=float, default=None, metavar="T",
                    help="throttle in [-1, 1] (required with --maneuver)")
     p.add_argument("--steering", type=float, default=None, metavar="S",
-                   help="steering amplitude in (0, 0.5236] rad: required for skidpad, slalom and eight; "
-                        "fishhook's default 0.5236; a straight takes none")
+                   help="steering amplitude in rad, up to the car's full lock: required for skidpad, slalom "
+                        "and eight; fishhook's default is full lock; a straight takes none")
     p.add_argument("--direction", default=None, metavar="cw|ccw", help="ccw turns left first (default)")
     p.add_argument("--duration", type=float, default=None, metavar="SEC", help="seconds (default 90)")
 
 
-def maneuver_from_args(args: argparse.Namespace):
-    """The validated Maneuver of --maneuver/--throttle/--steering/--direction/--duration."""
+def vehicle_from_args(args: argparse.Namespace, default: str = "nigel"):
+    """The VehicleSpec of --vehicle (a shipped name or a file); a bad one is an InputError naming it."""
     from activelearn.errors import InputError
-    from simulator import STEERING_LIMIT, Maneuver, ManeuverError
+    from simulator.vehicles import VehicleFileError, load_vehicle
+
+    name = getattr(args, "vehicle", None) or default
+    try:
+        return load_vehicle(name)
+    except VehicleFileError as exc:
+        raise InputError("--vehicle", name, str(exc)) from None
+
+
+def maneuver_from_args(args: argparse.Namespace):
+    """The validated Maneuver of --maneuver/--throttle/--steering/--direction/--duration, within the
+    full lock of the car of --vehicle."""
+    from activelearn.errors import InputError
+    from simulator import Maneuver, ManeuverError
+
+    lock = vehicle_from_args(args).steering.limit.value
 
     if args.throttle is None:
         raise InputError("--throttle", None,
@@ -56,7 +74,9 @@ def maneuver_from_args(args: argparse.Namespace):
         raise InputError("--steering", None,
                          f"a {args.maneuver} needs its steering amplitude in rad, e.g. --steering 0.3142")
     if steering is None:
-        steering = STEERING_LIMIT if args.maneuver == "fishhook" else 0.0
+        steering = lock if args.maneuver == "fishhook" else 0.0
+    if steering > lock:
+        raise InputError("--steering", steering, f"must be at most the car's full lock, {lock:g} rad")
     direction = "ccw" if args.direction is None else args.direction
     duration = 90.0 if args.duration is None else args.duration
     try:
@@ -121,7 +141,10 @@ def schedule_from_args(args: argparse.Namespace, rate_hz: float, fixed_rate: boo
                              f"row {row + 1} is not a number")
         values[column] = numbers.to_numpy(dtype=np.float64)
     try:
-        return schedule_maneuver(path.stem, values["time"], values["throttle"], values["steering"], rate_hz)
+        lock = vehicle_from_args(args).steering.limit.value
+        return schedule_maneuver(
+            path.stem, values["time"], values["throttle"], values["steering"], rate_hz, lock
+        )
     except ManeuverError as exc:
         if exc.field == "rate_hz":
             step = float(values["time"][-1] - values["time"][0]) / (len(values["time"]) - 1)

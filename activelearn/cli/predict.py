@@ -7,7 +7,12 @@ import argparse
 from pathlib import Path
 
 from activelearn.cli.common import PLOT_SUFFIXES, output_path, print_table
-from activelearn.cli.maneuver_args import add_maneuver_options, driven_from_args, no_maneuver_options
+from activelearn.cli.maneuver_args import (
+    add_maneuver_options,
+    driven_from_args,
+    no_maneuver_options,
+    vehicle_from_args,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -89,6 +94,10 @@ def _predict(args: argparse.Namespace) -> int:
     if args.run_id is not None:
         _existing_store(args.tracking_uri)
     model = _load_any_model(args.model, args.tracking_uri)
+    car = getattr(getattr(model, "config", None), "vehicle", "nigel")
+    if maneuver is not None and args.vehicle is None and car != "nigel":
+        args.vehicle = car  # the model's car: its maneuver is checked against that car's lock
+        maneuver = driven_from_args(args, PREDICT_RATE, fixed_rate=True)
     tracker = None
     if args.run_id is not None:
         from activelearn.studies.tracking import Tracker
@@ -108,9 +117,11 @@ def _predict(args: argparse.Namespace) -> int:
               f"{PREDICT_RATE:g} Hz)")
     else:
         from activelearn.loop.benchmark import against_simulator
+        from simulator import build_vehicle
 
+        vehicle = None if args.vehicle is None else build_vehicle(vehicle_from_args(args))
         result = against_simulator(model, [maneuver], rate_hz=PREDICT_RATE, n_samples=args.samples,
-                                   seed=args.seed)
+                                   seed=args.seed, vehicle=vehicle)
         name, truth_label = maneuver.name, "MuJoCo"
         print(f"{maneuver.name}: surrogate ({args.samples} samples) against MuJoCo")
     m = result.metrics[0]

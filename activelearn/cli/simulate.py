@@ -1,4 +1,5 @@
-"""`activelearn simulate`: one maneuver of Nigel in MuJoCo, its log in the AutoDRIVE layout."""
+"""`activelearn simulate`: one maneuver of a car (`--vehicle`, default Nigel) in MuJoCo, its log in the
+AutoDRIVE layout."""
 
 from __future__ import annotations
 
@@ -6,19 +7,19 @@ import argparse
 import sys
 
 from activelearn.cli.common import PLOT_SUFFIXES, output_path
-from activelearn.cli.maneuver_args import add_maneuver_options, driven_from_args
+from activelearn.cli.maneuver_args import add_maneuver_options, driven_from_args, vehicle_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "simulate",
-        help="simulate one maneuver of Nigel and write its log (CSV or Parquet)",
-        description="Simulate one maneuver of Nigel in MuJoCo and write its log in the AutoDRIVE layout: a "
-                    "reference kind (--maneuver), or a schedule file driven open loop (--schedule), such as "
-                    "a proposal of `campaign propose`, to rehearse it.",
+        help="simulate one maneuver of a car (default Nigel) and write its log (CSV or Parquet)",
+        description="Simulate one maneuver of a car (--vehicle) in MuJoCo and write its log in the AutoDRIVE "
+                    "layout: a reference kind (--maneuver), or a schedule file driven open loop "
+                    "(--schedule), such as a proposal of `campaign propose`, to rehearse it.",
     )
     add_maneuver_options(p)
-    p.add_argument("--rate", type=float, metavar="HZ", help="log rate in Hz (default: the simulator's, 30)")
+    p.add_argument("--rate", type=float, metavar="HZ", help="log rate in Hz (default: the car's, 30)")
     p.add_argument("--seed", type=int, default=0, metavar="N", help="noise seed (default 0)")
     p.add_argument("--noise", action=argparse.BooleanOptionalAction, default=True,
                    help="add the default sensor noise (default: on)")
@@ -34,12 +35,12 @@ def _simulate(args: argparse.Namespace) -> int:
     import warnings
 
     from activelearn.errors import InputError
-    from simulator import DivergenceWarning, NoiseConfig, collect
-    from simulator.datasheet import LOG_RATE_HZ
+    from simulator import DivergenceWarning, NoiseConfig, build_vehicle, collect
 
     # Validate everything before simulating, so a bad value never leaves a file behind.
+    spec = vehicle_from_args(args)
     if args.rate is None:
-        args.rate = LOG_RATE_HZ
+        args.rate = spec.log_rate_hz
     if not math.isfinite(args.rate) or not 0.0 < args.rate <= 300.0:
         raise InputError("--rate", args.rate, "must lie in (0, 300] Hz")
     maneuver = driven_from_args(args, args.rate)
@@ -49,6 +50,7 @@ def _simulate(args: argparse.Namespace) -> int:
     if args.autodrive and out.suffix.lower() != ".csv":
         raise InputError("--out", args.out, "an AutoDRIVE log (--autodrive) is a .csv file")
     plot = output_path("--plot", args.plot, suffixes=PLOT_SUFFIXES) if args.plot else None
+    vehicle = None if args.vehicle is None else build_vehicle(spec)
 
     from tqdm import tqdm
 
@@ -62,7 +64,7 @@ def _simulate(args: argparse.Namespace) -> int:
 
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", DivergenceWarning)
-            table = collect([maneuver], rate_hz=args.rate, seed=args.seed,
+            table = collect([maneuver], rate_hz=args.rate, seed=args.seed, vehicle=vehicle,
                             noise=NoiseConfig() if args.noise else None, progress=progress)
     for warning in caught:
         print(f"warning: {warning.message}", file=sys.stderr)

@@ -41,14 +41,16 @@ def against_simulator(
     n_samples: int = 32,
     seed: int = 0,
     noise: object | None = "default",
+    vehicle: object | None = None,
 ) -> Benchmark:
     """Simulate maneuvers in MuJoCo and with the surrogate on the same applied controls; compare them.
 
     The surrogate is driven by the controls MuJoCo actually applied (for the eight these come from
-    heading feedback), and a Markov model starts from the rates logged at the first step.
+    heading feedback), and a Markov model starts from the rates logged at the first step. `vehicle`: a
+    built car (`simulator.build_vehicle`; None: the default car).
     """
     noise_cfg = simulator.NoiseConfig() if noise == "default" else noise
-    log = simulator.collect(list(maneuvers), rate_hz=rate_hz, seed=seed, noise=noise_cfg)
+    log = simulator.collect(list(maneuvers), rate_hz=rate_hz, seed=seed, noise=noise_cfg, vehicle=vehicle)
     truth = [part.reset_index(drop=True) for _, part in log.groupby("run_id", sort=False)]
     controls = [t[list(CONTROLS)].to_numpy() for t in truth]
     initial = np.array([[t[rate].iloc[0] for rate in RATES] for t in truth])
