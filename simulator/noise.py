@@ -12,6 +12,9 @@ import pandas as pd
 
 from simulator.errors import ManeuverError
 from simulator.vehicle import MAX_SPEED
+from simulator.vehicles.spec import VehicleSpec
+
+_SENSOR_FIGURES = ("speed", "yaw_rate", "acceleration", "position", "angle")  # [sensors] <name>_noise
 
 
 def is_real(value: object) -> bool:
@@ -28,10 +31,10 @@ def is_int(value: object) -> bool:
 class NoiseConfig:
     """Seeded Gaussian sensor noise: one standard deviation per channel group.
 
-    With `heteroscedastic`, every standard deviation is scaled by (1 + speed_gain * |v| / 0.267),
-    v being the true forward speed of the sample and 0.267 m/s the reference speed limit, so noise
-    at full speed is (1 + speed_gain) times the noise at rest. Encoder tick noise is rounded to
-    whole counts.
+    With `heteroscedastic`, every standard deviation is scaled by (1 + speed_gain * |v| / v_ref),
+    v being the true forward speed of the sample and v_ref the car's top speed (`reference_speed`,
+    default the default car's), so noise at full speed is (1 + speed_gain) times the noise at rest.
+    Encoder tick noise is rounded to whole counts. `for_vehicle` gives a car's own sensors.
     """
 
     enabled: bool = True
@@ -43,6 +46,18 @@ class NoiseConfig:
     ticks: float = 1.0  # counts, left/right encoders
     heteroscedastic: bool = False
     speed_gain: float = 2.0
+    reference_speed: float = MAX_SPEED  # m/s
+
+    @classmethod
+    def for_vehicle(cls, spec: VehicleSpec, **overrides: object) -> NoiseConfig:
+        """The sensor noise of a vehicle file (its [sensors] noise figures where given, its top speed as
+        the reference speed), with `overrides` on top."""
+        figures = {
+            name: getattr(spec.sensors, f"{name}_noise").value
+            for name in _SENSOR_FIGURES
+            if getattr(spec.sensors, f"{name}_noise") is not None
+        }
+        return cls(**{**figures, "reference_speed": spec.max_speed, **overrides})  # type: ignore[arg-type]
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -52,6 +67,8 @@ class NoiseConfig:
                     raise ManeuverError(f"noise.{f.name}", value, "must be true or false")
             elif not is_real(value) or not math.isfinite(value) or value < 0:
                 raise ManeuverError(f"noise.{f.name}", value, "must be a finite number >= 0")
+        if self.reference_speed <= 0:
+            raise ManeuverError("noise.reference_speed", self.reference_speed, "must be > 0")
 
 
 # (column, NoiseConfig field) in the fixed order noise is drawn: changing one std never changes the
@@ -82,13 +99,13 @@ def wrap_angle(angle: np.ndarray) -> np.ndarray:
 
 def noise_std(noise: NoiseConfig, field: str, speed: np.ndarray) -> np.ndarray:
     """Per row, the std of `field`'s noise (a NoiseConfig field, e.g. "position") at forward speeds
-    `speed` (m/s): scaled by 1 + speed_gain |v| / MAX_SPEED when heteroscedastic. Zero when disabled."""
+    `speed` (m/s): scaled by 1 + speed_gain |v| / reference_speed when heteroscedastic. Zero when disabled."""
     speed = np.asarray(speed, dtype=float)
     if not noise.enabled:
         return np.zeros(speed.shape)
     scale = np.ones(speed.shape)
     if noise.heteroscedastic:
-        scale = 1.0 + noise.speed_gain * np.abs(np.nan_to_num(speed)) / MAX_SPEED
+        scale = 1.0 + noise.speed_gain * np.abs(np.nan_to_num(speed)) / noise.reference_speed
     return getattr(noise, field) * scale
 
 

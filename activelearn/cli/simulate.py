@@ -22,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rate", type=float, metavar="HZ", help="log rate in Hz (default: the car's, 30)")
     p.add_argument("--seed", type=int, default=0, metavar="N", help="noise seed (default 0)")
     p.add_argument("--noise", action=argparse.BooleanOptionalAction, default=True,
-                   help="add the default sensor noise (default: on)")
+                   help="add the car's sensor noise (its vehicle file's, else the default; default: on)")
     p.add_argument("--out", required=True, metavar="PATH", help="output log, .csv or .parquet")
     p.add_argument("--autodrive", action="store_true",
                    help="write the AutoDRIVE dataset's layout (headerless 21-field CSV), not a table")
@@ -65,7 +65,7 @@ def _simulate(args: argparse.Namespace) -> int:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", DivergenceWarning)
             table = collect([maneuver], rate_hz=args.rate, seed=args.seed, vehicle=vehicle,
-                            noise=NoiseConfig() if args.noise else None, progress=progress)
+                            noise=NoiseConfig.for_vehicle(spec) if args.noise else None, progress=progress)
     for warning in caught:
         print(f"warning: {warning.message}", file=sys.stderr)
 

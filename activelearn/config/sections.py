@@ -181,14 +181,26 @@ class NoiseSettings(_Section):
     )
     heteroscedastic: bool = Field(
         True,
-        description="Scale every noise std by 1 + 2 × speed / 0.267 m/s (the simulator's speed_gain: three "
-        "times the noise at full speed); false: the same std at every speed",
+        description="Scale every noise std by 1 + 2 × speed / reference_speed (the simulator's speed_gain: "
+        "three times the noise at full speed); false: the same std at every speed",
+    )
+    reference_speed: Positive | None = Field(
+        None, description="Speed (m/s) of heteroscedastic noise's scale; unset: the car's top speed"
     )
     speed: NonNegative | None = Field(
-        None, description="Std of the forward-speed noise (m/s); unset: the simulator's 0.002"
+        None, description="Std of the forward-speed noise (m/s); unset: the car's ([sensors]), else 0.002"
     )
     yaw_rate: NonNegative | None = Field(
-        None, description="Std of the noise on the three gyro axes (rad/s); unset: the simulator's 0.005"
+        None, description="Std of the noise on the three gyro axes (rad/s); unset: the car's, else 0.005"
+    )
+    acceleration: NonNegative | None = Field(
+        None, description="Std of the accelerometer noise (m/s²); unset: the car's, else 0.02"
+    )
+    position: NonNegative | None = Field(
+        None, description="Std of the pose's position noise (m); unset: the car's, else 0.002"
+    )
+    angle: NonNegative | None = Field(
+        None, description="Std of the roll, pitch and yaw noise (rad); unset: the car's, else 0.002"
     )
 
 

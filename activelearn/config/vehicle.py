@@ -82,7 +82,20 @@ def car_defaults(data: dict[str, Any]) -> dict[str, Any]:
         "model": {"vehicle": (name, DEFAULT_VEHICLE),
                   "pose_lever_arm": (spec.geometry.lr.value, DEFAULT_CAR.geometry.lr.value)},
     }
+    noise = {
+        name: (figure.value, None)
+        for name in ("speed", "yaw_rate", "acceleration", "position", "angle")
+        if (figure := getattr(spec.sensors, f"{name}_noise")) is not None
+    }
+    noise["reference_speed"] = (spec.max_speed, DEFAULT_CAR.max_speed)
     out = dict(data)
+    simulation = out.get("simulation", {})
+    if isinstance(simulation, dict):
+        given = simulation.get("noise", {})
+        if isinstance(given, dict):
+            added = {k: car for k, (car, default) in noise.items() if k not in given and car != default}
+            if added:
+                out["simulation"] = {**simulation, "noise": {**given, **added}}
     for section, keys in fills.items():
         given = out.get(section, {})
         if not isinstance(given, dict):

@@ -14,10 +14,13 @@ from __future__ import annotations
 
 import numpy as np
 
-WHEELBASE = 0.1415  # m
-V_MAX = 0.267  # m/s at full throttle, straight
-STEER_MAX = 0.5236  # rad
-OMEGA_MAX = 0.8051  # rad/s
+from simulator.vehicles import load_vehicle
+
+_NIGEL = load_vehicle("nigel")  # a toy of the default car: its figures, not its physics
+WHEELBASE = _NIGEL.wheelbase  # m
+V_MAX = _NIGEL.max_speed  # m/s at full throttle, straight
+STEER_MAX = _NIGEL.steering.limit.value  # rad
+OMEGA_MAX = _NIGEL.max_yaw_rate  # rad/s
 SCRUB = 0.25  # fractional speed loss at full lock
 UNDERSTEER = 5.0  # s²/m², K in 1 + K v²
 # Noise std = base + slope · |τ|, per output (v, ω).
@@ -25,7 +28,7 @@ NOISE_BASE = np.array([0.002, 0.006])
 NOISE_SLOPE = np.array([0.008, 0.03])
 
 SKIDPAD_THROTTLES = (0.2, 0.4, 0.6, 0.8, 1.0)
-SKIDPAD_STEERINGS = (0.1047, 0.2094, 0.3142, 0.4189, 0.5236)
+SKIDPAD_STEERINGS = tuple(round(STEER_MAX * k / 5.0, 4) for k in range(1, 6))  # 6° … 30°
 
 
 def _controls(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

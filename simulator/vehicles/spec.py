@@ -176,8 +176,15 @@ class Limits(_Strict):
 
 
 class Sensors(_Strict):
+    """The logs' rate and the sensors' noise (standard deviations; unset: the simulator's defaults)."""
+
     log_rate_hz: PositiveFigure = Field(description="rate of the logs (Hz)")
     encoder_cpr: PositiveFigure = Field(description="wheel encoder counts per revolution")
+    speed_noise: PositiveFigure | None = Field(None, description="forward speed (m/s)")
+    yaw_rate_noise: PositiveFigure | None = Field(None, description="each gyro axis (rad/s)")
+    acceleration_noise: PositiveFigure | None = Field(None, description="each accelerometer axis (m/s^2)")
+    position_noise: PositiveFigure | None = Field(None, description="posX, posY, posZ (m)")
+    angle_noise: PositiveFigure | None = Field(None, description="roll, pitch, yaw (rad)")
 
 
 class MujocoContacts(_Strict):
