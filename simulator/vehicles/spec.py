@@ -152,6 +152,8 @@ class Drivetrain(_Strict):
         None, description="above it acceleration is power-limited, a ≤ a_max · v_switch / v (m/s)")
     brake_deceleration: PositiveFigure | None = Field(None, description="at throttle 0 (m/s^2)")
     front_drive_share: ShareFigure | None = Field(None, description="share of drive force on the front axle")
+    speed_time_constant: PositiveFigure | None = Field(
+        None, description="speed's first-order response (s); unset: top_speed / max_acceleration")
 
     @model_validator(mode="after")
     def _one_map(self) -> Drivetrain:
@@ -166,6 +168,9 @@ class Drivetrain(_Strict):
 class Steering(_Strict):
     limit: PositiveFigure = Field(description="largest bicycle steering angle (rad)")
     rate: PositiveFigure = Field(description="largest steering rate (rad/s)")
+    yaw_time_constant: PositiveFigure | None = Field(
+        None, description="yaw rate's first-order response to a steering step (s); unset: the linear "
+        "single track's I_z v / (lf² C_f + lr² C_r)")
 
 
 class Limits(_Strict):

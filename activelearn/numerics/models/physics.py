@@ -1,4 +1,4 @@
-"""A surrogate that knows the car: Nigel's single track from its datasheet plus a bounded Bayesian correction.
+"""A surrogate that knows the car: its single track from its vehicle file plus a bounded Bayesian correction.
 
 The physics core is Nigel's single track (`activelearn.numerics.models.single_track`: the step, the
 seven `PARAMETERS`, their identification), stepping the rates y = (v, ω) over the Δ = `history_step`
@@ -38,13 +38,13 @@ from activelearn.numerics.lags import N_CONTROLS, N_RATES, Lags, model_lags
 from activelearn.numerics.models.base import Model, column_scalers, draw_spread
 from activelearn.numerics.models.networks import NETWORK_CLASSES
 from activelearn.numerics.models.single_track import (
-    HIGH,
     LAG_FACTOR,
-    LOW,
-    NOMINAL,
+    NIGEL,
     PARAMETER_NAMES,
     PARAMETERS,
-    YAW_CAP,
+    THROTTLE_LIMIT,
+    CarPrior,
+    car_prior,
     cholesky_factor,
     identify,
     identify_from_logs,
@@ -53,7 +53,6 @@ from activelearn.numerics.models.single_track import (
     split_inputs,
 )
 from activelearn.numerics.training_data import TrainingData
-from simulator import datasheet
 
 N_CORRECTIONS = 4  # steady-state residuals (v, ω) and lag factors (v, ω)
 # Under the mirror (δ, ω → −δ, −ω) the steady yaw-rate residual changes sign; the speed residual, both
@@ -66,12 +65,12 @@ LAST_LAYER_SCALE = 0.1  # the correction starts near zero: an untrained model is
 # 608 sweep runs, experiments/results/physics.txt). With ≤ 3 %, five sigma over the 1.25x yaw cap
 # stays below 1.5x.
 NOISE_CAP = 0.03
-_RATE_LIMITS = torch.tensor([datasheet.MAX_SPEED, datasheet.MAX_YAW_RATE])  # float32, as y_std
 THETA_SEED_SALT = 0x7E7A  # the parameter draws' normals differ from the correction's of the same seed
 
 
 class PhysicsModel(Model):
-    """Nigel's single track (identified) plus a bounded Bayesian correction: see the module docstring."""
+    """A car's single track (identified) plus a bounded Bayesian correction: see the module docstring.
+    The car is `config.vehicle` (its vehicle file: the prior, the limits, the throttle → speed map)."""
 
     kind = "physics"
     compilable = False  # the step reads the model's own scalers and parameters, which compiled templates lack
@@ -106,8 +105,11 @@ class PhysicsModel(Model):
         self.has_epistemic = self.correction.has_epistemic
         lags = model_lags(self)
         self.rate_at = N_CONTROLS * lags.history
-        self.dt = lags.step / datasheet.LOG_RATE_HZ
-        self.register_buffer("theta", torch.as_tensor(NOMINAL, dtype=torch.float32).clone())
+        self.car: CarPrior = car_prior(config.vehicle)
+        self.dt = lags.step / self.car.log_rate_hz
+        # float32, as y_std: the rates' limits (speed, yaw rate) the aleatoric cap is a share of
+        self.rate_limits = torch.tensor([self.car.max_speed, self.car.max_yaw_rate])
+        self.register_buffer("theta", torch.as_tensor(self.car.nominal, dtype=torch.float32).clone())
         # Lower Cholesky factor of the identified parameters' covariance (`parameter_uncertainty =
         # "by_log"`; zeros: every draw shares `theta`). Models saved before it existed load with zeros.
         self.register_buffer("theta_scale", torch.zeros(len(PARAMETERS), len(PARAMETERS)))
@@ -142,11 +144,12 @@ class PhysicsModel(Model):
                 [log for log, other in zip(logs, flags, strict=True) if not other],
                 [log for log, other in zip(logs, flags, strict=True) if other],
                 search_from=search_from,
+                car=self.car,
             )
         elif logs:
-            found = identify_from_logs(logs, search_from=search_from)
+            found = identify_from_logs(logs, search_from=search_from, car=self.car)
         else:
-            found = identify(np.asarray(data.x), np.asarray(data.y), self.dt, self.rate_at)
+            found = identify(np.asarray(data.x), np.asarray(data.y), self.dt, self.rate_at, self.car)
         self.theta.copy_(torch.as_tensor(found.values, dtype=torch.float32))
         self.theta_scale.zero_()
         if self.config.parameter_uncertainty == "by_log":
@@ -182,7 +185,7 @@ class PhysicsModel(Model):
             n_samples, len(PARAMETERS), generator=torch.Generator().manual_seed(int(seed) ^ THETA_SEED_SALT)
         )
         draws = self.theta + normals @ self.theta_scale.T
-        low, high = (torch.as_tensor(bound, dtype=draws.dtype) for bound in (LOW, HIGH))
+        low, high = (torch.as_tensor(bound, dtype=draws.dtype) for bound in (self.car.low, self.car.high))
         return torch.clamp(draws, low, high)
 
     @torch.no_grad()
@@ -201,11 +204,12 @@ class PhysicsModel(Model):
     def native_parameters(self, spread: float) -> np.ndarray:
         """The physics as physics_rollout.c reads it (its enum's order)."""
         bound = self.config.residual_bound
-        values = [self.dt, *self.theta.tolist(), datasheet.WHEELBASE, datasheet.THROTTLE_LIMIT]
-        values += [bound * datasheet.MAX_SPEED, bound * datasheet.MAX_YAW_RATE, YAW_CAP, math.log(LAG_FACTOR)]
+        car = self.car
+        values = [self.dt, *self.theta.tolist(), car.wheelbase, THROTTLE_LIMIT]
+        values += [bound * car.max_speed, bound * car.max_yaw_rate, car.yaw_cap, math.log(LAG_FACTOR)]
         values += [*self.y_std.tolist(), *self._variance_cap().tolist(), spread]
-        mirror = 1.0 / datasheet.STEERING_LIMIT if self.even_features else 0.0
-        values += [float(self.correction_weight), mirror, *datasheet.REFERENCE_SPEED]
+        mirror = 1.0 / car.steering_limit if self.even_features else 0.0
+        values += [float(self.correction_weight), mirror, *car.speed_table]
         return np.array(values, dtype=np.float32)
 
     @torch.no_grad()
@@ -280,7 +284,7 @@ class PhysicsModel(Model):
         rows = torch.as_tensor(unique.T.copy())  # (2, U)
         if self.even_features:
             z, z_var = correction.columns(torch.stack([rows[0], rows[1].square()]))
-            z = _odd_yaw(z, rows[1], -2)
+            z = _odd_yaw(z, rows[1], -2, self.car.steering_limit)
         else:
             z, z_var = correction.columns(rows)  # (S, 4, U)
         z = self._gate(z)
@@ -295,11 +299,15 @@ class PhysicsModel(Model):
             past = rates[..., k - rate_lag] if k >= rate_lag else start
             zs = z[..., rows].unbind(1)
             tau, delta, bound = u[:, k, 0], u[:, k, 1], self.config.residual_bound
-            v1, w1 = single_track_step(tau, delta, past[:, 0], past[:, 1], theta, self.dt, zs, bound)
+            v1, w1 = single_track_step(
+                tau, delta, past[:, 0], past[:, 1], theta, self.dt, zs, bound, car=self.car
+            )
             means = torch.stack([v1, w1], dim=1)  # (S, 2, M)
             if spread != 1.0:  # widen each draw's correction, not its past (surrogate.widened_step)
                 common = past.mean(dim=0)
-                vc, wc = single_track_step(tau, delta, common[0], common[1], theta, self.dt, zs, bound)
+                vc, wc = single_track_step(
+                    tau, delta, common[0], common[1], theta, self.dt, zs, bound, car=self.car
+                )
                 at_common = torch.stack([vc, wc], dim=1)
                 means = means + (spread - 1.0) * (at_common - at_common.mean(dim=0))
             centre = means.mean(dim=0)
@@ -321,7 +329,8 @@ class PhysicsModel(Model):
         phys = x * self.x_std.view(shape) + self.x_mean.view(shape)
         tau, delta, v, w = split_inputs(phys, dim, self.rate_at)
         zs = z_mean.unbind(dim) if self.corrected else torch.zeros_like(z_mean).unbind(dim)
-        v1, w1 = single_track_step(tau, delta, v, w, theta, self.dt, zs, self.config.residual_bound)
+        bound = self.config.residual_bound
+        v1, w1 = single_track_step(tau, delta, v, w, theta, self.dt, zs, bound, car=self.car)
         mean = torch.stack([v1, w1], dim=dim)
         y_shape = [1] * mean.dim()
         y_shape[dim] = -1
@@ -332,7 +341,7 @@ class PhysicsModel(Model):
     def _variance_cap(self) -> Tensor:
         """The largest standardised aleatoric variance of (v, ω): one training std, and at most
         `NOISE_CAP` of the rate's limit."""
-        return (NOISE_CAP * _RATE_LIMITS / self.y_std).square().clamp(max=1.0)
+        return (NOISE_CAP * self.rate_limits / self.y_std).square().clamp(max=1.0)
 
     def train_forward(self, x: Tensor) -> tuple[Tensor, Tensor | None]:
         """Stochastic pass on standardised x (N, d) or (K, N, d): the correction, then the physics."""
@@ -340,7 +349,7 @@ class PhysicsModel(Model):
         if self.even_features:
             features, delta = self._even_features(inputs, -1)
             z_mean, z_var = self.correction.train_forward(features)
-            z_mean = _odd_yaw(z_mean, delta, -1)
+            z_mean = _odd_yaw(z_mean, delta, -1, self.car.steering_limit)
         elif self.mirror:  # both halves in one pass: one weight draw for a row and its mirror image
             both = torch.cat([inputs, self._mirrored(inputs, -1)], dim=-2)
             z_mean, z_var = _symmetrise(*self.correction.train_forward(both), -1)
@@ -375,7 +384,7 @@ class PhysicsModel(Model):
         if self.even_features:
             features, delta = self._even_features(inputs, -2)
             z_mean, z_var = self.correction.columns_forward(features, params, n_samples)
-            z_mean = _odd_yaw(z_mean, delta, -2)
+            z_mean = _odd_yaw(z_mean, delta, -2, self.car.steering_limit)
         elif self.mirror:
             both = torch.cat([inputs, self._mirrored(inputs, -2)], dim=-1)
             z_mean, z_var = _symmetrise(*self.correction.columns_forward(both, params, n_samples), -2)
@@ -426,9 +435,9 @@ class PhysicsModel(Model):
                 getattr(last, name).mul_(LAST_LAYER_SCALE)
 
 
-def _odd_yaw(z: Tensor, delta: Tensor, dim: int) -> Tensor:
-    """Raw outputs (along `dim`) with the yaw residual's times δ / δ_max: odd in the steering δ."""
-    yaw = z.select(dim, 1) * (delta / datasheet.STEERING_LIMIT)
+def _odd_yaw(z: Tensor, delta: Tensor, dim: int, lock: float) -> Tensor:
+    """Raw outputs (along `dim`) with the yaw residual's times δ / δ_max (the car's `lock`): odd in δ."""
+    yaw = z.select(dim, 1) * (delta / lock)
     return torch.cat([z.narrow(dim, 0, 1), yaw.unsqueeze(dim), z.narrow(dim, 2, z.shape[dim] - 2)], dim=dim)
 
 
@@ -454,12 +463,14 @@ def _default_correction_weight(module, state_dict, prefix, *args) -> None:
     state_dict.setdefault(prefix + "theta_scale", torch.zeros(len(PARAMETERS), len(PARAMETERS)))
 
 
-def control_box_sweep(duration: float = 60.0, rate_hz: float = datasheet.LOG_RATE_HZ) -> list[np.ndarray]:
-    """Control sequences (T, 2) over Nigel's whole control box: constants at its corners, edges and
+def control_box_sweep(
+    duration: float = 60.0, rate_hz: float | None = None, car: CarPrior = NIGEL
+) -> list[np.ndarray]:
+    """Control sequences (T, 2) over a car's whole control box: constants at its corners, edges and
     centre (throttle 0, the brake, included) and steps across it halfway through."""
-    n = round(duration * rate_hz)
+    n = round(duration * (car.log_rate_hz if rate_hz is None else rate_hz))
     half = n // 2
-    lock = datasheet.STEERING_LIMIT
+    lock = car.steering_limit
     out = [np.tile([t, d], (n, 1)) for t in (-1.0, -0.5, 0.0, 0.5, 1.0) for d in (-lock, 0.0, lock)]
     for (t0, d0), (t1, d1) in (
         ((1.0, lock), (-1.0, -lock)),
@@ -471,10 +482,10 @@ def control_box_sweep(duration: float = 60.0, rate_hz: float = datasheet.LOG_RAT
     return out
 
 
-def runs_out_of_bounds(v: np.ndarray, w: np.ndarray, factor: float = 1.5) -> int:
-    """How many sampled free runs (rates (S, M, T)) are not finite or leave `factor` x Nigel's speed or
+def runs_out_of_bounds(v: np.ndarray, w: np.ndarray, factor: float = 1.5, car: CarPrior = NIGEL) -> int:
+    """How many sampled free runs (rates (S, M, T)) are not finite or leave `factor` x the car's speed or
     yaw-rate limit at some step."""
     bad = ~(np.isfinite(v) & np.isfinite(w))
-    bad |= np.abs(np.nan_to_num(v)) > factor * datasheet.MAX_SPEED
-    bad |= np.abs(np.nan_to_num(w)) > factor * datasheet.MAX_YAW_RATE
+    bad |= np.abs(np.nan_to_num(v)) > factor * car.max_speed
+    bad |= np.abs(np.nan_to_num(w)) > factor * car.max_yaw_rate
     return int(bad.any(axis=-1).sum())

@@ -1,16 +1,17 @@
-"""Nigel's single track from its datasheet, and its physical parameters identified from logs.
+"""A car's kinematic single track from its vehicle file, and its physical parameters identified from logs.
 
 The step (`single_track_step`) moves the rates y = (v, ω) over Δ from the newest control u = (τ, δ):
 
     v_ss = g(τ) · table(|τ|) · sign(τ) / (1 + scrub · tan² δ)    g: speed_gain (τ > 0), reverse_gain (τ < 0)
     v'   = v_ss + (v − v_ss) · exp(−Δ / speed_lag)                (τ = 0 brakes: |v| falls by brake_decel · Δ)
-    ω_ss = v' · tan δ / (L · understeer),  |ω_ss| ≤ 1.25 × the datasheet's yaw-rate limit
+    ω_ss = v' · tan δ / (L · understeer),  |ω_ss| ≤ 1.25 × the car's yaw-rate limit
     ω'   = ω_ss + (ω − ω_ss) · exp(−Δ / yaw_lag)
 
-`table` is the datasheet's throttle → speed table (mirrored in reverse). The seven `PARAMETERS` start
-at the datasheet and are identified (MAP, the datasheet as the prior) from whole logs by their free
-runs (`identify_from_logs`) or from one-step rows (`identify`), with a cluster-robust covariance.
-`activelearn.numerics.models.physics` adds the bounded Bayesian correction.
+`table` is the car's throttle → speed map (mirrored in reverse). The seven parameters start at the
+car's prior (`CarPrior`: the vehicle file's figures, "the datasheet") and are identified (MAP, that
+prior) from whole logs by their free runs (`identify_from_logs`) or from one-step rows (`identify`),
+with a cluster-robust covariance. `activelearn.numerics.models.physics` adds the bounded Bayesian
+correction. Every function takes the car (`car`, default the default car, Nigel).
 """
 
 from __future__ import annotations
@@ -26,11 +27,12 @@ import torch
 from scipy.optimize import least_squares
 from torch import Tensor
 
-from simulator import datasheet
+from simulator.vehicles import GRAVITY, VehicleSpec, load_vehicle
 
 LAG_FACTOR = 3.0  # the correction scales each lag within [1/3, 3]
-YAW_CAP = 1.25 * datasheet.MAX_YAW_RATE  # rad/s: a steady yaw rate beyond the datasheet's limit + 25 %
+YAW_CAP_FACTOR = 1.25  # a steady yaw rate is capped at the car's yaw-rate limit + 25 %
 PRIOR_ROWS = 1e4  # the first pass of `_map_fit` weighs the datasheet prior this much less
+THROTTLE_LIMIT = 1.0  # every car's normalised throttle
 
 
 @dataclass(frozen=True)
@@ -46,35 +48,97 @@ class PhysicalParameter:
     meaning: str
 
 
-def _nominal_understeer() -> float:
-    """The datasheet's linear single track at its top speed: L·f = L + K·v_max²."""
-    return 1.0 + datasheet.understeer_gradient() * datasheet.MAX_SPEED**2 / datasheet.WHEELBASE
+def _reference_speed(spec: VehicleSpec) -> float:
+    """The speed the understeer prior is taken at: the top speed, or below it the speed where the
+    kinematic turn at full lock reaches the tyres' grip μ g (faster, no car follows L / tan δ there)."""
+    kinematic = math.tan(spec.steering.limit.value) / spec.wheelbase
+    return min(spec.max_speed, math.sqrt(spec.tyres.friction.value * GRAVITY / kinematic))
 
 
-PARAMETERS: tuple[PhysicalParameter, ...] = (
-    PhysicalParameter("speed_gain", 1.0, 0.25, 1.25, 0.5, "-", "scale of the table's forward steady speed"),
-    PhysicalParameter("reverse_gain", 1.0, 0.25, 1.25, 0.5, "-", "scale of the mirrored table in reverse"),
-    PhysicalParameter("speed_lag", 0.1, 0.01, 1.0, 0.2, "s", "time constant of the speed's response"),
-    PhysicalParameter("scrub", 0.0, 0.0, 3.0, 1.0, "-", "steady speed / (1 + scrub tan² δ): tyre scrub"),
-    PhysicalParameter(
-        "understeer", _nominal_understeer(), 0.7, 2.0, 0.5, "-", "turning radius over the kinematic L / tan δ"
-    ),
-    PhysicalParameter("yaw_lag", 0.05, 0.005, 1.0, 0.2, "s", "time constant of the yaw rate's response"),
-    PhysicalParameter(
-        "brake_decel",
-        datasheet.FRICTION * datasheet.GRAVITY,
-        0.5,
-        20.0,
-        3.0,
-        "m/s²",
-        "deceleration at throttle 0 (the brake); datasheet: μ g",
-    ),
-)
-PARAMETER_NAMES = tuple(p.name for p in PARAMETERS)
-NOMINAL = np.array([p.nominal for p in PARAMETERS])
-LOW = np.array([p.low for p in PARAMETERS])
-HIGH = np.array([p.high for p in PARAMETERS])
-WIDTH = np.array([p.width for p in PARAMETERS])
+def car_parameters(spec: VehicleSpec) -> tuple[PhysicalParameter, ...]:
+    """The seven parameters' prior for a car: nominal values from its vehicle file, ranges and widths
+    scaled with them (Nigel's: speed lag 0.1 s in [0.01, 1] ± 0.2, yaw lag 0.05 s in [0.005, 1] ± 0.2).
+
+    speed lag: the file's `drivetrain.speed_time_constant`, else the motor law's v_top / a_max; yaw lag:
+    the file's `steering.yaw_time_constant`, else the linear single track's I_z v / (lf² C_f + lr² C_r)
+    at the reference speed; understeer: L·f = L + K·v² at the reference speed (`_reference_speed`);
+    reverse gain: the reverse top speed over the forward one; brake: the file's deceleration, at most μ g.
+    """
+    d, s, g = spec.drivetrain, spec.steering, spec.geometry
+    reverse = 1.0
+    if d.reverse_top_speed is not None and d.top_speed is not None:
+        reverse = d.reverse_top_speed.value / d.top_speed.value
+    if d.speed_time_constant is not None:
+        t_v = d.speed_time_constant.value
+    else:
+        t_v = d.top_speed.value / d.max_acceleration.value  # type: ignore[union-attr]
+    v_ref = _reference_speed(spec)
+    if s.yaw_time_constant is not None:
+        t_w = s.yaw_time_constant.value
+    else:
+        front, rear = spec.tyres.cornering_stiffness_front.value, spec.tyres.cornering_stiffness_rear.value
+        damping = g.lf.value**2 * front + g.lr.value**2 * rear
+        t_w = spec.inertia.yaw_inertia.value * v_ref / damping
+    grip = spec.tyres.friction.value * GRAVITY
+    brake = grip if d.brake_deceleration is None else min(d.brake_deceleration.value, grip)
+    understeer = 1.0 + spec.understeer_gradient() * v_ref**2 / spec.wheelbase
+    p = PhysicalParameter
+    return (
+        p("speed_gain", 1.0, 0.25, 1.25, 0.5, "-", "scale of the table's forward steady speed"),
+        p("reverse_gain", reverse, 0.25 * reverse, 1.25 * reverse, 0.5 * reverse, "-",
+          "scale of the mirrored table in reverse"),
+        p("speed_lag", t_v, t_v / 10, t_v * 10, 2 * t_v, "s", "time constant of the speed's response"),
+        p("scrub", 0.0, 0.0, 3.0, 1.0, "-", "steady speed / (1 + scrub tan² δ): tyre scrub"),
+        p("understeer", understeer, 0.7, 2.0, 0.5, "-", "turning radius over the kinematic L / tan δ"),
+        p("yaw_lag", t_w, t_w / 10, t_w * 20, 4 * t_w, "s", "time constant of the yaw rate's response"),
+        p("brake_decel", brake, 0.5, 20.0, 3.0, "m/s²", "deceleration at throttle 0 (the brake); file: μ g"),
+    )  # fmt: skip
+
+
+class CarPrior:
+    """What the single track knows of one car before any log: its vehicle file's figures (wheelbase,
+    limits, throttle → speed map, log rate) and the seven parameters' prior (`car_parameters`)."""
+
+    def __init__(self, spec: VehicleSpec) -> None:
+        self.spec = spec
+        self.name = spec.name
+        self.wheelbase = spec.wheelbase
+        self.max_speed = spec.max_speed
+        self.max_yaw_rate = spec.max_yaw_rate
+        self.steering_limit = spec.steering.limit.value
+        self.log_rate_hz = spec.log_rate_hz
+        self.yaw_cap = YAW_CAP_FACTOR * self.max_yaw_rate  # rad/s
+        grid, speed = spec.speed_map
+        if len(grid) != 11 or not np.allclose(grid, np.arange(11) / 10.0):
+            raise ValueError(f"{spec.name}: the single track reads the speed map at throttle 0, 0.1, …, 1")
+        self.speed_table = np.array(speed, dtype=np.float64)
+        self.slope = np.diff(self.speed_table)  # per 0.1 of throttle
+        self.parameters = car_parameters(spec)
+        self.nominal = np.array([p.nominal for p in self.parameters])
+        self.low = np.array([p.low for p in self.parameters])
+        self.high = np.array([p.high for p in self.parameters])
+        self.width = np.array([p.width for p in self.parameters])
+        self.prior = Identified(self.nominal, np.diag(self.width**2))  # what the file says before any log
+        self._tables: dict[torch.dtype, tuple[Tensor, Tensor]] = {}
+
+    def table(self, dtype: torch.dtype) -> tuple[Tensor, Tensor]:
+        """The speed map as a tensor (m/s at throttle 0, 0.1, ..., 1) and its slope per 0.1 of throttle."""
+        if dtype not in self._tables:
+            speed = torch.as_tensor(self.speed_table, dtype=dtype)
+            self._tables[dtype] = (speed, torch.diff(speed))
+        return self._tables[dtype]
+
+
+@functools.lru_cache(maxsize=16)
+def _car_prior(key: str) -> CarPrior:
+    return CarPrior(load_vehicle(key))
+
+
+def car_prior(vehicle: VehicleSpec | str | None = None) -> CarPrior:
+    """The single track's prior of a car (a spec, a shipped name or a path; None: the default car)."""
+    if isinstance(vehicle, VehicleSpec):
+        return _car_prior(str(vehicle.path)) if vehicle.path is not None else CarPrior(vehicle)
+    return _car_prior(str(load_vehicle(vehicle or "nigel").path))
 
 
 Array = Tensor | np.ndarray  # the step serves training and free runs (torch) and identification (NumPy)
@@ -85,26 +149,16 @@ def _namespace(a: Array):
     return torch if isinstance(a, Tensor) else np
 
 
-@functools.lru_cache(maxsize=4)
-def _table(dtype: torch.dtype) -> tuple[Tensor, Tensor]:
-    """The datasheet's speed table (m/s at throttle 0, 0.1, ..., 1) and its slope per 0.1 of throttle."""
-    speed = torch.as_tensor(datasheet.REFERENCE_SPEED, dtype=dtype)
-    return speed, torch.diff(speed)
-
-
-_NUMPY_SLOPE = np.diff(datasheet.REFERENCE_SPEED)  # the table's slope per 0.1 of throttle (NumPy)
-
-
-def _table_speed(throttle: Array) -> Array:
-    """The datasheet's steady forward speed at |throttle| (m/s), interpolated linearly (τ in [0, 1])."""
+def _table_speed(throttle: Array, car: CarPrior) -> Array:
+    """The car's steady forward speed at |throttle| (m/s), interpolated linearly (τ in [0, 1])."""
     xp = _namespace(throttle)
-    x = xp.clip(xp.abs(throttle), 0.0, datasheet.THROTTLE_LIMIT) * 10.0
+    x = xp.clip(xp.abs(throttle), 0.0, THROTTLE_LIMIT) * 10.0
     i = xp.clip(xp.floor(x), 0.0, 9.0)
     if xp is torch:
-        speed, slope = _table(throttle.dtype)
+        speed, slope = car.table(throttle.dtype)
         index = i.long()
     else:
-        speed, slope = datasheet.REFERENCE_SPEED, _NUMPY_SLOPE
+        speed, slope = car.speed_table, car.slope
         index = i.astype(np.intp)
     return speed[index] + (x - i) * slope[index]
 
@@ -119,6 +173,7 @@ def single_track_step(
     corrections: tuple[Tensor, Tensor, Tensor, Tensor] | None = None,
     residual_bound: float = 0.0,
     table_speed: Array | None = None,
+    car: CarPrior | None = None,
 ) -> tuple[Array, Array]:
     """Next (v, ω) after `dt` s of the control (throttle, steering) from rates (v, ω), broadcast.
 
@@ -126,26 +181,28 @@ def single_track_step(
     (steady speed, steady yaw rate, speed lag, yaw lag), each squashed into its range (None: pure
     physics). Tensors (training, free runs) or NumPy arrays (identification, several times faster on
     its small arrays), not mixed. `table_speed`: `_table_speed(throttle)`, where the caller has it
-    (a free run over many parameter sets computes it once per step of the controls).
+    (a free run over many parameter sets computes it once per step of the controls). `car`: whose
+    single track (None: the default car).
     """
+    car = car or NIGEL
     xp = _namespace(throttle)
     gain_f, gain_r, t_v, scrub, understeer, t_w, brake = (theta[..., i] for i in range(len(PARAMETERS)))
     tan_d = xp.tan(steering)
     gain = xp.where(throttle >= 0, gain_f, gain_r)
-    table = _table_speed(throttle) if table_speed is None else table_speed
+    table = _table_speed(throttle, car) if table_speed is None else table_speed
     v_ss = xp.sign(throttle) * gain * table / (1.0 + scrub * tan_d * tan_d)
     if corrections is not None:
         z_v, z_w, z_tv, z_tw = corrections
-        v_ss = v_ss + residual_bound * datasheet.MAX_SPEED * xp.tanh(z_v)
+        v_ss = v_ss + residual_bound * car.max_speed * xp.tanh(z_v)
         t_v = t_v * xp.exp(math.log(LAG_FACTOR) * xp.tanh(z_tv))
         t_w = t_w * xp.exp(math.log(LAG_FACTOR) * xp.tanh(z_tw))
     v_next = v_ss + (v - v_ss) * xp.exp(-dt / t_v)
     braked = v - xp.sign(v) * xp.minimum(xp.abs(v), brake * dt)
     v_next = xp.where(throttle == 0, braked, v_next)
-    w_ss = v_next * tan_d / (datasheet.WHEELBASE * understeer)
+    w_ss = v_next * tan_d / (car.wheelbase * understeer)
     if corrections is not None:
-        w_ss = w_ss + residual_bound * datasheet.MAX_YAW_RATE * xp.tanh(z_w)
-    w_ss = xp.clip(w_ss, -YAW_CAP, YAW_CAP)
+        w_ss = w_ss + residual_bound * car.max_yaw_rate * xp.tanh(z_w)
+    w_ss = xp.clip(w_ss, -car.yaw_cap, car.yaw_cap)
     w_next = w_ss + (w - w_ss) * xp.exp(-dt / t_w)
     return v_next, w_next
 
@@ -167,31 +224,41 @@ class Identified(NamedTuple):
         return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
 
 
-DATASHEET_PRIOR = Identified(NOMINAL, np.diag(WIDTH**2))  # what the datasheet says before any log
+NIGEL = car_prior()  # the default car's prior; its arrays keep their module names below
+PARAMETERS: tuple[PhysicalParameter, ...] = NIGEL.parameters
+PARAMETER_NAMES = tuple(p.name for p in PARAMETERS)
+NOMINAL, LOW, HIGH, WIDTH = NIGEL.nominal, NIGEL.low, NIGEL.high, NIGEL.width
+YAW_CAP = NIGEL.yaw_cap
+DATASHEET_PRIOR = NIGEL.prior
 
 
-def identify(x: np.ndarray, y: np.ndarray, dt: float, rate_at: int) -> Identified:
+def identify(
+    x: np.ndarray, y: np.ndarray, dt: float, rate_at: int, car: CarPrior | None = None
+) -> Identified:
     """Least-squares physical parameters for rows x (N, 4k) → y (N, 2), with their covariance.
 
     MAP under the datasheet prior (`_map_fit`): a parameter the rows do not excite stays near the
     datasheet. The covariance is the sandwich with each row its own cluster (rows are one-step
     errors, roughly independent).
     """
+    car = car or NIGEL
     x = torch.as_tensor(np.asarray(x, dtype=np.float64))
     y = np.asarray(y, dtype=np.float64)
     if len(x) == 0:
-        return Identified(NOMINAL.copy(), DATASHEET_PRIOR.covariance.copy())
+        return Identified(car.nominal.copy(), car.prior.covariance.copy())
     tau, delta, v, w = split_inputs(x, -1, rate_at)
 
     def errors_of(sets: np.ndarray) -> np.ndarray:
         with torch.no_grad():
-            v1, w1 = single_track_step(tau, delta, v, w, torch.as_tensor(sets)[:, None], dt)
+            v1, w1 = single_track_step(tau, delta, v, w, torch.as_tensor(sets)[:, None], dt, car=car)
         return np.stack([v1.numpy(), w1.numpy()], axis=-1) - y
 
-    return _map_fit(errors_of, y.std(axis=0), np.arange(len(y)))
+    return _map_fit(errors_of, y.std(axis=0), np.arange(len(y)), car=car)
 
 
-def run_single_track(controls: np.ndarray, start: np.ndarray, theta: np.ndarray, dt: float) -> np.ndarray:
+def run_single_track(
+    controls: np.ndarray, start: np.ndarray, theta: np.ndarray, dt: float, car: CarPrior | None = None
+) -> np.ndarray:
     """Free runs of the bare single track (`single_track_step`, no correction): controls (M, T, 2), start
     rates (M, 2), parameter sets (P, 7) → rates (P, M, T, 2), the first step being `start`. NumPy,
     every parameter set at once."""
@@ -200,10 +267,11 @@ def run_single_track(controls: np.ndarray, start: np.ndarray, theta: np.ndarray,
     out = np.empty((len(sets), n_runs, n_steps, 2))
     v, w = (np.broadcast_to(start[:, j], (len(sets), n_runs)) for j in range(2))
     out[:, :, 0, 0], out[:, :, 0, 1] = v, w
-    table = _table_speed(controls[:, :, 0])  # (M, T): elementwise, the same numbers as step by step
+    car = car or NIGEL
+    table = _table_speed(controls[:, :, 0], car)  # (M, T): elementwise, the same numbers as step by step
     for k in range(1, n_steps):
         u = controls[:, k]
-        v, w = single_track_step(u[:, 0], u[:, 1], v, w, sets, dt, table_speed=table[:, k])
+        v, w = single_track_step(u[:, 0], u[:, 1], v, w, sets, dt, table_speed=table[:, k], car=car)
         out[:, :, k, 0], out[:, :, k, 1] = v, w
     return out
 
@@ -211,10 +279,11 @@ def run_single_track(controls: np.ndarray, start: np.ndarray, theta: np.ndarray,
 def identify_from_logs(
     logs: list[tuple[np.ndarray, np.ndarray]],
     *,
-    dt: float = 1.0 / datasheet.LOG_RATE_HZ,
+    dt: float | None = None,
     every: int = 1,
     prior: Identified | None = None,
     search_from: np.ndarray | None = None,
+    car: CarPrior | None = None,
 ) -> Identified:
     """Output-error least squares: the parameters whose free runs along each log's controls, from its
     first recorded rates, come closest to its recorded rates. Logs are (controls (T, 2), rates (T, 2))
@@ -224,9 +293,12 @@ def identify_from_logs(
     and the standard errors of its covariance, with each log a cluster of the covariance (a free run's
     errors are correlated along it). Free runs weigh the steady states and lags as a free run of the
     model uses them; one-step errors over noisy past rates bias the lags. `search_from`: where the
-    search begins (default the prior's centre), e.g. the last round's solution.
+    search begins (default the prior's centre), e.g. the last round's solution. `car`: whose single
+    track (default the default car); `dt` defaults to its log step.
     """
-    prior = prior or DATASHEET_PRIOR
+    car = car or NIGEL
+    dt = 1.0 / car.log_rate_hz if dt is None else dt
+    prior = prior or car.prior
     logs = [(np.asarray(u, np.float64), np.asarray(y, np.float64)) for u, y in logs if len(u) > 1]
     if not logs:
         return Identified(prior.values.copy(), prior.covariance.copy())
@@ -242,9 +314,9 @@ def identify_from_logs(
     start = rates[:, 0]
 
     def errors_of(sets: np.ndarray) -> np.ndarray:  # (P, n, 2) errors of each parameter set's runs
-        return (run_single_track(controls, start, sets, dt) - rates)[:, keep]
+        return (run_single_track(controls, start, sets, dt, car) - rates)[:, keep]
 
-    return _map_fit(errors_of, rates[valid].std(axis=0), np.nonzero(keep)[0], prior, search_from)
+    return _map_fit(errors_of, rates[valid].std(axis=0), np.nonzero(keep)[0], prior, search_from, car)
 
 
 def identify_on_another_car(
@@ -266,7 +338,8 @@ def identify_on_another_car(
     found = _others_estimate(others, **kwargs)
     if not any(len(u) > 1 for u, _ in logs):
         return found
-    widened = Identified(found.values, found.covariance + np.diag(WIDTH**2))
+    width = (kwargs.get("car") or NIGEL).width
+    widened = Identified(found.values, found.covariance + np.diag(width**2))
     return identify_from_logs(logs, prior=widened, search_from=search_from, **kwargs)
 
 
@@ -276,7 +349,8 @@ _OTHERS: dict[str, Identified] = {}  # the other car's estimate by its logs' dig
 def _others_estimate(others: list[tuple[np.ndarray, np.ndarray]], **kwargs) -> Identified:
     """`identify_from_logs(others)`, computed once per set of logs: a campaign's prior grid is the same
     every round (35 logs of 30 s, as dynamics_warm's grid: about 1 s a round)."""
-    digest = hashlib.sha256(repr(sorted(kwargs.items())).encode())
+    named = {k: (v.name if isinstance(v, CarPrior) else v) for k, v in kwargs.items()}
+    digest = hashlib.sha256(repr(sorted(named.items())).encode())
     for u, y in others:
         digest.update(np.ascontiguousarray(u, np.float64).tobytes())
         digest.update(np.ascontiguousarray(y, np.float64).tobytes())
@@ -295,16 +369,19 @@ def _map_fit(
     clusters: np.ndarray,
     prior: Identified | None = None,
     search_from: np.ndarray | None = None,
+    car: CarPrior | None = None,
 ) -> Identified:
-    """MAP parameters under a Gaussian prior (default the datasheet's; independent parameters, its
+    """MAP parameters under a Gaussian prior (default the car's; independent parameters, its
     covariance's diagonal): Gaussian errors of unknown size per rate, found in two passes (the first,
     with the prior at 1/`PRIOR_ROWS` of its weight, measures the error size), and their
     cluster-robust covariance. `errors_of` maps parameter sets (P, 7) to errors (P, n, 2); `clusters`
     (n,) labels the error rows whose errors may be correlated (one log's steps). The first pass searches
     from `search_from` (default the prior's centre), the second from the first's solution."""
-    prior = prior or DATASHEET_PRIOR
+    car = car or NIGEL
+    low, high, scale = car.low, car.high, car.width
+    prior = prior or car.prior
     centre, width = prior.values, np.maximum(prior.stderr, 1e-9)
-    x0 = np.clip(centre if search_from is None else search_from, LOW + 1e-9, HIGH - 1e-9)
+    x0 = np.clip(centre if search_from is None else search_from, low + 1e-9, high - 1e-9)
     noise = np.maximum(spread, 1e-3)
     for prior_weight in (1.0 / PRIOR_ROWS, 1.0):
 
@@ -318,12 +395,12 @@ def _map_fit(
 
         def jac(p: np.ndarray, residuals_of=residuals_of) -> np.ndarray:
             # one batched run for every forward difference, stepping inwards at an upper bound
-            step = 1e-5 * WIDTH
-            step = np.where(p + step > HIGH, -step, step)
+            step = 1e-5 * scale
+            step = np.where(p + step > high, -step, step)
             res = residuals_of(np.vstack([p, p + np.diag(step)]))
             return ((res[1:] - res[0]) / step[:, None]).T
 
-        sol = least_squares(fun, x0, jac=jac, bounds=(LOW, HIGH), x_scale=WIDTH, method="trf", max_nfev=100)
+        sol = least_squares(fun, x0, jac=jac, bounds=(low, high), x_scale=scale, method="trf", max_nfev=100)
         x0 = sol.x
         err = errors_of(sol.x[None])[0]
         noise = np.maximum(np.sqrt(np.mean(err**2, axis=0)), 1e-6 * np.maximum(spread, 1e-3))
