@@ -39,6 +39,14 @@ def test_the_configuration_reference_is_generated_from_the_current_models() -> N
     assert len(generator.render()) > 10  # the index and a page per section
 
 
+def test_the_vehicle_reference_is_generated_from_the_shipped_files() -> None:
+    spec = importlib.util.spec_from_file_location("gen_vehicle_reference", DOCS / "gen_vehicle_reference.py")
+    module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+    spec.loader.exec_module(module)  # type: ignore[union-attr]
+    assert not module.stale(), "stale: run .venv/bin/python docs/gen_vehicle_reference.py"
+    assert all(f"`{name}`" in module.render() for name in ("nigel", "f1tenth", "bmw320i"))
+
+
 def test_the_configuration_reference_covers_every_key_with_its_default_and_description() -> None:
     from activelearn.config import CampaignConfig, ModelConfig, PoolConfig, SafetyConfig, TuningConfig
 
