@@ -181,7 +181,9 @@ def _check_args(
     return list(maneuvers)
 
 
-def _check_steering(maneuvers: list[Maneuver | Replay | FamilyManeuver], limit: float) -> None:
+def _check_steering(
+    maneuvers: list[Maneuver | Replay | FamilyManeuver], limit: float, rate_hz: float
+) -> None:
     """Every maneuver's steering within the car's limit (maneuvers are built before the car is known)."""
     for m in maneuvers:
         if isinstance(m, Replay):
@@ -189,8 +191,8 @@ def _check_steering(maneuvers: list[Maneuver | Replay | FamilyManeuver], limit: 
         elif isinstance(m, Maneuver):
             largest = m.op_steering
         else:
-            continue  # a family clips its own schedule
-        if largest > limit:
+            largest = float(np.abs(m.controls(rate_hz)[:, 1]).max())
+        if largest > limit + 1e-12:
             name = m.label if isinstance(m, Replay) else m.name
             raise ManeuverError("steering", largest, f"must be <= the car's limit {limit:g} rad ({name})")
 
@@ -244,7 +246,7 @@ def collect(
     dt = vehicle.timestep
     physics_rate = 1.0 / dt
     maneuvers = _check_args(maneuvers, rate_hz, seed, noise, threads, on_divergence, physics_rate, stop)
-    _check_steering(maneuvers, vehicle.steering_limit)
+    _check_steering(maneuvers, vehicle.steering_limit, float(rate_hz))
     rate_hz = float(rate_hz)
     if not maneuvers:
         return _empty_table()
