@@ -1,43 +1,53 @@
 """A car whose tyres MuJoCo's contacts cannot be (the 1:10 and the full-size car): MuJoCo integrates a rigid
-chassis on frictionless wheels, a magic-formula tyre computed here applies the forces every physics step.
+chassis on frictionless wheels; a magic-formula tyre computed here applies the forces every physics step.
 
 What and why:
-- Engine: MuJoCo, as for Nigel. One rigid body on a free joint carries the file's mass, yaw inertia, CG
-  (lf, lr, CG height); four spheres of the wheel radius at the wheel centres touch the floor with
-  frictionless contacts (condim 1, soft: MuJoCo's default solref 0.02 s, critically damped, >= 2 physics
-  steps for both cars). MuJoCo's constraint solver then gives the normal loads, so the load transfer
-  front/rear and left/right comes out of the rigid-body dynamics (the contacts are the car's only
-  compliance: no suspension, as the single track has none). Roll and pitch inertia are an assumption:
-  a box of the car's length and width and twice its CG height, scaled to the file's yaw inertia.
+- Engine: MuJoCo, as for Nigel. One rigid body on a free joint carries the file's mass, yaw inertia and CG
+  (lf, lr, CG height); four spheres of the wheel radius at the wheel centres touch the floor through
+  frictionless contacts (condim 1; MuJoCo's default softness, solref 0.02 s critically damped, >= 2
+  physics steps for both cars; 0.1 mm static penetration). MuJoCo's constraint solver gives the normal
+  loads, so the load transfer front/rear and left/right comes out of the rigid-body dynamics. The
+  contacts are the car's only compliance (no suspension, as the single track has none): the logged roll
+  stays below 0.1 deg. Roll and pitch inertia are an assumption: a box of the car's length, width and
+  twice its CG height, scaled to the file's yaw inertia (they only act in transients). Euler
+  integration: inside MuJoCo nothing depends on velocity but the contacts, which its solver handles.
 - Tyres: per wheel the simplified magic formula F_y = μ F_z sin(C atan(Bα − E(Bα − atan Bα))), C and E
   from the file, B per axle from its cornering stiffness per unit static load (B C μ = C_α / F_z,static),
-  F_z the wheel's load measured by MuJoCo on the step before (the standard one-step lag). A tyre's lateral
-  force grows with its load at a fixed cornering stiffness per unit load (no degressive load
-  sensitivity: the file gives none), so left/right load transfer changes no axle's grip; front/rear
-  transfer (braking, driving) does. `tire_friction` scales μ at the file's cornering stiffness (a
-  slippery floor: the peak drops, the linear range stays, as Pacejka's λ_μ). The slip angle comes from
-  the wheel centre's velocity in the wheel frame, α = atan(−v_lat / max(|v_long|, fade speed)): below
-  the file's `tyre_fade_speed` the tyre is a lateral damper (stable at rest, the car follows its wheels
-  as the kinematic model), no relaxation length (its lag is a few ms at these speeds).
+  F_z the wheel's load MuJoCo measured on the step before (the usual one-step lag). The lateral force
+  grows in proportion to the load (the file gives no degressive load sensitivity), so left/right load
+  transfer changes no axle's grip; front/rear transfer (braking, driving, the drive that holds speed in
+  a turn) does. The slip angle comes from the wheel centre's velocity in the wheel frame,
+  α = atan(−v_lat / max(|v_long|, fade speed)): below the file's `tyre_fade_speed` the tyre is a lateral
+  damper, stable at rest, and the car follows its wheels as the kinematic model does; explicit tyre
+  forces are stable where the damping rate times the step, dt (C_αf + C_αr) / (m v_fade), stays below 1
+  (0.17 for the 1:10 car, 0.72 for the full-size car; the yaw mode's 0.38 and 0.72). No relaxation
+  length (its lag is a few milliseconds at these speeds).
 - Longitudinal: the file's motor law on the car's forward speed v. Throttle u > 0: a = a_max (u − v/v_top),
   zero at v = u v_top (the steady straight speed); u < 0 mirrored with the reverse top speed; |a| ≤ a_max
   and ≤ a_max v_switch / |v| (power limit). The force m a (the file's mass: a payload slows the car) is
   split over the driven wheels (`driven`, `front_drive_share`), equal left/right (open differentials).
-  u == 0 exactly brakes: m a_brake over all four wheels by their loads, against each wheel's rolling
-  speed, fading linearly below a tenth of the fade speed so the braked car stands still. Every
-  longitudinal force is capped at μ F_z, and the lateral force scaled by the friction ellipse,
-  F_y √(1 − (F_x / μ F_z)²): a wheel spinning or locked at the limit steers no more.
+  u == 0 exactly brakes: m a_brake over the four wheels by their loads, against each wheel's rolling
+  speed, fading linearly below a tenth of the fade speed so that the braked car stands still.
+- Combined slip: Kamm's circle (the friction ellipse with the file's one μ both ways). Where the
+  longitudinal demand and the pure-slip lateral force add up to more than μ F_z, both are scaled back
+  onto the circle keeping their direction, so no longitudinal force exceeds μ F_z and a wheel at its
+  longitudinal limit still resists sliding sideways. (The ellipse F_y √(1 − (F_x / μ F_z)²) with F_x
+  capped drops the lateral force to zero at full drive: at full throttle and lock the 1:10 car then
+  spun up undamped to 150 rad/s.)
 - Steering: the bicycle angle, clipped to the file's limit (the rack's end stop) and rate-limited to its
-  rate, split to the front wheels by true Ackermann (`ackermann_angles`). The state vector carries
-  everything a step needs, so a run resumes bit for bit from any logged state: the bicycle angle and
-  the four lagged loads are the activations of zero-gain integrator actuators; the front steering
-  hinges and the rear spin hinges (the encoders: angle = rolled distance / radius) are set kinematically
-  each step on near-massless wheel bodies.
-- Stepping: `rollout` steps a batch of runs one physics step at a time through `mujoco.rollout` (the
-  tyre forces as `xfrc_applied`), computing every run's and wheel's forces at once with numpy.
-Twin overrides: tire_friction (μ), mass (the chassis: a payload at the CG, inertia unchanged),
-yaw_inertia, motor_gain (scales a_max and both top speeds: a weaker motor is slower at every throttle
-and reaches its lower speed more slowly), steering_gain/offset (on the commanded angle), latency.
+  rate, split to the front wheels by true Ackermann (as Nigel's `ackermann_angles`). The state vector
+  carries everything a step needs, so a run resumes bit for bit from any logged state: the bicycle
+  angle and the four lagged loads are the activations of zero-gain integrator actuators; the front
+  steering hinges (the Ackermann angles) and the rear spin hinges (the encoders: rolled distance over
+  the radius) are set kinematically every step on wheel bodies of 1e-4 of the car's mass each.
+- Stepping: `rollout` steps a batch of runs one physics step at a time through `mujoco.rollout` (the tyre
+  forces as `xfrc_applied` on the chassis), computing every run's and wheel's forces at once with
+  numpy; every solver step starts cold, so a run's result does not depend on its batch.
+Twin overrides: tire_friction scales μ at the file's cornering stiffness (a slippery floor: the peak
+drops, the linear range stays, as Pacejka's λ_μ); mass the chassis (a payload at the CG, inertia
+unchanged); yaw_inertia the whole car's; motor_gain a_max and both top speeds together (a weaker motor
+is slower at every throttle, with the same time constant v_top / a_max); steering_gain and
+steering_offset act on the commanded angle; latency delays the commands (in `collect`).
 """
 
 from __future__ import annotations
