@@ -413,13 +413,15 @@ class TyreCar(Vehicle):
         sens = np.empty((nb, 1, m.nsensordata))
         models = [m] * nb
         chassis = slice(self._xfrc, self._xfrc + 6)
-        threads = len(datas) if getattr(roller, "nthread", 0) > 1 else 1
-        serial = None
-        if nb < _THREADED_BATCH or threads < 2:
+        threads = min(len(datas), getattr(roller, "nthread", 0))
+        serial, chunk = None, None
+        if threads < 2:
+            datas = list(datas[:1])
+        elif nb < _THREADED_BATCH:
             serial = mujoco.rollout.Rollout(nthread=0)
-            roller, datas, chunk = serial, list(datas[:1]), None
+            roller, datas = serial, list(datas[:1])
         else:
-            chunk = -(-nb // threads)
+            chunk = -(-nb // threads)  # one chunk a thread: the least hand-over a step
         delta_index, loads, touch = self._delta, self._loads, self._touch
         steer_index, spin_index, kin_index = self._steer_qpos, self._spin_qpos, self._kin_qvel
         try:
