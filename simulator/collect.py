@@ -306,18 +306,7 @@ def collect(
                 warm[b] = _warmstart(vehicle, scratch, run, control[b, 0])
             state_out = buffers.get("state", (nb, nstep, nstate))
             sens_out = buffers.get("sensordata", (nb, nstep, nsens))
-            roller.rollout(
-                [vehicle.model] * nb,
-                datas,
-                init,
-                control,
-                control_spec=mujoco.mjtState.mjSTATE_CTRL.value,
-                skip_checks=True,
-                nstep=nstep,
-                initial_warmstart=warm,
-                state=state_out,
-                sensordata=sens_out,
-            )
+            _rollout(vehicle, roller, datas, init, control, nstep, warm, state_out, sens_out)
 
             local = sample_step[k:k1] - start
             for b, run in enumerate(active):
@@ -388,11 +377,8 @@ def _apply_stop(
         warm = _warmstart(vehicle, scratch, run, control[0, 0])[None]
         state_out = np.empty((1, len(steps), vehicle.nstate))
         sens_out = np.empty((1, len(steps), vehicle.model.nsensordata))
-        roller.rollout(
-            [vehicle.model], datas, run.state[None].copy(), np.ascontiguousarray(control),
-            control_spec=mujoco.mjtState.mjSTATE_CTRL.value, skip_checks=True, nstep=len(steps),
-            initial_warmstart=warm, state=state_out, sensordata=sens_out,
-        )  # fmt: skip
+        init, control = run.state[None].copy(), np.ascontiguousarray(control)
+        _rollout(vehicle, roller, datas, init, control, len(steps), warm, state_out, sens_out)
         kk = min(k1, run.n)
         rows = sample_step[j + 1 : kk] - s0
         run.sens[j + 1 : kk] = sens_out[0, rows]
@@ -427,9 +413,40 @@ def _make_runs(maneuvers: list[Maneuver], rate_hz: float, vehicle: Vehicle) -> l
     return runs
 
 
+def _steps_itself(vehicle: Vehicle) -> bool:
+    """Whether the car steps its own batches (a tyre model: `simulator.tyre_car.TyreCar.rollout`)."""
+    return callable(getattr(vehicle, "rollout", None))
+
+
+def _rollout(
+    vehicle: Vehicle, roller: mujoco.rollout.Rollout, datas: list[mujoco.MjData], init: np.ndarray,
+    control: np.ndarray, nstep: int, warm: np.ndarray, state_out: np.ndarray, sens_out: np.ndarray,
+) -> None:  # fmt: skip
+    """Step a batch of runs `nstep` physics steps from FULLPHYSICS states under per-step controls,
+    writing every step's state and sensor data: mujoco.rollout, or the car's own stepper."""
+    if _steps_itself(vehicle):
+        vehicle.rollout(roller, datas, init, control, nstep, state_out, sens_out)
+        return
+    roller.rollout(
+        [vehicle.model] * len(init),
+        datas,
+        init,
+        control,
+        control_spec=mujoco.mjtState.mjSTATE_CTRL.value,
+        skip_checks=True,
+        nstep=nstep,
+        initial_warmstart=warm,
+        state=state_out,
+        sensordata=sens_out,
+    )
+
+
 def _warmstart(vehicle: Vehicle, scratch: mujoco.MjData, run: _Run, ctrl: np.ndarray) -> np.ndarray:
-    """Constraint-solver warm start for the run's next step: the accelerations at its current state."""
+    """Constraint-solver warm start for the run's next step: the accelerations at its current state
+    (none for a car that steps itself: it starts every step's solver cold, so any state resumes exactly)."""
     m = vehicle.model
+    if _steps_itself(vehicle):
+        return run.warmstart
     mujoco.mj_setState(m, scratch, run.state, mujoco.mjtState.mjSTATE_FULLPHYSICS.value)
     scratch.ctrl[:] = ctrl
     scratch.qacc_warmstart[:] = run.warmstart

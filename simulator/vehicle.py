@@ -145,6 +145,11 @@ class Vehicle:
         self.wheelbase = float(front[0] - rear[0])
         self.track = float(2.0 * abs(front[1]))
         self.wheel_radius = float(m.geom("tyre_rl").size[0])
+        self._index_model()
+
+    def _index_model(self) -> None:
+        """Sensor slices and the offsets of time, the root's quaternion and yaw rate in a state vector."""
+        m = self.model
         self.sensors = {
             m.sensor(i).name: slice(int(m.sensor_adr[i]), int(m.sensor_adr[i] + m.sensor_dim[i]))
             for i in range(m.nsensor)
@@ -158,6 +163,7 @@ class Vehicle:
             if flag & mujoco.mjtState.mjSTATE_FULLPHYSICS.value:
                 offsets[flag] = offset
                 offset += mujoco.mj_stateSize(m, flag)
+        self.state_offsets = offsets
         self.state_time = offsets[mujoco.mjtState.mjSTATE_TIME.value]
         qpos0 = offsets[mujoco.mjtState.mjSTATE_QPOS.value]
         qvel0 = offsets[mujoco.mjtState.mjSTATE_QVEL.value]

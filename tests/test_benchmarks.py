@@ -63,6 +63,9 @@ EXPECTED = {
     "bench_campaign": ("wall s by round", True, Figure(
         "the dynamics campaign's share of wall time in its fits, %",
         rf"^fit\s+{NUMBER}\s+{NUMBER}%", 1.0, 100.0)),  # quick 69
+    "bench_vehicles": ("## Summary, one row per car", False, Figure(
+        "the 1:10 car's throttle map against its file's steady speeds, max error in %",
+        rf"^f1tenth throttle map: max error {NUMBER} %", 0.0, 2.0)),  # quick 0.03
     "bench_scaleout": ("where one campaign's time goes", True, Figure(
         "smoke campaigns per hour on one process worker",
         rf"process\s+1 worker\(s\):\s+{NUMBER} campaigns/hour", 10.0, 1e5)),  # quick 238
