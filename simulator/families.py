@@ -106,8 +106,11 @@ class Family:
         raise ManeuverError(name, name, f"is not a parameter of {self.name}; choose from {choices}")
 
 
+# Steering parameters may take any angle below pi/2 (collect checks the car's own lock); their default pool
+# ranges are the default car's (a config for another car scales them: activelearn.config.vehicle).
+ANGLE_MAX = 1.5708  # rad
 _T = Parameter("throttle", -THROTTLE_LIMIT, THROTTLE_LIMIT, "", "t", (0.2, 1.0))
-_A = Parameter("amplitude", 0.0, STEERING_LIMIT, "rad", "a", (0.1, STEERING_LIMIT))
+_A = Parameter("amplitude", 0.0, ANGLE_MAX, "rad", "a", (0.1, STEERING_LIMIT))
 
 
 def _const(value: float, t: np.ndarray) -> np.ndarray:
@@ -189,7 +192,7 @@ _STEP = (
     _throttle("throttle_end", "e", (-0.5, 1.0)),
     _seconds("switch_time", "at", (2.0, 10.0)),
     _seconds("ramp_time", "r", (0.0, 5.0)),
-    Parameter("steering", 0.0, STEERING_LIMIT, "rad", "s", (0.0, STEERING_LIMIT)),
+    Parameter("steering", 0.0, ANGLE_MAX, "rad", "s", (0.0, STEERING_LIMIT)),
 )
 _SEED = Parameter("seed", 0, 2**31 - 1, "", "seed", (0, 9999), integer=True)
 FAMILIES: dict[str, Family] = {
@@ -207,7 +210,7 @@ FAMILIES: dict[str, Family] = {
                _multisine, "sum of tones with Schroeder phases"),
         Family("prbs", (_T, _A, _seconds("switch_time", "h", (0.5, 5.0), low=0.05), _SEED),
                _prbs, "pseudo-random binary steering sequence"),
-        Family("staircase", (_T, Parameter("start", 0.0, STEERING_LIMIT, "rad", "s", (0.1, 0.3)), _A,
+        Family("staircase", (_T, Parameter("start", 0.0, ANGLE_MAX, "rad", "s", (0.1, 0.3)), _A,
                              _seconds("hold", "h", (3.0, 10.0), low=0.05)),
                _staircase, "skidpad whose steering steps from start to amplitude"),
         Family("figure_eight", (_T, _A, Parameter("loop_time", 0.5, LOOP_TIME_LIMIT, "s", "T", (4.0, 20.0))),
@@ -307,7 +310,7 @@ class FamilyManeuver:
         t = sample_times(self.duration, rate)
         throttle, steering = FAMILIES[self.family].signal(self.values, t, float(self.span or self.duration))
         throttle = np.clip(throttle, -THROTTLE_LIMIT, THROTTLE_LIMIT)
-        steering = self.sign * np.clip(steering, -STEERING_LIMIT, STEERING_LIMIT) + 0.0  # no -0.0
+        steering = self.sign * np.clip(steering, -ANGLE_MAX, ANGLE_MAX) + 0.0  # no -0.0
         return np.column_stack([throttle, steering]).astype(np.float64)
 
     @cached_property

@@ -23,6 +23,7 @@ from activelearn.config.tuning import TuningConfig
 from activelearn.config.vehicle import VehicleConfig, car_defaults
 from activelearn.errors import ConfigError
 from activelearn.names import STRATEGY_NAMES
+from simulator.families import FAMILIES
 
 
 class CampaignConfig(_Section):
@@ -136,6 +137,10 @@ class CampaignConfig(_Section):
             "test.full_lock": [self.test.full_lock], "target.steering_range": self.target.steering_range,
             "design.prior.grid.steerings": grid.steerings if grid is not None else None,
         }
+        for family in self.pool.families:
+            for p in FAMILIES[family].continuous:
+                if p.unit == "rad":
+                    checks[f"pool.ranges.{family}.{p.name}"] = list(self.pool.family_range(family, p.name))
         for field, values in checks.items():
             worst = max((v for v in values or () if v is not None), default=0.0)
             if worst > lock + 1e-12:

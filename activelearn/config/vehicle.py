@@ -61,6 +61,23 @@ def test_steerings(spec: VehicleSpec) -> list[float]:
 test_steerings.__test__ = False  # type: ignore[attr-defined]  # not a pytest test
 
 
+def _scaled_family_ranges(families: list[Any], given: Any, ratio: float) -> Any:
+    """A family pool's ranges with every steering parameter (rad, rad/s) the config leaves unset at its
+    family's default pool range scaled by the car's full lock over the default car's."""
+    from simulator.families import FAMILIES
+
+    if not isinstance(given, dict):
+        return given
+    out = {family: dict(values) if isinstance(values, dict) else values for family, values in given.items()}
+    for family in families:
+        if family not in FAMILIES or not isinstance(out.get(family, {}), dict):
+            continue
+        for p in FAMILIES[family].continuous:
+            if p.unit in ("rad", "rad/s") and p.name not in out.get(family, {}):
+                out.setdefault(family, {})[p.name] = [p.pool[0] * ratio, p.pool[1] * ratio]
+    return out
+
+
 def car_defaults(data: dict[str, Any]) -> dict[str, Any]:
     """A raw config with the defaults that depend on the car filled in from [vehicle] (given keys stay).
 
@@ -89,6 +106,11 @@ def car_defaults(data: dict[str, Any]) -> dict[str, Any]:
     }
     noise["reference_speed"] = (spec.max_speed, DEFAULT_CAR.max_speed)
     out = dict(data)
+    pool = out.get("pool")
+    ratio = spec.steering.limit.value / DEFAULT_CAR.steering.limit.value
+    if isinstance(pool, dict) and isinstance(pool.get("families"), list) and ratio != 1.0:
+        ranges = _scaled_family_ranges(pool["families"], pool.get("ranges", {}), ratio)
+        out["pool"] = {**pool, "ranges": ranges}
     simulation = out.get("simulation", {})
     if isinstance(simulation, dict):
         given = simulation.get("noise", {})
