@@ -66,6 +66,9 @@ EXPECTED = {
     "bench_vehicles": ("## Summary, one row per car", False, Figure(
         "the 1:10 car's throttle map against its file's steady speeds, max error in %",
         rf"^f1tenth throttle map: max error {NUMBER} %", 0.0, 2.0)),  # quick 0.03
+    "bench_vehicle_baselines": ("## Baselines: uniform", True, Figure(
+        "the 1:10 car's physics kind, 30-s error of its free runs after the last round, m",
+        rf"^f1tenth\s+physics\s+1\s+{NUMBER}", 0.0, 1e3)),  # quick 3.6
     "bench_scaleout": ("where one campaign's time goes", True, Figure(
         "smoke campaigns per hour on one process worker",
         rf"process\s+1 worker\(s\):\s+{NUMBER} campaigns/hour", 10.0, 1e5)),  # quick 238

@@ -49,7 +49,7 @@ from activelearn.numerics.threads import even_blocks, intra_op_threads, parallel
 
 N_CONTROLS = 2
 BANDS = (0.025, 0.25, 0.5, 0.75, 0.975)  # quantiles of the 95% and 50% bands and the median
-MAX_LEVER_ARM = 1.0  # m: a 1:14 car's logged point lies centimetres from its rear axle
+MAX_LEVER_ARM = 10.0  # m: a logged point lies within a car's length of its rear axle
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,122 @@
+"""Baselines on the cars that leave the kinematic regime: what a better physics core must beat.
+
+For each car's cold-start dynamics config (`experiments/configs/dynamics_<car>.toml`: the shipped
+`dynamics.toml` model, training and budget, the car's own operating box and test set), uniform
+campaigns over `--seeds` seeds with
+  * physics     today's physics kind: the car's kinematic single track, identified under its vehicle
+                file's prior, plus the bounded Bayesian correction (the config as shipped);
+  * black box   the best black box (history ensemble of 5 + kinematic feature + 30-step windows,
+                `bench_physics.py`'s), the same budget;
+and, with no data at all,
+  * datasheet   the kinematic single track with the vehicle file's values (no identification, no
+                correction) on the same test set.
+Prints per car and variant the 30-s position error of the free runs' mean path after the last round
+and the 95 % fan's share of the true positions (`rollout_coverage_95`), mean ± s.e.m. over seeds, then
+the per-seed finals. Issue 56's dynamic core is measured against these numbers.
+
+Usage: python experiments/benchmarks/bench_vehicle_baselines.py [--cars f1tenth,bmw320i] [--seeds 10]
+       [--first-seed 0] [--workers 2] [--out DIR] [--quick]
+`--quick` (what the test runs): one seed at quick.py's sizes, every variant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from quick import shrink
+
+from activelearn.config import CampaignConfig, load_config
+from activelearn.loop.campaign import Campaign
+from activelearn.names import ROLLOUT_COVERAGE_95, ROLLOUT_POS_ERR_30S
+from activelearn.numerics.models import build_model
+from activelearn.studies.compare import compare
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+CARS = ("f1tenth", "bmw320i")
+BLACK_BOX = {"kind": "ensemble", "ensemble_size": 5, "kinematic_feature": True}
+
+
+def config_of(car: str, variant: str, out: Path, quick: bool) -> CampaignConfig:
+    """The car's dynamics config for a variant, its outputs (and simulation cache) under `out`."""
+    cfg = load_config(CONFIGS / f"dynamics_{car}.toml")
+    if variant == "black box":
+        cfg = cfg.model_copy(update={"model": cfg.model.model_copy(update=BLACK_BOX)})
+    if quick:
+        return shrink(cfg, out).model_copy(update={"training": cfg.training.model_copy(update={"epochs": 2})})
+    data = cfg.model_dump(mode="json")
+    data["output_dir"] = str(out)
+    return CampaignConfig.model_validate(data)
+
+
+def campaigns(cfg: CampaignConfig, seeds: list[int], workers: int, directory: Path) -> pd.DataFrame:
+    """Uniform over the seeds: each seed's last round's 30-s error and fan coverage."""
+    result = compare(cfg, ["uniform"], seeds, directory=directory, workers=workers, tracking=False)
+    last = result.curves.sort_values("round").groupby("seed").last()
+    return last[[ROLLOUT_POS_ERR_30S, ROLLOUT_COVERAGE_95]].reset_index()
+
+
+def datasheet(cfg: CampaignConfig, directory: Path) -> pd.DataFrame:
+    """The kinematic single track with the vehicle file's values, no data, on the config's test set."""
+    campaign = Campaign(cfg, directory)
+    test = campaign.evaluation.test_set
+    model = build_model(cfg.model, seed=0)
+    model.set_scalers(test.x, test.y_clean)  # the physics reads physical inputs; any scale serves
+    model.corrected = False
+    metrics = campaign.evaluation.evaluate(model)
+    # its fans are the untrained correction's noise: no statement about the car, so not reported
+    return pd.DataFrame([{"seed": 0, ROLLOUT_POS_ERR_30S: metrics[ROLLOUT_POS_ERR_30S],
+                          ROLLOUT_COVERAGE_95: float("nan")}])  # fmt: skip
+
+
+def _sem(values: np.ndarray) -> float:
+    return float(values.std(ddof=1) / np.sqrt(len(values))) if len(values) > 1 else float("nan")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cars", default=",".join(CARS))
+    parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--first-seed", type=int, default=0)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--out", default="runs/vehicle_baselines", help="campaigns and the simulation cache")
+    parser.add_argument("--quick", action="store_true", help="one seed at quick sizes: checks it runs")
+    args = parser.parse_args()
+    cars = [c for c in args.cars.split(",") if c]
+    if not cars or set(cars) - set(CARS):
+        parser.error(f"--cars: a subset of {', '.join(CARS)}")
+    if args.quick:
+        args.seeds = 1
+    if args.seeds < 1 or args.workers < 1:
+        parser.error("--seeds and --workers: at least 1")
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    out = Path(args.out).resolve()
+    rows, finals = [], []
+    for car in cars:
+        for variant in ("datasheet", "physics", "black box"):
+            start = time.perf_counter()
+            cfg = config_of(car, "physics" if variant == "datasheet" else variant, out, args.quick)
+            where = out / car / variant.replace(" ", "_")
+            if variant == "datasheet":
+                frame = datasheet(cfg, where)
+            else:
+                frame = campaigns(cfg, seeds, args.workers, where)
+            errors, cover = frame[ROLLOUT_POS_ERR_30S].to_numpy(), frame[ROLLOUT_COVERAGE_95].to_numpy()
+            fan = "–" if np.isnan(cover).all() else f"{cover.mean():.3f} ± {_sem(cover):.3f}"
+            rows.append({"car": car, "variant": variant, "seeds": len(frame),
+                         "30-s error m": f"{errors.mean():.3f} ± {_sem(errors):.3f}", "fan 95 %": fan,
+                         "wall s": round(time.perf_counter() - start)})  # fmt: skip
+            finals += [{"car": car, "variant": variant, **row} for row in frame.to_dict("records")]
+            print(f"{car} {variant}: {rows[-1]['30-s error m']} m, fan {rows[-1]['fan 95 %']}", flush=True)
+    pd.set_option("display.width", 160)
+    print("\n## Baselines: uniform, the last round's free runs of the test set (mean ± s.e.m. over seeds)")
+    print(pd.DataFrame(rows).to_string(index=False))
+    print("\n## Finals by seed")
+    print(pd.DataFrame(finals).to_string(index=False, float_format=lambda x: f"{x:.4f}"))
+
+
+if __name__ == "__main__":
+    main()
