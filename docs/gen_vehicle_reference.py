@@ -30,6 +30,15 @@ safety bound, the default steering grids, the sensor noise, `fidelity` and `iden
 vehicle figure is written anywhere in the code (`tests/test_vehicles.py` scans for them). How to add
 your own car: [the how-to](../how-to/own-car.md).
 
+![The three cars' handling diagrams](../img/handling_diagram.png)
+
+The handling diagrams of the three cars (`python experiments/docs/handling_diagram.py`): steady turns
+at the forward throttles of each car's dynamics test set, the truth against the kinematic single track
+(dotted) and the linear single track with the file's cornering stiffnesses (dashed), both at the
+truth's own speed. Nigel never leaves the kinematic model (0.03 μg at most); the 1:10 car's tyres
+understeer from the first degree and saturate near μ g; the full-size car is neutral until its tyres
+saturate, then slides or spins (hollow: not steady).
+
 """
 COLUMNS = ("car", "scale", "truth", "wheelbase (m)", "full lock (rad)", "top speed (m/s)", "μ",
            "K (rad per m/s²)", "r/δ at half the top speed, linear / kinematic (1/s)")  # fmt: skip
