@@ -133,6 +133,8 @@ def plot_log(table: pd.DataFrame, title: str | None = None) -> Figure:
 _KIND_MARKERS = {
     "straight": "s", "skidpad": "o", "fishhook": "^", "slalom": "D", "eight": "P",
     "throttle_step": ">", "chirp": "v", "multisine": "<", "prbs": "*", "staircase": "h", "figure_eight": "X",
+    # the standard tests: a thin diamond, then stars of 4, 3 and 6 points ((points, 1 = star, angle))
+    "ramp_steer": "d", "step_steer": (4, 1, 0), "sine_with_dwell": (3, 1, 0), "double_lane_change": (6, 1, 0),
 }  # fmt: skip
 _OTHER_MARKER = "p"  # a kind no entry names
 

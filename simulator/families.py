@@ -23,6 +23,24 @@ A family maps named parameters to a command schedule, drivable open loop by a sc
   figure_eight   throttle, amplitude A, loop_time T (s): steering +A for T s, then -A for T s, and so on:
                  an eight driven on a stopwatch. T = the time of one full turn is the reference eight.
 
+The standard vehicle-dynamics tests, open loop (`froude` families: their default pool ranges are the
+standards' full-size figures Froude-scaled to the default car, and a config for another car scales them
+to it; see FROUDE_REFERENCE):
+  ramp_steer          throttle, amplitude A, rate (rad/s), settle (s): ISO 4138's steady-state circular
+                      test, ramp-steer variant: straight for `settle` s, then the steering rises linearly
+                      at `rate` to A and is held: min(rate (t - settle), A) after the settle. A fishhook
+                      with a straight start and a quasi-static rate (a slowly increasing steer).
+  step_steer          throttle, amplitude A, step_time (s), rise_time (s): ISO 7401's step steer: straight
+                      until step_time, then a linear ramp to A over rise_time (the standard's fast ramp,
+                      >= 200 deg/s at the steering wheel), held. rise_time 0 is an ideal step.
+  sine_with_dwell     throttle, amplitude A, frequency f (Hz), dwell (s), delay (s): NHTSA FMVSS 126's
+                      sine with dwell: after `delay` s straight, one cycle A sin(2 pi f tau) whose second
+                      peak (-A, at tau = 3 / 4f) is held for `dwell` s before the last quarter back to 0.
+  double_lane_change  throttle, amplitude A, period P (s), gap G (s), delay (s): ISO 3888's double lane
+                      change, open loop (no path follower, so the car need not stay in the lanes): after
+                      `delay` s straight, A sin(2 pi tau / P) for one period (the lane change out), G s
+                      straight, then -A sin(2 pi tau' / P) for one period (the change back), then 0.
+
 All five reference kinds are special cases (`as_family`). The reference eight flips its steering when
 the measured heading has turned a full circle (closed loop); its family member flips every
 `loop_time` s, taken from the nominal turn (`simulator.maneuvers.eight_loop_time`, the schedule
@@ -56,6 +74,7 @@ from simulator.maneuvers import (
     sample_times,
 )
 from simulator.vehicle import STEERING_LIMIT, THROTTLE_LIMIT
+from simulator.vehicles import load_vehicle
 
 MULTISINE_TONES = 5
 STAIRCASE_LEVELS = 4  # steering levels of a staircase, A0 first and A last
@@ -86,6 +105,9 @@ class Family:
     parameters: tuple[Parameter, ...]
     signal: Signal
     doc: str
+    # A standard test whose default pool ranges are a full-size car's Froude-scaled to the default car:
+    # a config for another car scales its time and frequency parameters by that car's time scale too.
+    froude: bool = False
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -175,6 +197,40 @@ def _figure_eight(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[n
     return _const(p["throttle"], t), p["amplitude"] * alternating(t, p["loop_time"])
 
 
+def _ramp_steer(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
+    return _const(p["throttle"], t), np.clip(p["rate"] * (t - p["settle"]), 0.0, p["amplitude"])
+
+
+def _step_steer(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
+    rise = p["rise_time"]
+    if rise > 0.0:
+        share = np.clip((t - p["step_time"]) / rise, 0.0, 1.0)
+    else:
+        share = (t >= p["step_time"]).astype(float)
+    return _const(p["throttle"], t), p["amplitude"] * share
+
+
+def _sine_with_dwell(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
+    f, dwell = p["frequency"], p["dwell"]
+    tau = t - p["delay"]
+    second_peak = 0.75 / f
+    # the phase stops at the second peak for `dwell` s, then runs on to the end of the cycle
+    phase = np.where(tau < second_peak, tau, np.maximum(tau - dwell, second_peak))
+    wave = p["amplitude"] * np.sin(2.0 * math.pi * f * phase)
+    return _const(p["throttle"], t), np.where((tau >= 0.0) & (tau < 1.0 / f + dwell), wave, 0.0)
+
+
+def _double_lane_change(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
+    period, amplitude = p["period"], p["amplitude"]
+    out = t - p["delay"]
+    back = out - period - p["gap"]
+
+    def cycle(tau: np.ndarray) -> np.ndarray:
+        return np.where((tau >= 0.0) & (tau < period), amplitude * np.sin(2.0 * math.pi * tau / period), 0.0)
+
+    return _const(p["throttle"], t), cycle(out) - cycle(back)
+
+
 def _hz(name: str, tag: str, pool: tuple[float, float]) -> Parameter:
     return Parameter(name, 0.0, 2.0, "Hz", tag, pool)
 
@@ -195,6 +251,43 @@ _STEP = (
     Parameter("steering", 0.0, ANGLE_MAX, "rad", "s", (0.0, STEERING_LIMIT)),
 )
 _SEED = Parameter("seed", 0, 2**31 - 1, "", "seed", (0, 9999), integer=True)
+
+# The standard tests are written for a full-size car: their default pool ranges are its figures at equal
+# Froude number v^2 / (g L), scaled to the default car by the wheelbase L (times x sqrt(L / L_ref),
+# frequencies / it) and by full lock (road-wheel angles and rates x lock / lock_ref). A config for another
+# car scales them back to that car (activelearn.config.vehicle): a full-size car's config gets the
+# standards' own figures.
+FROUDE_REFERENCE = "bmw320i"  # the full-size car whose figures the standards' values are
+_DEFAULT_CAR, _REFERENCE_CAR = load_vehicle("nigel"), load_vehicle(FROUDE_REFERENCE)
+FROUDE_TIME = math.sqrt(_DEFAULT_CAR.wheelbase / _REFERENCE_CAR.wheelbase)  # the default car's time scale
+_LOCK = _DEFAULT_CAR.steering.limit.value / _REFERENCE_CAR.steering.limit.value
+
+
+def _full_size(name: str, unit: str, tag: str, full: tuple[float, float], low: float = 0.0,
+               high: float = 600.0) -> Parameter:
+    """A standard's parameter whose default pool range `full` is given for the full-size car."""
+    scale = {"s": FROUDE_TIME, "Hz": 1.0 / FROUDE_TIME, "rad/s": _LOCK / FROUDE_TIME}[unit]
+    return Parameter(name, low, high, unit, tag, (full[0] * scale, full[1] * scale))
+
+
+_SETTLE = (3.0, 10.0)  # s, full size: straight at speed before the steering input
+_STANDARDS = (
+    Family("ramp_steer", (_T, _A, _full_size("rate", "rad/s", "r", (0.005, 0.03), low=1e-4, high=2.0),
+                          _full_size("settle", "s", "w", _SETTLE)),
+           _ramp_steer, "ISO 4138 ramp steer: straight, then a slow steering ramp to a hold", froude=True),
+    Family("step_steer", (_T, _A, _full_size("step_time", "s", "at", _SETTLE),
+                          _full_size("rise_time", "s", "r", (0.05, 0.2))),
+           _step_steer, "ISO 7401 step steer: straight, then a fast ramp to a hold", froude=True),
+    Family("sine_with_dwell", (_T, _A, _full_size("frequency", "Hz", "f", (0.5, 0.9), low=0.01, high=10.0),
+                               _full_size("dwell", "s", "h", (0.25, 0.75)),
+                               _full_size("delay", "s", "w", _SETTLE)),
+           _sine_with_dwell, "FMVSS 126 sine with dwell: one cycle, its second peak held", froude=True),
+    Family("double_lane_change", (_T, _A, _full_size("period", "s", "p", (1.0, 2.5), low=0.01),
+                                  _full_size("gap", "s", "g", (0.5, 1.5)),
+                                  _full_size("delay", "s", "w", _SETTLE)),
+           _double_lane_change, "ISO 3888 double lane change, open loop: two opposite sine periods",
+           froude=True),
+)  # fmt: skip
 FAMILIES: dict[str, Family] = {
     f.name: f
     for f in (
@@ -215,6 +308,7 @@ FAMILIES: dict[str, Family] = {
                _staircase, "skidpad whose steering steps from start to amplitude"),
         Family("figure_eight", (_T, _A, Parameter("loop_time", 0.5, LOOP_TIME_LIMIT, "s", "T", (4.0, 20.0))),
                _figure_eight, "steering +A and -A alternating every loop_time s (open-loop eight)"),
+        *_STANDARDS,
     )
 }  # fmt: skip
 

@@ -1,5 +1,6 @@
 """Maneuver families (issue 22, point 1): schedules, reference kinds as special cases, logs, Sobol
-pools, propose/ingest with schedules, and a campaign over a family pool.
+pools, propose/ingest with schedules, and a campaign over a family pool. The standard tests (issue 57):
+their shapes, and their defaults Froude-scaled to each car.
 
 Real MuJoCo, real files, the real CLI; sizes are shrunk (seconds-long maneuvers, few epochs).
 """
@@ -18,14 +19,16 @@ from scipy.stats import qmc
 
 import simulator
 from activelearn.cli import main
-from activelearn.config import FamilyName, load_config
+from activelearn.config import FamilyName, load_config, validate_config
 from activelearn.data import write_table
 from activelearn.loop.acquisition import STRATEGIES, greedy_maximin, make_strategy
 from activelearn.loop.campaign import CampaignState
 from activelearn.loop.collection import noise_config
 from activelearn.loop.pool import build_pool, pool_maneuvers
 from simulator import FAMILIES, FamilyManeuver, Maneuver, ManeuverError, as_family, collect, nominal_controls
-from simulator.families import LOOP_TIME_LIMIT, measured_loop_time
+from simulator.build import build_vehicle
+from simulator.families import FROUDE_REFERENCE, LOOP_TIME_LIMIT, measured_loop_time
+from simulator.vehicles import load_vehicle
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "experiments" / "configs" / "families_smoke.toml"
@@ -202,6 +205,10 @@ def test_the_figure_eight_with_the_measured_loop_time_retraces_the_closed_loop_e
         ("chirp", {"throttle": 1.5, "amplitude": 0.2, "f0": 0.1, "f1": 0.2}, "throttle"),
         ("prbs", {"throttle": 0.5, "amplitude": 0.2, "switch_time": 1.0, "seed": 1.5}, "seed"),
         ("fishhook", {"throttle": 0.5, "rate": float("nan"), "amplitude": 0.2}, "rate"),
+        ("sine_with_dwell", {"throttle": 0.5, "amplitude": 0.2, "frequency": 0.0, "dwell": 0.1, "delay": 1.0},
+         "frequency"),
+        ("double_lane_change", {"throttle": 0.5, "amplitude": 2.0, "period": 0.5, "gap": 0.2, "delay": 1.0},
+         "amplitude"),
     ],
 )
 def test_bad_parameters_name_their_field(family: str, params: dict, field: str):
@@ -226,6 +233,142 @@ def test_collect_logs_family_members_in_the_autodrive_layout():
     turning = table[(table["run_id"] == slalom.name) & (table["time"] > 2.0)]
     assert turning["angZ"].mean() > 0.1 and turning["speed"].mean() > 0.1
     assert slalom.name == "slalom_ccw_t0.8_a0.4_f0_w1_d4"
+
+
+# ------------------------------------------------------------------------------------ standard tests
+
+STANDARDS = ("ramp_steer", "step_steer", "sine_with_dwell", "double_lane_change")
+FINE = 1000.0  # Hz: the schedules' shapes are read at a fine rate (the log's 30 Hz would blur a fast step)
+
+
+def _fine(m: FamilyManeuver) -> tuple[np.ndarray, np.ndarray]:
+    u = m.controls(FINE)
+    return np.arange(len(u)) / FINE, u
+
+
+def test_ramp_steer_goes_straight_then_ramps_at_its_rate_to_a_hold():
+    m = _member("ramp_steer", duration=12.0, throttle=0.5, amplitude=0.3, rate=0.05, settle=2.0)
+    t, u = _fine(m)
+    assert np.all(u[:, 0] == 0.5) and np.all(u[t <= 2.0, 1] == 0.0)
+    ramp = (t > 2.0) & (t < 8.0)  # 0.3 rad at 0.05 rad/s: 6 s after the settle
+    assert np.allclose(np.diff(u[ramp, 1]) * FINE, 0.05)
+    assert np.allclose(u[t >= 8.0, 1], 0.3) and m.steering == pytest.approx(0.3)
+    assert FAMILIES["ramp_steer"].parameter("rate").pool[1] < FAMILIES["fishhook"].parameter("rate").pool[1]
+
+
+def test_step_steer_steps_at_its_time_with_its_rise_and_holds():
+    m = _member("step_steer", duration=4.0, throttle=0.7, amplitude=0.4, step_time=1.0, rise_time=0.05)
+    t, u = _fine(m)
+    assert np.all(u[t <= 1.0, 1] == 0.0) and np.allclose(u[t >= 1.05, 1], 0.4)
+    rising = t[(u[:, 1] > 0.04) & (u[:, 1] < 0.36)]  # 10 % to 90 %: 80 % of the rise time
+    assert rising[-1] - rising[0] == pytest.approx(0.8 * 0.05, abs=2.0 / FINE)
+    assert np.allclose(np.diff(u[(t > 1.0) & (t < 1.05), 1]) * FINE, 0.4 / 0.05)
+    ideal = _member("step_steer", duration=4.0, throttle=0.7, amplitude=0.4, step_time=1.0, rise_time=0.0)
+    steering = ideal.controls(RATE)[:, 1]
+    assert np.flatnonzero(np.diff(steering)).tolist() == [int(1.0 * RATE) - 1]  # one jump, at 1 s
+
+
+def test_sine_with_dwell_holds_its_second_peak_for_the_dwell_at_its_frequency():
+    f, dwell, delay = 0.7, 0.5, 1.0
+    m = _member("sine_with_dwell", duration=5.0, throttle=0.6, amplitude=0.3, frequency=f, dwell=dwell,
+                delay=delay)  # fmt: skip
+    t, u = _fine(m)
+    steering = u[:, 1]
+    active = t[steering != 0.0]
+    assert active[0] == pytest.approx(delay, abs=2.0 / FINE)
+    assert active[-1] == pytest.approx(delay + 1.0 / f + dwell, abs=2.0 / FINE)  # one cycle and the dwell
+    assert np.all(steering[t >= delay + 1.0 / f + dwell] == 0.0)
+    first = t[np.argmax(steering)]
+    assert steering.max() == pytest.approx(0.3) and first == pytest.approx(delay + 0.25 / f, abs=2.0 / FINE)
+    held = t[np.isclose(steering, -0.3, atol=1e-9)]
+    assert held[0] == pytest.approx(delay + 0.75 / f, abs=2.0 / FINE)  # the second peak
+    assert held[-1] - held[0] == pytest.approx(dwell, abs=2.0 / FINE)
+    crossings = active[_crossings(steering) + 1]  # _crossings skips the zeros, as `active` does
+    assert len(crossings) == 1 and 1.0 / (2.0 * (crossings[0] - delay)) == pytest.approx(f, rel=0.01)
+
+
+def test_double_lane_change_is_two_opposite_periods_apart_by_its_gap():
+    period, gap, delay = 1.2, 0.8, 1.0
+    m = _member("double_lane_change", duration=6.0, throttle=0.6, amplitude=0.25, period=period, gap=gap,
+                delay=delay)  # fmt: skip
+    steering = m.controls(FINE)[:, 1]
+    n, start, back = round(period * FINE), round(delay * FINE), round((delay + period + gap) * FINE)
+    out, home = steering[start : start + n], steering[back : back + n]
+    assert np.allclose(out, 0.25 * np.sin(2 * np.pi * np.arange(n) / n))  # left first (ccw), one period
+    assert np.allclose(home, -out)  # the change back: the same period, opposite
+    assert np.all(steering[:start] == 0.0) and np.all(steering[start + n : back] == 0.0)  # straight gap
+    assert np.all(steering[back + n :] == 0.0)
+    assert len(_crossings(steering)) == 2  # + -, (gap), - +: the two middle lobes on one side
+
+
+STANDARD_MEMBERS = {
+    "ramp_steer": {"throttle": 0.5, "amplitude": 0.3, "rate": 0.05, "settle": 1.0},
+    "step_steer": {"throttle": 0.5, "amplitude": 0.3, "step_time": 1.0, "rise_time": 0.1},
+    "sine_with_dwell": {"throttle": 0.5, "amplitude": 0.3, "frequency": 0.7, "dwell": 0.5, "delay": 1.0},
+    "double_lane_change": {"throttle": 0.5, "amplitude": 0.3, "period": 1.2, "gap": 0.8, "delay": 1.0},
+}
+
+
+@pytest.mark.parametrize("family", STANDARDS)
+def test_a_standard_test_is_mirrored_by_its_direction(family: str):
+    ccw, cw = (FamilyManeuver(family, STANDARD_MEMBERS[family], d, 6.0).controls(RATE) for d in ("ccw", "cw"))
+    assert np.array_equal(cw[:, 0], ccw[:, 0]) and np.array_equal(cw[:, 1], -ccw[:, 1])
+    assert ccw[:, 1][np.flatnonzero(ccw[:, 1])[0]] > 0.0  # ccw turns left first
+    assert FAMILIES[family].froude and not FAMILIES["slalom"].froude
+
+
+def _time_scale(car: str) -> float:
+    return math.sqrt(load_vehicle(car).wheelbase / load_vehicle("nigel").wheelbase)
+
+
+def test_the_standards_defaults_are_froude_scaled_to_each_car_and_the_other_families_only_by_lock():
+    lock = load_vehicle("nigel").steering.limit.value
+    # Nigel's defaults are the full-size standard's figures at the full-size car's time scale, and a
+    # config for the full-size car gets the standard's own figures back (0.7 Hz and 0.5 s inside)
+    full = validate_config({"vehicle": {"name": FROUDE_REFERENCE},
+                            "pool": {"families": list(STANDARDS), "size": 2}}).pool  # fmt: skip
+    assert np.allclose(full.family_range("sine_with_dwell", "frequency"), (0.5, 0.9))
+    assert np.allclose(full.family_range("sine_with_dwell", "dwell"), (0.25, 0.75))
+    assert np.allclose(full.family_range("step_steer", "rise_time"), (0.05, 0.2))
+    assert FAMILIES["sine_with_dwell"].parameter("frequency").pool[0] == pytest.approx(
+        0.5 * _time_scale(FROUDE_REFERENCE))
+    nigel = validate_config({"pool": {"families": list(STANDARDS), "size": 2}}).pool
+    assert nigel.ranges == {}  # Nigel's config is written as before: the families' own defaults
+    cfg = validate_config({"vehicle": {"name": "f1tenth"}, "pool": {"families": list(FAMILIES), "size": 2}})
+    time, ratio = _time_scale("f1tenth"), load_vehicle("f1tenth").steering.limit.value / lock
+    assert 1.4 < time < 1.6 and ratio == pytest.approx(0.8, abs=0.001)
+    for name, spec in FAMILIES.items():
+        for p in spec.continuous:
+            factor = {"rad": ratio, "rad/s": ratio}.get(p.unit, 1.0)
+            if spec.froude:  # the other families' times and frequencies stay (their baselines too)
+                factor *= {"s": time, "Hz": 1.0 / time, "rad/s": 1.0 / time}.get(p.unit, 1.0)
+            got = cfg.pool.family_range(name, p.name)
+            assert np.allclose(got, (p.pool[0] * factor, p.pool[1] * factor), rtol=1e-12), (name, p.name)
+    assert cfg.pool.family_range("slalom", "frequency") == FAMILIES["slalom"].parameter("frequency").pool
+    given = validate_config({"vehicle": {"name": "f1tenth"}, "pool": {"families": ["step_steer"], "size": 2,
+                             "ranges": {"step_steer": {"step_time": [1.0, 1.0]}}}}).pool  # fmt: skip
+    assert given.family_range("step_steer", "step_time") == (1.0, 1.0)  # a given range is the config's
+
+
+@pytest.mark.parametrize("car", ["nigel", "f1tenth"])
+def test_standard_tests_drawn_from_the_cars_default_ranges_drive_in_mujoco(car: str):
+    cfg = validate_config({"vehicle": {"name": car}, "pool": {"families": list(STANDARDS), "size": 2,
+                           "directions": ["ccw"], "duration": 7.0}})  # fmt: skip
+    members = [next(m for m in pool_maneuvers(cfg.pool) if m.family == family) for family in STANDARDS]
+    for m in members:
+        for p in FAMILIES[m.family].continuous:
+            low, high = cfg.pool.family_range(m.family, p.name)
+            assert low - 1e-4 <= m.values[p.name] <= high + 1e-4, (m.name, p.name)
+    vehicle = build_vehicle(car) if car != "nigel" else None
+    table = collect(members, rate_hz=RATE, noise=None, on_divergence="raise", vehicle=vehicle)
+    for m in members:
+        log = table[table["run_id"] == m.name]
+        assert len(log) == int(7.0 * RATE) + 1 and not log["diverged"].any()
+        assert np.array_equal(log[["throttle", "steering"]].to_numpy(), m.controls(RATE))
+        assert np.isfinite(log[["speed", "angZ", "posX", "posY"]].to_numpy()).all()
+    step = table[table["run_id"] == members[1].name]
+    after = step["time"] > members[1].values["step_time"] + 0.5
+    assert step.loc[after, "angZ"].mean() > 0.0  # the step turns the car left (ccw)
 
 
 # ------------------------------------------------------------------------------------------------ pools

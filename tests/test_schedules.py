@@ -52,6 +52,13 @@ MEMBERS = [
     FamilyManeuver("prbs", {"throttle": 0.6, "amplitude": 0.3, "switch_time": 0.7, "seed": 12}, "ccw", 8),
     FamilyManeuver("staircase", {"throttle": -0.7, "start": 0.15, "amplitude": 0.45, "hold": 2.5}, "cw", 10),
     FamilyManeuver("figure_eight", {"throttle": 0.6, "amplitude": 0.35, "loop_time": 2.5}, "cw", 6),
+    FamilyManeuver("ramp_steer", {"throttle": 0.5, "amplitude": 0.3, "rate": 0.05, "settle": 1.5}, "ccw", 8),
+    FamilyManeuver("step_steer", {"throttle": 0.8, "amplitude": 0.2, "step_time": 1.2, "rise_time": 0.0234},
+                   "cw", 5),
+    FamilyManeuver("sine_with_dwell", {"throttle": 0.6, "amplitude": 0.25, "frequency": 2.9, "dwell": 0.117,
+                                       "delay": 1.4}, "ccw", 4),
+    FamilyManeuver("double_lane_change", {"throttle": 0.7, "amplitude": 0.3, "period": 0.35, "gap": 0.2,
+                                          "delay": 1.0}, "cw", 4),
 ]
 
 

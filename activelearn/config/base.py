@@ -32,7 +32,8 @@ Steering = Annotated[float, Field(ge=0.0, lt=1.5708)]  # below pi/2; within the 
 Kind = Literal["straight", "skidpad", "fishhook", "slalom", "eight"]
 # The families of simulator.families.FAMILIES (tests/test_families.py keeps the two lists equal).
 FamilyName = Literal[
-    "slalom", "fishhook", "throttle_step", "chirp", "multisine", "prbs", "staircase", "figure_eight"
+    "slalom", "fishhook", "throttle_step", "chirp", "multisine", "prbs", "staircase", "figure_eight",
+    "ramp_steer", "step_steer", "sine_with_dwell", "double_lane_change",
 ]
 Direction = Literal["ccw", "cw"]
 

@@ -5,11 +5,14 @@ A shipped vehicle's name (`nigel`, `f1tenth`, `bmw320i`) or the path of a vehicl
 The file is read and checked when the config is: a bad one is a ConfigError naming the file and the
 field. The steering grids the pool and the test set default to are the car's reference grids: its
 full lock × (0.2, 0.4, 0.6, 0.8, 1) for the pool (Nigel's 6°…30°, to 4 decimals) and × (≈0.1, 0.3,
-0.5, 0.7, 0.9) for the test set.
+0.5, 0.7, 0.9) for the test set. A family pool's default steering ranges scale by the car's full
+lock over Nigel's, and the standard tests' (ramp_steer, step_steer, sine_with_dwell,
+double_lane_change) times and frequencies by its Froude time scale sqrt(wheelbase / Nigel's) as well.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from pydantic import Field, field_validator
@@ -61,9 +64,18 @@ def test_steerings(spec: VehicleSpec) -> list[float]:
 test_steerings.__test__ = False  # type: ignore[attr-defined]  # not a pytest test
 
 
-def _scaled_family_ranges(families: list[Any], given: Any, ratio: float) -> Any:
+def time_scale(spec: VehicleSpec) -> float:
+    """The car's Froude time scale over the default car's: sqrt(its wheelbase / the default car's)."""
+    return math.sqrt(spec.wheelbase / DEFAULT_CAR.wheelbase)
+
+
+def _scaled_family_ranges(families: list[Any], given: Any, ratio: float, time: float = 1.0) -> Any:
     """A family pool's ranges with every steering parameter (rad, rad/s) the config leaves unset at its
-    family's default pool range scaled by the car's full lock over the default car's."""
+    family's default pool range scaled by the car's full lock over the default car's (`ratio`).
+
+    The standard tests' families (`Family.froude`) are Froude-scaled as well, by the car's time scale
+    `time`: their unset time parameters (s) × time, frequencies (Hz) ÷ time and rates (rad/s) ÷ time
+    besides the lock. The other families' times and frequencies stay as they are."""
     from simulator.families import FAMILIES
 
     if not isinstance(given, dict):
@@ -72,9 +84,13 @@ def _scaled_family_ranges(families: list[Any], given: Any, ratio: float) -> Any:
     for family in families:
         if family not in FAMILIES or not isinstance(out.get(family, {}), dict):
             continue
-        for p in FAMILIES[family].continuous:
-            if p.unit in ("rad", "rad/s") and p.name not in out.get(family, {}):
-                out.setdefault(family, {})[p.name] = [p.pool[0] * ratio, p.pool[1] * ratio]
+        spec = FAMILIES[family]
+        for p in spec.continuous:
+            factor = {"rad": ratio, "rad/s": ratio}.get(p.unit, 1.0)
+            if spec.froude:
+                factor *= {"s": time, "Hz": 1.0 / time, "rad/s": 1.0 / time}.get(p.unit, 1.0)
+            if factor != 1.0 and p.name not in out.get(family, {}):
+                out.setdefault(family, {})[p.name] = [p.pool[0] * factor, p.pool[1] * factor]
     return out
 
 
@@ -108,9 +124,11 @@ def car_defaults(data: dict[str, Any]) -> dict[str, Any]:
     out = dict(data)
     pool = out.get("pool")
     ratio = spec.steering.limit.value / DEFAULT_CAR.steering.limit.value
-    if isinstance(pool, dict) and isinstance(pool.get("families"), list) and ratio != 1.0:
-        ranges = _scaled_family_ranges(pool["families"], pool.get("ranges", {}), ratio)
-        out["pool"] = {**pool, "ranges": ranges}
+    time = time_scale(spec)
+    if isinstance(pool, dict) and isinstance(pool.get("families"), list) and (ratio != 1.0 or time != 1.0):
+        ranges = _scaled_family_ranges(pool["families"], pool.get("ranges", {}), ratio, time)
+        if ranges != pool.get("ranges", {}):
+            out["pool"] = {**pool, "ranges": ranges}
     simulation = out.get("simulation", {})
     if isinstance(simulation, dict):
         given = simulation.get("noise", {})
