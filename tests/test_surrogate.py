@@ -349,7 +349,7 @@ def test_simulate_places_the_path_by_the_models_lever_arm(skidpad_model):
     shift = 0.07929 * (np.cos(axle.yaw) - np.cos(0.7))
     np.testing.assert_allclose(default.x - axle.x, shift, atol=1e-5)
     assert np.abs(shift).max() > 0.1  # a full circle moves the CG 2 l_r around the axle
-    for bad in (5.0, float("nan")):
+    for bad in (50.0, float("nan")):  # beyond any car's length, or not a number
         with pytest.raises(InputError, match="lever_arm"):
             simulate(skidpad_model, controls, lever_arm=bad, **call)
 
