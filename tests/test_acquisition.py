@@ -236,6 +236,32 @@ def test_igs_with_nothing_collected_is_greedy_maximin(cfg, model):
     assert picks == greedy_maximin(pool, 3, np.random.default_rng(1))
 
 
+def test_regressor_maximin_picks_the_most_uncovered_regressors(cfg, model):
+    """Each pick maximises the weighted mean over its points of the distance to the nearest covered
+    point (the collected maneuvers' and the earlier picks'), in standardised regressor space."""
+    from activelearn.loop.regressor_space import nearest_distance, standardised_points
+
+    pool = _pool(cfg, taken=[0, 5, 11])
+    picks = make_strategy("regressor_maximin").select(model, pool, 3, np.random.default_rng(7))
+    points = standardised_points(pool)
+    covered, open_ = [0, 5, 11], [int(i) for i in pool.available]
+    for pick in picks:
+        gap = nearest_distance(points, points[np.isin(pool.owner, covered)])
+        score = [np.average(gap[pool.owner == c], weights=pool.weights[pool.owner == c]) for c in open_]
+        assert pick == open_[int(np.argmax(score))] and max(score) > 0
+        covered.append(pick)
+        open_.remove(pick)
+    # a brute-force check of the nearest distances, and regressors are not the parameters: not maximin's
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=(50, 3)), rng.normal(size=(7, 3))
+    np.testing.assert_allclose(nearest_distance(a, b), np.linalg.norm(a[:, None] - b[None], axis=2).min(1))
+    assert picks != greedy_maximin(pool, 3, np.random.default_rng(7))
+    # nothing collected: greedy maximin
+    empty = _pool(cfg)
+    first = make_strategy("regressor_maximin").select(model, empty, 3, np.random.default_rng(1))
+    assert first == greedy_maximin(empty, 3, np.random.default_rng(1))
+
+
 def test_lcmd_picks_are_bmdal_regs_lcmd_on_the_predicted_trajectories_and_coordinates(cfg, model):
     from activelearn.loop.lcmd import _bmdal, lcmd_features
 

@@ -39,7 +39,8 @@ _CAMPAIGN_ROOMS = (
     "oracles", "collection", "prior", "state", "lock", "asktell", "safety",
 )  # fmt: skip
 _STRATEGY_ROOMS = (
-    "strategy", "history", "space_filling", "function_space", "greedy_sampling", "lcmd", "acquisition",
+    "strategy", "history", "space_filling", "function_space", "greedy_sampling", "lcmd", "regressor_space",
+    "acquisition",
 )  # fmt: skip
 
 

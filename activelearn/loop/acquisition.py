@@ -33,6 +33,7 @@ from activelearn.loop.function_space import (
 from activelearn.loop.greedy_sampling import GreedySamplingStrategy
 from activelearn.loop.history import NO_HISTORY, CandidateTruth, History, Withheld
 from activelearn.loop.lcmd import LcmdStrategy
+from activelearn.loop.regressor_space import RegressorMaximinStrategy
 from activelearn.loop.space_filling import (
     GridStrategy,
     LatinHypercubeStrategy,
@@ -65,6 +66,7 @@ __all__ = [
     "OracleErrorStrategy",
     "Pool",
     "RandomStrategy",
+    "RegressorMaximinStrategy",
     "SafeExpanderStrategy",
     "SobolStrategy",
     "Strategy",
@@ -290,6 +292,7 @@ STRATEGIES: dict[str, type[Strategy]] = {
         SafeExpanderStrategy,
         GreedySamplingStrategy,
         LcmdStrategy,
+        RegressorMaximinStrategy,
         AutoStrategy,
         SwitchStrategy,
         OracleErrorStrategy,
