@@ -9,7 +9,16 @@ campaigns over `--seeds` seeds with
                 `bench_physics.py`'s), the same budget;
 and, with no data at all,
   * datasheet   the kinematic single track with the vehicle file's values (no identification, no
-                correction) on the same test set.
+                correction) on the same test set, through the model's own free runs.
+Then, with no data, by band of the test maneuvers' lateral acceleration (their truth's 90th percentile
+of |v r| over μ g: below 0.3, 0.3-0.6, above 0.6), on the car's nominal truth and on a twin (less grip,
+a weaker motor: `TWIN`), each file model's free runs from each test log's first recorded state (the
+CG's path; lateral speed 0, the logs do not hold it):
+  * kinematic file   the kinematic single track (the physics kind's core at the file's values);
+  * dynamic file     the dynamic single track (`activelearn.numerics.models.dynamic_track`): tyre slip,
+                     saturating tyres, load transfer, blended into the kinematic model at low speed.
+A model built from the same figures as the truth is flattered on the nominal truth; the twin says how
+it does when the figures are off.
 Prints per car and variant the 30-s position error of the free runs' mean path after the last round
 and the 95 % fan's share of the true positions (`rollout_coverage_95`), mean ± s.e.m. over seeds, then
 the per-seed finals. Issue 56's dynamic core is measured against these numbers.
@@ -33,11 +42,17 @@ from activelearn.config import CampaignConfig, load_config
 from activelearn.loop.campaign import Campaign
 from activelearn.names import ROLLOUT_COVERAGE_95, ROLLOUT_POS_ERR_30S
 from activelearn.numerics.models import build_model
+from activelearn.numerics.models.dynamic_track import DynamicCar, free_runs
+from activelearn.numerics.models.single_track import car_prior, run_single_track
+from activelearn.replay import relative_pose
 from activelearn.studies.compare import compare
+from simulator.vehicles import GRAVITY
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 CARS = ("f1tenth", "bmw320i")
 BLACK_BOX = {"kind": "ensemble", "ensemble_size": 5, "kinematic_feature": True}
+TWIN = {"tire_friction": 0.8, "motor_gain": 0.9}  # the fast cars' twin: less grip, a weaker motor
+BANDS = (("below 0.3 μg", 0.0, 0.3), ("0.3-0.6 μg", 0.3, 0.6), ("above 0.6 μg", 0.6, np.inf))
 
 
 def config_of(car: str, variant: str, out: Path, quick: bool) -> CampaignConfig:
@@ -76,6 +91,58 @@ def datasheet(cfg: CampaignConfig, directory: Path) -> pd.DataFrame:
                           ROLLOUT_COVERAGE_95: float("nan")}])  # fmt: skip
 
 
+def by_band(cfg: CampaignConfig, directory: Path, twin: bool) -> pd.DataFrame:
+    """The file models' 30-s errors per test maneuver, with its band, on the nominal truth or the twin."""
+    if twin:
+        data = cfg.model_dump(mode="json")
+        data["oracle"] = {**data["oracle"], "kind": "twin", "overrides": TWIN}
+        cfg = CampaignConfig.model_validate(data)
+    test = Campaign(cfg, directory).evaluation.test_set
+    spec = cfg.vehicle.spec
+    rate = cfg.simulation.rate_hz
+    dt, grip = 1.0 / rate, spec.tyres.friction.value * (TWIN["tire_friction"] if twin else 1.0) * GRAVITY
+    n = max(len(log) for log in test.logs)
+    controls = np.zeros((len(test.logs), n, 2))
+    start = np.zeros((len(test.logs), 4))
+    for i, log in enumerate(test.logs):
+        u = log[["throttle", "steering"]].to_numpy(np.float64)
+        controls[i, : len(u)], controls[i, len(u) :] = u, u[-1]
+        start[i] = [log["speed"].iloc[0], 0.0, log["angZ"].iloc[0], log["steering"].iloc[0]]
+    dynamic = free_runs(DynamicCar.of(spec), controls, start, dt)
+    prior = car_prior(spec)
+    rates = run_single_track(controls, start[:, [0, 2]], prior.nominal, dt, prior)[0]  # (M, T, 2)
+    kinematic = _kinematic_paths(rates, spec.geometry.lr.value, dt)
+    rows = []
+    for i, truth in enumerate(test.truth_logs):
+        k = min(round(30.0 * rate), len(truth) - 1)
+        tx, ty, _ = relative_pose({c: truth[c].to_numpy(np.float64) for c in ("posX", "posY", "yaw")}, k + 1)
+        lateral = np.abs(truth["speed"].to_numpy() * truth["angZ"].to_numpy())
+        level = float(np.percentile(lateral, 90)) / grip
+        band = next(name for name, low, high in BANDS if low <= level < high)
+        for name, path in (("kinematic file", kinematic[i, k]), ("dynamic file", dynamic[i, k, 4:6])):
+            error = float(np.hypot(path[0] - tx[k], path[1] - ty[k]))
+            rows.append({"variant": name, "band": band, "error": error if np.isfinite(error) else np.inf})
+    return pd.DataFrame(rows)
+
+
+def _kinematic_paths(rates: np.ndarray, lr: float, dt: float) -> np.ndarray:
+    """(M, T, 2) the CG's path of kinematic free runs (M, T, 2 rates v, r): lateral speed l_r r."""
+    yaw_rate = np.concatenate([np.zeros_like(rates[:, :1, 1]), rates[:, :-1, 1]], axis=1)
+    heading = np.cumsum(yaw_rate, axis=1) * dt
+    vx, vy = rates[..., 0], lr * rates[..., 1]
+    cos, sin = np.cos(heading), np.sin(heading)
+    step = np.stack([vx * cos - vy * sin, vx * sin + vy * cos], axis=-1)
+    path = np.cumsum(dt * step[:, :-1], axis=1)  # the position at step k: the velocities before it
+    return np.concatenate([np.zeros_like(path[:, :1]), path], axis=1)
+
+
+def band_table(frame: pd.DataFrame) -> pd.DataFrame:
+    """Mean 30-s error (and test maneuvers) per variant and band, and over all."""
+    cells = frame.groupby(["variant", "band"])["error"].agg(lambda e: f"{e.mean():.2f} ({len(e)})").unstack()
+    cells["all"] = frame.groupby("variant")["error"].agg(lambda e: f"{e.mean():.2f} ({len(e)})")
+    return cells[[b for b, _, _ in BANDS if b in cells.columns] + ["all"]]
+
+
 def _sem(values: np.ndarray) -> float:
     return float(values.std(ddof=1) / np.sqrt(len(values))) if len(values) > 1 else float("nan")
 
@@ -88,6 +155,7 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", default="runs/vehicle_baselines", help="campaigns and the simulation cache")
     parser.add_argument("--resume", action="store_true", help="read the campaigns already under --out")
+    parser.add_argument("--no-data-only", action="store_true", help="only the file models' rows by band")
     parser.add_argument("--quick", action="store_true", help="one seed at quick sizes: checks it runs")
     args = parser.parse_args()
     cars = [c for c in args.cars.split(",") if c]
@@ -100,7 +168,7 @@ def main() -> None:
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     out = Path(args.out).resolve()
     rows, finals = [], []
-    for car in cars:
+    for car in cars if not args.no_data_only else ():
         for variant in ("datasheet", "physics", "black box"):
             start = time.perf_counter()
             cfg = config_of(car, "physics" if variant == "datasheet" else variant, out, args.quick)
@@ -118,6 +186,15 @@ def main() -> None:
             finals += [{"car": car, "variant": variant, **row} for row in frame.to_dict("records")]
             print(f"{car} {variant}: {rows[-1]['30-s error m']} m, fan {rows[-1]['fan 95 %']}", flush=True)
     pd.set_option("display.width", 160)
+    for car in cars:
+        for twin in (False, True):
+            cfg = config_of(car, "physics", out, args.quick)
+            frame = by_band(cfg, out / car / ("twin" if twin else "nominal"), twin)
+            oracle = f"twin {TWIN}" if twin else "nominal truth"
+            print(f"\n## {car}, {oracle}: no data, 30-s error of the CG's path (m) by band (test maneuvers)")
+            print(band_table(frame).to_string())
+    if not rows:
+        return
     print("\n## Baselines: uniform, the last round's free runs of the test set (mean ± s.e.m. over seeds;"
           " a free run that blows up counts with its error)")
     print(pd.DataFrame(rows).to_string(index=False))

@@ -1,0 +1,48 @@
+"""The dynamic single track of a vehicle file (issue 56's core, run with the file's values)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from activelearn.numerics.models.dynamic_track import DynamicCar, free_runs
+from simulator.vehicles import GRAVITY, load_vehicle
+
+DT = 1.0 / 30.0
+
+
+def steady(car: DynamicCar, throttle: float, steering: float, seconds: float = 25.0) -> np.ndarray:
+    controls = np.tile([throttle, steering], (1, round(seconds / DT), 1))
+    return free_runs(car, controls, np.zeros((1, 4)), DT)[0, -1]
+
+
+def test_the_one_tenth_car_turns_as_its_linear_single_track_below_its_grip_and_saturates_at_it():
+    spec = load_vehicle("f1tenth")
+    car = DynamicCar.of(spec)
+    vx, _, r, _, _, _ = steady(car, 0.3, 0.01)  # about 0.13 μg at 6 m/s
+    assert r == pytest.approx(float(spec.linear_yaw_gain(vx)) * 0.01, rel=0.01)
+    assert r < 0.8 * vx * math.tan(0.01) / spec.wheelbase  # it understeers: far from the kinematic model
+    vx, _, r, _, _, _ = steady(car, 0.3, 0.3)  # the kinematic model would ask about 6 g
+    assert 0.8 < vx * r / (spec.tyres.friction.value * GRAVITY) <= 1.02
+
+
+def test_nigel_sits_in_the_kinematic_blend_and_a_braked_car_stands():
+    spec = load_vehicle("nigel")
+    vx, vy, r, _, _, _ = steady(DynamicCar.of(spec), 0.6, 0.3)
+    assert r == pytest.approx(vx * math.tan(0.3) / spec.wheelbase, rel=1e-3)
+    assert vy == pytest.approx(spec.geometry.lr.value * r, rel=1e-3)
+    car = DynamicCar.of(load_vehicle("bmw320i"))
+    controls = np.zeros((1, 300, 2))
+    out = free_runs(car, controls, np.array([[20.0, 0.0, 0.0, 0.0]]), DT)
+    assert abs(out[0, -1, 0]) < 1e-9 and np.isfinite(out).all()  # 20 m/s braked to rest, not past it
+    stopping = 20.0**2 / (2.0 * car.brake)
+    assert out[0, -1, 4] == pytest.approx(stopping, rel=0.05)
+
+
+def test_a_twin_with_less_grip_slides_earlier():
+    spec = load_vehicle("f1tenth")
+    full = steady(DynamicCar.of(spec), 0.3, 0.3)
+    slippery = steady(DynamicCar.of(spec, tire_friction=0.8), 0.3, 0.3)
+    assert slippery[0] * slippery[2] < 0.9 * full[0] * full[2]
