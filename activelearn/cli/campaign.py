@@ -95,7 +95,7 @@ def _strategy_seed(args: argparse.Namespace) -> dict[str, object]:
     return {k: v for k, v in (("strategy", args.strategy), ("seed", args.seed)) if v is not None}
 
 
-def _print_proposals(maneuvers: list, path) -> None:
+def _print_proposals(maneuvers: list, path, vehicle: str = "nigel") -> None:
     import pandas as pd
 
     from simulator import FamilyManeuver
@@ -113,8 +113,10 @@ def _print_proposals(maneuvers: list, path) -> None:
              "steering": m.steering, "duration": m.duration} for i, m in enumerate(maneuvers)]  # fmt: skip
     print(f"drive these {len(rows)} maneuvers ({path}):")
     print(pd.DataFrame(rows).to_string(index=False))
-    print("e.g. activelearn simulate --maneuver {maneuver} --direction {direction} --throttle {throttle} "
-          "--steering {steering} --duration {duration} --out LOG.csv".format(**rows[0]))  # fmt: skip
+    car = "" if vehicle == "nigel" else f" --vehicle {vehicle}"  # to rehearse on the config's car
+    print("e.g. activelearn simulate{car} --maneuver {maneuver} --direction {direction} "
+          "--throttle {throttle} --steering {steering} --duration {duration} --out LOG.csv"
+          .format(car=car, **rows[0]))  # fmt: skip
 
 
 def _campaign_directory(args: argparse.Namespace, cfg) -> Path:
@@ -165,7 +167,7 @@ def _campaign_propose(args: argparse.Namespace) -> int:
         return 0
 
     state = CampaignState.load(directory)
-    _print_proposals(proposals, campaign.proposal_path(state))
+    _print_proposals(proposals, campaign.proposal_path(state), cfg.vehicle.name)
     if cfg.safety is not None:
         _print_safety(campaign, state)
     if plot is not None:
@@ -228,7 +230,7 @@ def _campaign_ingest(args: argparse.Namespace) -> int:
         print(_finished_message(state, campaign.cfg, campaign.directory)
               or f"the campaign has finished; directory: {campaign.directory}")  # fmt: skip
     else:
-        _print_proposals(report.proposals, report.proposals_path)
+        _print_proposals(report.proposals, report.proposals_path, campaign.cfg.vehicle.name)
         if campaign.cfg.safety is not None:
             from activelearn.loop.state import CampaignState
 
