@@ -7,6 +7,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from activelearn.cli.common import PLOT_SUFFIXES, output_path, print_table
+from activelearn.cli.maneuver_args import add_vehicle_option
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -24,9 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--config", default=None, metavar="CONFIG",
                    help="campaign config: its car ([vehicle]), [oracle] twin (overrides) and log rate "
                         "(default: the nominal car of --vehicle)")
-    p.add_argument("--vehicle", default=None, metavar="NAME|TOML",
-                   help="the car: a shipped vehicle (nigel, f1tenth, bmw320i) or a vehicle file (default: "
-                        "nigel, or the --config's)")
+    add_vehicle_option(p, "nigel, or the --config's")
     p.add_argument("--plot", default=None, metavar="PNG",
                    help="also draw the steady operating points (.png, .pdf, .svg)")
     p.add_argument("--replay-plot", default=None, metavar="PNG",

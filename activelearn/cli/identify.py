@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from activelearn.cli.fidelity import log_files
+from activelearn.cli.maneuver_args import add_vehicle_option
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -19,9 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--other-car", nargs="+", default=[], metavar="LOG",
                    help="logs of another car (e.g. simulated on nominal Nigel): identified alone first, "
                         "their estimate, widened by the datasheet's widths, is the prior LOG is fitted under")
-    p.add_argument("--vehicle", default=None, metavar="NAME|TOML",
-                   help="the car: a shipped vehicle (nigel, f1tenth, bmw320i) or a vehicle file "
-                        "(default nigel)")
+    add_vehicle_option(p, "nigel")
     p.add_argument("--rate-hz", type=float, metavar="HZ",
                    help="the logs' rate (default: read off their time columns)")
     p.set_defaults(handler=_identify)

@@ -32,9 +32,7 @@ def add_maneuver_options(p: argparse.ArgumentParser, log: bool = False) -> None:
         which.add_argument("--log", metavar="FILE",
                            help="replay a recorded log's commands instead (AutoDRIVE CSV, our CSV or "
                                 "Parquet) and compare with what it recorded: no MuJoCo")
-    p.add_argument("--vehicle", default=None, metavar="NAME|TOML",
-                   help="the car: a shipped vehicle (nigel, f1tenth, bmw320i) or a vehicle file "
-                        "(default: nigel; predict: the model's car)")
+    add_vehicle_option(p, "nigel; predict: the model's car")
     p.add_argument("--throttle", type=float, default=None, metavar="T",
                    help="throttle in [-1, 1] (required with --maneuver)")
     p.add_argument("--steering", type=float, default=None, metavar="S",
@@ -42,6 +40,13 @@ def add_maneuver_options(p: argparse.ArgumentParser, log: bool = False) -> None:
                         "and eight; fishhook's default is full lock; a straight takes none")
     p.add_argument("--direction", default=None, metavar="cw|ccw", help="ccw turns left first (default)")
     p.add_argument("--duration", type=float, default=None, metavar="SEC", help="seconds (default 90)")
+
+
+def add_vehicle_option(p: argparse.ArgumentParser, default: str) -> None:
+    """`--vehicle NAME|TOML`: a shipped vehicle or a vehicle file; `default` says what stands without it."""
+    p.add_argument("--vehicle", default=None, metavar="NAME|TOML",
+                   help="the car: a shipped vehicle (nigel, f1tenth, bmw320i) or a vehicle file "
+                        f"(default: {default})")
 
 
 def vehicle_from_args(args: argparse.Namespace, default: str = "nigel"):
