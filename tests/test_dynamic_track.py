@@ -46,3 +46,21 @@ def test_a_twin_with_less_grip_slides_earlier():
     full = steady(DynamicCar.of(spec), 0.3, 0.3)
     slippery = steady(DynamicCar.of(spec, tire_friction=0.8), 0.3, 0.3)
     assert slippery[0] * slippery[2] < 0.9 * full[0] * full[2]
+
+
+def test_identification_recovers_a_twins_grip_and_motor_from_its_own_logs():
+    """Logs of the dynamic core with less grip and a weaker motor (its own free runs, so the core can fit
+    them exactly): the identified scales come back near the twin's, the untouched ones near 1."""
+    from activelearn.numerics.models.dynamic_track import identify_dynamic, rate_runs, scaled
+
+    car = DynamicCar.of(load_vehicle("f1tenth"))
+    twin = scaled(car, np.array([[0.8, 1.0, 1.0, 0.9, 1.0]]))
+    n = round(12.0 / DT)
+    t = np.arange(n) * DT
+    controls = np.zeros((4, n, 2))
+    controls[:, :, 0] = [[0.2], [0.3], [0.4], [-0.3]]
+    controls[:, :, 1] = np.array([[0.05], [0.15], [0.3], [0.1]]) * np.sin(0.8 * t)[None]
+    rates = rate_runs(twin, controls, np.zeros((4, 4)), DT)[0]
+    found = identify_dynamic([(controls[i], rates[i]) for i in range(4)], car, DT)
+    friction, _, _, motor, _ = found.values
+    assert friction == pytest.approx(0.8, abs=0.04) and motor == pytest.approx(0.9, abs=0.02)

@@ -26,11 +26,14 @@ State (v_x, v_y, r, δ_w) at the CG: forward and lateral speed, yaw rate, the fr
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 
+from activelearn.numerics.models.single_track import Identified, PhysicalParameter, _map_fit
 from simulator.vehicles import GRAVITY, VehicleSpec
 
 BLEND_SHARE = 0.5  # the blend speed, a share of √(g L)
@@ -62,6 +65,7 @@ class DynamicCar:
     table_throttle: np.ndarray
     table_speed: np.ndarray
     speed_time_constant: float
+    table_gain: float = 1.0  # a scale of the speed table (identification's drive scale, table cars)
 
     @classmethod
     def of(cls, spec: VehicleSpec, tire_friction: float = 1.0, motor_gain: float = 1.0) -> DynamicCar:
@@ -107,9 +111,9 @@ class DynamicCar:
         """Explicit substeps per `dt` that keep the lateral and yaw modes stable at the slip floor."""
         floor = 0.5 * self.blend_speed
         c_f, c_r = self.stiffness_front, self.stiffness_rear
-        lateral = self.mass * floor / (c_f + c_r)
-        yaw = self.yaw_inertia * floor / (self.lf**2 * c_f + self.lr**2 * c_r)
-        return max(1, math.ceil(dt / min(lateral, yaw)))
+        lateral = np.min(self.mass * floor / (c_f + c_r))  # the stiffest of a batch of parameter sets
+        yaw = np.min(self.yaw_inertia * floor / (self.lf**2 * c_f + self.lr**2 * c_r))
+        return max(1, math.ceil(dt / min(float(lateral), float(yaw))))
 
 
 def _acceleration(car: DynamicCar, throttle: np.ndarray, vx: np.ndarray, dt: float) -> np.ndarray:
@@ -122,7 +126,7 @@ def _acceleration(car: DynamicCar, throttle: np.ndarray, vx: np.ndarray, dt: flo
         drive = np.clip(a_max * (throttle - vx / top), -limit, limit)
     else:
         target = np.sign(throttle) * np.interp(np.abs(throttle), car.table_throttle, car.table_speed)
-        drive = (target - vx) / car.speed_time_constant
+        drive = (target * car.table_gain - vx) / car.speed_time_constant
     stop = -np.sign(vx) * np.minimum(car.brake, np.abs(vx) / dt)  # brakes to rest, not past it
     return np.clip(np.where(throttle == 0.0, stop, drive), -grip, grip)
 
@@ -174,7 +178,7 @@ def dynamic_step(
         r_kin = vx * np.tan(delta) / L
         r = w * r + (1.0 - w) * r_kin
         vy = w * vy + (1.0 - w) * car.lr * r_kin
-    return np.stack([vx, vy, r, delta], axis=-1)
+    return np.stack(np.broadcast_arrays(vx, vy, r, delta), axis=-1)  # δ_w has no parameter set's axis
 
 
 def free_runs(car: DynamicCar, controls: np.ndarray, start: np.ndarray, dt: float) -> np.ndarray:
@@ -196,3 +200,83 @@ def free_runs(car: DynamicCar, controls: np.ndarray, start: np.ndarray, dt: floa
         state = nxt
         out[:, k, :4], out[:, k, 4], out[:, k, 5] = state, x, y
     return out
+
+
+# The dynamic core's parameters identified from logs: scales of the file's figures (1 = the file).
+DYNAMIC_PARAMETERS: tuple[PhysicalParameter, ...] = (
+    PhysicalParameter("friction", 1.0, 0.3, 3.0, 0.3, "-", "scale of the tyres' peak friction μ"),
+    PhysicalParameter("stiffness_front", 1.0, 0.3, 3.0, 0.5, "-", "scale of the front axle's stiffness"),
+    PhysicalParameter("stiffness_rear", 1.0, 0.3, 3.0, 0.5, "-", "scale of the rear cornering stiffness"),
+    PhysicalParameter("motor", 1.0, 0.3, 3.0, 0.3, "-", "scale of the drive (a_max, top speeds, table)"),
+    PhysicalParameter("yaw_inertia", 1.0, 0.3, 3.0, 0.5, "-", "scale of the yaw inertia"),
+)
+
+
+def _bounds() -> SimpleNamespace:
+    """The parameters' ranges, widths and prior in the form `single_track._map_fit` reads."""
+    nominal = np.array([p.nominal for p in DYNAMIC_PARAMETERS])
+    width = np.array([p.width for p in DYNAMIC_PARAMETERS])
+    return SimpleNamespace(
+        low=np.array([p.low for p in DYNAMIC_PARAMETERS]),
+        high=np.array([p.high for p in DYNAMIC_PARAMETERS]),
+        width=width, prior=Identified(nominal, np.diag(width**2)),
+    )  # fmt: skip
+
+
+def scaled(car: DynamicCar, theta: np.ndarray) -> DynamicCar:
+    """The car with parameter sets `theta` (P, 5) applied: its scaled figures are (P, 1) arrays, so a
+    step runs every set against every run at once."""
+    t = np.atleast_2d(np.asarray(theta, np.float64))
+    friction, front, rear, motor, inertia = (t[:, i : i + 1] for i in range(len(DYNAMIC_PARAMETERS)))
+    mu = car.friction * friction
+
+    def times(value: float | None) -> np.ndarray | None:
+        return None if value is None else value * motor
+
+    return dataclasses.replace(
+        car, friction=mu, brake=np.minimum(car.brake, mu * GRAVITY),
+        stiffness_front=car.stiffness_front * front,
+        stiffness_rear=car.stiffness_rear * rear, yaw_inertia=car.yaw_inertia * inertia,
+        top_speed=times(car.top_speed), reverse_top_speed=times(car.reverse_top_speed),
+        max_acceleration=times(car.max_acceleration), table_gain=car.table_gain * motor,
+    )  # fmt: skip
+
+
+def rate_runs(car: DynamicCar, controls: np.ndarray, start: np.ndarray, dt: float) -> np.ndarray:
+    """Free runs' rates (..., M, T, 2) = (v_x, r) of controls (M, T, 2) from start states (M, 4); `...`
+    is a `scaled` car's batch of parameter sets."""
+    state = np.asarray(start, np.float64)
+    rates = []
+    for k in range(1, controls.shape[1]):
+        state = dynamic_step(car, state, controls[:, k - 1, 0], controls[:, k - 1, 1], dt)
+        rates.append(state[..., [0, 2]])
+    first = np.asarray(start, np.float64)[..., [0, 2]]
+    return np.stack([np.broadcast_to(first, rates[0].shape if rates else first.shape), *rates], axis=-2)
+
+
+def identify_dynamic(
+    logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, every: int = 3
+) -> Identified:
+    """Output-error MAP of the five `DYNAMIC_PARAMETERS` (scales of the file's figures, the file as the
+    prior) from whole logs, (controls (T, 2), rates (T, 2) = speed, yaw rate), as the kinematic core's
+    `identify_from_logs` does: free runs from each log's first recorded rates (lateral speed 0), every
+    `every`-th step compared, each log a cluster of the covariance."""
+    logs = [(np.asarray(u, np.float64), np.asarray(y, np.float64)) for u, y in logs if len(u) > 1]
+    bounds = _bounds()
+    if not logs:
+        return Identified(bounds.prior.values.copy(), bounds.prior.covariance.copy())
+    length = max(len(u) for u, _ in logs)
+    controls, rates = np.zeros((len(logs), length, 2)), np.zeros((len(logs), length, 2))
+    valid = np.zeros((len(logs), length), dtype=bool)
+    for i, (u, y) in enumerate(logs):
+        controls[i, : len(u)], rates[i, : len(u)], valid[i, : len(u)] = u, y, True
+        controls[i, len(u) :] = u[-1]
+    keep = np.zeros_like(valid)
+    keep[:, ::every] = valid[:, ::every]
+    start = np.column_stack([rates[:, 0, 0], np.zeros(len(logs)), rates[:, 0, 1], controls[:, 0, 1]])
+
+    def errors_of(sets: np.ndarray) -> np.ndarray:  # (P, n, 2)
+        predicted = rate_runs(scaled(car, sets), controls, start, dt)
+        return np.nan_to_num(predicted - rates, nan=1e3, posinf=1e3, neginf=-1e3)[:, keep]
+
+    return _map_fit(errors_of, rates[valid].std(axis=0), np.nonzero(keep)[0], bounds.prior, None, bounds)
