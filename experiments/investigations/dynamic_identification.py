@@ -83,6 +83,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--signals", type=int, default=16)
     parser.add_argument("--out", default="runs/dynamic_identification")
+    parser.add_argument("--horizon", type=float, default=None, help="restart the free runs every S s")
     args = parser.parse_args()
     out = Path(args.out).resolve()
     rows = []
@@ -97,7 +98,7 @@ def main() -> None:
                 frames = campaign.oracle.answer([candidates[i] for i in chosen], seed)
                 started = time.perf_counter()
                 dt = 1.0 / campaign.cfg.simulation.rate_hz
-                found = identify_dynamic(control_rate_logs(frames), file_car, dt)
+                found = identify_dynamic(control_rate_logs(frames), file_car, dt, horizon=args.horizon)
                 seconds = time.perf_counter() - started
                 identified = scaled(file_car, found.values)
                 identified = type(file_car)(**{k: (np.asarray(v).item() if np.ndim(v) == 2 else v)

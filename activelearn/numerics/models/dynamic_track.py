@@ -255,16 +255,26 @@ def rate_runs(car: DynamicCar, controls: np.ndarray, start: np.ndarray, dt: floa
 
 
 def identify_dynamic(
-    logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, every: int = 3
+    logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, every: int = 3,
+    horizon: float | None = None,
 ) -> Identified:
     """Output-error MAP of the five `DYNAMIC_PARAMETERS` (scales of the file's figures, the file as the
-    prior) from whole logs, (controls (T, 2), rates (T, 2) = speed, yaw rate), as the kinematic core's
+    prior) from logs, (controls (T, 2), rates (T, 2) = speed, yaw rate), as the kinematic core's
     `identify_from_logs` does: free runs from each log's first recorded rates (lateral speed 0), every
-    `every`-th step compared, each log a cluster of the covariance."""
+    `every`-th step compared, each log a cluster of the covariance. `horizon` (s): free runs restart
+    from the recorded rates every `horizon` s instead (a spinning car's 30 s are chaotic in the
+    parameters; a few seconds are not)."""
     logs = [(np.asarray(u, np.float64), np.asarray(y, np.float64)) for u, y in logs if len(u) > 1]
     bounds = _bounds()
     if not logs:
         return Identified(bounds.prior.values.copy(), bounds.prior.covariance.copy())
+    owners = list(range(len(logs)))
+    if horizon is not None:
+        steps = max(2, round(horizon / dt))
+        cut = [(i, u[k : k + steps + 1], y[k : k + steps + 1]) for i, (u, y) in enumerate(logs)
+               for k in range(0, len(u) - 1, steps)]  # fmt: skip
+        owners = [i for i, u, _ in cut if len(u) > 1]
+        logs = [(u, y) for _, u, y in cut if len(u) > 1]
     length = max(len(u) for u, _ in logs)
     controls, rates = np.zeros((len(logs), length, 2)), np.zeros((len(logs), length, 2))
     valid = np.zeros((len(logs), length), dtype=bool)
@@ -279,4 +289,5 @@ def identify_dynamic(
         predicted = rate_runs(scaled(car, sets), controls, start, dt)
         return np.nan_to_num(predicted - rates, nan=1e3, posinf=1e3, neginf=-1e3)[:, keep]
 
-    return _map_fit(errors_of, rates[valid].std(axis=0), np.nonzero(keep)[0], bounds.prior, None, bounds)
+    clusters = np.asarray(owners)[np.nonzero(keep)[0]]  # a log's windows share its cluster
+    return _map_fit(errors_of, rates[valid].std(axis=0), clusters, bounds.prior, None, bounds)
