@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from simulator.vehicles.spec import GRAVITY, load_vehicle
+from simulator.vehicles.spec import GRAVITY, load_vehicle  # noqa: F401 (GRAVITY re-exported)
 
 NIGEL = load_vehicle("nigel")
 
@@ -26,7 +26,6 @@ YAW_INERTIA = NIGEL.inertia.yaw_inertia.value  # kg m^2
 CORNERING_STIFFNESS = NIGEL.tyres.cornering_stiffness_front.value / 2.0  # N/rad per tyre
 FRICTION = NIGEL.tyres.friction.value  # tyre-floor friction coefficient
 LOG_RATE_HZ = NIGEL.log_rate_hz  # the AutoDRIVE logs' nominal rate
-GRAVITY = GRAVITY  # m/s^2 (re-exported)
 
 # Calibration target: steady straight-line speed for each throttle (steering 0).
 REFERENCE_THROTTLE, REFERENCE_SPEED = (np.array(a) for a in NIGEL.speed_map)

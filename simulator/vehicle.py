@@ -14,6 +14,7 @@ import numpy as np
 from simulator.datasheet import (  # noqa: F401
     MAX_SPEED,
     MAX_YAW_RATE,
+    NIGEL,
     REFERENCE_SPEED,
     REFERENCE_THROTTLE,
     STEERING_LIMIT,
@@ -24,11 +25,11 @@ from simulator.datasheet import (  # noqa: F401
 )
 from simulator.vehicles.spec import VehicleFileError, VehicleSpec, load_vehicle
 
-ENCODER_CPR = int(load_vehicle("nigel").sensors.encoder_cpr.value)  # Nigel's encoder counts per revolution
+ENCODER_CPR = int(NIGEL.sensors.encoder_cpr.value)  # Nigel's encoder counts per revolution
 
 # Calibration target of issue 15: steady turn speeds (steering rad, speed m/s) of the real car at
 # throttle 1.0, read from the public AutoDRIVE Nigel parking log. The model is fitted to within 0.01 m/s.
-_TURNS = load_vehicle("nigel").truth.reference_turns
+_TURNS = NIGEL.truth.reference_turns
 REFERENCE_TURNS_THROTTLE = _TURNS.throttle
 REFERENCE_TURNS = tuple(zip(_TURNS.steering, _TURNS.speed, strict=True))
 

@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -91,38 +92,59 @@ def datasheet(cfg: CampaignConfig, directory: Path) -> pd.DataFrame:
                           ROLLOUT_COVERAGE_95: float("nan")}])  # fmt: skip
 
 
+def twin_of(cfg: CampaignConfig) -> CampaignConfig:
+    """The config answered by the car's twin (`TWIN`) instead of its nominal truth."""
+    data = cfg.model_dump(mode="json")
+    data["oracle"] = {**data["oracle"], "kind": "twin", "overrides": TWIN}
+    return CampaignConfig.model_validate(data)
+
+
 def by_band(cfg: CampaignConfig, directory: Path, twin: bool) -> pd.DataFrame:
     """The file models' 30-s errors per test maneuver, with its band, on the nominal truth or the twin."""
-    if twin:
-        data = cfg.model_dump(mode="json")
-        data["oracle"] = {**data["oracle"], "kind": "twin", "overrides": TWIN}
-        cfg = CampaignConfig.model_validate(data)
+    cfg = twin_of(cfg) if twin else cfg
     test = Campaign(cfg, directory).evaluation.test_set
     spec = cfg.vehicle.spec
-    rate = cfg.simulation.rate_hz
-    dt, grip = 1.0 / rate, spec.tyres.friction.value * (TWIN["tire_friction"] if twin else 1.0) * GRAVITY
-    n = max(len(log) for log in test.logs)
-    controls = np.zeros((len(test.logs), n, 2))
-    start = np.zeros((len(test.logs), 4))
+    grip = spec.tyres.friction.value * (TWIN["tire_friction"] if twin else 1.0) * GRAVITY
+    errors = test_errors(test, cfg, {"kinematic file": "kinematic", "dynamic file": DynamicCar.of(spec)})
+    rows = []
+    for i, truth in enumerate(test.truth_logs):
+        lateral = np.abs(truth["speed"].to_numpy() * truth["angZ"].to_numpy())
+        level = float(np.percentile(lateral, 90)) / grip
+        band = next(name for name, low, high in BANDS if low <= level < high)
+        rows += [{"variant": name, "band": band, "error": error[i]} for name, error in errors.items()]
+    return pd.DataFrame(rows)
+
+
+def test_errors(test: Any, cfg: CampaignConfig, models: dict[str, Any]) -> dict[str, np.ndarray]:
+    """Per model (a `DynamicCar`, or "kinematic": the file's kinematic single track), the 30-s error of
+    the CG's path on every test maneuver (inf where a run blows up): free runs of each log's commands
+    (held past its end) from its first recorded state (lateral speed 0: the logs do not hold it),
+    against the truth's path relative to its start pose."""
+    spec, rate = cfg.vehicle.spec, cfg.simulation.rate_hz
+    dt, n = 1.0 / rate, max(len(log) for log in test.logs)
+    controls, start = np.zeros((len(test.logs), n, 2)), np.zeros((len(test.logs), 4))
     for i, log in enumerate(test.logs):
         u = log[["throttle", "steering"]].to_numpy(np.float64)
         controls[i, : len(u)], controls[i, len(u) :] = u, u[-1]
         start[i] = [log["speed"].iloc[0], 0.0, log["angZ"].iloc[0], log["steering"].iloc[0]]
-    dynamic = free_runs(DynamicCar.of(spec), controls, start, dt)
-    prior = car_prior(spec)
-    rates = run_single_track(controls, start[:, [0, 2]], prior.nominal, dt, prior)[0]  # (M, T, 2)
-    kinematic = _kinematic_paths(rates, spec.geometry.lr.value, dt)
-    rows = []
-    for i, truth in enumerate(test.truth_logs):
-        k = min(round(30.0 * rate), len(truth) - 1)
-        tx, ty, _ = relative_pose({c: truth[c].to_numpy(np.float64) for c in ("posX", "posY", "yaw")}, k + 1)
-        lateral = np.abs(truth["speed"].to_numpy() * truth["angZ"].to_numpy())
-        level = float(np.percentile(lateral, 90)) / grip
-        band = next(name for name, low, high in BANDS if low <= level < high)
-        for name, path in (("kinematic file", kinematic[i, k]), ("dynamic file", dynamic[i, k, 4:6])):
-            error = float(np.hypot(path[0] - tx[k], path[1] - ty[k]))
-            rows.append({"variant": name, "band": band, "error": error if np.isfinite(error) else np.inf})
-    return pd.DataFrame(rows)
+    k = min(round(30.0 * rate), n - 1)
+    columns = ("posX", "posY", "yaw")
+    truth = np.array([relative_pose({c: t[c].to_numpy(np.float64) for c in columns}, k + 1)[:2]
+                      for t in test.truth_logs])[:, :, k]  # fmt: skip
+    out = {}
+    for name, model in models.items():
+        if model == "kinematic":
+            prior = car_prior(spec)
+            rates = run_single_track(controls, start[:, [0, 2]], prior.nominal, dt, prior)[0]  # (M, T, 2)
+            path = _kinematic_paths(rates, spec.geometry.lr.value, dt)[:, k]
+        else:
+            path = free_runs(model, controls, start, dt)[:, k, 4:6]
+        error = np.hypot(path[:, 0] - truth[:, 0], path[:, 1] - truth[:, 1])
+        out[name] = np.nan_to_num(error, nan=np.inf)
+    return out
+
+
+test_errors.__test__ = False  # type: ignore[attr-defined]  # not a pytest test
 
 
 def _kinematic_paths(rates: np.ndarray, lr: float, dt: float) -> np.ndarray:

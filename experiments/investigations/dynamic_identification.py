@@ -24,57 +24,28 @@ import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from bench_vehicle_baselines import TWIN, _kinematic_paths, config_of
+from bench_vehicle_baselines import config_of, test_errors, twin_of
 
-from activelearn.config import CampaignConfig
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import control_rate_logs
 from activelearn.numerics.models.dynamic_track import (
     DYNAMIC_PARAMETERS,
     DynamicCar,
-    free_runs,
     identify_dynamic,
     scaled,
 )
-from activelearn.numerics.models.single_track import car_prior, run_single_track
-from activelearn.replay import relative_pose
 
 
 def campaign_of(car: str, twin: bool, out: Path) -> Campaign:
     cfg = config_of(car, "physics", out, quick=False)
-    if twin:
-        data = cfg.model_dump(mode="json")
-        data["oracle"] = {**data["oracle"], "kind": "twin", "overrides": TWIN}
-        cfg = CampaignConfig.model_validate(data)
+    cfg = twin_of(cfg) if twin else cfg
     return Campaign(cfg, out / car / ("twin" if twin else "nominal"))
 
 
-def test_errors(campaign: Campaign, models: dict[str, object]) -> dict[str, float]:
+def mean_test_errors(campaign: Campaign, models: dict[str, object]) -> dict[str, float]:
     """Mean 30-s error of the CG's path over the test set, per model (a DynamicCar or 'kinematic')."""
-    test, cfg = campaign.evaluation.test_set, campaign.cfg
-    dt = 1.0 / cfg.simulation.rate_hz
-    n = max(len(log) for log in test.logs)
-    controls, start = np.zeros((len(test.logs), n, 2)), np.zeros((len(test.logs), 4))
-    for i, log in enumerate(test.logs):
-        u = log[["throttle", "steering"]].to_numpy(np.float64)
-        controls[i, : len(u)], controls[i, len(u) :] = u, u[-1]
-        start[i] = [log["speed"].iloc[0], 0.0, log["angZ"].iloc[0], log["steering"].iloc[0]]
-    k = min(round(30.0 / dt), n - 1)
-    columns = ("posX", "posY", "yaw")
-    poses = [relative_pose({c: t[c].to_numpy(np.float64) for c in columns}, k + 1)[:2]
-             for t in test.truth_logs]  # fmt: skip
-    truth = np.array(poses)[:, :, k]
-    out = {}
-    for name, model in models.items():
-        if model == "kinematic":
-            prior = car_prior(cfg.vehicle.spec)
-            rates = run_single_track(controls, start[:, [0, 2]], prior.nominal, dt, prior)[0]
-            path = _kinematic_paths(rates, cfg.vehicle.spec.geometry.lr.value, dt)[:, k]
-        else:
-            path = free_runs(model, controls, start, dt)[:, k, 4:6]  # type: ignore[arg-type]
-        error = np.hypot(path[:, 0] - truth[:, 0], path[:, 1] - truth[:, 1])
-        out[name] = float(np.nan_to_num(error, nan=np.inf).mean())
-    return out
+    errors = test_errors(campaign.evaluation.test_set, campaign.cfg, models)
+    return {name: float(error.mean()) for name, error in errors.items()}
 
 
 def main() -> None:
@@ -103,7 +74,7 @@ def main() -> None:
                 identified = scaled(file_car, found.values)
                 identified = type(file_car)(**{k: (np.asarray(v).item() if np.ndim(v) == 2 else v)
                                                for k, v in vars(identified).items()})  # fmt: skip
-                errors = test_errors(campaign, {"kinematic file": "kinematic", "dynamic file": file_car,
+                errors = mean_test_errors(campaign, {"kinematic file": "kinematic", "dynamic file": file_car,
                                                 "dynamic identified": identified})  # fmt: skip
                 row = {"car": car, "truth": "twin" if twin else "nominal", "seed": seed, **errors,
                        **{p.name: v for p, v in zip(DYNAMIC_PARAMETERS, found.values, strict=True)},

@@ -33,7 +33,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from activelearn.numerics.models.single_track import Identified, PhysicalParameter, _map_fit
+from activelearn.numerics.models.single_track import Identified, PhysicalParameter, _map_fit, stacked_logs
 from simulator.vehicles import GRAVITY, VehicleSpec
 
 BLEND_SHARE = 0.5  # the blend speed, a share of √(g L)
@@ -275,14 +275,7 @@ def identify_dynamic(
                for k in range(0, len(u) - 1, steps)]  # fmt: skip
         owners = [i for i, u, _ in cut if len(u) > 1]
         logs = [(u, y) for _, u, y in cut if len(u) > 1]
-    length = max(len(u) for u, _ in logs)
-    controls, rates = np.zeros((len(logs), length, 2)), np.zeros((len(logs), length, 2))
-    valid = np.zeros((len(logs), length), dtype=bool)
-    for i, (u, y) in enumerate(logs):
-        controls[i, : len(u)], rates[i, : len(u)], valid[i, : len(u)] = u, y, True
-        controls[i, len(u) :] = u[-1]
-    keep = np.zeros_like(valid)
-    keep[:, ::every] = valid[:, ::every]
+    controls, rates, valid, keep = stacked_logs(logs, every)
     start = np.column_stack([rates[:, 0, 0], np.zeros(len(logs)), rates[:, 0, 1], controls[:, 0, 1]])
 
     def errors_of(sets: np.ndarray) -> np.ndarray:  # (P, n, 2)

@@ -302,6 +302,21 @@ def identify_from_logs(
     logs = [(np.asarray(u, np.float64), np.asarray(y, np.float64)) for u, y in logs if len(u) > 1]
     if not logs:
         return Identified(prior.values.copy(), prior.covariance.copy())
+    controls, rates, valid, keep = stacked_logs(logs, every)
+    start = rates[:, 0]
+
+    def errors_of(sets: np.ndarray) -> np.ndarray:  # (P, n, 2) errors of each parameter set's runs
+        return (run_single_track(controls, start, sets, dt, car) - rates)[:, keep]
+
+    return _map_fit(errors_of, rates[valid].std(axis=0), np.nonzero(keep)[0], prior, search_from, car)
+
+
+def stacked_logs(
+    logs: list[tuple[np.ndarray, np.ndarray]], every: int = 1
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Logs (controls (T, 2), rates (T, 2)) of different lengths as arrays (M, T_max, 2) for one batched
+    free run: controls held at their last value past a log's end; `valid` marks each log's own steps and
+    `keep` every `every`-th of them (the steps an output-error fit compares)."""
     length = max(len(u) for u, _ in logs)
     controls = np.zeros((len(logs), length, 2))
     rates = np.zeros((len(logs), length, 2))
@@ -311,12 +326,7 @@ def identify_from_logs(
         controls[i, len(u) :] = u[-1]
     keep = np.zeros_like(valid)
     keep[:, ::every] = valid[:, ::every]
-    start = rates[:, 0]
-
-    def errors_of(sets: np.ndarray) -> np.ndarray:  # (P, n, 2) errors of each parameter set's runs
-        return (run_single_track(controls, start, sets, dt, car) - rates)[:, keep]
-
-    return _map_fit(errors_of, rates[valid].std(axis=0), np.nonzero(keep)[0], prior, search_from, car)
+    return controls, rates, valid, keep
 
 
 def identify_on_another_car(
