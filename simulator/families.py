@@ -148,12 +148,15 @@ def _fishhook(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.nd
     return _const(p["throttle"], t), np.minimum(p["rate"] * t, p["amplitude"])
 
 
-def _throttle_step(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
-    ramp = p["ramp_time"]
+def _step_share(t: np.ndarray, start: float, ramp: float) -> np.ndarray:
+    """0 before `start`, 1 from `ramp` s after it, linear between (a jump at `start` when `ramp` is 0)."""
     if ramp > 0.0:
-        share = np.clip((t - p["switch_time"]) / ramp, 0.0, 1.0)
-    else:
-        share = (t >= p["switch_time"]).astype(float)
+        return np.clip((t - start) / ramp, 0.0, 1.0)
+    return (t >= start).astype(float)
+
+
+def _throttle_step(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
+    share = _step_share(t, p["switch_time"], p["ramp_time"])
     throttle = p["throttle_start"] + share * (p["throttle_end"] - p["throttle_start"])
     return throttle, _const(p["steering"], t)
 
@@ -202,12 +205,7 @@ def _ramp_steer(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.
 
 
 def _step_steer(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
-    rise = p["rise_time"]
-    if rise > 0.0:
-        share = np.clip((t - p["step_time"]) / rise, 0.0, 1.0)
-    else:
-        share = (t >= p["step_time"]).astype(float)
-    return _const(p["throttle"], t), p["amplitude"] * share
+    return _const(p["throttle"], t), p["amplitude"] * _step_share(t, p["step_time"], p["rise_time"])
 
 
 def _sine_with_dwell(p: Mapping[str, float], t: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
