@@ -6,6 +6,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from simulator.families import ANGLE_MAX
 from simulator.vehicles import load_vehicle
 
 _NIGEL = load_vehicle("nigel")  # the default car ([vehicle] sets another; its file holds every figure)
@@ -28,7 +29,7 @@ NonNegative = Annotated[float, Field(ge=0)]
 # the campaign; below 2**64): 32 bits keep every derived seed in range.
 Seed = Annotated[int, Field(ge=0, lt=2**32)]
 Throttle = Annotated[float, Field(ge=-1.0, le=1.0)]
-Steering = Annotated[float, Field(ge=0.0, lt=1.5708)]  # below pi/2; within the car's lock: [vehicle]
+Steering = Annotated[float, Field(ge=0.0, lt=ANGLE_MAX)]  # within the car's lock: [vehicle]
 Kind = Literal["straight", "skidpad", "fishhook", "slalom", "eight"]
 # The families of simulator.families.FAMILIES (tests/test_families.py keeps the two lists equal).
 FamilyName = Literal[
