@@ -18,6 +18,11 @@ class InputError(ActiveLearnError, ValueError):
         self.reason = reason
         super().__init__(f"{field}: {reason} (got {value!r})")
 
+    def __reduce__(self):
+        """Rebuilt from its three fields: an error raised in a worker process reaches the caller whole
+        (pickled by its message alone it could not be rebuilt, and the pool broke instead)."""
+        return type(self), (self.field, self.value, self.reason)
+
 
 class ConfigError(InputError):
     """A configuration key is unknown, mistyped or out of range."""

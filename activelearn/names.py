@@ -142,6 +142,7 @@ PREQUENTIAL_FAN_SCALE = "prequential_fan_scale"
 EPISTEMIC_SCALE = "epistemic_scale"
 FAN_SCALE = "fan_scale"
 CORRECTION_WEIGHT = "correction_weight"
+IDENTIFIED_PREFIX = "identified_"  # a round's identified core parameter, one metric per parameter name
 VIOLATIONS = "violations"
 CALIB_PREFIX = "calib_"  # the test set's epistemic diagnostic, one metric per key it returns
 

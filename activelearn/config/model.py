@@ -103,6 +103,14 @@ class ModelConfig(_Section):
         description="kind = 'physics': the kind of the Bayesian correction that learns what the single "
         "track misses (with this section's `arch`, `activation` and `ensemble_size`)",
     )
+    # The kinematic core is nearly exact where a car stays below ~0.3 g (Nigel's whole range); the dynamic
+    # one (tyre slip, saturating tyres, load transfer) holds where a car is driven to its limit.
+    core: Literal["kinematic", "dynamic"] = Field(
+        "kinematic",
+        description="kind = 'physics': the physics under the correction: 'kinematic' (the single track's "
+        "steady states and lags) or 'dynamic' (the single track with tyre slip, saturating tyres and load "
+        "transfer, blended into the kinematic one at low speed; needs correction_inputs = 'control')",
+    )
     identify: bool = Field(
         True, description="kind = 'physics': fit the physical parameters to the training logs before training"
     )
@@ -162,6 +170,17 @@ class ModelConfig(_Section):
         if self.kinematic_feature and self.kind in ("recurrent", "physics"):
             why = "its trunk reads tokens" if self.kind == "recurrent" else "its physics knows the kinematics"
             raise ValueError(f"kinematic_feature: not for kind = {self.kind!r} ({why})")
+        return self
+
+    @model_validator(mode="after")
+    def _check_core(self) -> ModelConfig:
+        if self.core == "dynamic" and self.kind != "physics":
+            raise ValueError(f"core: 'dynamic' is the physics kind's core, not kind = {self.kind!r}'s")
+        if self.core == "dynamic" and self.correction_inputs != "control":
+            raise ValueError(
+                "core: 'dynamic' needs correction_inputs = 'control' (its free runs carry the lateral speed "
+                "an input window does not hold)"
+            )
         return self
 
     @field_validator("arch")

@@ -5,6 +5,8 @@ For each car's cold-start dynamics config (`experiments/configs/dynamics_<car>.t
 campaigns over `--seeds` seeds with
   * physics     today's physics kind: the car's kinematic single track, identified under its vehicle
                 file's prior, plus the bounded Bayesian correction (the config as shipped);
+  * dynamic physics  issue 56's dynamic single track as the physics kind's core (`core = "dynamic"`,
+                its identified scales' covariance in the fans: `parameter_uncertainty = "by_log"`);
   * black box   the best black box (history ensemble of 5 + kinematic feature + 30-step windows,
                 `bench_physics.py`'s), the same budget;
 and, with no data at all,
@@ -24,7 +26,9 @@ and the 95 % fan's share of the true positions (`rollout_coverage_95`), mean ± 
 the per-seed finals. Issue 56's dynamic core is measured against these numbers.
 
 Usage: python experiments/benchmarks/bench_vehicle_baselines.py [--cars f1tenth,bmw320i] [--seeds 10]
-       [--first-seed 0] [--workers 2] [--out DIR] [--quick]
+       [--first-seed 0] [--workers 2] [--out DIR] [--variants physics,...] [--twin] [--quick]
+`--twin`: the campaigns answered by the car's twin (`TWIN`), with the identified friction and motor
+scales of the kinds that identify them (`identified_*` round metrics).
 `--quick` (what the test runs): one seed at quick.py's sizes, every variant.
 """
 
@@ -41,7 +45,7 @@ from quick import shrink
 
 from activelearn.config import CampaignConfig, load_config
 from activelearn.loop.campaign import Campaign
-from activelearn.names import ROLLOUT_COVERAGE_95, ROLLOUT_POS_ERR_30S
+from activelearn.names import IDENTIFIED_PREFIX, ROLLOUT_COVERAGE_95, ROLLOUT_POS_ERR_30S
 from activelearn.numerics.models import build_model
 from activelearn.numerics.models.dynamic_track import DynamicCar, free_runs
 from activelearn.numerics.models.single_track import car_prior, run_single_track
@@ -52,6 +56,8 @@ from simulator.vehicles import GRAVITY
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 CARS = ("f1tenth", "bmw320i")
 BLACK_BOX = {"kind": "ensemble", "ensemble_size": 5, "kinematic_feature": True}
+DYNAMIC = {"core": "dynamic", "parameter_uncertainty": "by_log"}  # issue 56's core under the correction
+VARIANTS = ("datasheet", "physics", "dynamic physics", "black box")
 TWIN = {"tire_friction": 0.8, "motor_gain": 0.9}  # the fast cars' twin: less grip, a weaker motor
 BANDS = (("below 0.3 μg", 0.0, 0.3), ("0.3-0.6 μg", 0.3, 0.6), ("above 0.6 μg", 0.6, np.inf))
 
@@ -59,8 +65,9 @@ BANDS = (("below 0.3 μg", 0.0, 0.3), ("0.3-0.6 μg", 0.3, 0.6), ("above 0.6 μg
 def config_of(car: str, variant: str, out: Path, quick: bool) -> CampaignConfig:
     """The car's dynamics config for a variant, its outputs (and simulation cache) under `out`."""
     cfg = load_config(CONFIGS / f"dynamics_{car}.toml")
-    if variant == "black box":
-        cfg = cfg.model_copy(update={"model": cfg.model.model_copy(update=BLACK_BOX)})
+    if variant in ("black box", "dynamic physics"):
+        update = BLACK_BOX if variant == "black box" else DYNAMIC
+        cfg = cfg.model_copy(update={"model": cfg.model.model_copy(update=update)})
     if quick:
         return shrink(cfg, out).model_copy(update={"training": cfg.training.model_copy(update={"epochs": 2})})
     data = cfg.model_dump(mode="json")
@@ -76,7 +83,9 @@ def campaigns(
     result = compare(cfg, ["uniform"], seeds, directory=directory, workers=workers, tracking=False,
                      resume=resume)  # fmt: skip
     last = result.curves.sort_values("round").groupby("seed").last()
-    return last[[ROLLOUT_POS_ERR_30S, ROLLOUT_COVERAGE_95]].reset_index()
+    identified = [IDENTIFIED_PREFIX + name for name in ("friction", "motor")]
+    identified = [c for c in identified if c in last.columns]
+    return last[[ROLLOUT_POS_ERR_30S, ROLLOUT_COVERAGE_95, *identified]].reset_index()
 
 
 def datasheet(cfg: CampaignConfig, directory: Path) -> pd.DataFrame:
@@ -177,12 +186,17 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", default="runs/vehicle_baselines", help="campaigns and the simulation cache")
     parser.add_argument("--resume", action="store_true", help="read the campaigns already under --out")
+    parser.add_argument("--variants", default=",".join(VARIANTS), help="a subset of " + ", ".join(VARIANTS))
     parser.add_argument("--no-data-only", action="store_true", help="only the file models' rows by band")
+    parser.add_argument("--twin", action="store_true", help=f"campaigns answered by the car's twin {TWIN}")
     parser.add_argument("--quick", action="store_true", help="one seed at quick sizes: checks it runs")
     args = parser.parse_args()
     cars = [c for c in args.cars.split(",") if c]
     if not cars or set(cars) - set(CARS):
         parser.error(f"--cars: a subset of {', '.join(CARS)}")
+    variants = [v for v in args.variants.split(",") if v]
+    if not variants or set(variants) - set(VARIANTS):
+        parser.error(f"--variants: a subset of {', '.join(VARIANTS)}")
     if args.quick:
         args.seeds = 1
     if args.seeds < 1 or args.workers < 1:
@@ -191,10 +205,11 @@ def main() -> None:
     out = Path(args.out).resolve()
     rows, finals = [], []
     for car in cars if not args.no_data_only else ():
-        for variant in ("datasheet", "physics", "black box"):
+        for variant in variants:
             start = time.perf_counter()
             cfg = config_of(car, "physics" if variant == "datasheet" else variant, out, args.quick)
-            where = out / car / variant.replace(" ", "_")
+            cfg = twin_of(cfg) if args.twin else cfg
+            where = out / car / ("twin" if args.twin else "") / variant.replace(" ", "_")
             if variant == "datasheet":
                 frame = datasheet(cfg, where)
             else:
@@ -206,9 +221,14 @@ def main() -> None:
                          "median m": f"{np.median(errors):.3f}", "fan 95 %": fan,
                          "wall s": round(time.perf_counter() - start)})  # fmt: skip
             finals += [{"car": car, "variant": variant, **row} for row in frame.to_dict("records")]
+            for name in ("friction", "motor"):
+                if IDENTIFIED_PREFIX + name in frame:
+                    found = frame[IDENTIFIED_PREFIX + name].to_numpy()
+                    spread = f"{found.min():.3f}-{found.max():.3f}"
+                    rows[-1][f"identified {name}"] = f"{found.mean():.3f} ({spread})"
             print(f"{car} {variant}: {rows[-1]['30-s error m']} m, fan {rows[-1]['fan 95 %']}", flush=True)
     pd.set_option("display.width", 160)
-    for car in cars:
+    for car in cars if args.no_data_only or not args.twin else ():  # the twin's campaigns: theirs alone
         for twin in (False, True):
             cfg = config_of(car, "physics", out, args.quick)
             frame = by_band(cfg, out / car / ("twin" if twin else "nominal"), twin)
@@ -219,7 +239,7 @@ def main() -> None:
         return
     print("\n## Baselines: uniform, the last round's free runs of the test set (mean ± s.e.m. over seeds;"
           " a free run that blows up counts with its error)")
-    print(pd.DataFrame(rows).to_string(index=False))
+    print(pd.DataFrame(rows).fillna("–").to_string(index=False))
     print("\n## Finals by seed")
     print(pd.DataFrame(finals).to_string(index=False, float_format=lambda x: f"{x:.4f}"))
 

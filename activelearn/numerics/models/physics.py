@@ -109,6 +109,9 @@ class PhysicsModel(Model):
         self.dt = lags.step / self.car.log_rate_hz
         # float32, as y_std: the rates' limits (speed, yaw rate) the aleatoric cap is a share of
         self.rate_limits = torch.tensor([self.car.max_speed, self.car.max_yaw_rate])
+        # the core's parameters: their names and physical ranges (the kinematic core's seven here)
+        self.parameter_names: tuple[str, ...] = PARAMETER_NAMES
+        self.parameter_bounds: tuple[np.ndarray, np.ndarray] = (self.car.low, self.car.high)
         self.register_buffer("theta", torch.as_tensor(self.car.nominal, dtype=torch.float32).clone())
         # Lower Cholesky factor of the identified parameters' covariance (`parameter_uncertainty =
         # "by_log"`; zeros: every draw shares `theta`). Models saved before it existed load with zeros.
@@ -125,7 +128,7 @@ class PhysicsModel(Model):
     # ----- the physical parameters ------------------------------------------------------------
     def physical_parameters(self) -> dict[str, float]:
         """The identified parameters by name (physical units)."""
-        return dict(zip(PARAMETER_NAMES, self.theta.tolist(), strict=True))
+        return dict(zip(self.parameter_names, self.theta.tolist(), strict=True))
 
     @torch.no_grad()
     def identify(self, data: TrainingData, *, warm: bool = False) -> None:
@@ -181,11 +184,10 @@ class PhysicsModel(Model):
         where the model has no parameter spread."""
         if not self.has_parameter_spread:
             return self.theta.expand(n_samples, -1)
-        normals = torch.randn(
-            n_samples, len(PARAMETERS), generator=torch.Generator().manual_seed(int(seed) ^ THETA_SEED_SALT)
-        )
+        generator = torch.Generator().manual_seed(int(seed) ^ THETA_SEED_SALT)
+        normals = torch.randn(n_samples, len(self.parameter_names), generator=generator)
         draws = self.theta + normals @ self.theta_scale.T
-        low, high = (torch.as_tensor(bound, dtype=draws.dtype) for bound in (self.car.low, self.car.high))
+        low, high = (torch.as_tensor(bound, dtype=draws.dtype) for bound in self.parameter_bounds)
         return torch.clamp(draws, low, high)
 
     @torch.no_grad()
@@ -278,21 +280,8 @@ class PhysicsModel(Model):
         self, correction, controls, start, keys, rate_lag, spread, rates, moments, theta: Tensor
     ) -> None:
         """`open_loop_free_runs` in torch: the reference physics_rollout.c is tested against."""
-        _, _, n_maneuvers, n_steps = rates.shape
-        flat = controls.reshape(-1, N_CONTROLS)
-        unique, index = np.unique(flat, axis=0, return_inverse=True)
-        rows = torch.as_tensor(unique.T.copy())  # (2, U)
-        if self.even_features:
-            z, z_var = correction.columns(torch.stack([rows[0], rows[1].square()]))
-            z = _odd_yaw(z, rows[1], -2, self.car.steering_limit)
-        else:
-            z, z_var = correction.columns(rows)  # (S, 4, U)
-        z = self._gate(z)
-        cap = self._variance_cap()[None, :, None]
-        noise_std = torch.minimum(z_var[:, :N_RATES], cap).sqrt_() * self.y_std[None, :, None]
-        index = torch.as_tensor(index.reshape(n_maneuvers, n_steps))
-        noise = [counter_noise.step_noise(key, n_maneuvers, n_steps) for key in keys]
-        noise = torch.as_tensor(np.stack([np.stack(pair) for pair in noise]))  # (S, 2, M, T)
+        n_steps = rates.shape[-1]
+        z, noise_std, index, noise = self._free_run_draws(correction, controls, keys)
         u = torch.as_tensor(controls)
         for k in range(n_steps):
             rows = index[:, k]
@@ -318,6 +307,27 @@ class PhysicsModel(Model):
             moments[1][:, k] = std.square().mean(dim=0).t()
             moments[2][:, k] = deviation.square().mean(dim=0).t()
 
+    def _free_run_draws(self, correction, controls: np.ndarray, keys: list[int]):
+        """A control-only correction's draws for free runs of `controls` (M, T, 2): its raw outputs (S, 4,
+        U) at the U distinct control rows, each draw's aleatoric std (S, 2, U), each step's row (M, T),
+        and the counter-based noise (S, 2, M, T) of each draw's key."""
+        n_maneuvers, n_steps, _ = controls.shape
+        flat = controls.reshape(-1, N_CONTROLS)
+        unique, index = np.unique(flat, axis=0, return_inverse=True)
+        rows = torch.as_tensor(unique.T.copy())  # (2, U)
+        if self.even_features:
+            z, z_var = correction.columns(torch.stack([rows[0], rows[1].square()]))
+            z = _odd_yaw(z, rows[1], -2, self.car.steering_limit)
+        else:
+            z, z_var = correction.columns(rows)  # (S, 4, U)
+        z = self._gate(z)
+        cap = self._variance_cap()[None, :, None]
+        noise_std = torch.minimum(z_var[:, :N_RATES], cap).sqrt_() * self.y_std[None, :, None]
+        index = torch.as_tensor(index.reshape(n_maneuvers, n_steps))
+        noise = [counter_noise.step_noise(key, n_maneuvers, n_steps) for key in keys]
+        noise = torch.as_tensor(np.stack([np.stack(pair) for pair in noise]))  # (S, 2, M, T)
+        return z, noise_std, index, noise
+
     # ----- the step ---------------------------------------------------------------------------
     def _physical_step(
         self, x: Tensor, dim: int, z_mean: Tensor, z_var: Tensor, theta: Tensor
@@ -327,16 +337,21 @@ class PhysicsModel(Model):
         shape = [1] * x.dim()
         shape[dim] = -1
         phys = x * self.x_std.view(shape) + self.x_mean.view(shape)
-        tau, delta, v, w = split_inputs(phys, dim, self.rate_at)
         zs = z_mean.unbind(dim) if self.corrected else torch.zeros_like(z_mean).unbind(dim)
-        bound = self.config.residual_bound
-        v1, w1 = single_track_step(tau, delta, v, w, theta, self.dt, zs, bound, car=self.car)
-        mean = torch.stack([v1, w1], dim=dim)
+        mean = torch.stack(self._core_step(phys, dim, zs, theta), dim=dim)
         y_shape = [1] * mean.dim()
         y_shape[dim] = -1
         mean = (mean - self.y_mean.view(y_shape)) / self.y_std.view(y_shape)
         var = torch.minimum(z_var.narrow(dim, 0, N_RATES), self._variance_cap().view(y_shape))
         return mean, var
+
+    def _core_step(
+        self, phys: Tensor, dim: int, zs: tuple[Tensor, ...], theta: Tensor
+    ) -> tuple[Tensor, Tensor]:
+        """The next (v, ω) of physical inputs (along `dim`) under the correction's raw outputs `zs`."""
+        tau, delta, v, w = split_inputs(phys, dim, self.rate_at)
+        bound = self.config.residual_bound
+        return single_track_step(tau, delta, v, w, theta, self.dt, zs, bound, car=self.car)
 
     def _variance_cap(self) -> Tensor:
         """The largest standardised aleatoric variance of (v, ω): one training std, and at most

@@ -6,6 +6,7 @@ import torch
 
 from activelearn.config import ModelConfig
 from activelearn.numerics.models.base import Model
+from activelearn.numerics.models.dynamic_physics import DynamicPhysicsModel
 from activelearn.numerics.models.networks import NETWORK_CLASSES
 from activelearn.numerics.models.physics import PhysicsModel
 
@@ -13,7 +14,10 @@ MODEL_CLASSES: dict[str, type[Model]] = {**NETWORK_CLASSES, PhysicsModel.kind: P
 
 
 def model_class(cfg: ModelConfig) -> type[Model]:
-    """The class of the model `cfg.kind` describes (its class attributes say what the kind does)."""
+    """The class of the model `cfg.kind` describes (its class attributes say what the kind does); the
+    physics kind's class follows its `core`."""
+    if cfg.kind == PhysicsModel.kind and cfg.core == "dynamic":
+        return DynamicPhysicsModel
     return MODEL_CLASSES[cfg.kind]
 
 

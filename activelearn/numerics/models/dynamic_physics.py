@@ -1,0 +1,222 @@
+"""The physics kind with the dynamic single track as its core (`[model] core = "dynamic"`).
+
+The core is `dynamic_track`'s bicycle (tyre slip, saturating tyres, load transfer, the drivetrain,
+the kinematic blend at low speed; its tyre damping implicit, in 50-ms substeps) with its five scales
+(`DYNAMIC_PARAMETERS`) identified under the vehicle file's prior from whole logs, the free runs
+restarted every `IDENTIFY_HORIZON` s (`identify_dynamic`), with their cluster-robust covariance
+(`parameter_uncertainty = "by_log"` draws them per posterior draw).
+The bounded Bayesian correction of the physics kind stays on top, reading the control alone: its
+steady residuals (at most `residual_bound` of the speed and yaw-rate limits) are reached at the car's
+lags (the kinematic prior's, each scaled within [1/3, 3] by the correction), so a step's change is
+bounded whatever the inputs, and the yaw rate is held within 1.25 x the car's limit as the kinematic
+core's is.
+
+The logs hold speed and yaw rate, not the lateral speed v_y nor the wheels' angle δ_w. Free runs carry
+both as the core's own state (`open_loop_free_runs`), and integrate the pose with the sideslip. A
+one-step row (training, `predict`) starts the step from v_y of a steady turn at its (v, ω)
+(`quasi_static_lateral`) and δ_w at the window's previous steering: the lateral mode settles in about
+m v / (C_f + C_r), a tenth of a second on the 1:10 car, so a row's step of `history_step` log steps
+mostly forgets its start, and the correction trained on rows sees nearly the step free runs take.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from activelearn.config import ModelConfig
+from activelearn.errors import InputError
+from activelearn.names import IDENTIFIED_PREFIX
+from activelearn.numerics.lags import Lags
+from activelearn.numerics.models.base import draw_spread
+from activelearn.numerics.models.dynamic_track import (
+    DYNAMIC_PARAMETERS,
+    DynamicCar,
+    dynamic_step,
+    identify_dynamic,
+    quasi_static_lateral,
+    with_scales,
+)
+from activelearn.numerics.models.physics import PhysicsModel
+from activelearn.numerics.models.single_track import LAG_FACTOR, cholesky_factor, split_inputs
+from activelearn.numerics.training_data import TrainingData
+
+IDENTIFY_HORIZON = 3.0  # s: free runs restart from the logged rates (a spinning car's 30 s are chaotic)
+IDENTIFY_EVERY = 3  # log steps between the compared points of an identification's free runs
+
+
+class DynamicPhysicsModel(PhysicsModel):
+    """The physics kind on the dynamic single track: see the module docstring."""
+
+    def __init__(self, config: ModelConfig, *, generator: torch.Generator | None = None) -> None:
+        if config.correction_inputs != "control":
+            raise InputError(
+                "model.correction_inputs", config.correction_inputs,
+                "core = 'dynamic' needs 'control': its free runs carry the lateral speed a window lacks",
+            )  # fmt: skip
+        super().__init__(config, generator=generator)
+        self.dynamic_car = DynamicCar.of(self.car.spec)
+        self.substeps = self.dynamic_car.implicit_substeps(self.dt)
+        n = len(DYNAMIC_PARAMETERS)
+        self.parameter_names = tuple(p.name for p in DYNAMIC_PARAMETERS)
+        self.parameter_bounds = (
+            np.array([p.low for p in DYNAMIC_PARAMETERS]),
+            np.array([p.high for p in DYNAMIC_PARAMETERS]),
+        )
+        self.register_buffer("theta", torch.tensor([p.nominal for p in DYNAMIC_PARAMETERS]))
+        self.register_buffer("theta_scale", torch.zeros(n, n))
+        # the lags the correction's residuals are reached at: the kinematic prior's (speed, yaw)
+        names = [p.name for p in self.car.parameters]
+        self.lags = (
+            float(self.car.nominal[names.index("speed_lag")]),
+            float(self.car.nominal[names.index("yaw_lag")]),
+        )
+
+    # ----- identification ---------------------------------------------------------------------
+    @torch.no_grad()
+    def identify(self, data: TrainingData, *, warm: bool = False) -> None:
+        """The five scales from the logs of this car (`identify_dynamic`, restarts every
+        `IDENTIFY_HORIZON` s); a prior grid of another car is not used (the file is the prior), nor are
+        rows without logs (the file's values stand). A no-op with `identify = false`."""
+        if not self.config.identify or not data.logs:
+            return
+        flags = list(data.of_another_car) if data.of_another_car is not None else [False] * len(data.logs)
+        logs = [log for log, other in zip(data.logs, flags, strict=True) if not other]
+        if not logs:
+            return
+        found = identify_dynamic(
+            logs, self.dynamic_car, 1.0 / self.car.log_rate_hz, every=IDENTIFY_EVERY,
+            horizon=IDENTIFY_HORIZON, implicit=True,
+            search_from=self.theta.double().numpy() if warm else None,
+        )  # fmt: skip
+        self.theta.copy_(torch.as_tensor(found.values, dtype=torch.float32))
+        self.theta_scale.zero_()
+        if self.config.parameter_uncertainty == "by_log":
+            self.theta_scale.copy_(torch.as_tensor(cholesky_factor(found.covariance), dtype=torch.float32))
+
+    def round_metrics(self) -> dict[str, float]:
+        """The kept share of the correction and the identified scales (`identified_friction`, ...): a
+        campaign's curves show what the core learnt of the car round by round."""
+        scales = {IDENTIFIED_PREFIX + name: value for name, value in self.physical_parameters().items()}
+        return {**super().round_metrics(), **scales}
+
+    # ----- the step ---------------------------------------------------------------------------
+    def _scaled_car(self, theta: Tensor) -> DynamicCar:
+        """The file's car under scales `theta` (5,) or one set per draw (S, 1, 5)."""
+        return with_scales(self.dynamic_car, *(theta[..., i] for i in range(len(DYNAMIC_PARAMETERS))))
+
+    def _corrected_step(self, car: DynamicCar, state: Tensor, tau: Tensor, delta: Tensor, zs) -> Tensor:
+        """The state (..., 4) = (v_x, v_y, r, δ_w) after one model step, the correction's residuals
+        (raw outputs `zs`: speed, yaw rate, their lags) added to v_x and r."""
+        nxt = dynamic_step(car, state, tau, delta, self.dt, self.substeps, implicit=True)
+        z_v, z_w, z_tv, z_tw = zs
+        bound, log_factor = self.config.residual_bound, math.log(LAG_FACTOR)
+        share_v = 1.0 - torch.exp(-self.dt / (self.lags[0] * torch.exp(log_factor * torch.tanh(z_tv))))
+        share_w = 1.0 - torch.exp(-self.dt / (self.lags[1] * torch.exp(log_factor * torch.tanh(z_tw))))
+        v = nxt[..., 0] + share_v * bound * self.car.max_speed * torch.tanh(z_v)
+        w = nxt[..., 2] + share_w * bound * self.car.max_yaw_rate * torch.tanh(z_w)
+        w = w.clamp(-self.car.yaw_cap, self.car.yaw_cap)
+        return torch.stack([v, nxt[..., 1], w, nxt[..., 3]], dim=-1)
+
+    def _core_step(
+        self, phys: Tensor, dim: int, zs: tuple[Tensor, ...], theta: Tensor
+    ) -> tuple[Tensor, Tensor]:
+        """One row's step: v_y of a steady turn at its (v, ω), δ_w at the window's previous steering."""
+        tau, delta, v, w = split_inputs(phys, dim, self.rate_at)
+        previous = phys.select(dim, 3) if self.rate_at > 2 else delta  # the second control lag's steering
+        car = self._scaled_car(theta)
+        state = torch.stack(torch.broadcast_tensors(v, quasi_static_lateral(car, v, w), w, previous), dim=-1)
+        nxt = self._corrected_step(car, state, tau, delta, zs)
+        return nxt[..., 0], nxt[..., 2]
+
+    # ----- free runs, the lateral speed and wheel angle carried -------------------------------
+    @torch.no_grad()
+    def open_loop_free_runs(
+        self,
+        n_samples: int,
+        seed: int,
+        controls: np.ndarray,
+        start: Tensor,
+        lags: Lags,
+        backend: str,
+        pose: tuple[float, np.ndarray, float] | None = None,
+    ) -> tuple[Tensor, tuple[Tensor, Tensor, Tensor], tuple[np.ndarray, ...] | None]:
+        """`PhysicsModel.open_loop_free_runs` on the dynamic core, in torch: each draw carries its own
+        (v_x, v_y, r, δ_w) from step to step, and the pose is integrated with the sideslip where asked.
+        The aleatoric noise is the sensors': it is added to the rates returned, not carried by the state
+        nor the pose (carried, 3 % of the speed limit per step random-walked the 1:10 car's free runs:
+        its file's core 9.9 m off at 30 s against 2.3 m). The bare core (`corrected` False) holds the
+        correction's outputs at zero."""
+        correction = self.correction.draw(n_samples, seed=seed, backend=backend)
+        spread = draw_spread(self.epistemic_scale, n_samples)
+        keys = torch.randint(2**62, (n_samples,), generator=torch.Generator().manual_seed(seed)).tolist()
+        rate_lag, n_steps = lags.rate_lags[0], controls.shape[1]
+        newest = np.maximum(np.arange(n_steps) - lags.control_lags[0], 0)  # the control each step reads
+        controls = np.ascontiguousarray(controls[:, newest], dtype=np.float32)
+        n_maneuvers = controls.shape[0]
+        z, noise_std, index, noise = self._free_run_draws(correction, controls, keys)
+        if not self.corrected:
+            z = torch.zeros_like(z)
+        car = self._scaled_car(self.parameter_draws(n_samples, seed)[:, None])  # (S, 1) figures
+        rates = torch.empty((n_samples, 2, n_maneuvers, n_steps))
+        states = torch.empty((n_samples, 2, n_maneuvers, n_steps))  # each draw's rates without the noise
+        hidden = torch.empty((n_samples, 2, n_maneuvers, n_steps))  # v_y, δ_w after each step
+        moments = tuple(torch.empty((n_maneuvers, n_steps, 2)) for _ in range(3))
+        u = torch.as_tensor(controls)
+        start_hidden = torch.stack(
+            [quasi_static_lateral(car, start[:, 0], start[:, 1]), u[:, 0, 1].expand(n_samples, -1)], dim=1
+        )
+        for k in range(n_steps):
+            rows = index[:, k]
+            past, past_hidden = start, start_hidden
+            if k >= rate_lag:
+                past, past_hidden = states[..., k - rate_lag], hidden[..., k - rate_lag]
+            state = torch.stack([past[:, 0], past_hidden[:, 0], past[:, 1], past_hidden[:, 1]], dim=-1)
+            zs = z[..., rows].unbind(1)
+            tau, delta = u[:, k, 0], u[:, k, 1]
+            nxt = self._corrected_step(car, state, tau, delta, zs)  # (S, M, 4)
+            means = torch.stack([nxt[..., 0], nxt[..., 2]], dim=1)  # (S, 2, M)
+            if spread != 1.0:  # widen each draw's correction, not its past (surrogate.widened_step)
+                common = state.mean(dim=0).expand_as(state)
+                at_common = self._corrected_step(car, common, tau, delta, zs)
+                at_common = torch.stack([at_common[..., 0], at_common[..., 2]], dim=1)
+                means = means + (spread - 1.0) * (at_common - at_common.mean(dim=0))
+            centre = means.mean(dim=0)
+            deviation = means - centre
+            std = noise_std[..., rows]
+            states[..., k] = means
+            rates[..., k] = means + std * noise[..., k]
+            hidden[:, 0, :, k], hidden[:, 1, :, k] = nxt[..., 1], nxt[..., 3]
+            moments[0][:, k] = centre.t()
+            moments[1][:, k] = std.square().mean(dim=0).t()
+            moments[2][:, k] = deviation.square().mean(dim=0).t()
+        paths = None
+        if pose is not None:
+            dt, yaw0, arm = pose
+            slip = hidden[:, 0] - self.dynamic_car.lr * states[:, 1]  # the rear axle's lateral speed
+            paths = _integrate_with_slip(states[:, 0], states[:, 1], slip, dt, torch.as_tensor(yaw0), arm)
+        return rates, moments, paths
+
+
+def _integrate_with_slip(
+    v: Tensor, w: Tensor, slip: Tensor, dt: float, yaw0: Tensor, lever_arm: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pose (x, y, ψ), each (S, M, T), of the point `lever_arm` ahead of the rear axle from rates
+    (S, M, T) and the rear axle's lateral speed `slip`, as `surrogate._integrate` places a kinematic
+    run (ψ_{k+1} = ψ_k + ω_k dt, positions by the heading at step start) with the slip added."""
+
+    def before(rate: Tensor) -> Tensor:  # the sum of rate[..., :k] at k
+        return torch.cat([torch.zeros_like(rate[..., :1]), torch.cumsum(rate[..., :-1], dim=-1)], dim=-1)
+
+    yaw = yaw0[:, None].to(v.dtype) + dt * before(w)
+    cos, sin = torch.cos(yaw), torch.sin(yaw)
+    x = dt * before(v * cos - slip * sin)
+    y = dt * before(v * sin + slip * cos)
+    if lever_arm:
+        start = yaw0[:, None].to(v.dtype)
+        x = x + lever_arm * (cos - torch.cos(start))
+        y = y + lever_arm * (sin - torch.sin(start))
+    return x.numpy(), y.numpy(), yaw.numpy()

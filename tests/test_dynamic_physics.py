@@ -1,0 +1,126 @@
+"""The physics kind on the dynamic single track (`[model] core = "dynamic"`): its step, free runs and
+identification, against the dynamic core's own NumPy runs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from pydantic import ValidationError
+
+from activelearn.config import ModelConfig
+from activelearn.numerics.models import build_model, load_model, physics, save_model
+from activelearn.numerics.models.dynamic_physics import DynamicPhysicsModel
+from activelearn.numerics.models.dynamic_track import DynamicCar, dynamic_step, rate_runs, scaled
+from activelearn.numerics.surrogate import simulate
+from activelearn.numerics.training_data import TrainingData
+from simulator.vehicles import load_vehicle
+
+DT = 1.0 / 30.0
+
+
+def _config(vehicle: str = "f1tenth", **knobs) -> ModelConfig:
+    base = {
+        "kind": "physics", "core": "dynamic", "correction_inputs": "control", "arch": "D16-D16-V",
+        "activation": "softplus", "n_inputs": 16, "history_step": 3, "vehicle": vehicle,
+    }  # fmt: skip
+    return ModelConfig(**{**base, **knobs})
+
+
+def _untrained(vehicle: str = "f1tenth", **knobs) -> DynamicPhysicsModel:
+    model = build_model(_config(vehicle, **knobs), seed=0)
+    assert isinstance(model, DynamicPhysicsModel)
+    car = model.car
+    rng = np.random.default_rng(0)  # scalers over the car's operating box: the physics reads physical units
+    low = np.array([-1.0, -car.steering_limit, -car.max_speed, -car.max_yaw_rate])
+    box = rng.uniform(low, -low, (500, 4))
+    x = np.column_stack([box[:, :2]] * 4 + [box[:, 2:]] * 4)  # four control pairs, then four rate pairs
+    model.set_scalers(x, box[:, 2:])
+    return model
+
+
+def test_the_core_is_chosen_in_the_config_and_checked_there():
+    assert type(build_model(_config(), seed=0)) is DynamicPhysicsModel
+    assert type(build_model(_config(core="kinematic"), seed=0)) is physics.PhysicsModel
+    with pytest.raises(ValidationError, match="core"):
+        ModelConfig(kind="ensemble", core="dynamic")
+    with pytest.raises(ValidationError, match="correction_inputs"):
+        _config(correction_inputs="history")
+
+
+def test_implicit_tyre_damping_keeps_the_explicit_steps_steady_turns_in_a_few_substeps():
+    """50-ms substeps with implicit damping against the explicit step's many: the same steady turn."""
+    for name, throttle in (("f1tenth", 0.3), ("bmw320i", 0.25)):
+        car = DynamicCar.of(load_vehicle(name))
+        for steering in (0.02, 0.1, 0.3):
+            explicit = np.zeros((1, 4))
+            implicit = np.zeros((1, 4))
+            for _ in range(300):  # 30 s of 0.1-s steps
+                u = (np.array([throttle]), np.array([steering]))
+                explicit = dynamic_step(car, explicit, *u, 0.1)
+                implicit = dynamic_step(car, implicit, *u, 0.1, car.implicit_substeps(0.1), implicit=True)
+            assert car.implicit_substeps(0.1) == 2 < car.substeps(0.1)
+            assert implicit[0, 2] == pytest.approx(explicit[0, 2], rel=0.02, abs=1e-3), (name, steering)
+            assert implicit[0, 0] == pytest.approx(explicit[0, 0], rel=0.01), (name, steering)
+
+
+def test_free_runs_carry_the_lateral_speed_as_the_cores_own_runs_do():
+    """The bare core's free runs (no correction, no noise) are the core's NumPy runs step for step,
+    the lateral speed carried; the pose follows the sideslip (a sliding car is not a kinematic one)."""
+    model = _untrained()
+    model.corrected = False
+    model._variance_cap = lambda: torch.zeros(2)  # the sensors' noise off: the mean path is the core's
+    n = 240
+    t = np.arange(n) * DT
+    controls = np.stack([np.full((3, n), 0.35), np.array([[0.02], [0.1], [0.25]]) * np.sin(0.5 * t)], axis=-1)
+    start = np.zeros((3, 2))
+    rollout = simulate(model, list(controls), rate_hz=30.0, n_samples=2, seed=0, initial_rates=start)
+    # the NumPy core in the model's three interleaved chains of 0.1-s steps, each from the newest control
+    car = model.dynamic_car
+    states = np.zeros((3, n, 4))
+    for k in range(n):
+        past = states[:, k - 3] if k >= 3 else np.column_stack([np.zeros((3, 3)), controls[:, 0, 1]])
+        states[:, k] = dynamic_step(car, past, controls[:, k, 0], controls[:, k, 1], 0.1, 2, implicit=True)
+    assert np.allclose(rollout.mean_rates[..., 0], states[..., 0], atol=1e-3)
+    assert np.allclose(rollout.mean_rates[..., 1], states[..., 2], atol=1e-3)
+    # the pose: yaw from ω, positions with the rear axle's lateral speed v_y − l_r ω
+    slip = states[..., 1] - car.lr * states[..., 2]
+    assert np.abs(slip[2]).max() > 0.05  # the large steering slides
+    yaw = np.concatenate([np.zeros((3, 1)), np.cumsum(states[:, :-1, 2], axis=1) * DT], axis=1)
+    vx = states[..., 0] * np.cos(yaw) - slip * np.sin(yaw)
+    x = np.concatenate([np.zeros((3, 1)), np.cumsum(vx[:, :-1], axis=1) * DT], axis=1)
+    x += model.config.pose_lever_arm * (np.cos(yaw) - 1.0)
+    assert np.allclose(rollout.x.mean(axis=0), x, atol=1e-2)
+
+
+@pytest.mark.parametrize("vehicle", ["f1tenth", "bmw320i"])
+def test_untrained_it_never_leaves_physics_on_the_cars_control_box(vehicle: str):
+    model = _untrained(vehicle, parameter_uncertainty="by_log")
+    model.theta_scale.copy_(0.3 * torch.eye(5))  # wide parameter draws
+    sweep = physics.control_box_sweep(30.0, car=model.car)
+    rollout = simulate(model, sweep, rate_hz=30.0, n_samples=8, seed=0)
+    assert physics.runs_out_of_bounds(rollout.v, rollout.w, car=model.car) == 0
+
+
+def test_it_identifies_a_twins_grip_and_motor_and_saves_them(tmp_path):
+    """Logs of the core with less grip and a weaker motor: the model identifies both (the untouched
+    scales stay near 1), and a saved model loads with its identified scales."""
+    model = _untrained(parameter_uncertainty="by_log")
+    car = model.dynamic_car
+    twin = scaled(car, np.array([[0.8, 1.0, 1.0, 0.9, 1.0]]))
+    n = round(12.0 / DT)
+    t = np.arange(n) * DT
+    controls = np.zeros((4, n, 2))
+    controls[:, :, 0] = [[0.2], [0.3], [0.4], [-0.3]]
+    controls[:, :, 1] = np.array([[0.05], [0.15], [0.3], [0.1]]) * np.sin(0.8 * t)[None]
+    rates = rate_runs(twin, controls, np.zeros((4, 4)), DT, implicit=True)[0]
+    logs = [(controls[i], rates[i]) for i in range(4)]
+    model.identify(TrainingData(x=np.zeros((0, 16)), y=np.zeros((0, 2)), logs=logs))
+    found = model.physical_parameters()
+    assert found["friction"] == pytest.approx(0.8, abs=0.04)
+    assert found["motor"] == pytest.approx(0.9, abs=0.02)
+    assert model.has_parameter_spread
+    assert model.round_metrics()["identified_friction"] == found["friction"]  # the campaign's curves show it
+    save_model(model, tmp_path / "model.pt")
+    loaded = load_model(tmp_path / "model.pt")
+    assert isinstance(loaded, DynamicPhysicsModel) and loaded.physical_parameters() == found
