@@ -49,7 +49,7 @@ def test_the_core_is_chosen_in_the_config_and_checked_there():
 
 
 def test_implicit_tyre_damping_keeps_the_explicit_steps_steady_turns_in_a_few_substeps():
-    """50-ms substeps with implicit damping against the explicit step's many: the same steady turn."""
+    """25-ms substeps with exponential damping against the explicit step's many: the same steady turn."""
     for name, throttle in (("f1tenth", 0.3), ("bmw320i", 0.25)):
         car = DynamicCar.of(load_vehicle(name))
         for steering in (0.02, 0.1, 0.3):
@@ -59,7 +59,7 @@ def test_implicit_tyre_damping_keeps_the_explicit_steps_steady_turns_in_a_few_su
                 u = (np.array([throttle]), np.array([steering]))
                 explicit = dynamic_step(car, explicit, *u, 0.1)
                 implicit = dynamic_step(car, implicit, *u, 0.1, car.implicit_substeps(0.1), implicit=True)
-            assert car.implicit_substeps(0.1) == 2 < car.substeps(0.1)
+            assert car.implicit_substeps(0.1) == 4 < car.substeps(0.1)
             assert implicit[0, 2] == pytest.approx(explicit[0, 2], rel=0.02, abs=1e-3), (name, steering)
             assert implicit[0, 0] == pytest.approx(explicit[0, 0], rel=0.01), (name, steering)
 
@@ -80,7 +80,7 @@ def test_free_runs_carry_the_lateral_speed_as_the_cores_own_runs_do():
     states = np.zeros((3, n, 4))
     for k in range(n):
         past = states[:, k - 3] if k >= 3 else np.column_stack([np.zeros((3, 3)), controls[:, 0, 1]])
-        states[:, k] = dynamic_step(car, past, controls[:, k, 0], controls[:, k, 1], 0.1, 2, implicit=True)
+        states[:, k] = dynamic_step(car, past, controls[:, k, 0], controls[:, k, 1], 0.1, 4, implicit=True)
     assert np.allclose(rollout.mean_rates[..., 0], states[..., 0], atol=1e-3)
     assert np.allclose(rollout.mean_rates[..., 1], states[..., 2], atol=1e-3)
     # the pose: yaw from ω, positions with the rear axle's lateral speed v_y − l_r ω

@@ -46,7 +46,8 @@ from quick import shrink
 from activelearn.config import CampaignConfig, load_config
 from activelearn.loop.campaign import Campaign
 from activelearn.names import IDENTIFIED_PREFIX, ROLLOUT_COVERAGE_95, ROLLOUT_POS_ERR_30S
-from activelearn.numerics.models import build_model
+from activelearn.numerics.diagnostics import free_runs as model_free_runs
+from activelearn.numerics.models import build_model, load_model
 from activelearn.numerics.models.dynamic_track import DynamicCar, free_runs
 from activelearn.numerics.models.single_track import car_prior, run_single_track
 from activelearn.replay import relative_pose
@@ -113,14 +114,37 @@ def by_band(cfg: CampaignConfig, directory: Path, twin: bool) -> pd.DataFrame:
     cfg = twin_of(cfg) if twin else cfg
     test = Campaign(cfg, directory).evaluation.test_set
     spec = cfg.vehicle.spec
-    grip = spec.tyres.friction.value * (TWIN["tire_friction"] if twin else 1.0) * GRAVITY
     errors = test_errors(test, cfg, {"kinematic file": "kinematic", "dynamic file": DynamicCar.of(spec)})
+    bands = bands_of(test, cfg, twin)
+    return pd.DataFrame([{"variant": name, "band": band, "error": error[i]}
+                         for name, error in errors.items() for i, band in enumerate(bands)])  # fmt: skip
+
+
+def bands_of(test: Any, cfg: CampaignConfig, twin: bool) -> list[str]:
+    """Each test maneuver's band: its truth's 90th percentile of |v r| over the car's μ g."""
+    grip = cfg.vehicle.spec.tyres.friction.value * (TWIN["tire_friction"] if twin else 1.0) * GRAVITY
+    out = []
+    for truth in test.truth_logs:
+        level = float(np.percentile(np.abs(truth["speed"].to_numpy() * truth["angZ"].to_numpy()), 90)) / grip
+        out.append(next(name for name, low, high in BANDS if low <= level < high))
+    return out
+
+
+def trained_by_band(cfg: CampaignConfig, directory: Path, variant: str, twin: bool) -> pd.DataFrame:
+    """The last round's model of every seed under `directory`: its 30-s error on each test maneuver
+    (the mean path of 32 draws, as the campaign measures it), with the maneuver's band."""
+    test = Campaign(cfg, directory / "probe").evaluation.test_set
+    bands = bands_of(test, cfg, twin)
     rows = []
-    for i, truth in enumerate(test.truth_logs):
-        lateral = np.abs(truth["speed"].to_numpy() * truth["angZ"].to_numpy())
-        level = float(np.percentile(lateral, 90)) / grip
-        band = next(name for name, low, high in BANDS if low <= level < high)
-        rows += [{"variant": name, "band": band, "error": error[i]} for name, error in errors.items()]
+    for path in sorted(directory.glob("uniform/seed*/model.pt")):
+        rollout = model_free_runs(load_model(path), list(test.logs), rate_hz=cfg.simulation.rate_hz)
+        mean_x, mean_y = rollout.mean_path()
+        for i, truth in enumerate(test.truth_logs):
+            n = int(rollout.lengths[i])
+            k = min(round(30.0 / rollout.dt), n - 1)
+            tx, ty, _ = relative_pose({c: truth[c].to_numpy(np.float64) for c in ("posX", "posY", "yaw")}, n)
+            error = float(np.hypot(mean_x[i, k] - tx[k], mean_y[i, k] - ty[k]))
+            rows.append({"variant": variant, "band": bands[i], "error": np.nan_to_num(error, nan=np.inf)})
     return pd.DataFrame(rows)
 
 
@@ -203,7 +227,7 @@ def main() -> None:
         parser.error("--seeds and --workers: at least 1")
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     out = Path(args.out).resolve()
-    rows, finals = [], []
+    rows, finals, trained = [], [], []
     for car in cars if not args.no_data_only else ():
         for variant in variants:
             start = time.perf_counter()
@@ -221,6 +245,8 @@ def main() -> None:
                          "median m": f"{np.median(errors):.3f}", "fan 95 %": fan,
                          "wall s": round(time.perf_counter() - start)})  # fmt: skip
             finals += [{"car": car, "variant": variant, **row} for row in frame.to_dict("records")]
+            if variant != "datasheet":
+                trained.append(trained_by_band(cfg, where, f"{car} {variant}", args.twin))
             for name in ("friction", "motor"):
                 if IDENTIFIED_PREFIX + name in frame:
                     found = frame[IDENTIFIED_PREFIX + name].to_numpy()
@@ -240,6 +266,9 @@ def main() -> None:
     print("\n## Baselines: uniform, the last round's free runs of the test set (mean ± s.e.m. over seeds;"
           " a free run that blows up counts with its error)")
     print(pd.DataFrame(rows).fillna("–").to_string(index=False))
+    print("\n## After the last round, by band: mean 30-s error over seeds and test maneuvers"
+          " (m; maneuvers x seeds)")
+    print(band_table(pd.concat(trained)).to_string())
     print("\n## Finals by seed")
     print(pd.DataFrame(finals).to_string(index=False, float_format=lambda x: f"{x:.4f}"))
 

@@ -1,7 +1,7 @@
 """The physics kind with the dynamic single track as its core (`[model] core = "dynamic"`).
 
 The core is `dynamic_track`'s bicycle (tyre slip, saturating tyres, load transfer, the drivetrain,
-the kinematic blend at low speed; its tyre damping implicit, in 50-ms substeps) with its five scales
+the kinematic blend at low speed; its tyre damping exponential, in 25-ms substeps) with its five scales
 (`DYNAMIC_PARAMETERS`) identified under the vehicle file's prior from whole logs, the free runs
 restarted every `IDENTIFY_HORIZON` s (`identify_dynamic`), with their cluster-robust covariance
 (`parameter_uncertainty = "by_log"` draws them per posterior draw).
