@@ -69,6 +69,9 @@ EXPECTED = {
     "bench_vehicle_baselines": ("## Baselines: uniform", True, Figure(
         "the 1:10 car's physics kind, 30-s error of its free runs after the last round, m",
         rf"^f1tenth\s+physics\s+1\s+{NUMBER}", 0.0, 1e3)),  # quick 3.6
+    "bench_dynamic_speed": ("beside the truth simulator", True, Figure(
+        "the 1:10 car's dynamic-core free runs, sample-steps per second",
+        rf"^f1tenth dynamic: free runs x\S+ the truth's speed, {NUMBER} sample-steps/s", 1e3, 1e12)),
     "bench_scaleout": ("where one campaign's time goes", True, Figure(
         "smoke campaigns per hour on one process worker",
         rf"process\s+1 worker\(s\):\s+{NUMBER} campaigns/hour", 10.0, 1e5)),  # quick 238

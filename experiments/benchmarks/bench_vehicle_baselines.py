@@ -3,8 +3,8 @@
 For each car's cold-start dynamics config (`experiments/configs/dynamics_<car>.toml`: the shipped
 `dynamics.toml` model, training and budget, the car's own operating box and test set), uniform
 campaigns over `--seeds` seeds with
-  * physics     today's physics kind: the car's kinematic single track, identified under its vehicle
-                file's prior, plus the bounded Bayesian correction (the config as shipped);
+  * physics     the physics kind on the kinematic core: the car's kinematic single track, identified
+                under its vehicle file's prior, plus the bounded Bayesian correction;
   * dynamic physics  issue 56's dynamic single track as the physics kind's core (`core = "dynamic"`,
                 its identified scales' covariance in the fans: `parameter_uncertainty = "by_log"`);
   * black box   the best black box (history ensemble of 5 + kinematic feature + 30-step windows,
@@ -57,7 +57,10 @@ from simulator.vehicles import GRAVITY
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 CARS = ("f1tenth", "bmw320i")
 BLACK_BOX = {"kind": "ensemble", "ensemble_size": 5, "kinematic_feature": True}
+# each variant's model knobs over the car's config (whatever core the config ships)
+KINEMATIC = {"core": "kinematic", "parameter_uncertainty": "none"}  # the baselines' physics kind
 DYNAMIC = {"core": "dynamic", "parameter_uncertainty": "by_log"}  # issue 56's core under the correction
+UPDATES = {"datasheet": KINEMATIC, "physics": KINEMATIC, "dynamic physics": DYNAMIC, "black box": BLACK_BOX}
 VARIANTS = ("datasheet", "physics", "dynamic physics", "black box")
 TWIN = {"tire_friction": 0.8, "motor_gain": 0.9}  # the fast cars' twin: less grip, a weaker motor
 BANDS = (("below 0.3 μg", 0.0, 0.3), ("0.3-0.6 μg", 0.3, 0.6), ("above 0.6 μg", 0.6, np.inf))
@@ -66,9 +69,8 @@ BANDS = (("below 0.3 μg", 0.0, 0.3), ("0.3-0.6 μg", 0.3, 0.6), ("above 0.6 μg
 def config_of(car: str, variant: str, out: Path, quick: bool) -> CampaignConfig:
     """The car's dynamics config for a variant, its outputs (and simulation cache) under `out`."""
     cfg = load_config(CONFIGS / f"dynamics_{car}.toml")
-    if variant in ("black box", "dynamic physics"):
-        update = BLACK_BOX if variant == "black box" else DYNAMIC
-        cfg = cfg.model_copy(update={"model": cfg.model.model_copy(update=update)})
+    model = cfg.model.model_dump(mode="json")
+    cfg = cfg.model_copy(update={"model": type(cfg.model).model_validate({**model, **UPDATES[variant]})})
     if quick:
         return shrink(cfg, out).model_copy(update={"training": cfg.training.model_copy(update={"epochs": 2})})
     data = cfg.model_dump(mode="json")
