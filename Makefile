@@ -41,7 +41,8 @@ PYTEST := $(BIN)/python -m pytest -q -n 3 --dist loadfile --no-loadscope-reorder
 test: setup
 	$(BIN)/ruff check .
 	$(PYTEST)
-	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet --site-dir site
+	# not --quiet: it hides the warnings that --strict counts (a broken anchor then passed)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
 
 # The loop to run while working: everything but the tests marked slow (servers, racing processes, many
 # campaigns, the benchmarks' quick modes); `make test` still runs them all.

@@ -56,7 +56,7 @@ from simulator.vehicles import GRAVITY
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 CARS = ("f1tenth", "bmw320i")
-BLACK_BOX = {"kind": "ensemble", "ensemble_size": 5, "kinematic_feature": True}
+BLACK_BOX = {"kind": "ensemble", "ensemble_size": 5, "kinematic_feature": True, "core": "kinematic"}
 # each variant's model knobs over the car's config (whatever core the config ships)
 KINEMATIC = {"core": "kinematic", "parameter_uncertainty": "none"}  # the baselines' physics kind
 DYNAMIC = {"core": "dynamic", "parameter_uncertainty": "by_log"}  # issue 56's core under the correction
