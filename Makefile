@@ -38,10 +38,10 @@ demo-cold: setup
 # with three, 11.5 with four). The files go in the order tests/conftest.py gives them (the longest
 # first; xdist would otherwise sort them by test count).
 PYTEST := $(BIN)/python -m pytest -q -n 3 --dist loadfile --no-loadscope-reorder
+# mkdocs without --quiet: it hides the warnings that --strict counts (a broken anchor then passed)
 test: setup
 	$(BIN)/ruff check .
 	$(PYTEST)
-	# not --quiet: it hides the warnings that --strict counts (a broken anchor then passed)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
 
 # The loop to run while working: everything but the tests marked slow (servers, racing processes, many

@@ -11,10 +11,11 @@ from pydantic import ValidationError
 from activelearn.config import ModelConfig
 from activelearn.numerics.models import build_model, load_model, physics, save_model
 from activelearn.numerics.models.dynamic_physics import DynamicPhysicsModel
-from activelearn.numerics.models.dynamic_track import DynamicCar, dynamic_step, rate_runs, scaled
+from activelearn.numerics.models.dynamic_track import DynamicCar, dynamic_step
 from activelearn.numerics.surrogate import simulate
 from activelearn.numerics.training_data import TrainingData
 from simulator.vehicles import load_vehicle
+from tests.test_dynamic_track import twin_logs
 
 DT = 1.0 / 30.0
 
@@ -106,15 +107,7 @@ def test_it_identifies_a_twins_grip_and_motor_and_saves_them(tmp_path):
     """Logs of the core with less grip and a weaker motor: the model identifies both (the untouched
     scales stay near 1), and a saved model loads with its identified scales."""
     model = _untrained(parameter_uncertainty="by_log")
-    car = model.dynamic_car
-    twin = scaled(car, np.array([[0.8, 1.0, 1.0, 0.9, 1.0]]))
-    n = round(12.0 / DT)
-    t = np.arange(n) * DT
-    controls = np.zeros((4, n, 2))
-    controls[:, :, 0] = [[0.2], [0.3], [0.4], [-0.3]]
-    controls[:, :, 1] = np.array([[0.05], [0.15], [0.3], [0.1]]) * np.sin(0.8 * t)[None]
-    rates = rate_runs(twin, controls, np.zeros((4, 4)), DT, implicit=True)[0]
-    logs = [(controls[i], rates[i]) for i in range(4)]
+    logs = twin_logs(model.dynamic_car, implicit=True)
     model.identify(TrainingData(x=np.zeros((0, 16)), y=np.zeros((0, 2)), logs=logs))
     found = model.physical_parameters()
     assert found["friction"] == pytest.approx(0.8, abs=0.04)

@@ -7,7 +7,13 @@ import math
 import numpy as np
 import pytest
 
-from activelearn.numerics.models.dynamic_track import DynamicCar, free_runs
+from activelearn.numerics.models.dynamic_track import (
+    DynamicCar,
+    free_runs,
+    identify_dynamic,
+    rate_runs,
+    scaled,
+)
 from simulator.vehicles import GRAVITY, load_vehicle
 
 DT = 1.0 / 30.0
@@ -48,19 +54,23 @@ def test_a_twin_with_less_grip_slides_earlier():
     assert slippery[0] * slippery[2] < 0.9 * full[0] * full[2]
 
 
-def test_identification_recovers_a_twins_grip_and_motor_from_its_own_logs():
-    """Logs of the dynamic core with less grip and a weaker motor (its own free runs, so the core can fit
-    them exactly): the identified scales come back near the twin's, the untouched ones near 1."""
-    from activelearn.numerics.models.dynamic_track import identify_dynamic, rate_runs, scaled
-
-    car = DynamicCar.of(load_vehicle("f1tenth"))
+def twin_logs(car: DynamicCar, implicit: bool = False) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Four 12-s logs (controls, rates) of the core itself with less grip (0.8) and a weaker motor (0.9):
+    sine steering at three throttles forward and one in reverse (`implicit`: the physics kind's step)."""
     twin = scaled(car, np.array([[0.8, 1.0, 1.0, 0.9, 1.0]]))
     n = round(12.0 / DT)
     t = np.arange(n) * DT
     controls = np.zeros((4, n, 2))
     controls[:, :, 0] = [[0.2], [0.3], [0.4], [-0.3]]
     controls[:, :, 1] = np.array([[0.05], [0.15], [0.3], [0.1]]) * np.sin(0.8 * t)[None]
-    rates = rate_runs(twin, controls, np.zeros((4, 4)), DT)[0]
-    found = identify_dynamic([(controls[i], rates[i]) for i in range(4)], car, DT)
+    rates = rate_runs(twin, controls, np.zeros((4, 4)), DT, implicit)[0]
+    return [(controls[i], rates[i]) for i in range(4)]
+
+
+def test_identification_recovers_a_twins_grip_and_motor_from_its_own_logs():
+    """Logs of the dynamic core with less grip and a weaker motor (its own free runs, so the core can fit
+    them exactly): the identified scales come back near the twin's, the untouched ones near 1."""
+    car = DynamicCar.of(load_vehicle("f1tenth"))
+    found = identify_dynamic(twin_logs(car), car, DT)
     friction, _, _, motor, _ = found.values
     assert friction == pytest.approx(0.8, abs=0.04) and motor == pytest.approx(0.9, abs=0.02)

@@ -31,7 +31,6 @@ from activelearn.config import ModelConfig
 from activelearn.errors import InputError
 from activelearn.names import IDENTIFIED_PREFIX
 from activelearn.numerics.lags import Lags
-from activelearn.numerics.models.base import draw_spread
 from activelearn.numerics.models.dynamic_track import (
     DYNAMIC_PARAMETERS,
     DynamicCar,
@@ -150,13 +149,9 @@ class DynamicPhysicsModel(PhysicsModel):
         nor the pose (carried, 3 % of the speed limit per step random-walked the 1:10 car's free runs:
         its file's core 9.9 m off at 30 s against 2.3 m). The bare core (`corrected` False) holds the
         correction's outputs at zero."""
-        correction = self.correction.draw(n_samples, seed=seed, backend=backend)
-        spread = draw_spread(self.epistemic_scale, n_samples)
-        keys = torch.randint(2**62, (n_samples,), generator=torch.Generator().manual_seed(seed)).tolist()
-        rate_lag, n_steps = lags.rate_lags[0], controls.shape[1]
-        newest = np.maximum(np.arange(n_steps) - lags.control_lags[0], 0)  # the control each step reads
-        controls = np.ascontiguousarray(controls[:, newest], dtype=np.float32)
-        n_maneuvers = controls.shape[0]
+        correction, spread, keys, controls = self._free_run_setup(n_samples, seed, controls, lags, backend)
+        rate_lag = lags.rate_lags[0]
+        n_maneuvers, n_steps, _ = controls.shape
         z, noise_std, index, noise = self._free_run_draws(correction, controls, keys)
         if not self.corrected:
             z = torch.zeros_like(z)

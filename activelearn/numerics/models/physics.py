@@ -239,12 +239,8 @@ class PhysicsModel(Model):
         """
         if self.config.correction_inputs != "control" or not self.corrected:
             return None
-        correction = self.correction.draw(n_samples, seed=seed, backend=backend)
-        spread = draw_spread(self.epistemic_scale, n_samples)
-        keys = torch.randint(2**62, (n_samples,), generator=torch.Generator().manual_seed(seed)).tolist()
-        rate_lag, n_steps = lags.rate_lags[0], controls.shape[1]
-        newest = np.maximum(np.arange(n_steps) - lags.control_lags[0], 0)  # the control each step reads
-        controls = np.ascontiguousarray(controls[:, newest], dtype=np.float32)
+        correction, spread, keys, controls = self._free_run_setup(n_samples, seed, controls, lags, backend)
+        rate_lag = lags.rate_lags[0]
         n_maneuvers, n_steps, _ = controls.shape
         # The kernel reads one parameter set: draws with their own parameters step in torch.
         if correction.kernel is not None and not self.has_parameter_spread:
@@ -275,6 +271,15 @@ class PhysicsModel(Model):
         theta = self.parameter_draws(n_samples, seed)[:, None]  # (S, 1, 7) against (S, M)
         self._torch_free_runs(correction, controls, start, keys, rate_lag, spread, rates, moments, theta)
         return rates, moments, None
+
+    def _free_run_setup(self, n_samples: int, seed: int, controls: np.ndarray, lags: Lags, backend: str):
+        """What every free run of a control-only correction starts from: its S draws of `seed`, their
+        spread, each draw's noise key, and the control each step reads (M, T, 2, float32)."""
+        correction = self.correction.draw(n_samples, seed=seed, backend=backend)
+        spread = draw_spread(self.epistemic_scale, n_samples)
+        keys = torch.randint(2**62, (n_samples,), generator=torch.Generator().manual_seed(seed)).tolist()
+        newest = np.maximum(np.arange(controls.shape[1]) - lags.control_lags[0], 0)  # each step's control
+        return correction, spread, keys, np.ascontiguousarray(controls[:, newest], dtype=np.float32)
 
     def _torch_free_runs(
         self, correction, controls, start, keys, rate_lag, spread, rates, moments, theta: Tensor
