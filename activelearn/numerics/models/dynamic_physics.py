@@ -28,12 +28,12 @@ import torch
 from torch import Tensor
 
 from activelearn.config import ModelConfig
-from activelearn.errors import InputError
 from activelearn.names import IDENTIFIED_PREFIX
 from activelearn.numerics.lags import Lags
 from activelearn.numerics.models.dynamic_track import (
     DYNAMIC_PARAMETERS,
     DynamicCar,
+    dynamic_bounds,
     dynamic_step,
     identify_dynamic,
     quasi_static_lateral,
@@ -51,22 +51,14 @@ class DynamicPhysicsModel(PhysicsModel):
     """The physics kind on the dynamic single track: see the module docstring."""
 
     def __init__(self, config: ModelConfig, *, generator: torch.Generator | None = None) -> None:
-        if config.correction_inputs != "control":
-            raise InputError(
-                "model.correction_inputs", config.correction_inputs,
-                "core = 'dynamic' needs 'control': its free runs carry the lateral speed a window lacks",
-            )  # fmt: skip
-        super().__init__(config, generator=generator)
+        super().__init__(config, generator=generator)  # the config checked correction_inputs (`core`)
         self.dynamic_car = DynamicCar.of(self.car.spec)
         self.substeps = self.dynamic_car.implicit_substeps(self.dt)
-        n = len(DYNAMIC_PARAMETERS)
+        bounds = dynamic_bounds()
         self.parameter_names = tuple(p.name for p in DYNAMIC_PARAMETERS)
-        self.parameter_bounds = (
-            np.array([p.low for p in DYNAMIC_PARAMETERS]),
-            np.array([p.high for p in DYNAMIC_PARAMETERS]),
-        )
-        self.register_buffer("theta", torch.tensor([p.nominal for p in DYNAMIC_PARAMETERS]))
-        self.register_buffer("theta_scale", torch.zeros(n, n))
+        self.parameter_bounds = (bounds.low, bounds.high)
+        self.register_buffer("theta", torch.as_tensor(bounds.prior.values, dtype=torch.float32).clone())
+        self.register_buffer("theta_scale", torch.zeros(len(self.parameter_names), len(self.parameter_names)))
         # the lags the correction's residuals are reached at: the kinematic prior's (speed, yaw)
         names = [p.name for p in self.car.parameters]
         self.lags = (

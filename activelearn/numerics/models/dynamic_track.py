@@ -309,7 +309,7 @@ DYNAMIC_PARAMETERS: tuple[PhysicalParameter, ...] = (
 )
 
 
-def _bounds() -> SimpleNamespace:
+def dynamic_bounds() -> SimpleNamespace:
     """The parameters' ranges, widths and prior in the form `single_track._map_fit` reads."""
     nominal = np.array([p.nominal for p in DYNAMIC_PARAMETERS])
     width = np.array([p.width for p in DYNAMIC_PARAMETERS])
@@ -373,7 +373,7 @@ def identify_dynamic(
     parameters; a few seconds are not). `search_from`: where the search begins (default the file);
     `implicit`: free runs by the step with implicit tyre damping (the physics kind's)."""
     logs = [(np.asarray(u, np.float64), np.asarray(y, np.float64)) for u, y in logs if len(u) > 1]
-    bounds = _bounds()
+    bounds = dynamic_bounds()
     if not logs:
         return Identified(bounds.prior.values.copy(), bounds.prior.covariance.copy())
     owners, wheels = list(range(len(logs))), [u[0, 1] for u, _ in logs]
