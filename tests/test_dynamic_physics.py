@@ -3,15 +3,19 @@ identification, against the dynamic core's own NumPy runs."""
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 import torch
 from pydantic import ValidationError
 
 from activelearn.config import ModelConfig
+from activelearn.numerics.lags import model_lags
 from activelearn.numerics.models import build_model, load_model, physics, save_model
 from activelearn.numerics.models.dynamic_physics import DynamicPhysicsModel
 from activelearn.numerics.models.dynamic_track import DynamicCar, dynamic_step
+from activelearn.numerics.multistep import window_loss, windows_from_logs
 from activelearn.numerics.surrogate import simulate
 from activelearn.numerics.training_data import TrainingData
 from simulator.vehicles import load_vehicle
@@ -117,3 +121,30 @@ def test_it_identifies_a_twins_grip_and_motor_and_saves_them(tmp_path):
     save_model(model, tmp_path / "model.pt")
     loaded = load_model(tmp_path / "model.pt")
     assert isinstance(loaded, DynamicPhysicsModel) and loaded.physical_parameters() == found
+
+
+def test_the_compiled_core_trains_and_runs_free_as_the_eager_one():
+    """`compile_steps` (torch.compile of the core's step): a window loss, its gradient and free runs are
+    the eager core's up to float rounding."""
+    eager = _untrained(parameter_uncertainty="by_log")
+    logs = twin_logs(eager.dynamic_car, implicit=True)
+    eager.identify(TrainingData(x=np.zeros((0, 16)), y=np.zeros((0, 2)), logs=logs))
+    compiled = copy.deepcopy(eager)
+    compiled.compile_steps()
+    windows = windows_from_logs(logs, model_lags(eager), horizon=30, every=40)
+    rows = torch.arange(len(windows))
+    losses, grads = [], []
+    for model in (eager, compiled):
+        model.zero_grad()
+        torch.manual_seed(0)  # the correction's training noise: the same draws for both
+        loss = window_loss(model, windows, rows)
+        loss.backward()
+        losses.append(loss.item())
+        grads.append(torch.cat([p.grad.reshape(-1) for p in model.parameters() if p.grad is not None]))
+    assert losses[1] == pytest.approx(losses[0], rel=1e-4)
+    assert torch.allclose(grads[1], grads[0], rtol=1e-3, atol=1e-5 * float(grads[0].abs().max()))
+    controls = [log[0] for log in logs]
+    runs = [simulate(m, controls, rate_hz=30.0, n_samples=4, seed=0) for m in (eager, compiled)]
+    assert compiled.compiled  # compiling worked here (else the core steps eagerly, with a warning)
+    assert np.allclose(runs[1].mean_rates, runs[0].mean_rates, rtol=1e-3, atol=1e-3)
+    assert np.allclose(runs[1].x, runs[0].x, atol=1e-2)

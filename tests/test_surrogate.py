@@ -19,7 +19,8 @@ from activelearn.loop.collection import arrays, training_rows
 from activelearn.loop.fitting import load_model_copy
 from activelearn.numerics.diagnostics import calibrate_fan, fan_scale_needed, free_run_metrics, relative_pose
 from activelearn.numerics.models import build_model, load_model, save_model
-from activelearn.numerics.surrogate import _integrate, estimate_lever_arm, path_from_rates, simulate
+from activelearn.numerics.pose import integrate_pose
+from activelearn.numerics.surrogate import estimate_lever_arm, path_from_rates, simulate
 from activelearn.numerics.training import fit
 from activelearn.numerics.training_data import TrainingData
 from simulator import Maneuver
@@ -194,19 +195,26 @@ def test_predict_cli_prints_metrics_and_writes_the_figure(tmp_path, skidpad_mode
     assert out.stat().st_size > 10_000
 
 
-def test_integrate_matches_a_step_by_step_loop():
+@pytest.mark.parametrize("sideslip", [False, True])
+def test_integrate_matches_a_step_by_step_loop(sideslip: bool):
+    """The pose of speed, yaw rate and (a dynamic core's) the rear axle's lateral speed, step by step."""
     rng = np.random.default_rng(0)
     v = rng.uniform(0.0, 2.0, (3, 50)).astype(np.float32)
     w = rng.uniform(-1.0, 1.0, (3, 50)).astype(np.float32)
+    lateral = rng.uniform(-0.5, 0.5, (3, 50)).astype(np.float32) * sideslip  # m/s, the rear axle's
     yaw0 = np.array([0.0, 0.5, -2.0], dtype=np.float32)
     dt = 0.1
-    x, y, yaw = _integrate(torch.as_tensor(v), torch.as_tensor(w), dt, torch.as_tensor(yaw0)[:, None])
+    x, y, yaw = integrate_pose(
+        torch.as_tensor(v), torch.as_tensor(w), dt, torch.as_tensor(yaw0)[:, None],
+        lateral=torch.as_tensor(lateral) if sideslip else None,
+    )  # fmt: skip
     px, py, pyaw = np.zeros(3), np.zeros(3), yaw0.astype(np.float64)
     for k in range(50):
         np.testing.assert_allclose(x[:, k], px, atol=1e-4)
         np.testing.assert_allclose(y[:, k], py, atol=1e-4)
         np.testing.assert_allclose(yaw[:, k], pyaw, atol=1e-4)
-        px, py = px + v[:, k] * np.cos(pyaw) * dt, py + v[:, k] * np.sin(pyaw) * dt
+        px = px + (v[:, k] * np.cos(pyaw) - lateral[:, k] * np.sin(pyaw)) * dt
+        py = py + (v[:, k] * np.sin(pyaw) + lateral[:, k] * np.cos(pyaw)) * dt
         pyaw = pyaw + w[:, k] * dt
 
 

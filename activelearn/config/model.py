@@ -270,7 +270,8 @@ class TrainingConfig(_Section):
     compile: bool | Literal["auto"] = Field(
         "auto",
         description="Compile the whole training step with torch.compile: ~5x faster per step after a "
-        "one-off compile of ~5-20 s; `auto` compiles fits of 40,000 steps or more",
+        "one-off compile of ~5-20 s; `auto` compiles fits of 40,000 steps or more. The dynamic core's "
+        "step (windows and free runs) compiles with `true`, and with `auto` where windows train",
     )
     # These layers are too small to gain from more threads, and one thread avoids contention.
     num_threads: int | None = Field(

@@ -45,6 +45,7 @@ from activelearn.names import POS_X, POS_Y, YAW, YAW_RATE
 from activelearn.numerics import buffers, counter_noise, native
 from activelearn.numerics.lags import Lags, model_lags
 from activelearn.numerics.models.base import BACKENDS, CHUNK_ROWS, draw_moments
+from activelearn.numerics.pose import integrate_pose
 from activelearn.numerics.threads import even_blocks, intra_op_threads, parallel_map
 
 N_CONTROLS = 2
@@ -113,42 +114,6 @@ def _stack(controls: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     return out, lengths
 
 
-def _integrate(
-    v: torch.Tensor,
-    w: torch.Tensor,
-    dt: float,
-    yaw0: torch.Tensor,
-    out: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
-    lever_arm: float = 0.0,
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Planar pose from rates (..., T): ψ_{k+1} = ψ_k + ω_k dt, position by the heading at step start.
-
-    The sums move the rear axle; x, y are those of the point `lever_arm` metres ahead of it, relative
-    to its start. `yaw0` broadcasts against (..., 1). Writes into `out` = (x, y, yaw) when given.
-    """
-    x, y, yaw = out if out is not None else (torch.empty_like(v) for _ in range(3))
-    scratch = torch.empty_like(v)
-
-    def shifted_cumsum(rate: torch.Tensor, into: torch.Tensor) -> torch.Tensor:
-        """into[..., k] = sum of rate[..., :k] (the value before step k)."""
-        into[..., 0] = 0.0
-        torch.cumsum(rate[..., :-1], dim=-1, out=into[..., 1:])
-        return into
-
-    shifted_cumsum(w, yaw)
-    torch.add(yaw0, yaw, alpha=dt, out=yaw)
-    # One scratch buffer serves v cos ψ, then v sin ψ.
-    torch.cos(yaw, out=scratch).mul_(v)
-    shifted_cumsum(scratch, x).mul_(dt)
-    torch.sin(yaw, out=scratch).mul_(v)
-    shifted_cumsum(scratch, y).mul_(dt)
-    if lever_arm:  # cos ψ and sin ψ again: keeping them costs a buffer and measured no faster
-        start = torch.as_tensor(yaw0, dtype=v.dtype)
-        x.add_(torch.cos(yaw, out=scratch).sub_(torch.cos(start)), alpha=lever_arm)
-        y.add_(torch.sin(yaw, out=scratch).sub_(torch.sin(start)), alpha=lever_arm)
-    return x, y, yaw
-
-
 def path_from_rates(
     v: np.ndarray, w: np.ndarray, *, dt: float, lever_arm: float = 0.0, yaw0: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -159,7 +124,7 @@ def path_from_rates(
     """
     v_, w_ = (torch.from_numpy(np.array(a, dtype=np.float64))[None] for a in (v, w))
     start = torch.full((1, 1), float(yaw0), dtype=torch.float64)
-    x, y, yaw = _integrate(v_, w_, dt, start, lever_arm=lever_arm)
+    x, y, yaw = integrate_pose(v_, w_, dt, start, lever_arm=lever_arm)
     return x[0].numpy(), y[0].numpy(), yaw[0].numpy()
 
 
@@ -268,7 +233,7 @@ def _reference_trajectories(
             rate.copy_(torch.from_numpy(z))
             mean_at, std_at = (m[s, j].index_select(0, index).view_as(rate) for m in (means, std))
             torch.addcmul(mean_at, std_at, rate, out=rate)
-        _integrate(v, w, dt, start, out=(x, y, yaw), lever_arm=lever_arm)
+        integrate_pose(v, w, dt, start, out=(x, y, yaw), lever_arm=lever_arm)
 
     parallel_map(trajectory, range(len(keys)))
     return tuple(p.numpy() for p in paths)
@@ -339,7 +304,7 @@ def simulate(
                 model, stacked, n_samples, gen, initial_rates, lags, backend, pose=(dt, start_yaw, lever_arm)
             )
             if pose is None:
-                pose = _integrate(v, w, dt, torch.from_numpy(start_yaw)[:, None], lever_arm=lever_arm)
+                pose = integrate_pose(v, w, dt, torch.from_numpy(start_yaw)[:, None], lever_arm=lever_arm)
             v, w, x, y, yaw = (np.asarray(p) for p in (v, w, *pose))
     if fan_scale != 1.0:
         _widen_about_the_mean((x, y, yaw), fan_scale)

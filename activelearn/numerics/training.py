@@ -341,6 +341,8 @@ def _train(
             or (config.compile == "auto" and steps_per_epoch * config.epochs >= AUTO_COMPILE_STEPS)
         )
     )
+    if config.compile is True or (config.compile == "auto" and windows is not None):
+        model.compile_steps()  # a window is tens of core steps, each hundreds of small ops eagerly
     model.set_correction_weight(1.0)  # trained with its whole correction (where the kind has one)
     gated = gate and model.gates_correction(data)
     probe = copy.deepcopy(model) if gated else None  # as it starts training: the probe starts there too

@@ -4,8 +4,10 @@ For each fast car (`--cars`), the test maneuvers of its `dynamics_<car>.toml` (t
 at 30 Hz) are simulated by the truth (MuJoCo and the magic-formula tyres, `simulator.collect`, all
 cores, no noise) and free-run by the physics kind with each core (an untrained model: the time does
 not depend on the weights), S = `--samples` sampled trajectories each, as a campaign's evaluation
-runs them. Prints per car and core: wall seconds of each (best of `--repeats`), their ratio, and
-the absolute rate in sample-steps per second (S × maneuvers × steps / wall).
+runs them; the dynamic core eagerly and compiled (torch.compile, as campaigns that train windows run
+it; its first call, which compiles, timed apart). Prints per car and core: wall seconds of each (best
+of `--repeats`), their ratio, and the absolute rate in sample-steps per second (S × maneuvers × steps
+/ wall).
 
 Usage: python experiments/benchmarks/bench_dynamic_speed.py [--cars f1tenth,bmw320i] [--samples 32]
        [--repeats 3] [--out DIR] [--quick]
@@ -31,6 +33,8 @@ from activelearn.numerics.models import build_model
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 CARS = ("f1tenth", "bmw320i")
+# the kinematic core (its compiled C kernel), the dynamic core eager and compiled (`compile_steps`)
+VARIANTS = ("kinematic", "dynamic", "dynamic compiled")
 
 
 def best_of(repeats: int, run) -> float:
@@ -75,13 +79,18 @@ def main() -> None:
                    for i, t in enumerate(logs)]  # fmt: skip
         truth = best_of(args.repeats, partial(simulator.collect, replays, noise=None, vehicle=vehicle))
         steps = sum(len(t) for t in logs)
-        for core in ("kinematic", "dynamic"):
-            model = build_model(cfg.model.model_copy(update={"core": core}), seed=0)
+        for core in VARIANTS:
+            model = build_model(cfg.model.model_copy(update={"core": core.split()[0]}), seed=0)
             model.set_scalers(test.x, test.y_clean)
             run = partial(free_runs, model, logs, rate_hz=30.0, n_samples=args.samples)
+            first = float("nan")
+            if core.endswith("compiled"):
+                model.compile_steps()
+                first = best_of(1, run)  # compiles (torch's on-disk cache shortens a later process's)
             wall = best_of(args.repeats, run)
             rows.append({"car": car, "core": core, "maneuvers": len(logs), "truth s": round(truth, 2),
-                         "free runs s": round(wall, 2), "truth / free runs": round(truth / wall, 1),
+                         "free runs s": round(wall, 2), "first call s": round(first, 1),
+                         "truth / free runs": round(truth / wall, 1),
                          "sample-steps/s": f"{args.samples * steps / wall:.3g}"})  # fmt: skip
             print(f"{car} {core}: free runs x{truth / wall:.3g} the truth's speed,"
                   f" {args.samples * steps / wall:.3g} sample-steps/s", flush=True)

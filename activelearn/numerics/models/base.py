@@ -354,6 +354,11 @@ class Model(nn.Module, ABC):
     def set_correction_weight(self, weight: float) -> None:
         """Keep this share of the learnt correction's mean (a kind without a correction: a no-op)."""
 
+    def compile_steps(self) -> None:
+        """Compile what the kind's window losses and free runs step through (torch.compile), for the rest
+        of this model's life; `training.fit` asks it (`[training] compile`). A kind whose step is its
+        network (run by the compiled kernels already): a no-op."""
+
     def round_metrics(self) -> dict[str, float]:
         """What a campaign round records of the fitted model beyond its evaluation (none here)."""
         return {}

@@ -366,7 +366,7 @@ def static_rollout(
     are the draws' noise keys. `paths` = (v, w, x, y, yaw), each an (S, M, T) float32 array with
     unit stride along T and whole maneuvers per draw, and `moments` = (centre, aleatoric,
     epistemic), each (M, T, 2) contiguous, are written. Draws are mapped as in `NetworkKernel.forward`.
-    x, y are the path of the point `lever_arm` metres ahead of the rear axle (`surrogate._integrate`).
+    x, y are the path of the point `lever_arm` metres ahead of the rear axle (`pose.integrate_pose`).
     """
     n_maneuvers, n_steps, _ = controls.shape
     if controls.dtype != np.float32 or not controls.flags.c_contiguous:
@@ -418,7 +418,7 @@ def physics_rollout(
     step reads; `start` (S, 2, M) the rates before the first step; `keys` (S,) uint64 the noise
     keys. `rates` (S, 2, M, T) and `moments` (centre, aleatoric, epistemic), each (M, T, 2), are
     written; all float32 and contiguous. `pose` = (dt, lever arm, headings (M,), (x, y, yaw) each
-    (S, M, T)) also integrates each draw's pose (`surrogate._integrate`'s) into x, y, yaw.
+    (S, M, T)) also integrates each draw's pose (`pose.integrate_pose`'s) into x, y, yaw.
     """
     n_maneuvers, n_steps, _ = controls.shape
     dt, arm, yaw0, paths = pose if pose is not None else (0.0, 0.0, None, (None, None, None))

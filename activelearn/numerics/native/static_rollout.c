@@ -121,7 +121,7 @@ static double exclusive_prefix(const float *restrict values, double *restrict su
 
 /* The planar pose of one draw over one tile of `n` steps from its sampled rates vt, wt (TILE each,
  * zero beyond n). `sums` carries the running sums of w, v cos(yaw) and v sin(yaw) from tile to tile.
- * Writes n steps at x, y, yaw. The pose is torch's reference (`_integrate`): yaw[t] = yaw0 + dt *
+ * Writes n steps at x, y, yaw. The pose is torch's reference (`integrate_pose`): yaw[t] = yaw0 + dt *
  * sum(w[:t]), x[t] = dt * sum(v cos yaw [:t]) + arm * (cos yaw[t] - cos yaw0), likewise y with sin,
  * with the sums in double: the sums move the rear axle, which does not slip sideways, and the logged
  * point sits `arm` ahead of it. */
