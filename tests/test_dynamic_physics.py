@@ -148,3 +148,26 @@ def test_the_compiled_core_trains_and_runs_free_as_the_eager_one():
     assert compiled.compiled  # compiling worked here (else the core steps eagerly, with a warning)
     assert np.allclose(runs[1].mean_rates, runs[0].mean_rates, rtol=1e-3, atol=1e-3)
     assert np.allclose(runs[1].x, runs[0].x, atol=1e-2)
+
+
+def test_identify_command_prints_the_dynamic_cores_scales_beside_the_file(tmp_path, capsys):
+    """`activelearn identify --core dynamic` on the truth's logs of the 1:10 car's twin (less grip, a weaker
+    motor): the five scales and the figures they scale; the twin's grip and motor found."""
+    from activelearn.cli import main
+    from simulator import Maneuver, build_vehicle, collect
+
+    twin = build_vehicle(load_vehicle("f1tenth"), {"tire_friction": 0.8, "motor_gain": 0.9})
+    for i, (kind, throttle, steering) in enumerate([("slalom", 0.3, 0.1), ("skidpad", 0.4, 0.08)]):
+        log = collect([Maneuver(kind, throttle, steering, "ccw", 12.0)], seed=0, vehicle=twin)
+        log.to_parquet(tmp_path / f"log{i}.parquet")
+    assert main(["identify", str(tmp_path), "--core", "dynamic", "--vehicle", "f1tenth"]) == 0
+    out = capsys.readouterr().out
+    rows = {line.split()[0]: line.split() for line in out.splitlines()[2:] if line.startswith("  ")}
+    assert set(rows) >= {"friction", "stiffness_front", "stiffness_rear", "motor", "yaw_inertia"}
+    _, scale, _, _, figure, fitted = rows["motor"][:6]
+    assert float(scale) == pytest.approx(0.9, abs=0.03)  # the twin's motor
+    assert float(fitted) == pytest.approx(float(scale) * float(figure), rel=1e-3)
+    assert float(rows["friction"][1]) == pytest.approx(0.8, abs=0.06)  # its grip
+    assert "cluster-robust" in out and "f1tenth" in out
+    assert main(["identify", str(tmp_path), "--core", "dynamic", "--other-car", str(tmp_path)]) == 2
+    assert "--other-car" in capsys.readouterr().err

@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -48,24 +49,74 @@ from activelearn.numerics.training_data import TrainingData
 
 IDENTIFY_HORIZON = 3.0  # s: free runs restart from the logged rates (a spinning car's 30 s are chaotic)
 IDENTIFY_EVERY = 3  # log steps between the compared points of an identification's free runs
-# The core's step compiled (torch.compile, inductor): a model step becomes a few fused kernels instead
-# of some 400 small ops, forward and backward (1:10 car: a 30-step window of 32 rows 0.16 s eagerly,
-# 0.008 s compiled; free runs 1.1e6 -> 1.1e7 sample-steps/s). Keyed by what shapes the graph besides
-# the car's figures; compiled on first use (~25 s, ~2 s from torch's on-disk cache).
-_COMPILED_CORES: dict[tuple[float, int], Callable] = {}
 
 
-def compiled_core(dt: float, substeps: int) -> Callable:
-    """`dynamic_step(car, state, throttle, steering, dt, substeps, implicit=True)` compiled, one per key."""
-    key = (dt, substeps)
-    if key not in _COMPILED_CORES:
+@dataclass(frozen=True)
+class CorrectionLimits:
+    """What bounds the correction on top of the core: its steady residuals' share of the car's speed and
+    yaw-rate limits (`residual_bound`), the lags they are reached at (s: speed, yaw; each scaled within
+    e^±`log_factor`), the yaw rate's cap and the model step (s)."""
 
-        def step(car: DynamicCar, state: Tensor, throttle: Tensor, steering: Tensor) -> Tensor:
-            return dynamic_step(car, state, throttle, steering, dt, substeps, implicit=True)
+    bound: float
+    max_speed: float
+    max_yaw_rate: float
+    yaw_cap: float
+    speed_lag: float
+    yaw_lag: float
+    log_factor: float
+    dt: float
+    substeps: int
 
-        # every key closes over one code object: its own dynamo cache, or all would share 8 recompiles
-        _COMPILED_CORES[key] = torch.compile(step, isolate_recompiles=True, recompile_limit=32)
-    return _COMPILED_CORES[key]
+
+def corrected_step(
+    car: DynamicCar, state: Tensor, tau: Tensor, delta: Tensor, zs, limits: CorrectionLimits
+) -> Tensor:
+    """The state (..., 4) = (v_x, v_y, r, δ_w) after one model step, the correction's residuals (raw
+    outputs `zs`: speed, yaw rate, their lags) added to v_x and r."""
+    nxt = dynamic_step(car, state, tau, delta, limits.dt, limits.substeps, implicit=True)
+    z_v, z_w, z_tv, z_tw = zs
+    lag_v = limits.speed_lag * torch.exp(limits.log_factor * torch.tanh(z_tv))
+    lag_w = limits.yaw_lag * torch.exp(limits.log_factor * torch.tanh(z_tw))
+    share_v, share_w = 1.0 - torch.exp(-limits.dt / lag_v), 1.0 - torch.exp(-limits.dt / lag_w)
+    v = nxt[..., 0] + share_v * limits.bound * limits.max_speed * torch.tanh(z_v)
+    w = nxt[..., 2] + share_w * limits.bound * limits.max_yaw_rate * torch.tanh(z_w)
+    w = w.clamp(-limits.yaw_cap, limits.yaw_cap)
+    return torch.stack([v, nxt[..., 1], w, nxt[..., 3]], dim=-1)
+
+
+def free_run_step(
+    car: DynamicCar, state: Tensor, tau: Tensor, delta: Tensor, zs, limits: CorrectionLimits, std: Tensor,
+    noise: Tensor, spread: Tensor, widen: bool,
+) -> tuple[Tensor, ...]:  # fmt: skip
+    """One step of S draws' free runs (state (S, M, 4)): each draw's rates (S, 2, M) without and with the
+    sensors' noise (`std` × `noise`), its v_y and δ_w, and the moments over draws (centre, aleatoric and
+    epistemic variance, each (2, M)). `widen`: each draw's correction spread by `spread` about the
+    draws' mean (`surrogate.widened_step`), not its past."""
+    nxt = corrected_step(car, state, tau, delta, zs, limits)
+    means = torch.stack([nxt[..., 0], nxt[..., 2]], dim=1)
+    if widen:
+        common = corrected_step(car, state.mean(dim=0).expand_as(state), tau, delta, zs, limits)
+        common = torch.stack([common[..., 0], common[..., 2]], dim=1)
+        means = means + (spread - 1.0) * (common - common.mean(dim=0))
+    centre = means.mean(dim=0)
+    deviation = means - centre
+    noisy = means + std * noise
+    aleatoric, epistemic = std.square().mean(dim=0), deviation.square().mean(dim=0)
+    return means, noisy, nxt[..., 1], nxt[..., 3], centre, aleatoric, epistemic
+
+
+_EAGER: dict[str, Callable] = {"corrected": corrected_step, "free_run": free_run_step}
+_COMPILED: dict[str, Callable] = {}
+
+
+def compiled(name: str) -> Callable:
+    """`corrected_step` or `free_run_step` compiled (torch.compile, inductor): a model step becomes a few
+    fused kernels instead of some 400 small ops, forward and backward (1:10 car: a 30-step window of 32
+    rows 0.16 s eagerly, 0.008 s compiled). Compiled on first use (~25 s, a few s from torch's on-disk
+    cache), each with its own dynamo cache (the shapes of rows, windows and free runs each compile)."""
+    if name not in _COMPILED:
+        _COMPILED[name] = torch.compile(_EAGER[name], isolate_recompiles=True, recompile_limit=32)
+    return _COMPILED[name]
 
 
 class DynamicPhysicsModel(PhysicsModel):
@@ -118,36 +169,38 @@ class DynamicPhysicsModel(PhysicsModel):
 
     # ----- the step ---------------------------------------------------------------------------
     def compile_steps(self) -> None:
-        """Windows, rows and free runs step the core compiled from now on (`compiled_core`)."""
+        """Windows, rows and free runs step compiled from now on (`compiled`)."""
         self.compiled = True
 
-    def _core(self, car: DynamicCar, state: Tensor, tau: Tensor, delta: Tensor) -> Tensor:
-        """The bare core's step: compiled where asked, eager where compiling fails (no C++ toolchain)."""
-        if self.compiled:
+    def _step(self, name: str) -> Callable:
+        """`corrected_step` or `free_run_step`, compiled where asked and where compiling works."""
+        if not self.compiled:
+            return _EAGER[name]
+
+        def guarded(*args):
             try:
-                return compiled_core(self.dt, self.substeps)(car, state, tau, delta)
-            except Exception as exc:
+                return compiled(name)(*args)
+            except Exception as exc:  # torch.compile's failures share no type
                 warnings.warn(f"torch.compile failed ({exc}); the dynamic core steps eagerly", RuntimeWarning,
-                              stacklevel=2)  # fmt: skip
+                              stacklevel=3)  # fmt: skip
                 self.compiled = False
-        return dynamic_step(car, state, tau, delta, self.dt, self.substeps, implicit=True)
+                return self._step(name)(*args)
+
+        return guarded
+
+    @property
+    def limits(self) -> CorrectionLimits:
+        """The correction's bounds on this car (`CorrectionLimits`)."""
+        car = self.car
+        return CorrectionLimits(
+            bound=self.config.residual_bound, max_speed=car.max_speed, max_yaw_rate=car.max_yaw_rate,
+            yaw_cap=car.yaw_cap, speed_lag=self.lags[0], yaw_lag=self.lags[1],
+            log_factor=math.log(LAG_FACTOR), dt=self.dt, substeps=self.substeps,
+        )  # fmt: skip
 
     def _scaled_car(self, theta: Tensor) -> DynamicCar:
         """The file's car under scales `theta` (5,) or one set per draw (S, 1, 5)."""
         return with_scales(self.dynamic_car, *(theta[..., i] for i in range(len(DYNAMIC_PARAMETERS))))
-
-    def _corrected_step(self, car: DynamicCar, state: Tensor, tau: Tensor, delta: Tensor, zs) -> Tensor:
-        """The state (..., 4) = (v_x, v_y, r, δ_w) after one model step, the correction's residuals
-        (raw outputs `zs`: speed, yaw rate, their lags) added to v_x and r."""
-        nxt = self._core(car, state, tau, delta)
-        z_v, z_w, z_tv, z_tw = zs
-        bound, log_factor = self.config.residual_bound, math.log(LAG_FACTOR)
-        share_v = 1.0 - torch.exp(-self.dt / (self.lags[0] * torch.exp(log_factor * torch.tanh(z_tv))))
-        share_w = 1.0 - torch.exp(-self.dt / (self.lags[1] * torch.exp(log_factor * torch.tanh(z_tw))))
-        v = nxt[..., 0] + share_v * bound * self.car.max_speed * torch.tanh(z_v)
-        w = nxt[..., 2] + share_w * bound * self.car.max_yaw_rate * torch.tanh(z_w)
-        w = w.clamp(-self.car.yaw_cap, self.car.yaw_cap)
-        return torch.stack([v, nxt[..., 1], w, nxt[..., 3]], dim=-1)
 
     def _core_step(
         self, phys: Tensor, dim: int, zs: tuple[Tensor, ...], theta: Tensor
@@ -157,7 +210,7 @@ class DynamicPhysicsModel(PhysicsModel):
         previous = phys.select(dim, 3) if self.rate_at > 2 else delta  # the second control lag's steering
         car = self._scaled_car(theta)
         state = torch.stack(torch.broadcast_tensors(v, quasi_static_lateral(car, v, w), w, previous), dim=-1)
-        nxt = self._corrected_step(car, state, tau, delta, zs)
+        nxt = self._step("corrected")(car, state, tau, delta, zs, self.limits)
         return nxt[..., 0], nxt[..., 2]
 
     # ----- free runs, the lateral speed and wheel angle carried -------------------------------
@@ -193,30 +246,21 @@ class DynamicPhysicsModel(PhysicsModel):
         start_hidden = torch.stack(
             [quasi_static_lateral(car, start[:, 0], start[:, 1]), u[:, 0, 1].expand(n_samples, -1)], dim=1
         )
+        step, limits = self._step("free_run"), self.limits
+        widen, spread_t = spread != 1.0, torch.tensor(spread)
         for k in range(n_steps):
             rows = index[:, k]
             past, past_hidden = start, start_hidden
             if k >= rate_lag:
                 past, past_hidden = states[..., k - rate_lag], hidden[..., k - rate_lag]
             state = torch.stack([past[:, 0], past_hidden[:, 0], past[:, 1], past_hidden[:, 1]], dim=-1)
-            zs = z[..., rows].unbind(1)
-            tau, delta = u[:, k, 0], u[:, k, 1]
-            nxt = self._corrected_step(car, state, tau, delta, zs)  # (S, M, 4)
-            means = torch.stack([nxt[..., 0], nxt[..., 2]], dim=1)  # (S, 2, M)
-            if spread != 1.0:  # widen each draw's correction, not its past (surrogate.widened_step)
-                common = state.mean(dim=0).expand_as(state)
-                at_common = self._corrected_step(car, common, tau, delta, zs)
-                at_common = torch.stack([at_common[..., 0], at_common[..., 2]], dim=1)
-                means = means + (spread - 1.0) * (at_common - at_common.mean(dim=0))
-            centre = means.mean(dim=0)
-            deviation = means - centre
-            std = noise_std[..., rows]
-            states[..., k] = means
-            rates[..., k] = means + std * noise[..., k]
-            hidden[:, 0, :, k], hidden[:, 1, :, k] = nxt[..., 1], nxt[..., 3]
-            moments[0][:, k] = centre.t()
-            moments[1][:, k] = std.square().mean(dim=0).t()
-            moments[2][:, k] = deviation.square().mean(dim=0).t()
+            means, noisy, lateral, wheel, centre, aleatoric, epistemic = step(
+                car, state, u[:, k, 0], u[:, k, 1], z[..., rows].unbind(1), limits, noise_std[..., rows],
+                noise[..., k], spread_t, widen,
+            )  # fmt: skip
+            states[..., k], rates[..., k] = means, noisy
+            hidden[:, 0, :, k], hidden[:, 1, :, k] = lateral, wheel
+            moments[0][:, k], moments[1][:, k], moments[2][:, k] = centre.t(), aleatoric.t(), epistemic.t()
         paths = None
         if pose is not None:
             dt, yaw0, arm = pose
@@ -225,4 +269,3 @@ class DynamicPhysicsModel(PhysicsModel):
             pose = integrate_pose(states[:, 0], states[:, 1], dt, yaw0, lever_arm=arm, lateral=slip)
             paths = tuple(part.numpy() for part in pose)
         return rates, moments, paths
-

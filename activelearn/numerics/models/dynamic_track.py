@@ -309,6 +309,22 @@ DYNAMIC_PARAMETERS: tuple[PhysicalParameter, ...] = (
 )
 
 
+def scaled_figures(car: DynamicCar) -> tuple[tuple[str, float, str], ...]:
+    """The file's figure each of `DYNAMIC_PARAMETERS` scales, (symbol, value, unit) in their order: what
+    an identified scale means for this car."""
+    if car.max_acceleration is not None:
+        drive = ("a_max", car.max_acceleration, "m/s²")
+    else:  # a car with a measured speed table: the scale multiplies the table
+        drive = ("v_table", car.table_gain * float(car.table_speed[-1]), "m/s")
+    return (
+        ("μ", car.friction, "-"),
+        ("C_f", car.stiffness_front, "N/rad"),
+        ("C_r", car.stiffness_rear, "N/rad"),
+        drive,
+        ("I_z", car.yaw_inertia, "kg m²"),
+    )
+
+
 def dynamic_bounds() -> SimpleNamespace:
     """The parameters' ranges, widths and prior in the form `single_track._map_fit` reads."""
     nominal = np.array([p.nominal for p in DYNAMIC_PARAMETERS])
