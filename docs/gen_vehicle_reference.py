@@ -32,12 +32,21 @@ your own car: [the how-to](../how-to/own-car.md).
 
 ![The three cars' handling diagrams](../img/handling_diagram.png)
 
-The handling diagrams of the three cars (`python experiments/docs/handling_diagram.py`): steady turns
-at the forward throttles of each car's dynamics test set, the truth against the kinematic single track
-(dotted) and the linear single track with the file's cornering stiffnesses (dashed), both at the
-truth's own speed. Nigel never leaves the kinematic model (0.03 μg at most); the 1:10 car's tyres
-understeer from the first degree and saturate near μ g; the full-size car is neutral until its tyres
-saturate, then slides or spins (hollow: not steady).
+The handling diagrams of the three cars (`python experiments/docs/handling_diagram.py --models
+f1tenth=A/model.pt,bmw320i=B/model.pt`): steady turns at the forward throttles of each car's dynamics
+test set, the truth against the kinematic single track (dotted) and the linear single track with the
+file's cornering stiffnesses (dashed), both at the truth's own speed; and the physics kind's dynamic
+core at its own speed: with the file's values (dash-dot), and for the two fast cars a campaign's last
+model (fine dots: its identified core; solid: with its correction). A: `dynamics_f1tenth.toml`, uniform,
+seed 0, 16 signals; B: `dynamics_bmw320i.toml` on the dynamic core (`bench_vehicle_baselines.py
+--variants "dynamic physics"`), seed 0, 16 signals. Nigel never leaves the kinematic model (0.03 μg
+at most), and the dynamic core with the file's values turns too fast at its lowest speed at large
+steering (it lacks the kinematic core's understeer and scrub under its blend); the 1:10 car's tyres
+understeer from the first degree and saturate near μ g, and its dynamic core follows the truth to the
+limit, identified or not; the full-size car is neutral until its tyres saturate, then slides or
+spins (hollow: not steady): the file's dynamic core follows it within the grip, the identified one
+does not (scales: grip 0.71, cornering stiffnesses 0.35 and 0.38, motor 0.87, yaw inertia at its
+bound 3; both fast cars' gates keep none of the correction, so solid and fine dots coincide).
 
 """
 COLUMNS = ("car", "scale", "truth", "wheelbase (m)", "full lock (rad)", "top speed (m/s)", "μ",

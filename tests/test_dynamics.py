@@ -501,3 +501,25 @@ def test_a_free_run_that_blows_up_scores_infinity_not_nan(history_models, slalom
     metrics = free_run_metrics(model, logs, rate_hz=30.0, n_samples=4)
     for name in ("rollout_pos_err_10s", "rollout_pos_err_30s", "rollout_heading_err_30s", "rollout_rmse_v"):
         assert metrics[name] == np.inf, (name, metrics[name])
+
+
+def test_the_lookahead_oracle_judges_a_batch_by_the_configs_metric(tmp_path):
+    """`oracle_lookahead` keeps the batch whose retrained model is best by the config's `[test] metric`:
+    here the 30-s free-run error the comparison ranks by, not the one-step RMSE (a dynamic model's
+    one-step error and its free runs can rank batches differently)."""
+    from activelearn.data import read_table
+    from activelearn.loop.campaign import SAMPLES_FILE
+
+    cfg = _dynamic_config(tmp_path, strategy="oracle_lookahead",
+                          design={"initial": 2, "per_round": 1, "max_maneuvers": 3})  # fmt: skip
+    campaign = Campaign(cfg, tmp_path / "c")
+    state = campaign.run(figures=False).state
+    samples = read_table(tmp_path / "c" / SAMPLES_FILE)
+    model = load_model(tmp_path / "c" / "model.pt")
+    batch = [int(np.flatnonzero(~campaign.pool(state.taken, model).taken)[0])]
+    score = campaign._trial(state, samples, batch, len(state.rounds) - 1, model)
+    new = campaign.collect(batch, len(state.batches), state)
+    more = pd.concat([samples, new], ignore_index=True)
+    retrained = campaign.fitting.fit(more, len(state.rounds), previous=model)
+    metrics = campaign.evaluation.evaluate(retrained)
+    assert score == pytest.approx(metrics["rollout_pos_err_30s"]) and score != metrics["test_rmse"]

@@ -167,3 +167,15 @@ def test_the_twins_dynamics_config_is_dynamics_toml_answered_by_sim_to_reals_twi
     real = load_config(configs / "sim_to_real.toml")
     assert twin.oracle == real.oracle and twin.oracle.kind == "twin" and nominal.oracle.kind == "simulator"
     assert twin.model_copy(update={"name": nominal.name, "oracle": nominal.oracle}) == nominal
+
+
+def test_the_fast_cars_twin_and_warm_configs_repeat_its_cold_start():
+    """dynamics_f1tenth_twin.toml and dynamics_f1tenth_warm.toml (issue 57's settings) are
+    dynamics_f1tenth.toml but for the oracle (the twin: less grip, a weaker motor) or the design (a
+    low-lateral-acceleration grid already driven, 12 new signals)."""
+    configs = SMOKE.parent
+    cold, twin, warm = (load_config(configs / f"dynamics_f1tenth{s}.toml") for s in ("", "_twin", "_warm"))
+    assert twin.oracle.kind == "twin" and twin.oracle.overrides == {"tire_friction": 0.8, "motor_gain": 0.9}
+    assert twin.model_copy(update={"name": cold.name, "oracle": cold.oracle}) == cold
+    assert warm.design.prior is not None and warm.design.prior.grid is not None and warm.design.initial == 0
+    assert warm.model_copy(update={"name": cold.name, "design": cold.design}) == cold

@@ -122,7 +122,8 @@ Trial = Callable[[list[int]], float]
 
 
 class LookaheadOracleStrategy(Strategy):
-    """Benchmark-only reference: the batch whose retrained model has the lowest TRUE test error.
+    """Benchmark-only reference: the batch whose retrained model has the lowest TRUE test error (the
+    config's `[test] metric`: what the comparison ranks by, the free runs' error for a dynamics config).
 
     Each round it proposes a handful of candidate batches (what uniform, max_epistemic and
     integrated_variance would pick, and a few random batches), has the campaign collect each, retrain

@@ -70,6 +70,7 @@ from activelearn.names import (
     N_MANEUVERS,
     POOL_EPISTEMIC_STD_MAX,
     PREQUENTIAL_FAN_SCALE,
+    ROLLOUT_METRICS,
     ROUND,
     TEST_RMSE,
     WALL_SECONDS,
@@ -314,11 +315,13 @@ class Campaign:
     def _trial(
         self, state: CampaignState, samples: pd.DataFrame, batch: list[int], round_index: int, model: Any
     ) -> float:
-        """Test RMSE of the next round's model if `batch` were collected (`History.trial`)."""
+        """The config's test metric (`[test] metric`: a one-step error, or the free runs' the comparison
+        ranks by) of the next round's model if `batch` were collected (`History.trial`)."""
         new = self.collect(batch, len(state.batches), state)
         more = pd.concat([samples, new], ignore_index=True)
         trial = self.fitting.fit(more, round_index + 1, previous=model)
-        return self.evaluation.evaluate(trial, rollouts=False)[TEST_RMSE]
+        metric = self.cfg.test.metric
+        return self.evaluation.evaluate(trial, rollouts=metric in ROLLOUT_METRICS)[metric]
 
     def assess(
         self, model: Any | None, round_index: int, open_: np.ndarray, samples: pd.DataFrame | None

@@ -42,6 +42,9 @@ LOOKAHEAD = "oracle_lookahead"
 COLD_START = (
     "uniform", "random", "max_epistemic", "integrated_variance", "auto", "bald", "igs", "lcmd", "switch",
 )  # fmt: skip
+# At the handling limit (issue 57, the 1:10 car on the dynamic core): space filled in the model's own terms
+# (regressor_maximin), the epistemic rule and auto against uniform.
+HANDLING_LIMIT = ("uniform", "regressor_maximin", "max_epistemic", "auto")
 # What each pool compares (uniform is the control everywhere; grid and random for reference).
 POOLS: dict[str, tuple[str, ...]] = {
     "skidpad": ("uniform", "random", "max_epistemic", "integrated_variance", "auto"),
@@ -53,6 +56,9 @@ POOLS: dict[str, tuple[str, ...]] = {
     "dynamics": COLD_START,
     "dynamics_twin": COLD_START,
     "dynamics_warm": ("uniform", "random", "max_epistemic", "integrated_variance", "auto"),
+    "dynamics_f1tenth": HANDLING_LIMIT,
+    "dynamics_f1tenth_twin": HANDLING_LIMIT,
+    "dynamics_f1tenth_warm": HANDLING_LIMIT,
 }
 
 
