@@ -17,6 +17,9 @@ one-step row (training, `predict`) starts the step from v_y of a steady turn at 
 (`quasi_static_lateral`) and δ_w at the window's previous steering: the lateral mode settles in about
 m v / (C_f + C_r), a tenth of a second on the 1:10 car, so a row's step of `history_step` log steps
 mostly forgets its start, and the correction trained on rows sees nearly the step free runs take.
+
+A step is written once as pure functions (`corrected_step`, `free_run_step`) that `compile_steps` has
+torch.compile fuse (`compiled_step`): eagerly each is a few hundred small operations.
 """
 
 from __future__ import annotations
@@ -109,7 +112,7 @@ _EAGER: dict[str, Callable] = {"corrected": corrected_step, "free_run": free_run
 _COMPILED: dict[str, Callable] = {}
 
 
-def compiled(name: str) -> Callable:
+def compiled_step(name: str) -> Callable:
     """`corrected_step` or `free_run_step` compiled (torch.compile, inductor): a model step becomes a few
     fused kernels instead of some 400 small ops, forward and backward (1:10 car: a 30-step window of 32
     rows 0.16 s eagerly, 0.008 s compiled). Compiled on first use (~25 s, a few s from torch's on-disk
@@ -137,7 +140,7 @@ class DynamicPhysicsModel(PhysicsModel):
             float(self.car.nominal[names.index("speed_lag")]),
             float(self.car.nominal[names.index("yaw_lag")]),
         )
-        self.compiled = False  # whether the core steps compiled (`compile_steps`)
+        self.compiled = False  # whether the model's steps run compiled (`compile_steps`)
 
     # ----- identification ---------------------------------------------------------------------
     @torch.no_grad()
@@ -169,7 +172,7 @@ class DynamicPhysicsModel(PhysicsModel):
 
     # ----- the step ---------------------------------------------------------------------------
     def compile_steps(self) -> None:
-        """Windows, rows and free runs step compiled from now on (`compiled`)."""
+        """Windows, rows and free runs step compiled from now on (`compiled_step`)."""
         self.compiled = True
 
     def _step(self, name: str) -> Callable:
@@ -179,7 +182,7 @@ class DynamicPhysicsModel(PhysicsModel):
 
         def guarded(*args):
             try:
-                return compiled(name)(*args)
+                return compiled_step(name)(*args)
             except Exception as exc:  # torch.compile's failures share no type
                 warnings.warn(f"torch.compile failed ({exc}); the dynamic core steps eagerly", RuntimeWarning,
                               stacklevel=3)  # fmt: skip
