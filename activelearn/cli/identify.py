@@ -83,16 +83,11 @@ def _print_kinematic(logs, car, other_car: list[str], dt: float) -> None:
 
 def _print_dynamic(logs, spec, dt: float) -> None:
     """The dynamic core's five scales, identified as its campaigns do, with the figures they scale."""
-    from activelearn.numerics.models.dynamic_physics import IDENTIFY_EVERY, IDENTIFY_HORIZON
-    from activelearn.numerics.models.dynamic_track import (
-        DYNAMIC_PARAMETERS,
-        DynamicCar,
-        identify_dynamic,
-        scaled_figures,
-    )
+    from activelearn.numerics.models.dynamic_physics import IDENTIFY_HORIZON, identify_scales
+    from activelearn.numerics.models.dynamic_track import DYNAMIC_PARAMETERS, DynamicCar, scaled_figures
 
     car = DynamicCar.of(spec)
-    found = identify_dynamic(logs, car, dt, every=IDENTIFY_EVERY, horizon=IDENTIFY_HORIZON, implicit=True)
+    found = identify_scales(logs, car, dt)
     steps = sum(len(u) for u, _ in logs)
     print(f"the dynamic core's scales from {len(logs)} log(s), {steps} steps, under {spec.name}'s vehicle "
           f"file (scale 1 ± its width), free runs restarted every {IDENTIFY_HORIZON:g} s:")

@@ -46,12 +46,24 @@ from activelearn.numerics.models.dynamic_track import (
     with_scales,
 )
 from activelearn.numerics.models.physics import PhysicsModel
-from activelearn.numerics.models.single_track import LAG_FACTOR, cholesky_factor, split_inputs
+from activelearn.numerics.models.single_track import LAG_FACTOR, Identified, cholesky_factor, split_inputs
 from activelearn.numerics.pose import integrate_pose
 from activelearn.numerics.training_data import TrainingData
 
 IDENTIFY_HORIZON = 3.0  # s: free runs restart from the logged rates (a spinning car's 30 s are chaotic)
 IDENTIFY_EVERY = 3  # log steps between the compared points of an identification's free runs
+
+
+def identify_scales(
+    logs: list[tuple[np.ndarray, np.ndarray]],
+    car: DynamicCar,
+    dt: float,
+    search_from: np.ndarray | None = None,
+) -> Identified:
+    """The five scales from logs as the model identifies them (`identify_dynamic`: free runs of the step it
+    takes, restarted every `IDENTIFY_HORIZON` s, compared every `IDENTIFY_EVERY` log steps)."""
+    return identify_dynamic(logs, car, dt, every=IDENTIFY_EVERY, horizon=IDENTIFY_HORIZON, implicit=True,
+                            search_from=search_from)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -154,11 +166,8 @@ class DynamicPhysicsModel(PhysicsModel):
         logs = [log for log, other in zip(data.logs, flags, strict=True) if not other]
         if not logs:
             return
-        found = identify_dynamic(
-            logs, self.dynamic_car, 1.0 / self.car.log_rate_hz, every=IDENTIFY_EVERY,
-            horizon=IDENTIFY_HORIZON, implicit=True,
-            search_from=self.theta.double().numpy() if warm else None,
-        )  # fmt: skip
+        search_from = self.theta.double().numpy() if warm else None
+        found = identify_scales(logs, self.dynamic_car, 1.0 / self.car.log_rate_hz, search_from)
         self.theta.copy_(torch.as_tensor(found.values, dtype=torch.float32))
         self.theta_scale.zero_()
         if self.config.parameter_uncertainty == "by_log":
