@@ -123,6 +123,7 @@ def test_it_identifies_a_twins_grip_and_motor_and_saves_them(tmp_path):
     assert isinstance(loaded, DynamicPhysicsModel) and loaded.physical_parameters() == found
 
 
+@pytest.mark.slow  # compiles (about 40 s on a fresh machine, a few from torch's on-disk cache)
 def test_the_compiled_core_trains_and_runs_free_as_the_eager_one():
     """`compile_steps` (torch.compile of the core's step): a window loss, its gradient and free runs are
     the eager core's up to float rounding."""

@@ -72,7 +72,7 @@ def config_of(car: str, variant: str, out: Path, quick: bool) -> CampaignConfig:
     model = cfg.model.model_dump(mode="json")
     cfg = cfg.model_copy(update={"model": type(cfg.model).model_validate({**model, **UPDATES[variant]})})
     if quick:
-        return shrink(cfg, out).model_copy(update={"training": cfg.training.model_copy(update={"epochs": 2})})
+        return shrink(cfg, out)  # its training too: short windows, eager steps (a cold compile is slower)
     data = cfg.model_dump(mode="json")
     data["output_dir"] = str(out)
     return CampaignConfig.model_validate(data)

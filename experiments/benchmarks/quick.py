@@ -16,7 +16,9 @@ SECONDS = 10.0  # longest maneuver of a quick run
 
 
 def shrink(cfg: CampaignConfig, output_dir: str | Path | None = None) -> CampaignConfig:
-    """`cfg` at quick sizes: two rounds after the first, two epochs, a few short test maneuvers."""
+    """`cfg` at quick sizes: two rounds after the first, two epochs, a few short test maneuvers, and
+    eager steps (`[training] compile = false`: a cold torch.compile of the dynamic core takes longer
+    than the quick run itself; compiled and eager steps agree, tests/test_dynamic_physics.py)."""
     data: dict[str, Any] = cfg.model_dump(mode="json")
     if output_dir is not None:
         data["output_dir"] = str(output_dir)
@@ -43,6 +45,7 @@ def shrink(cfg: CampaignConfig, output_dir: str | Path | None = None) -> Campaig
     if test["rollout_samples"]:
         test["rollout_samples"] = 4
     data["training"]["epochs"] = 2
+    data["training"]["compile"] = False
     data["training"]["warm_epochs"] = None
     data["training"]["rollout_horizon"] = min(data["training"]["rollout_horizon"], 10)
     data["model"]["ensemble_size"] = min(data["model"]["ensemble_size"], 2)
