@@ -153,6 +153,12 @@ class DynamicPhysicsModel(PhysicsModel):
             float(self.car.nominal[names.index("yaw_lag")]),
         )
         self.compiled = False  # whether the model's steps run compiled (`compile_steps`)
+        # the correction's bounds on this car, fixed with it: built once, not per step
+        self.limits = CorrectionLimits(
+            bound=config.residual_bound, max_speed=self.car.max_speed, max_yaw_rate=self.car.max_yaw_rate,
+            yaw_cap=self.car.yaw_cap, speed_lag=self.lags[0], yaw_lag=self.lags[1],
+            log_factor=math.log(LAG_FACTOR), dt=self.dt, substeps=self.substeps,
+        )  # fmt: skip
 
     # ----- identification ---------------------------------------------------------------------
     @torch.no_grad()
@@ -199,16 +205,6 @@ class DynamicPhysicsModel(PhysicsModel):
                 return self._step(name)(*args)
 
         return guarded
-
-    @property
-    def limits(self) -> CorrectionLimits:
-        """The correction's bounds on this car (`CorrectionLimits`)."""
-        car = self.car
-        return CorrectionLimits(
-            bound=self.config.residual_bound, max_speed=car.max_speed, max_yaw_rate=car.max_yaw_rate,
-            yaw_cap=car.yaw_cap, speed_lag=self.lags[0], yaw_lag=self.lags[1],
-            log_factor=math.log(LAG_FACTOR), dt=self.dt, substeps=self.substeps,
-        )  # fmt: skip
 
     def _scaled_car(self, theta: Tensor) -> DynamicCar:
         """The file's car under scales `theta` (5,) or one set per draw (S, 1, 5)."""
