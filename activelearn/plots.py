@@ -51,6 +51,7 @@ STRATEGY_COLOURS: dict[str, str] = {
     "igs": "#1f77b4",
     "lcmd": "#c5b0d5",
     "regressor_maximin": "#8c6d31",
+    "joint_maximin": "#bd9e39",
     "auto": "#006d77",
     "switch": "#ffbb78",
     "oracle_error": "#7b4173",

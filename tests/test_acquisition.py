@@ -262,6 +262,29 @@ def test_regressor_maximin_picks_the_most_uncovered_regressors(cfg, model):
     assert first == greedy_maximin(empty, 3, np.random.default_rng(1))
 
 
+def test_joint_maximin_sums_the_regressor_and_design_gaps_each_relative_to_its_largest(cfg, model):
+    """Each pick maximises (regressor gap / its largest) + (design gap / its largest) over the open
+    candidates, both gaps updated after each pick; it differs from either space alone."""
+    from activelearn.loop.regressor_space import candidate_gaps, nearest_distance, standardised_points
+
+    pool = _pool(cfg, taken=[0, 5, 11])
+    picks = make_strategy("joint_maximin").select(model, pool, 3, np.random.default_rng(7))
+    points, everyone = standardised_points(pool), np.arange(len(pool.maneuvers))
+    covered, open_ = [0, 5, 11], np.array([int(i) for i in pool.available])
+    for pick in picks:
+        regressor = candidate_gaps(pool, nearest_distance(points, points[np.isin(pool.owner, covered)]), open_)
+        design = pool.distances(open_, np.array(covered)).min(axis=1)
+        score = regressor / regressor.max() + design / design.max()
+        assert pick == open_[int(np.argmax(score))]
+        covered.append(pick)
+        open_ = open_[open_ != pick]
+    assert picks != make_strategy("regressor_maximin").select(model, pool, 3, np.random.default_rng(7))
+    assert picks != greedy_maximin(pool, 3, np.random.default_rng(7))
+    empty = _pool(cfg)
+    first = make_strategy("joint_maximin").select(model, empty, 3, np.random.default_rng(1))
+    assert first == greedy_maximin(empty, 3, np.random.default_rng(1))
+
+
 def test_lcmd_picks_are_bmdal_regs_lcmd_on_the_predicted_trajectories_and_coordinates(cfg, model):
     from activelearn.loop.lcmd import _bmdal, lcmd_features
 

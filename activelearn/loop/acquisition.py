@@ -33,7 +33,7 @@ from activelearn.loop.function_space import (
 from activelearn.loop.greedy_sampling import GreedySamplingStrategy
 from activelearn.loop.history import NO_HISTORY, CandidateTruth, History, Withheld
 from activelearn.loop.lcmd import LcmdStrategy
-from activelearn.loop.regressor_space import RegressorMaximinStrategy
+from activelearn.loop.regressor_space import JointMaximinStrategy, RegressorMaximinStrategy
 from activelearn.loop.space_filling import (
     GridStrategy,
     LatinHypercubeStrategy,
@@ -57,6 +57,7 @@ __all__ = [
     "GridStrategy",
     "History",
     "IntegratedVarianceStrategy",
+    "JointMaximinStrategy",
     "LatinHypercubeStrategy",
     "LcmdStrategy",
     "LookaheadOracleStrategy",
@@ -294,6 +295,7 @@ STRATEGIES: dict[str, type[Strategy]] = {
         GreedySamplingStrategy,
         LcmdStrategy,
         RegressorMaximinStrategy,
+        JointMaximinStrategy,
         AutoStrategy,
         SwitchStrategy,
         OracleErrorStrategy,

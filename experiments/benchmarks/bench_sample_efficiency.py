@@ -43,8 +43,8 @@ COLD_START = (
     "uniform", "random", "max_epistemic", "integrated_variance", "auto", "bald", "igs", "lcmd", "switch",
 )  # fmt: skip
 # At the handling limit (issue 57, the 1:10 car on the dynamic core): space filled in the model's own terms
-# (regressor_maximin), the epistemic rule and auto against uniform.
-HANDLING_LIMIT = ("uniform", "regressor_maximin", "max_epistemic", "auto")
+# (regressor_maximin; with uniform's design gap, joint_maximin), the epistemic rule and auto against uniform.
+HANDLING_LIMIT = ("uniform", "regressor_maximin", "joint_maximin", "max_epistemic", "auto")
 # What each pool compares (uniform is the control everywhere; grid and random for reference).
 POOLS: dict[str, tuple[str, ...]] = {
     "skidpad": ("uniform", "random", "max_epistemic", "integrated_variance", "auto"),
