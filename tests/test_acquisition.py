@@ -269,10 +269,11 @@ def test_joint_maximin_sums_the_regressor_and_design_gaps_each_relative_to_its_l
 
     pool = _pool(cfg, taken=[0, 5, 11])
     picks = make_strategy("joint_maximin").select(model, pool, 3, np.random.default_rng(7))
-    points, everyone = standardised_points(pool), np.arange(len(pool.maneuvers))
+    points = standardised_points(pool)
     covered, open_ = [0, 5, 11], np.array([int(i) for i in pool.available])
     for pick in picks:
-        regressor = candidate_gaps(pool, nearest_distance(points, points[np.isin(pool.owner, covered)]), open_)
+        gap = nearest_distance(points, points[np.isin(pool.owner, covered)])
+        regressor = candidate_gaps(pool, gap, open_)
         design = pool.distances(open_, np.array(covered)).min(axis=1)
         score = regressor / regressor.max() + design / design.max()
         assert pick == open_[int(np.argmax(score))]

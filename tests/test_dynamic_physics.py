@@ -123,6 +123,64 @@ def test_it_identifies_a_twins_grip_and_motor_and_saves_them(tmp_path):
     assert isinstance(loaded, DynamicPhysicsModel) and loaded.physical_parameters() == found
 
 
+def test_the_discrepancy_is_the_cores_misfit_of_its_logs_and_widens_the_fan_not_the_path(tmp_path):
+    """`discrepancy = "identification"`: the core's rms misfit of its own logs (small where the logs are
+    a core's own runs, larger where they hold what no scale explains) sets an OU error on each draw's
+    rates, so the pose fan widens about the mean path the core without it runs."""
+    from activelearn.numerics.models.dynamic_physics import discrepancy_paths, identification_misfit
+
+    with pytest.raises(ValidationError, match="discrepancy"):
+        ModelConfig(kind="physics", discrepancy="identification")  # the kinematic core has none
+    model = _untrained(parameter_uncertainty="by_log", discrepancy="identification")
+    car = model.dynamic_car
+    logs = twin_logs(car, implicit=True)
+    own = identification_misfit(logs, car, DT, np.array([0.8, 1.0, 1.0, 0.9, 1.0]))
+    file = identification_misfit(logs, car, DT, np.ones(5))
+    assert (own < 0.5 * file).all()  # not 0: each 3-s restart starts from a steady turn's v_y
+    # what no scale explains: a slow yaw-rate error the truth has and the core cannot
+    t = np.arange(len(logs[0][0])) * DT
+    logs = [(u, y + np.column_stack([0 * t, 0.3 * np.sin(0.3 * t)])) for u, y in logs]
+    model.identify(TrainingData(x=np.zeros((0, 16)), y=np.zeros((0, 2)), logs=logs))
+    expected = identification_misfit(logs, car, DT, model.theta.double().numpy())
+    assert np.allclose(model.discrepancy.numpy(), expected, rtol=1e-5) and expected[1] > 0.1
+    bare = copy.deepcopy(model)
+    bare.discrepancy.zero_()
+    controls = [u for u, _ in logs]
+    wide, plain = (simulate(m, controls, rate_hz=30.0, n_samples=16, seed=3) for m in (model, bare))
+    for a, b in zip(wide.mean_path(), plain.mean_path(), strict=True):
+        assert np.allclose(a, b, atol=1e-4)  # the path is the core's
+    width = [np.quantile(r.y[:, :, -1], 0.975, axis=0) - np.quantile(r.y[:, :, -1], 0.025, axis=0)
+             for r in (wide, plain)]  # fmt: skip
+    assert (width[0] > 2 * width[1]).all()
+    again = simulate(model, controls, rate_hz=30.0, n_samples=16, seed=3)
+    assert np.array_equal(again.y, wide.y)  # a seed fixes the discrepancy's draws
+    save_model(model, tmp_path / "model.pt")
+    assert torch.equal(load_model(tmp_path / "model.pt").discrepancy, model.discrepancy)
+    # the process: from zero, stationary at its size, correlated over the identification's horizon
+    dv, dw = discrepancy_paths(np.array([0.5, 2.0]), (4000, 1, 600), DT, seed=0)
+    assert (dv[..., 0] == 0).all() and (dw[..., 0] == 0).all()
+    assert float(dv[..., -1].std()) == pytest.approx(0.5, rel=0.05)
+    assert float(dw[..., -1].std()) == pytest.approx(2.0, rel=0.05)
+    late = dw[..., 300:].reshape(-1, 300)
+    lag = float((late[:, 1:] * late[:, :-1]).mean() / (late**2).mean())
+    assert lag == pytest.approx(np.exp(-DT / 3.0), abs=0.01)
+
+
+@pytest.mark.parametrize("vehicle", ["nigel", "f1tenth", "bmw320i"])
+def test_the_step_traces_whole_on_every_car(vehicle: str):
+    """torch.compile fuses the model's step only where dynamo traces it whole: a speed-table car's step
+    (Nigel) broke its graph 15 times at the table's bounds (a scalar read from a tensor)."""
+    from activelearn.numerics.models.dynamic_physics import corrected_step
+
+    model = _untrained(vehicle)
+    n = 8
+    state, zs = torch.zeros(n, 4), tuple(torch.zeros(n) for _ in range(4))
+    explained = torch._dynamo.explain(corrected_step)(
+        model.dynamic_car, state, torch.full((n,), 0.5), torch.full((n,), 0.1), zs, model.limits
+    )
+    assert explained.graph_break_count == 0, explained.break_reasons
+
+
 @pytest.mark.slow  # compiles (about 40 s on a fresh machine, a few from torch's on-disk cache)
 def test_the_compiled_core_trains_and_runs_free_as_the_eager_one():
     """`compile_steps` (torch.compile of the core's step): a window loss, its gradient and free runs are

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from scipy.signal import lfilter
 from torch import Tensor
 
 from activelearn.config import ModelConfig
@@ -42,6 +43,7 @@ from activelearn.numerics.models.dynamic_track import (
     dynamic_bounds,
     dynamic_step,
     identify_dynamic,
+    misfit,
     quasi_static_lateral,
     with_scales,
 )
@@ -64,6 +66,27 @@ def identify_scales(
     takes, restarted every `IDENTIFY_HORIZON` s, compared every `IDENTIFY_EVERY` log steps)."""
     return identify_dynamic(logs, car, dt, every=IDENTIFY_EVERY, horizon=IDENTIFY_HORIZON, implicit=True,
                             search_from=search_from)  # fmt: skip
+
+
+def identification_misfit(
+    logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, theta: np.ndarray
+) -> np.ndarray:
+    """(2,) the rms misfit (v, r) of `identify_scales`' own free runs at scales `theta` (`misfit`)."""
+    return misfit(logs, car, dt, theta, every=IDENTIFY_EVERY, horizon=IDENTIFY_HORIZON, implicit=True)
+
+
+def discrepancy_paths(
+    size: np.ndarray, shape: tuple[int, ...], dt: float, seed: int
+) -> tuple[Tensor, Tensor]:
+    """Each draw's model discrepancy of (v, r) along a free run, `shape` (S, M, T) each: an
+    Ornstein-Uhlenbeck process from zero (a run starts at the recorded rates, as the identification's
+    restarts do), its stationary size `size` (2,), its correlation time `IDENTIFY_HORIZON`."""
+    keep = math.exp(-dt / IDENTIFY_HORIZON)
+    shocks = np.random.default_rng((seed, 56)).standard_normal((2, *shape))
+    shocks[..., 0] = 0.0
+    paths = lfilter([math.sqrt(1.0 - keep**2)], [1.0, -keep], shocks, axis=-1)
+    paths *= np.asarray(size, np.float64).reshape(2, *([1] * len(shape)))
+    return torch.as_tensor(paths[0], dtype=torch.float32), torch.as_tensor(paths[1], dtype=torch.float32)
 
 
 @dataclass(frozen=True)
@@ -153,6 +176,8 @@ class DynamicPhysicsModel(PhysicsModel):
             float(self.car.nominal[names.index("yaw_lag")]),
         )
         self.compiled = False  # whether the model's steps run compiled (`compile_steps`)
+        # the core's misfit of its logs (v, r), what `discrepancy = "identification"` widens the fans by
+        self.register_buffer("discrepancy", torch.zeros(2) if config.discrepancy != "none" else None)
         # the correction's bounds on this car, fixed with it: built once, not per step
         self.limits = CorrectionLimits(
             bound=config.residual_bound, max_speed=self.car.max_speed, max_yaw_rate=self.car.max_yaw_rate,
@@ -173,9 +198,13 @@ class DynamicPhysicsModel(PhysicsModel):
         if not logs:
             return
         search_from = self.theta.double().numpy() if warm else None
-        found = identify_scales(logs, self.dynamic_car, 1.0 / self.car.log_rate_hz, search_from)
+        dt = 1.0 / self.car.log_rate_hz
+        found = identify_scales(logs, self.dynamic_car, dt, search_from)
         self.theta.copy_(torch.as_tensor(found.values, dtype=torch.float32))
         self.theta_scale.zero_()
+        if self.discrepancy is not None:
+            misfit_of_logs = identification_misfit(logs, self.dynamic_car, dt, found.values)
+            self.discrepancy.copy_(torch.as_tensor(misfit_of_logs, dtype=torch.float32))
         if self.config.parameter_uncertainty == "by_log":
             self.theta_scale.copy_(torch.as_tensor(cholesky_factor(found.covariance), dtype=torch.float32))
 
@@ -275,5 +304,16 @@ class DynamicPhysicsModel(PhysicsModel):
             slip = hidden[:, 0] - self.dynamic_car.lr * states[:, 1]  # the rear axle's lateral speed
             yaw0 = torch.as_tensor(yaw0, dtype=states.dtype)[:, None]
             pose = integrate_pose(states[:, 0], states[:, 1], dt, yaw0, lever_arm=arm, lateral=slip)
+            if self.discrepancy is not None and bool(self.discrepancy.any()):
+                pose = self._with_discrepancy(pose, states, (dt, yaw0, arm, slip), seed)
             paths = tuple(part.numpy() for part in pose)
         return rates, moments, paths
+
+    def _with_discrepancy(self, pose, states: Tensor, frame, seed: int) -> tuple[Tensor, ...]:
+        """The pose fan (x, y, ψ) of draws whose rates carry the model discrepancy (`discrepancy_paths`),
+        moved onto the core's mean path `pose`: the discrepancy widens the fan, not the path."""
+        dt, yaw0, arm, slip = frame
+        dv, dw = discrepancy_paths(self.discrepancy.numpy(), tuple(states[:, 0].shape), dt, seed)
+        wide = integrate_pose(states[:, 0] + dv, states[:, 1] + dw, dt, yaw0, lever_arm=arm, lateral=slip)
+        pairs = zip(wide, pose, strict=True)
+        return tuple(part - part.mean(dim=0) + path.mean(dim=0) for part, path in pairs)

@@ -168,7 +168,7 @@ def _table(car: DynamicCar, throttle):
         return np.interp(np.abs(throttle), car.table_throttle, car.table_speed)
     grid = torch.as_tensor(car.table_throttle, dtype=throttle.dtype)
     speed = torch.as_tensor(car.table_speed, dtype=throttle.dtype)
-    x = throttle.abs().clamp(float(grid[0]), float(grid[-1]))
+    x = torch.minimum(torch.maximum(throttle.abs(), grid[0]), grid[-1])  # tensors: no graph break
     i = (torch.searchsorted(grid, x.contiguous(), right=True) - 1).clamp(0, len(grid) - 2)
     share = (x - grid[i]) / (grid[i + 1] - grid[i])
     return speed[i] + share * (speed[i + 1] - speed[i])
@@ -376,22 +376,12 @@ def rate_runs(
     return np.stack([np.broadcast_to(first, rates[0].shape if rates else first.shape), *rates], axis=-2)
 
 
-def identify_dynamic(
-    logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, every: int = 3,
-    horizon: float | None = None, search_from: np.ndarray | None = None, implicit: bool = False,
-) -> Identified:
-    """Output-error MAP of the five `DYNAMIC_PARAMETERS` (scales of the file's figures, the file as the
-    prior) from logs, (controls (T, 2), rates (T, 2) = speed, yaw rate), as the kinematic core's
-    `identify_from_logs` does: free runs from each log's first recorded rates (lateral speed: a steady
-    turn's there, `quasi_static_lateral`; the wheels at the command before), every `every`-th step
-    compared, each log a cluster of the covariance. `horizon` (s): free runs restart
-    from the recorded rates every `horizon` s instead (a spinning car's 30 s are chaotic in the
-    parameters; a few seconds are not). `search_from`: where the search begins (default the file);
-    `implicit`: free runs by the step with implicit tyre damping (the physics kind's)."""
-    logs = [(np.asarray(u, np.float64), np.asarray(y, np.float64)) for u, y in logs if len(u) > 1]
-    bounds = dynamic_bounds()
-    if not logs:
-        return Identified(bounds.prior.values.copy(), bounds.prior.covariance.copy())
+def _restart_errors(
+    logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, every: int, horizon: float | None,
+    implicit: bool,
+):  # fmt: skip
+    """An identification's free runs of `logs` (see `identify_dynamic`): `errors_of(sets (P, 5))` → rate
+    errors (P, n, 2) at the compared steps, the error rows' clusters (their log) and the rates' spread."""
     owners, wheels = list(range(len(logs))), [u[0, 1] for u, _ in logs]
     if horizon is not None:
         steps = max(2, round(horizon / dt))
@@ -413,4 +403,42 @@ def identify_dynamic(
         return np.nan_to_num(predicted - rates, nan=1e3, posinf=1e3, neginf=-1e3)[:, keep]
 
     clusters = np.asarray(owners)[np.nonzero(keep)[0]]  # a log's windows share its cluster
-    return _map_fit(errors_of, rates[valid].std(axis=0), clusters, bounds.prior, search_from, bounds)
+    return errors_of, clusters, rates[valid].std(axis=0)
+
+
+def _usable(logs: list[tuple[np.ndarray, np.ndarray]]) -> list[tuple[np.ndarray, np.ndarray]]:
+    return [(np.asarray(u, np.float64), np.asarray(y, np.float64)) for u, y in logs if len(u) > 1]
+
+
+def identify_dynamic(
+    logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, every: int = 3,
+    horizon: float | None = None, search_from: np.ndarray | None = None, implicit: bool = False,
+) -> Identified:
+    """Output-error MAP of the five `DYNAMIC_PARAMETERS` (scales of the file's figures, the file as the
+    prior) from logs, (controls (T, 2), rates (T, 2) = speed, yaw rate), as the kinematic core's
+    `identify_from_logs` does: free runs from each log's first recorded rates (lateral speed: a steady
+    turn's there, `quasi_static_lateral`; the wheels at the command before), every `every`-th step
+    compared, each log a cluster of the covariance. `horizon` (s): free runs restart
+    from the recorded rates every `horizon` s instead (a spinning car's 30 s are chaotic in the
+    parameters; a few seconds are not). `search_from`: where the search begins (default the file);
+    `implicit`: free runs by the step with implicit tyre damping (the physics kind's)."""
+    logs = _usable(logs)
+    bounds = dynamic_bounds()
+    if not logs:
+        return Identified(bounds.prior.values.copy(), bounds.prior.covariance.copy())
+    errors_of, clusters, spread = _restart_errors(logs, car, dt, every, horizon, implicit)
+    return _map_fit(errors_of, spread, clusters, bounds.prior, search_from, bounds)
+
+
+def misfit(
+    logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, theta: np.ndarray, every: int = 3,
+    horizon: float | None = None, implicit: bool = False,
+) -> np.ndarray:  # fmt: skip
+    """(2,) the rms rate errors (v m/s, r rad/s) of `identify_dynamic`'s free runs at scales `theta`:
+    what the core, so identified, still misses of its own logs (the sensors' noise included); zeros
+    without logs."""
+    logs = _usable(logs)
+    if not logs:
+        return np.zeros(2)
+    errors_of, _, _ = _restart_errors(logs, car, dt, every, horizon, implicit)
+    return np.sqrt(np.mean(errors_of(np.asarray(theta, np.float64)[None])[0] ** 2, axis=0))
