@@ -18,6 +18,10 @@ one-step row (training, `predict`) starts the step from v_y of a steady turn at 
 m v / (C_f + C_r), a tenth of a second on the 1:10 car, so a row's step of `history_step` log steps
 mostly forgets its start, and the correction trained on rows sees nearly the step free runs take.
 
+With `discrepancy = "identification"` the identification also measures the core's rms misfit of its own
+logs, and each free-run draw's rates carry an Ornstein-Uhlenbeck error of that size (`discrepancy_paths`):
+the pose fan widens by what no scale explains, about the core's own mean path.
+
 A step is written once as pure functions (`corrected_step`, `free_run_step`) that `compile_steps` has
 torch.compile fuse (`compiled_step`): eagerly each is a few hundred small operations.
 """

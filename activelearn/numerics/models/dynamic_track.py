@@ -1,6 +1,7 @@
 """The dynamic single track of a car's vehicle file: a bicycle with tyre slip, saturating tyres and load
-transfer, blended into the kinematic model at low speed. Issue 56's core; for now it runs with the
-file's values and no data (`bench_vehicle_baselines.py`'s "dynamic file" row), not inside a model.
+transfer, blended into the kinematic model at low speed. Issue 56's core: the physics kind's under
+`core = "dynamic"` (`dynamic_physics`), and with the file's values and no data `bench_vehicle_baselines.py`'s
+"dynamic file" row.
 
 State (v_x, v_y, r, δ_w) at the CG: forward and lateral speed, yaw rate, the front wheels' bicycle angle
 (it follows the commanded steering at the file's rate, within its lock). Controls: throttle τ, steering δ.
