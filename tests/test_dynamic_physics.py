@@ -166,6 +166,35 @@ def test_the_discrepancy_is_the_cores_misfit_of_its_logs_and_widens_the_fan_not_
     assert lag == pytest.approx(np.exp(-DT / 3.0), abs=0.01)
 
 
+def test_the_cross_validated_misfit_is_each_folds_at_the_scales_identified_without_it():
+    """`discrepancy = "cross_validated"`: four folds of the logs, each's errors at the scales identified on
+    the others; out of sample the core misses more than in its own logs; one log: the in-sample misfit."""
+    from activelearn.numerics.models.dynamic_physics import (
+        IDENTIFY_EVERY,
+        IDENTIFY_HORIZON,
+        identification_misfit,
+    )
+    from activelearn.numerics.models.dynamic_track import identify_dynamic, misfit
+
+    model = _untrained(discrepancy="cross_validated")
+    car = model.dynamic_car
+    t = np.arange(round(12.0 / DT)) * DT
+    logs = [(u, y + np.column_stack([0 * t, 0.2 * np.sin(0.3 * t + i)])) for i, (u, y) in
+            enumerate(twin_logs(car, implicit=True))]  # fmt: skip
+    model.identify(TrainingData(x=np.zeros((0, 16)), y=np.zeros((0, 2)), logs=logs))
+    theta = model.theta.double().numpy()
+    how = dict(every=IDENTIFY_EVERY, horizon=IDENTIFY_HORIZON, implicit=True)
+    squares = []  # by hand: each log (a fold of one) at the scales identified on the other three
+    for i in range(4):
+        found = identify_dynamic(logs[:i] + logs[i + 1 :], car, DT, search_from=theta, **how)
+        squares.append(misfit([logs[i]], car, DT, found.values, **how) ** 2)
+    expected = np.sqrt(np.mean(squares, axis=0))  # the folds hold equally many compared steps
+    assert np.allclose(model.discrepancy.numpy(), expected, rtol=1e-4)
+    assert (expected > identification_misfit(logs, car, DT, theta)).all()
+    one = identification_misfit(logs[:1], car, DT, theta, cross_validated=True)
+    assert np.array_equal(one, identification_misfit(logs[:1], car, DT, theta))
+
+
 @pytest.mark.parametrize("vehicle", ["nigel", "f1tenth", "bmw320i"])
 def test_the_step_traces_whole_on_every_car(vehicle: str):
     """torch.compile fuses the model's step only where dynamo traces it whole: a speed-table car's step

@@ -126,12 +126,14 @@ class ModelConfig(_Section):
     # The identified scales' covariance is small once a few logs excite them, while the core still misses
     # what it cannot express (a spin, the truth's four tyres): after a cold start's first 4 signals the
     # 1:10 car's fans held a quarter of the true positions. The discrepancy is that misfit, carried.
-    discrepancy: Literal["none", "identification"] = Field(
+    discrepancy: Literal["none", "identification", "cross_validated"] = Field(
         "none",
         description="core = 'dynamic': 'identification' widens the free-run fans by the core's model "
         "discrepancy: each draw's speed and yaw rate take a random error (an Ornstein-Uhlenbeck process "
         "from zero, its size the identified core's rms misfit of its own logs, its correlation time the "
-        "identification's restart horizon) that moves the pose fan about the core's mean path, not the path",
+        "identification's restart horizon) that moves the pose fan about the core's mean path, not the "
+        "path; 'cross_validated' takes the misfit out of sample (4 folds of the logs, each at the scales "
+        "identified without it)",
     )
     residual_bound: Annotated[float, Field(ge=0.0, le=0.5)] = Field(
         0.05,

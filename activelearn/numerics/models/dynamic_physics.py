@@ -44,6 +44,7 @@ from activelearn.numerics.lags import Lags
 from activelearn.numerics.models.dynamic_track import (
     DYNAMIC_PARAMETERS,
     DynamicCar,
+    cross_validated_misfit,
     dynamic_bounds,
     dynamic_step,
     identify_dynamic,
@@ -73,10 +74,15 @@ def identify_scales(
 
 
 def identification_misfit(
-    logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, theta: np.ndarray
-) -> np.ndarray:
-    """(2,) the rms misfit (v, r) of `identify_scales`' own free runs at scales `theta` (`misfit`)."""
-    return misfit(logs, car, dt, theta, every=IDENTIFY_EVERY, horizon=IDENTIFY_HORIZON, implicit=True)
+    logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, theta: np.ndarray,
+    cross_validated: bool = False,
+) -> np.ndarray:  # fmt: skip
+    """(2,) the rms misfit (v, r) of `identify_scales`' own free runs at scales `theta` (`misfit`), or
+    out of sample (`cross_validated_misfit`: each of 4 folds at the scales identified without it)."""
+    how = dict(every=IDENTIFY_EVERY, horizon=IDENTIFY_HORIZON, implicit=True)
+    if cross_validated:
+        return cross_validated_misfit(logs, car, dt, theta, **how)
+    return misfit(logs, car, dt, theta, **how)
 
 
 def discrepancy_paths(
@@ -207,7 +213,8 @@ class DynamicPhysicsModel(PhysicsModel):
         self.theta.copy_(torch.as_tensor(found.values, dtype=torch.float32))
         self.theta_scale.zero_()
         if self.discrepancy is not None:
-            misfit_of_logs = identification_misfit(logs, self.dynamic_car, dt, found.values)
+            cross = self.config.discrepancy == "cross_validated"
+            misfit_of_logs = identification_misfit(logs, self.dynamic_car, dt, found.values, cross)
             self.discrepancy.copy_(torch.as_tensor(misfit_of_logs, dtype=torch.float32))
         if self.config.parameter_uncertainty == "by_log":
             self.theta_scale.copy_(torch.as_tensor(cholesky_factor(found.covariance), dtype=torch.float32))

@@ -431,6 +431,17 @@ def identify_dynamic(
     return _map_fit(errors_of, spread, clusters, bounds.prior, search_from, bounds)
 
 
+def _squared_misfit(
+    logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, theta: np.ndarray, every: int,
+    horizon: float | None, implicit: bool,
+) -> tuple[np.ndarray, int]:  # fmt: skip
+    """The summed squared rate errors (2,) of `identify_dynamic`'s free runs at scales `theta`, and their
+    number."""
+    errors_of, _, _ = _restart_errors(logs, car, dt, every, horizon, implicit)
+    errors = errors_of(np.asarray(theta, np.float64)[None])[0]
+    return (errors**2).sum(axis=0), len(errors)
+
+
 def misfit(
     logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, theta: np.ndarray, every: int = 3,
     horizon: float | None = None, implicit: bool = False,
@@ -441,5 +452,27 @@ def misfit(
     logs = _usable(logs)
     if not logs:
         return np.zeros(2)
-    errors_of, _, _ = _restart_errors(logs, car, dt, every, horizon, implicit)
-    return np.sqrt(np.mean(errors_of(np.asarray(theta, np.float64)[None])[0] ** 2, axis=0))
+    squares, count = _squared_misfit(logs, car, dt, theta, every, horizon, implicit)
+    return np.sqrt(squares / count)
+
+
+def cross_validated_misfit(
+    logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, theta: np.ndarray, folds: int = 4,
+    every: int = 3, horizon: float | None = None, implicit: bool = False,
+) -> np.ndarray:  # fmt: skip
+    """(2,) `misfit` out of sample: the logs in min(`folds`, logs) folds (in their order), each fold's
+    errors at the scales identified on the others (searched from `theta`, the fit on all of them). A
+    core fitted to a few logs misses maneuvers unlike them by more than its own (after a 1:10 cold
+    start's 4 signals: 0.12 m/s against 0.028). One log: the in-sample misfit."""
+    logs = _usable(logs)
+    if len(logs) < 2:
+        return misfit(logs, car, dt, theta, every, horizon, implicit)
+    squares, count = np.zeros(2), 0
+    for held in np.array_split(np.arange(len(logs)), min(folds, len(logs))):
+        rest = [log for i, log in enumerate(logs) if i not in held]
+        found = identify_dynamic(rest, car, dt, every, horizon, search_from=theta, implicit=implicit)
+        fold_squares, fold_count = _squared_misfit(
+            [logs[i] for i in held], car, dt, found.values, every, horizon, implicit
+        )
+        squares, count = squares + fold_squares, count + fold_count
+    return np.sqrt(squares / count)
