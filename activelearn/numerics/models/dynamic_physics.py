@@ -18,9 +18,10 @@ one-step row (training, `predict`) starts the step from v_y of a steady turn at 
 m v / (C_f + C_r), a tenth of a second on the 1:10 car, so a row's step of `history_step` log steps
 mostly forgets its start, and the correction trained on rows sees nearly the step free runs take.
 
-With `discrepancy = "identification"` the identification also measures the core's rms misfit of its own
-logs, and each free-run draw's rates carry an Ornstein-Uhlenbeck error of that size (`discrepancy_paths`):
-the pose fan widens by what no scale explains, about the core's own mean path.
+With `discrepancy` the identification also measures the core's rms misfit of its logs (`"identification"`:
+in sample; `"cross_validated"`: each of 4 folds at the scales identified without it), and each free-run
+draw's rates carry an Ornstein-Uhlenbeck error of that size (`discrepancy_paths`): the pose fan widens by
+what no scale explains, about the core's own mean path.
 
 A step is written once as pure functions (`corrected_step`, `free_run_step`) that `compile_steps` has
 torch.compile fuse (`compiled_step`): eagerly each is a few hundred small operations.
@@ -59,6 +60,9 @@ from activelearn.numerics.training_data import TrainingData
 
 IDENTIFY_HORIZON = 3.0  # s: free runs restart from the logged rates (a spinning car's 30 s are chaotic)
 IDENTIFY_EVERY = 3  # log steps between the compared points of an identification's free runs
+# how the model identifies its scales and measures their misfit: the restarts, spacing and step above
+IDENTIFICATION = {"every": IDENTIFY_EVERY, "horizon": IDENTIFY_HORIZON, "implicit": True}
+DISCREPANCY_STREAM = 56  # the discrepancy's random stream, beside the free run's own seed
 
 
 def identify_scales(
@@ -69,8 +73,7 @@ def identify_scales(
 ) -> Identified:
     """The five scales from logs as the model identifies them (`identify_dynamic`: free runs of the step it
     takes, restarted every `IDENTIFY_HORIZON` s, compared every `IDENTIFY_EVERY` log steps)."""
-    return identify_dynamic(logs, car, dt, every=IDENTIFY_EVERY, horizon=IDENTIFY_HORIZON, implicit=True,
-                            search_from=search_from)  # fmt: skip
+    return identify_dynamic(logs, car, dt, search_from=search_from, **IDENTIFICATION)
 
 
 def identification_misfit(
@@ -79,10 +82,9 @@ def identification_misfit(
 ) -> np.ndarray:  # fmt: skip
     """(2,) the rms misfit (v, r) of `identify_scales`' own free runs at scales `theta` (`misfit`), or
     out of sample (`cross_validated_misfit`: each of 4 folds at the scales identified without it)."""
-    how = dict(every=IDENTIFY_EVERY, horizon=IDENTIFY_HORIZON, implicit=True)
     if cross_validated:
-        return cross_validated_misfit(logs, car, dt, theta, **how)
-    return misfit(logs, car, dt, theta, **how)
+        return cross_validated_misfit(logs, car, dt, theta, **IDENTIFICATION)
+    return misfit(logs, car, dt, theta, **IDENTIFICATION)
 
 
 def discrepancy_paths(
@@ -92,7 +94,7 @@ def discrepancy_paths(
     Ornstein-Uhlenbeck process from zero (a run starts at the recorded rates, as the identification's
     restarts do), its stationary size `size` (2,), its correlation time `IDENTIFY_HORIZON`."""
     keep = math.exp(-dt / IDENTIFY_HORIZON)
-    shocks = np.random.default_rng((seed, 56)).standard_normal((2, *shape))
+    shocks = np.random.default_rng((seed, DISCREPANCY_STREAM)).standard_normal((2, *shape))
     shocks[..., 0] = 0.0
     paths = lfilter([math.sqrt(1.0 - keep**2)], [1.0, -keep], shocks, axis=-1)
     paths *= np.asarray(size, np.float64).reshape(2, *([1] * len(shape)))
@@ -186,7 +188,7 @@ class DynamicPhysicsModel(PhysicsModel):
             float(self.car.nominal[names.index("yaw_lag")]),
         )
         self.compiled = False  # whether the model's steps run compiled (`compile_steps`)
-        # the core's misfit of its logs (v, r), what `discrepancy = "identification"` widens the fans by
+        # the core's misfit of its logs (v, r) that `discrepancy` widens the fans by (None: "none")
         self.register_buffer("discrepancy", torch.zeros(2) if config.discrepancy != "none" else None)
         # the correction's bounds on this car, fixed with it: built once, not per step
         self.limits = CorrectionLimits(

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from types import SimpleNamespace
 
@@ -380,7 +381,7 @@ def rate_runs(
 def _restart_errors(
     logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, every: int, horizon: float | None,
     implicit: bool,
-):  # fmt: skip
+) -> tuple[Callable[[np.ndarray], np.ndarray], np.ndarray, np.ndarray]:  # fmt: skip
     """An identification's free runs of `logs` (see `identify_dynamic`): `errors_of(sets (P, 5))` → rate
     errors (P, n, 2) at the compared steps, the error rows' clusters (their log) and the rates' spread."""
     owners, wheels = list(range(len(logs))), [u[0, 1] for u, _ in logs]
