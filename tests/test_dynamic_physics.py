@@ -98,6 +98,33 @@ def test_free_runs_carry_the_lateral_speed_as_the_cores_own_runs_do():
     assert np.allclose(rollout.x.mean(axis=0), x, atol=1e-2)
 
 
+@pytest.mark.parametrize("vehicle", ["f1tenth", "nigel", "bmw320i"])
+def test_the_compiled_free_runs_are_torchs(vehicle: str, c_kernels):
+    """dynamic_rollout.c's free runs against the torch loop: each draw its own scales, the correction
+    widened about the draws' mean (epistemic scale 3), the sensors' noise, the three interleaved chains
+    of history_step 3, 12 draws (not whole blocks of 8): rates, moments and poses to float rounding."""
+    model = _untrained(vehicle, parameter_uncertainty="by_log")
+    model.theta_scale.copy_(0.1 * torch.eye(5))
+    model.epistemic_scale.fill_(3.0)
+    t = np.arange(150) * DT
+    controls = [np.column_stack([np.full_like(t, throttle), steering * np.sin(0.8 * t)])
+                for throttle, steering in ((0.4, 0.1), (0.8, 0.3), (-0.5, 0.2), (0.0, 0.05))]  # fmt: skip
+    runs = [simulate(model, controls, rate_hz=30.0, n_samples=12, seed=3, backend=backend)
+            for backend in ("reference", "native")]  # fmt: skip
+    reference, compiled = runs
+    scale = np.abs(reference.mean_rates).max(axis=(0, 1))
+    assert np.abs(reference.epistemic_var).max() > 1e-6  # the draws differ: the spread is compared too
+    for name in ("mean_rates", "aleatoric_var", "epistemic_var"):
+        expected = getattr(reference, name)
+        np.testing.assert_allclose(getattr(compiled, name), expected, rtol=1e-3,
+                                   atol=1e-4 * float(np.abs(expected).max()), err_msg=name)  # fmt: skip
+    np.testing.assert_allclose(compiled.v, reference.v, atol=1e-4 * scale[0])
+    np.testing.assert_allclose(compiled.w, reference.w, atol=1e-4 * scale[1])
+    reach = np.abs(reference.x).max()
+    np.testing.assert_allclose(compiled.x, reference.x, atol=1e-4 * reach)
+    np.testing.assert_allclose(compiled.y, reference.y, atol=1e-4 * reach)
+
+
 @pytest.mark.parametrize("vehicle", ["f1tenth", "bmw320i"])
 def test_untrained_it_never_leaves_physics_on_the_cars_control_box(vehicle: str):
     model = _untrained(vehicle, parameter_uncertainty="by_log")

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from activelearn.errors import InputError
 from activelearn.numerics.models.dynamic_track import (
     DynamicCar,
     free_runs,
@@ -74,3 +75,31 @@ def test_identification_recovers_a_twins_grip_and_motor_from_its_own_logs():
     found = identify_dynamic(twin_logs(car), car, DT)
     friction, _, _, motor, _ = found.values
     assert friction == pytest.approx(0.8, abs=0.04) and motor == pytest.approx(0.9, abs=0.02)
+
+
+@pytest.mark.parametrize("implicit", [True, False])
+@pytest.mark.parametrize("name", ["nigel", "f1tenth", "bmw320i"])
+def test_the_compiled_rate_runs_are_numpys(name, implicit, c_kernels):
+    """dynamic_rollout.c against the NumPy loop: random controls with braking steps, starts forward and
+    reversing, one car and a batch of scaled ones (the identification's shapes), equal to rounding."""
+    rng = np.random.default_rng(7)
+    car = DynamicCar.of(load_vehicle(name))
+    n_runs, n_steps = 21, 46  # lanes not a multiple of the kernel's block of 8
+    shape = (n_runs, n_steps)
+    controls = np.stack([rng.uniform(-1, 1, shape), rng.uniform(-0.5, 0.5, shape)], -1)
+    controls[:, ::5, 0] = 0.0
+    top = car.top_speed or float(car.table_speed[-1])
+    start = np.stack([rng.uniform(-0.3, 1, n_runs) * top, rng.normal(0, 0.1, n_runs) * top,
+                      rng.uniform(-1, 1, n_runs), rng.uniform(-0.3, 0.3, n_runs)], -1)  # fmt: skip
+    sets = np.clip(1 + 0.3 * rng.standard_normal((6, 5)), 0.4, 1.2)
+    for cars in (car, scaled(car, sets)):
+        reference = rate_runs(cars, controls, start, DT, implicit, backend="reference")
+        compiled = rate_runs(cars, controls, start, DT, implicit, backend="native")
+        assert compiled.shape == reference.shape
+        np.testing.assert_allclose(compiled, reference, rtol=1e-9, atol=1e-9 * top)
+
+
+def test_rate_runs_name_a_backend_they_do_not_know():
+    car = DynamicCar.of(load_vehicle("f1tenth"))
+    with pytest.raises(InputError, match="backend"):
+        rate_runs(car, np.zeros((1, 3, 2)), np.zeros((1, 4)), DT, backend="cuda")

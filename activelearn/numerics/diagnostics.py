@@ -160,13 +160,15 @@ def free_runs(
     n_samples: int = 32,
     seed: int = 0,
     fan_scale: float | None = None,
+    backend: str = "auto",
 ) -> Rollout:
-    """Each log's recorded controls run free through `model` from its first recorded rates."""
+    """Each log's recorded controls run free through `model` from its first recorded rates (`backend`:
+    `simulate`'s)."""
     controls = [np.asarray(t[list(CONTROLS)].to_numpy(), dtype=np.float64) for t in logs]
     initial = np.array([[t[rate].iloc[0] for rate in RATES] for t in logs])
     return simulate(
         model, controls, rate_hz=rate_hz, n_samples=n_samples, seed=seed, initial_rates=initial,
-        fan_scale=fan_scale,
+        fan_scale=fan_scale, backend=backend,
     )  # fmt: skip
 
 

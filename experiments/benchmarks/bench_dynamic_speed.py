@@ -4,10 +4,13 @@ For each fast car (`--cars`), the test maneuvers of its `dynamics_<car>.toml` (t
 at 30 Hz) are simulated by the truth (MuJoCo and the magic-formula tyres, `simulator.collect`, all
 cores, no noise) and free-run by the physics kind with each core (an untrained model: the time does
 not depend on the weights), S = `--samples` sampled trajectories each, as a campaign's evaluation
-runs them; the dynamic core eagerly and compiled (torch.compile, as campaigns that train windows run
-it; its first call, which compiles, timed apart). Prints per car and core: wall seconds of each (best
-of `--repeats`), their ratio, and the absolute rate in sample-steps per second (S × maneuvers × steps
-/ wall).
+runs them; the dynamic core's recurrence in torch eagerly and compiled (torch.compile, as campaigns
+that train windows ran it before the C kernel; its first call, which compiles, timed apart) and in C
+(dynamic_rollout.c, what campaigns run now). Prints per car and core: wall seconds of each (best of
+`--repeats`), their ratio, and the absolute rate in sample-steps per second (S × maneuvers × steps /
+wall). Then the identification's cost: one evaluation of its residuals (the core's rates along every
+3-s window of the test logs, for 6 parameter sets as a finite-difference Jacobian asks) by NumPy and
+by the C kernel, side by side.
 
 Usage: python experiments/benchmarks/bench_dynamic_speed.py [--cars f1tenth,bmw320i] [--samples 32]
        [--repeats 3] [--out DIR] [--quick]
@@ -28,13 +31,35 @@ from quick import shrink
 import simulator
 from activelearn.config import load_config
 from activelearn.loop.campaign import Campaign
+from activelearn.names import CONTROLS, RATES
 from activelearn.numerics.diagnostics import free_runs
 from activelearn.numerics.models import build_model
+from activelearn.numerics.models.dynamic_physics import IDENTIFY_HORIZON
+from activelearn.numerics.models.dynamic_track import DynamicCar, quasi_static_lateral, rate_runs, scaled
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 CARS = ("f1tenth", "bmw320i")
-# the kinematic core (its compiled C kernel), the dynamic core eager and compiled (`compile_steps`)
-VARIANTS = ("kinematic", "dynamic", "dynamic compiled")
+# the kinematic core (its compiled C kernel), the dynamic core in torch eager and compiled
+# (`compile_steps`), and in C (dynamic_rollout.c)
+VARIANTS = ("kinematic", "dynamic", "dynamic compiled", "dynamic C")
+
+
+def identification_evaluation(car: DynamicCar, logs: list, repeats: int) -> dict[str, float]:
+    """Wall seconds of one residual evaluation of an identification (`identify_dynamic`'s free runs of
+    every `IDENTIFY_HORIZON`-s window of `logs`, 6 parameter sets, the implicit step) by each backend."""
+    dt, steps = 1.0 / 30.0, round(IDENTIFY_HORIZON * 30.0)
+    controls, starts = [], []
+    for t in logs:
+        u, y = t[list(CONTROLS)].to_numpy(np.float64), t[list(RATES)].to_numpy(np.float64)
+        for k in range(0, len(u) - steps, steps):
+            controls.append(u[k : k + steps + 1])
+            starts.append((y[k, 0], y[k, 1], u[max(k - 1, 0), 1]))
+    controls, starts = np.stack(controls), np.array(starts)
+    sets = scaled(car, 1.0 + 1e-5 * np.vstack([np.zeros(5), np.eye(5)]))  # a point and its 5 steps
+    lateral = quasi_static_lateral(sets, starts[:, 0], starts[:, 1])
+    start = np.stack(np.broadcast_arrays(starts[:, 0], lateral, starts[:, 1], starts[:, 2]), axis=-1)
+    return {backend: best_of(repeats, partial(rate_runs, sets, controls, start, dt, True, backend))
+            for backend in ("reference", "native")}  # fmt: skip
 
 
 def best_of(repeats: int, run) -> float:
@@ -62,7 +87,7 @@ def main() -> None:
         parser.error(f"--cars: a subset of {', '.join(CARS)}")
     if args.samples < 2 or args.repeats < 1:
         parser.error("--samples: at least 2; --repeats: at least 1")
-    rows = []
+    rows, identification = [], []
     for car in cars:
         cfg = load_config(CONFIGS / f"dynamics_{car}.toml")
         if args.quick:
@@ -82,7 +107,8 @@ def main() -> None:
         for core in VARIANTS:
             model = build_model(cfg.model.model_copy(update={"core": core.split()[0]}), seed=0)
             model.set_scalers(test.x, test.y_clean)
-            run = partial(free_runs, model, logs, rate_hz=30.0, n_samples=args.samples)
+            backend = "reference" if core in ("dynamic", "dynamic compiled") else "auto"
+            run = partial(free_runs, model, logs, rate_hz=30.0, n_samples=args.samples, backend=backend)
             first = float("nan")
             if core.endswith("compiled"):
                 model.compile_steps()
@@ -94,8 +120,15 @@ def main() -> None:
                          "sample-steps/s": f"{args.samples * steps / wall:.3g}"})  # fmt: skip
             print(f"{car} {core}: free runs x{truth / wall:.3g} the truth's speed,"
                   f" {args.samples * steps / wall:.3g} sample-steps/s", flush=True)
+        costs = identification_evaluation(DynamicCar.of(cfg.vehicle.spec), logs, args.repeats)
+        identification.append({"car": car, "NumPy s": round(costs["reference"], 4),
+                               "C s": round(costs["native"], 4),
+                               "NumPy / C": round(costs["reference"] / costs["native"], 1)})  # fmt: skip
     print("\n## The physics kind's free runs beside the truth simulator (best of", args.repeats, "each)")
     print(pd.DataFrame(rows).to_string(index=False))
+    print("\n## One residual evaluation of the dynamic core's identification (6 parameter sets, every 3-s"
+          " window of the test logs; best of", args.repeats, "each)")
+    print(pd.DataFrame(identification).to_string(index=False))
 
 
 if __name__ == "__main__":

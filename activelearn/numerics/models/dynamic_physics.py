@@ -24,7 +24,9 @@ draw's rates carry an Ornstein-Uhlenbeck error of that size (`discrepancy_paths`
 what no scale explains, about the core's own mean path.
 
 A step is written once as pure functions (`corrected_step`, `free_run_step`) that `compile_steps` has
-torch.compile fuse (`compiled_step`): eagerly each is a few hundred small operations.
+torch.compile fuse (`compiled_step`): eagerly each is a few hundred small operations. Free runs take the
+compiled kernel (`native.dynamic_free_runs`, dynamic_rollout.c: the whole recurrence, every draw and
+step) where it builds, and those steps in torch elsewhere.
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ from torch import Tensor
 
 from activelearn.config import ModelConfig
 from activelearn.names import IDENTIFIED_PREFIX
+from activelearn.numerics import native
 from activelearn.numerics.lags import Lags
 from activelearn.numerics.models.dynamic_track import (
     DYNAMIC_PARAMETERS,
@@ -50,7 +53,10 @@ from activelearn.numerics.models.dynamic_track import (
     dynamic_step,
     identify_dynamic,
     misfit,
+    native_car,
+    native_sets,
     quasi_static_lateral,
+    scaled,
     with_scales,
 )
 from activelearn.numerics.models.physics import PhysicsModel
@@ -275,27 +281,61 @@ class DynamicPhysicsModel(PhysicsModel):
         backend: str,
         pose: tuple[float, np.ndarray, float] | None = None,
     ) -> tuple[Tensor, tuple[Tensor, Tensor, Tensor], tuple[np.ndarray, ...] | None]:
-        """`PhysicsModel.open_loop_free_runs` on the dynamic core, in torch: each draw carries its own
+        """`PhysicsModel.open_loop_free_runs` on the dynamic core: each draw carries its own
         (v_x, v_y, r, δ_w) from step to step, and the pose is integrated with the sideslip where asked.
+        The recurrence runs in C (dynamic_rollout.c) where `backend` allows, else in torch
+        (`_torch_free_runs`), drawing the same numbers to float rounding.
         The aleatoric noise is the sensors': it is added to the rates returned, not carried by the state
         nor the pose (carried, 3 % of the speed limit per step random-walked the 1:10 car's free runs:
         its file's core 9.9 m off at 30 s against 2.3 m). The bare core (`corrected` False) holds the
         correction's outputs at zero."""
         correction, spread, keys, controls = self._free_run_setup(n_samples, seed, controls, lags, backend)
         rate_lag = lags.rate_lags[0]
-        n_maneuvers, n_steps, _ = controls.shape
         z, noise_std, index, noise = self._free_run_draws(correction, controls, keys)
         if not self.corrected:
             z = torch.zeros_like(z)
-        car = self._scaled_car(self.parameter_draws(n_samples, seed)[:, None])  # (S, 1) figures
-        rates = torch.empty((n_samples, 2, n_maneuvers, n_steps))
-        states = torch.empty((n_samples, 2, n_maneuvers, n_steps))  # each draw's rates without the noise
-        hidden = torch.empty((n_samples, 2, n_maneuvers, n_steps))  # v_y, δ_w after each step
-        moments = tuple(torch.empty((n_maneuvers, n_steps, 2)) for _ in range(3))
+        theta = self.parameter_draws(n_samples, seed)
+        car = self._scaled_car(theta[:, None])  # (S, 1) figures
         u = torch.as_tensor(controls)
         start_hidden = torch.stack(
             [quasi_static_lateral(car, start[:, 0], start[:, 1]), u[:, 0, 1].expand(n_samples, -1)], dim=1
         )
+        lib = None if backend == "reference" else native.library()
+        if lib is not None:  # the whole recurrence in C (dynamic_rollout.c)
+            sets = native_sets(scaled(self.dynamic_car, theta.double().numpy()), (n_samples, 1))
+            outputs = native.dynamic_free_runs(
+                lib, native_car(self.dynamic_car), sets, (self.dynamic_car.table_throttle,
+                self.dynamic_car.table_speed), self.native_limits(), self.dt, self.substeps,
+                (z.numpy(), noise_std.numpy(), noise.numpy(), index.numpy()), controls,
+                (start.numpy(), start_hidden.numpy()), rate_lag, spread, threads=torch.get_num_threads(),
+            )  # fmt: skip
+            states, rates, hidden, *moment_arrays = (torch.from_numpy(a) for a in outputs)
+            moments = tuple(moment_arrays)
+        else:
+            states, rates, hidden, moments = self._torch_free_runs(
+                car, u, (start, start_hidden), z, noise_std, index, noise, rate_lag, spread
+            )
+        return rates, moments, self._free_run_pose(states, hidden, pose, seed)
+
+    def native_limits(self) -> np.ndarray:
+        """The correction's bounds as dynamic_rollout.c reads them (its L_ enum)."""
+        q = self.limits
+        return np.array([q.bound * q.max_speed, q.bound * q.max_yaw_rate, q.yaw_cap, q.speed_lag, q.yaw_lag,
+                         q.log_factor])  # fmt: skip
+
+    def _torch_free_runs(
+        self, car: DynamicCar, u: Tensor, start: tuple[Tensor, Tensor], z: Tensor, noise_std: Tensor,
+        index: Tensor, noise: Tensor, rate_lag: int, spread: float,
+    ) -> tuple[Tensor, Tensor, Tensor, tuple[Tensor, Tensor, Tensor]]:  # fmt: skip
+        """`open_loop_free_runs`' recurrence in torch, a step at a time (`free_run_step`, compiled where
+        the model is): the reference dynamic_rollout.c is tested against. Returns each draw's rates
+        without and with the noise and its (v_y, δ_w), each (S, 2, M, T), and the moments over draws."""
+        n_samples, _, n_maneuvers, n_steps = noise.shape
+        start, start_hidden = start
+        rates = torch.empty((n_samples, 2, n_maneuvers, n_steps))
+        states = torch.empty((n_samples, 2, n_maneuvers, n_steps))  # each draw's rates without the noise
+        hidden = torch.empty((n_samples, 2, n_maneuvers, n_steps))  # v_y, δ_w after each step
+        moments = tuple(torch.empty((n_maneuvers, n_steps, 2)) for _ in range(3))
         step, limits = self._step("free_run"), self.limits
         widen, spread_t = spread != 1.0, torch.tensor(spread)
         for k in range(n_steps):
@@ -311,6 +351,13 @@ class DynamicPhysicsModel(PhysicsModel):
             states[..., k], rates[..., k] = means, noisy
             hidden[:, 0, :, k], hidden[:, 1, :, k] = lateral, wheel
             moments[0][:, k], moments[1][:, k], moments[2][:, k] = centre.t(), aleatoric.t(), epistemic.t()
+        return states, rates, hidden, moments
+
+    def _free_run_pose(
+        self, states: Tensor, hidden: Tensor, pose: tuple[float, np.ndarray, float] | None, seed: int
+    ) -> tuple[np.ndarray, ...] | None:
+        """Each draw's pose (x, y, ψ) from its rates and sideslip, widened by the discrepancy, where
+        `pose` = (dt, headings, lever arm) asks for it."""
         paths = None
         if pose is not None:
             dt, yaw0, arm = pose
@@ -320,7 +367,7 @@ class DynamicPhysicsModel(PhysicsModel):
             if self.discrepancy is not None and bool(self.discrepancy.any()):
                 pose = self._with_discrepancy(pose, states, (dt, yaw0, arm, slip), seed)
             paths = tuple(part.numpy() for part in pose)
-        return rates, moments, paths
+        return paths
 
     def _with_discrepancy(self, pose, states: Tensor, frame, seed: int) -> tuple[Tensor, ...]:
         """The pose fan (x, y, ψ) of draws whose rates carry the model discrepancy (`discrepancy_paths`),

@@ -37,6 +37,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from activelearn.errors import InputError
+from activelearn.numerics import native
+from activelearn.numerics.models.base import BACKENDS
 from activelearn.numerics.models.single_track import Identified, PhysicalParameter, _map_fit, stacked_logs
 from simulator.vehicles import GRAVITY, VehicleSpec
 
@@ -362,13 +365,64 @@ def with_scales(car: DynamicCar, friction, front, rear, motor, inertia) -> Dynam
     )  # fmt: skip
 
 
-def rate_runs(
-    car: DynamicCar, controls: np.ndarray, start: np.ndarray, dt: float, implicit: bool = False
+# What dynamic_rollout.c reads: the car's shared figures (its C_ enum's order) and each lane's (S_).
+NATIVE_SET = ("friction", "brake", "stiffness_front", "stiffness_rear", "yaw_inertia", "top_speed",
+              "reverse_top_speed", "max_acceleration", "table_gain")  # fmt: skip
+
+
+def native_car(car: DynamicCar) -> np.ndarray:
+    """The car's shared figures as dynamic_rollout.c reads them (its C_ enum)."""
+    motor = car.top_speed is not None and car.max_acceleration is not None
+    return np.array([
+        GRAVITY, car.mass, car.lf, car.lr, car.cg_height, car.shape or 0.0, car.curvature,
+        car.steering_limit, car.steering_rate, car.rear_drive_share, float(motor),
+        car.power_limit_speed or 0.0, car.speed_time_constant, car.blend_speed,
+    ])  # fmt: skip
+
+
+def _set_figures(car: DynamicCar) -> list[np.ndarray]:
+    return [_numbers(1.0 if (v := getattr(car, name)) is None else v) for name in NATIVE_SET]
+
+
+def native_sets(car: DynamicCar, batch: tuple[int, ...]) -> np.ndarray:
+    """A `scaled` car's per-set figures (prod(batch), its S_ enum) for dynamic_rollout.c, broadcast to
+    the lanes' `batch`."""
+    figures = [np.broadcast_to(f, batch) for f in _set_figures(car)]
+    return np.stack(figures, axis=-1).reshape(-1, len(NATIVE_SET))
+
+
+def _native_rate_runs(
+    lib, car: DynamicCar, controls: np.ndarray, start: np.ndarray, dt: float, substeps: int, implicit: bool
 ) -> np.ndarray:
+    """`rate_runs` by the compiled kernel: one lane per (parameter set, run), the batch flattened."""
+    batch = np.broadcast_shapes(*(f.shape for f in _set_figures(car)), start.shape[:-1])
+    if batch[-1:] != controls.shape[:1]:
+        raise ValueError(f"the runs' batch {batch} does not end in the controls' {controls.shape[0]} runs")
+    starts = np.broadcast_to(start, (*batch, 4)).reshape(-1, 4)
+    rates = native.dynamic_rate_runs(
+        lib, native_car(car), native_sets(car, batch), (car.table_throttle, car.table_speed), controls,
+        starts, dt, substeps, implicit, threads=torch.get_num_threads(),
+    )  # fmt: skip
+    return rates.reshape(*batch, controls.shape[1], 2)
+
+
+def rate_runs(
+    car: DynamicCar, controls: np.ndarray, start: np.ndarray, dt: float, implicit: bool = False,
+    backend: str = "auto",
+) -> np.ndarray:  # fmt: skip
     """Free runs' rates (..., M, T, 2) = (v_x, r) of controls (M, T, 2) from start states (M, 4); `...`
-    is a `scaled` car's batch of parameter sets. `implicit`: the step with implicit tyre damping."""
+    is a `scaled` car's batch of parameter sets. `implicit`: the step with implicit tyre damping.
+    `backend`: the compiled kernel (`"native"`, dynamic_rollout.c; some 10x NumPy's), this NumPy loop
+    (`"reference"`), or the kernel where it builds (`"auto"`)."""
+    if backend not in BACKENDS:
+        raise InputError("backend", backend, f"must be one of {', '.join(BACKENDS)}")
     state = np.asarray(start, np.float64)
     substeps = car.implicit_substeps(dt) if implicit else car.substeps(dt)
+    lib = None if backend == "reference" else native.library()
+    if backend == "native" and lib is None:
+        raise InputError("backend", backend, "the compiled kernel could not be built on this machine")
+    if lib is not None:
+        return _native_rate_runs(lib, car, np.asarray(controls, np.float64), state, dt, substeps, implicit)
     rates = []
     for k in range(1, controls.shape[1]):
         u = controls[:, k - 1]

@@ -1,6 +1,6 @@
 """Compiled kernels, built on first use with the machine's C compiler and loaded through ctypes.
 
-Three fused loops that no library provides:
+Four fused loops that no library provides:
   * `network.c`: S sampled weight sets of a layer stack evaluated tile by tile with the activations
     in L1, the head and the moments over draws included (`NetworkKernel`), where torch writes every
     layer's (S x width x rows) output to memory and reads it back;
@@ -9,7 +9,10 @@ Three fused loops that no library provides:
     (`static_rollout`), replacing a chain of torch passes over multi-MB arrays.
   * `physics_rollout.c`: the physics-structured surrogate's S free runs when its correction reads
     the control alone: per tile the correction on the distinct control rows, then the single
-    track's recurrence, the moments and the noise per step (`physics_rollout`).
+    track's recurrence, the moments and the noise per step (`physics_rollout`);
+  * `dynamic_rollout.c`: the dynamic single track's rates along free runs, many parameter sets at
+    once in double precision (`dynamic_rate_runs`, what an identification's search spends its time
+    on), and the physics kind's S free runs on that core (`dynamic_free_runs`).
 All start their own threads (`threads` arguments), which take chunks of work from a shared counter.
 
 They are compiled once per machine (sources, flags, compiler and CPU features form the cache key) into
@@ -37,7 +40,8 @@ from pathlib import Path
 import numpy as np
 
 SOURCES = tuple(
-    Path(__file__).with_name(name) for name in ("static_rollout.c", "network.c", "physics_rollout.c")
+    Path(__file__).with_name(name)
+    for name in ("static_rollout.c", "network.c", "physics_rollout.c", "dynamic_rollout.c")
 )
 HEADERS = (Path(__file__).with_name("network.h"),)  # part of the cache key, not compiled on their own
 # Compile flags. -ffast-math lets GCC vectorise logf/sinf/cosf through glibc's libmvec; -march=native
@@ -122,6 +126,19 @@ SIGNATURES = {
         + [ctypes.c_float, ctypes.c_float]
         + [_ptr] * 4
         + [ctypes.c_int64],
+        ctypes.c_int,
+    ),
+    "al_dynamic_car_count": ([], ctypes.c_int),
+    "al_dynamic_set_count": ([], ctypes.c_int),
+    "al_dynamic_rate_runs": (
+        [_ptr] * 4 + [ctypes.c_int64] * 4 + [_ptr] * 2 + [ctypes.c_double] + [ctypes.c_int64] * 2
+        + [_ptr, ctypes.c_int64],
+        ctypes.c_int,
+    ),
+    "al_dynamic_limit_count": ([], ctypes.c_int),
+    "al_dynamic_free_runs": (
+        [_ptr] * 4 + [ctypes.c_int64, _ptr] + [ctypes.c_int64] * 4 + [ctypes.c_double]
+        + [ctypes.c_int64] * 3 + [ctypes.c_double] + [_ptr] * 13 + [ctypes.c_int64],
         ctypes.c_int,
     ),
     "al_network_forward": (
@@ -453,3 +470,108 @@ def physics_rollout(
     )
     if status != 0:
         raise MemoryError("al_physics_rollout could not allocate its scratch memory")
+
+
+def dynamic_rate_runs(
+    lib: ctypes.CDLL,
+    car: np.ndarray,
+    sets: np.ndarray,
+    table: tuple[np.ndarray, np.ndarray],
+    controls: np.ndarray,
+    start: np.ndarray,
+    dt: float,
+    substeps: int,
+    implicit: bool,
+    *,
+    threads: int = 1,
+) -> np.ndarray:
+    """Rates (B, T, 2) = (v_x, r) of B free runs with `al_dynamic_rate_runs` on up to `threads` threads.
+
+    Lane b steps the figures `sets[b]` (B, dynamic_rollout.c's S_COUNT) through run b % M of `controls`
+    (M, T, 2) from `start[b]` (B, 4) = (v_x, v_y, r, δ_w), `substeps` substeps a step of `dt` s; `car`
+    holds the shared figures (its C_COUNT) and `table` the speed table's (throttle, speed) points. All
+    float64 (copied where they are not).
+    """
+    car, sets, grid, speed, controls, start = (
+        np.ascontiguousarray(a, dtype=np.float64) for a in (car, sets, *table, controls, start)
+    )
+    n_lanes, (n_runs, n_steps, _) = len(sets), controls.shape
+    if len(car) != lib.al_dynamic_car_count() or sets.shape[1:] != (lib.al_dynamic_set_count(),):
+        raise ValueError("car and sets do not match dynamic_rollout.c's layout")
+    if start.shape != (n_lanes, 4) or n_lanes % max(n_runs, 1) or len(grid) != len(speed) or len(grid) < 2:
+        raise ValueError("start must be (B, 4) with B a multiple of the runs, and the table >= 2 points")
+    rates = np.empty((n_lanes, n_steps, 2))
+    status = lib.al_dynamic_rate_runs(
+        *(_address(a) for a in (car, sets, grid, speed)),
+        len(grid), n_lanes, n_runs, n_steps,
+        _address(controls), _address(start), float(dt), int(substeps), int(implicit), _address(rates),
+        int(threads),
+    )  # fmt: skip
+    if status != 0:
+        raise MemoryError("al_dynamic_rate_runs could not start its work")
+    return rates
+
+
+def dynamic_free_runs(
+    lib: ctypes.CDLL,
+    car: np.ndarray,
+    sets: np.ndarray,
+    table: tuple[np.ndarray, np.ndarray],
+    limits: np.ndarray,
+    dt: float,
+    substeps: int,
+    draws: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    controls: np.ndarray,
+    start: tuple[np.ndarray, np.ndarray],
+    rate_lag: int,
+    spread: float,
+    *,
+    threads: int = 1,
+) -> tuple[np.ndarray, ...]:
+    """S free runs of the physics kind on the dynamic core with `al_dynamic_free_runs` (see there).
+
+    `car`, `sets` (S, S_COUNT) and `table` as `dynamic_rate_runs`'; `limits` the correction's bounds
+    (L_COUNT); `draws` = (z (S, 4, U), noise std (S, 2, U), noise (S, 2, M, T), each step's row (M, T));
+    `controls` (M, T, 2) the control each step reads; `start` = ((v_x, r), (v_y, δ_w)), each (S, 2, M).
+    Returns (states, rates, hidden), each (S, 2, M, T), and the moments (centre, aleatoric, epistemic),
+    each (M, T, 2), float32.
+    """
+    car, sets, grid, speed, limits = (
+        np.ascontiguousarray(a, dtype=np.float64) for a in (car, sets, *table, limits)
+    )
+    z, noise_std, noise, controls, *starts = (
+        np.ascontiguousarray(a, dtype=np.float32) for a in (*draws[:3], controls, *start)
+    )
+    index = np.ascontiguousarray(draws[3], dtype=np.int64)
+    n_samples, (n_maneuvers, n_steps, _), n_rows = len(sets), controls.shape, z.shape[-1]
+    if len(car) != lib.al_dynamic_car_count() or sets.shape[1:] != (lib.al_dynamic_set_count(),):
+        raise ValueError("car and sets do not match dynamic_rollout.c's layout")
+    if len(limits) != lib.al_dynamic_limit_count():
+        raise ValueError("limits do not match dynamic_rollout.c's layout")
+    shapes = {
+        "z": (z.shape, (n_samples, 4, n_rows)),
+        "noise_std": (noise_std.shape, (n_samples, 2, n_rows)),
+        "noise": (noise.shape, (n_samples, 2, n_maneuvers, n_steps)),
+        "index": (index.shape, (n_maneuvers, n_steps)),
+        "start": (starts[0].shape, (n_samples, 2, n_maneuvers)),
+        "start_hidden": (starts[1].shape, (n_samples, 2, n_maneuvers)),
+    }
+    for name, (shape, expected) in shapes.items():
+        if shape != expected:
+            raise ValueError(f"{name} must be {expected}, not {shape}")
+    if rate_lag < 1:
+        raise ValueError("rate_lag must be at least 1")
+    if index.size and (index.min() < 0 or index.max() >= n_rows):
+        raise ValueError("index must name rows of z")
+    runs = tuple(np.empty((n_samples, 2, n_maneuvers, n_steps), np.float32) for _ in range(3))
+    moments = tuple(np.empty((n_maneuvers, n_steps, 2), np.float32) for _ in range(3))
+    status = lib.al_dynamic_free_runs(
+        *(_address(a) for a in (car, sets, grid, speed)), len(grid), _address(limits),
+        n_samples, n_maneuvers, n_steps, n_rows, float(dt), int(substeps), int(rate_lag),
+        int(spread != 1.0), float(spread),
+        *(_address(a) for a in (controls, index, z, noise_std, noise, *starts, *runs, *moments)),
+        int(threads),
+    )  # fmt: skip
+    if status != 0:
+        raise MemoryError("al_dynamic_free_runs could not allocate its scratch memory")
+    return (*runs, *moments)
