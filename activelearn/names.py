@@ -32,6 +32,7 @@ STRATEGY_NAMES: tuple[str, ...] = (
     "lcmd",
     "regressor_maximin",
     "joint_maximin",
+    "fisher",
     "auto",
     "switch",
     "oracle_error",
@@ -41,7 +42,7 @@ STRATEGY_NAMES: tuple[str, ...] = (
 # switch_to`): every strategy that reads the model, but the deciders and the benchmark-only oracles.
 # They stand together in STRATEGY_NAMES (a test checks them against the registry's model-based ones).
 SWITCH_TARGETS: tuple[str, ...] = STRATEGY_NAMES[
-    STRATEGY_NAMES.index("max_epistemic") : STRATEGY_NAMES.index("joint_maximin") + 1
+    STRATEGY_NAMES.index("max_epistemic") : STRATEGY_NAMES.index("fisher") + 1
 ]
 # What `switch` can run on either side of its switch (`switch_first`, `switch_to`): greedy maximin or
 # one of those rules.

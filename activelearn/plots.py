@@ -52,6 +52,7 @@ STRATEGY_COLOURS: dict[str, str] = {
     "lcmd": "#c5b0d5",
     "regressor_maximin": "#8c6d31",
     "joint_maximin": "#bd9e39",
+    "fisher": "#843c39",
     "auto": "#006d77",
     "switch": "#ffbb78",
     "oracle_error": "#7b4173",

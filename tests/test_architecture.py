@@ -40,7 +40,7 @@ _CAMPAIGN_ROOMS = (
 )  # fmt: skip
 _STRATEGY_ROOMS = (
     "strategy", "history", "space_filling", "function_space", "greedy_sampling", "lcmd", "regressor_space",
-    "acquisition",
+    "fisher", "acquisition",
 )  # fmt: skip
 
 

@@ -12,6 +12,7 @@ from activelearn.numerics.models.dynamic_track import (
     DynamicCar,
     free_runs,
     identify_dynamic,
+    log_information,
     rate_runs,
     scaled,
 )
@@ -103,3 +104,26 @@ def test_rate_runs_name_a_backend_they_do_not_know():
     car = DynamicCar.of(load_vehicle("f1tenth"))
     with pytest.raises(InputError, match="backend"):
         rate_runs(car, np.zeros((1, 3, 2)), np.zeros((1, 4)), DT, backend="cuda")
+
+
+def test_a_logs_information_is_its_sensitivity_to_the_scales_and_adds_up():
+    """`log_information`: symmetric and positive semi-definite, each log's alone as in a batch, scaled by
+    the noise's inverse square; a straight at steady throttle tells nothing of the yaw inertia, a slalom
+    does."""
+    car = DynamicCar.of(load_vehicle("f1tenth"))
+    logs = twin_logs(car, implicit=True)
+    n = round(12.0 / DT)
+    straight = np.tile([0.3, 0.0], (n, 1))
+    logs.append((straight, rate_runs(car, straight[None], np.zeros((1, 4)), DT, True)[0]))
+    settings = {"every": 3, "horizon": 3.0, "implicit": True}
+    noise, theta = np.array([0.05, 0.1]), np.ones(5)
+    info = log_information(logs, car, DT, theta, noise, **settings)
+    alone = np.concatenate([log_information([log], car, DT, theta, noise, **settings) for log in logs])
+    np.testing.assert_allclose(info, alone, rtol=1e-9, atol=1e-9 * np.abs(info).max())
+    np.testing.assert_allclose(info, info.transpose(0, 2, 1))
+    assert np.linalg.eigvalsh(info).min() >= -1e-9 * np.abs(info).max()
+    halved = log_information(logs, car, DT, theta, noise / 2, **settings)
+    np.testing.assert_allclose(halved, 4 * info, rtol=1e-9)
+    yaw_inertia = 4  # DYNAMIC_PARAMETERS' order
+    slalom, steady = info[2, yaw_inertia, yaw_inertia], info[-1, yaw_inertia, yaw_inertia]
+    assert slalom > 1.0 and steady < 1e-6 * slalom

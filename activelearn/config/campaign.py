@@ -125,6 +125,16 @@ class CampaignConfig(_Section):
         return {**value, "data": data, "model": {**model, "pose_lever_arm": arm}}
 
     @model_validator(mode="after")
+    def _fisher_needs_identified_physics(self) -> CampaignConfig:
+        # `fisher` weighs candidates by what they tell the dynamic core's identified scales
+        switched = self.strategy == "switch" and self.acquisition.switch_to == "fisher"
+        identified = self.model.kind == "physics" and self.model.core == "dynamic"
+        if (self.strategy == "fisher" or switched) and not identified:
+            reason = 'fisher needs [model] kind = "physics" with core = "dynamic" (its identified scales)'
+            raise ConfigError("strategy", self.strategy, reason)
+        return self
+
+    @model_validator(mode="after")
     def _within_the_cars_lock(self) -> CampaignConfig:
         lock = self.vehicle.spec.steering.limit.value
         if self.model.vehicle != self.vehicle.name:

@@ -19,6 +19,7 @@ import numpy as np
 
 from activelearn.config import AcquisitionConfig
 from activelearn.errors import InputError
+from activelearn.loop.fisher import FisherStrategy
 from activelearn.loop.function_space import (
     BaldStrategy,
     BatchMode,
@@ -52,6 +53,7 @@ __all__ = [
     "BatchMode",
     "CandidateTruth",
     "EpistemicMaximinStrategy",
+    "FisherStrategy",
     "FunctionSamples",
     "GreedySamplingStrategy",
     "GridStrategy",
@@ -296,6 +298,7 @@ STRATEGIES: dict[str, type[Strategy]] = {
         LcmdStrategy,
         RegressorMaximinStrategy,
         JointMaximinStrategy,
+        FisherStrategy,
         AutoStrategy,
         SwitchStrategy,
         OracleErrorStrategy,

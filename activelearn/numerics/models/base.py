@@ -367,6 +367,14 @@ class Model(nn.Module, ABC):
         """The identified physical parameters by name (physical units); none for a network."""
         return {}
 
+    def parameter_information(
+        self, controls: list[np.ndarray], rate_hz: float
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """What each control sequence (T, 2) at `rate_hz`, driven, would tell the identification of this
+        model's physical parameters: their Fisher information, (n, P, P), and the prior's precision (P, P).
+        None for a kind that identifies none this way (the `fisher` strategy then refuses it)."""
+        return None
+
     def is_variational(self) -> bool:
         """Whether the training loss adds the KL divergence (`kl`) of variational layers."""
         return False

@@ -52,10 +52,12 @@ from activelearn.numerics.models.dynamic_track import (
     dynamic_bounds,
     dynamic_step,
     identify_dynamic,
+    log_information,
     misfit,
     native_car,
     native_sets,
     quasi_static_lateral,
+    rate_runs,
     scaled,
     with_scales,
 )
@@ -69,6 +71,7 @@ IDENTIFY_EVERY = 3  # log steps between the compared points of an identification
 # how the model identifies its scales and measures their misfit: the restarts, spacing and step above
 IDENTIFICATION = {"every": IDENTIFY_EVERY, "horizon": IDENTIFY_HORIZON, "implicit": True}
 DISCREPANCY_STREAM = 56  # the discrepancy's random stream, beside the free run's own seed
+FALLBACK_NOISE = 0.01  # `parameter_information`'s rate errors without a measured misfit: share of the limits
 
 
 def identify_scales(
@@ -226,6 +229,32 @@ class DynamicPhysicsModel(PhysicsModel):
             self.discrepancy.copy_(torch.as_tensor(misfit_of_logs, dtype=torch.float32))
         if self.config.parameter_uncertainty == "by_log":
             self.theta_scale.copy_(torch.as_tensor(cholesky_factor(found.covariance), dtype=torch.float32))
+
+    def parameter_information(
+        self, controls: list[np.ndarray], rate_hz: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Each control sequence's Fisher information about the five scales (`log_information`): the
+        sensitivities of the core's rates along the identification's own restarted free runs, taken along
+        the core's path from rest at the current scales, each rate weighted by the misfit of the logs
+        (`discrepancy`; without one `FALLBACK_NOISE` of the car's limits); and the scales' prior precision.
+        The controls must be at the car's log rate, the rate the identification runs at."""
+        if not math.isclose(rate_hz, self.car.log_rate_hz):
+            raise ValueError(f"controls at {rate_hz} Hz: identification runs at {self.car.log_rate_hz} Hz")
+        theta, dt = self.theta.double().numpy(), 1.0 / self.car.log_rate_hz
+        paths: list[np.ndarray] = [np.empty(0)] * len(controls)
+        for length in sorted({len(u) for u in controls}):  # the core's own paths, a length at a time
+            group = [i for i, u in enumerate(controls) if len(u) == length]
+            u = np.stack([np.asarray(controls[i], np.float64) for i in group])
+            start = np.column_stack([np.zeros((len(group), 3)), u[:, 0, 1]])  # at rest, wheels at the command
+            rates = rate_runs(scaled(self.dynamic_car, theta), u, start, dt, implicit=True)[0]
+            for row, i in enumerate(group):
+                paths[i] = rates[row]
+        noise = FALLBACK_NOISE * np.array([self.car.max_speed, self.car.max_yaw_rate])
+        if self.discrepancy is not None and bool((self.discrepancy > 0).all()):
+            noise = self.discrepancy.double().numpy()
+        logs = [(np.asarray(u, np.float64), path) for u, path in zip(controls, paths, strict=True)]
+        info = log_information(logs, self.dynamic_car, dt, theta, noise, **IDENTIFICATION)
+        return info, np.diag(1.0 / dynamic_bounds().width ** 2)
 
     def round_metrics(self) -> dict[str, float]:
         """The kept share of the correction and the identified scales (`identified_friction`, ...): a

@@ -531,3 +531,29 @@ def cross_validated_misfit(
         )
         squares, count = squares + fold_squares, count + fold_count
     return np.sqrt(squares / count)
+
+
+def log_information(
+    logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, theta: np.ndarray,
+    noise: np.ndarray, every: int = 3, horizon: float | None = None, implicit: bool = False,
+    step: float = 1e-5,
+) -> np.ndarray:  # fmt: skip
+    """(L, 5, 5) each log's Fisher information about the five scales at `theta`: Σ Jᵀ diag(noise⁻²) J over
+    the rows of `identify_dynamic`'s free runs of it (the same restarts and spacing), J the rates'
+    forward differences in the scales (`step` × each parameter's prior width, inwards at an upper
+    bound, as the identification's Jacobian). `noise` (2,): the rates' error sizes (v m/s, r rad/s).
+    Every log needs at least two steps."""
+    if any(len(u) < 2 for u, _ in logs):
+        raise ValueError("every log needs at least two steps")
+    info = np.zeros((len(logs), len(DYNAMIC_PARAMETERS), len(DYNAMIC_PARAMETERS)))
+    if not logs:
+        return info
+    bounds = dynamic_bounds()
+    errors_of, clusters, _ = _restart_errors(_usable(logs), car, dt, every, horizon, implicit)
+    theta = np.clip(np.asarray(theta, np.float64), bounds.low, bounds.high)
+    h = step * bounds.width
+    h = np.where(theta + h > bounds.high, -h, h)
+    errors = errors_of(np.vstack([theta, theta + np.diag(h)]))  # (6, n, 2)
+    weighted = (errors[1:] - errors[0]) / h[:, None, None] / np.asarray(noise, np.float64)  # (5, n, 2)
+    np.add.at(info, clusters, np.einsum("inr,jnr->nij", weighted, weighted))
+    return info
