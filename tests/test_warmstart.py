@@ -351,6 +351,16 @@ def test_auto_decides_from_the_warm_start_and_is_deterministic(pool_cfg, forward
     ).select(forward_model, warm, 3, np.random.default_rng(5))
     assert auto.decide(dataclasses.replace(paths, rounds=distrusted.rounds)) == "uniform"
     assert auto.decide(History(scores_paths=True)) == "uniform"
+    # the gate guard: a model that keeps none of its correction's mean is not asked; a share kept is
+    assert auto.decide(paths, kept_correction=0.0) == "uniform"
+    assert auto.decide(paths, kept_correction=0.5) == "max_epistemic"
+    assert auto.decide(known, kept_correction=1.0) == "integrated_variance"
+    gated = build_model(ModelConfig(kind="physics", n_inputs=16, history_step=3), seed=0)  # a kept share
+    gated.set_correction_weight(0.0)
+    assert auto.pick(gated, warm, 3, np.random.default_rng(5), paths) == make_strategy("uniform").pick(
+        gated, warm, 3, np.random.default_rng(5), paths
+    )
+    assert auto.last_choice == "uniform"
 
 
 @pytest.mark.slow

@@ -44,7 +44,7 @@ from activelearn.loop.space_filling import (
     greedy_maximin,
 )
 from activelearn.loop.strategy import Pool, Strategy, check_k, per_candidate, proximity_penalty
-from activelearn.names import PREQUENTIAL_SPEARMAN
+from activelearn.names import CORRECTION_WEIGHT, PREQUENTIAL_SPEARMAN
 
 __all__ = [
     "STRATEGIES",
@@ -187,6 +187,11 @@ class AutoStrategy(Strategy):
     - Guard: when the last models' epistemic std ranked their errors on the maneuvers collected after
       them the wrong way round (`prequential_spearman` < 0, the mean of the last `guard_rounds` rounds
       that measured it), the uncertainty is not to be trusted this round and maximin picks instead.
+    - Gate guard: when this round's model keeps none of its correction's mean (its `correction_weight`
+      round metric is 0: the correction gate found the correction did not help on held-out maneuvers),
+      its epistemic spread is the correction's, which its mean does not use, so maximin picks. On the
+      1:10 warm start the gate keeps none in most rounds, and max_epistemic there ended at twice
+      uniform's error (docs/results/active-learning.md).
     `last_choice` records what it did (for the round's metrics).
     """
 
@@ -207,9 +212,11 @@ class AutoStrategy(Strategy):
         ]
         return float(np.mean(recent[-self.guard_rounds :])) if recent else None
 
-    def decide(self, history: History) -> str:
-        """The strategy this round uses: "uniform", "integrated_variance" or "max_epistemic"."""
-        if not history.prior:
+    def decide(self, history: History, kept_correction: float | None = None) -> str:
+        """The strategy this round uses: "uniform", "integrated_variance" or "max_epistemic".
+        `kept_correction`: the share of its correction's mean this round's model keeps (None: a model
+        without a gated correction)."""
+        if not history.prior or kept_correction == 0.0:
             return "uniform"
         spearman = self.prequential_spearman(history)
         if spearman is not None and np.isfinite(spearman) and spearman < 0:
@@ -222,7 +229,7 @@ class AutoStrategy(Strategy):
     def pick(
         self, model: Any, pool: Pool, k: int, rng: np.random.Generator, history: History = NO_HISTORY
     ) -> list[int]:
-        self.last_choice = self.decide(history)
+        self.last_choice = self.decide(history, model.round_metrics().get(CORRECTION_WEIGHT))
         options: dict[str, Any] = {}
         seconds = history.budget == "seconds"
         if seconds and pool.costs is not None and pool.costs.max() > 1.2 * pool.costs.min():
