@@ -736,3 +736,17 @@ def test_steady_state_inputs_are_the_held_control_loop_and_computed_once_per_mod
     assert np.abs(slower - again).max() > 1e-3
     steady_state_inputs(model, controls[:5])
     assert STEADY_STATES.misses == before + 3
+
+
+def test_distinct_rows_are_numpys_unique_rows_in_its_order():
+    """`physics.distinct_rows` (one sort of 64-bit keys) against `np.unique(axis=0)`: the same rows, order
+    and inverse, signed zeros, tiny and repeated values included."""
+    rng = np.random.default_rng(0)
+    grid = np.array([-1, -0.5, -0.0, 0.0, 1e-8, -1e-8, 0.3, 0.25, 1.0], np.float32)
+    for trial in range(40):
+        n = int(rng.integers(1, 2000))
+        pairs = rng.choice(grid, (n, 2)) if trial % 2 else rng.normal(size=(n, 2)).astype(np.float32)
+        pairs[n // 2 :] = pairs[: n - n // 2]
+        rows, index = physics.distinct_rows(pairs)
+        expected, inverse = np.unique(pairs, axis=0, return_inverse=True)
+        assert np.array_equal(rows, expected) and np.array_equal(index, inverse.reshape(-1))

@@ -320,7 +320,8 @@ class DynamicPhysicsModel(PhysicsModel):
         correction's outputs at zero."""
         correction, spread, keys, controls = self._free_run_setup(n_samples, seed, controls, lags, backend)
         rate_lag = lags.rate_lags[0]
-        z, noise_std, index, noise = self._free_run_draws(correction, controls, keys)
+        lib = None if backend == "reference" else native.library()
+        z, noise_std, index, noise = self._free_run_draws(correction, controls, keys, noise=lib is None)
         if not self.corrected:
             z = torch.zeros_like(z)
         theta = self.parameter_draws(n_samples, seed)
@@ -329,13 +330,12 @@ class DynamicPhysicsModel(PhysicsModel):
         start_hidden = torch.stack(
             [quasi_static_lateral(car, start[:, 0], start[:, 1]), u[:, 0, 1].expand(n_samples, -1)], dim=1
         )
-        lib = None if backend == "reference" else native.library()
-        if lib is not None:  # the whole recurrence in C (dynamic_rollout.c)
+        if lib is not None:  # the whole recurrence in C (dynamic_rollout.c), its noise drawn there
             sets = native_sets(scaled(self.dynamic_car, theta.double().numpy()), (n_samples, 1))
             outputs = native.dynamic_free_runs(
                 lib, native_car(self.dynamic_car), sets, (self.dynamic_car.table_throttle,
                 self.dynamic_car.table_speed), self.native_limits(), self.dt, self.substeps,
-                (z.numpy(), noise_std.numpy(), noise.numpy(), index.numpy()), controls,
+                (z.numpy(), noise_std.numpy(), np.array(keys, dtype=np.uint64), index.numpy()), controls,
                 (start.numpy(), start_hidden.numpy()), rate_lag, spread, threads=torch.get_num_threads(),
             )  # fmt: skip
             states, rates, hidden, *moment_arrays = (torch.from_numpy(a) for a in outputs)

@@ -531,7 +531,8 @@ def dynamic_free_runs(
     """S free runs of the physics kind on the dynamic core with `al_dynamic_free_runs` (see there).
 
     `car`, `sets` (S, S_COUNT) and `table` as `dynamic_rate_runs`'; `limits` the correction's bounds
-    (L_COUNT); `draws` = (z (S, 4, U), noise std (S, 2, U), noise (S, 2, M, T), each step's row (M, T));
+    (L_COUNT); `draws` = (z (S, 4, U), noise std (S, 2, U), each draw's noise key (S,) uint64: the
+    kernel draws its normals, `counter_noise`'s stream, each step's row (M, T));
     `controls` (M, T, 2) the control each step reads; `start` = ((v_x, r), (v_y, δ_w)), each (S, 2, M).
     Returns (states, rates, hidden), each (S, 2, M, T), and the moments (centre, aleatoric, epistemic),
     each (M, T, 2), float32.
@@ -539,9 +540,10 @@ def dynamic_free_runs(
     car, sets, grid, speed, limits = (
         np.ascontiguousarray(a, dtype=np.float64) for a in (car, sets, *table, limits)
     )
-    z, noise_std, noise, controls, *starts = (
-        np.ascontiguousarray(a, dtype=np.float32) for a in (*draws[:3], controls, *start)
+    z, noise_std, controls, *starts = (
+        np.ascontiguousarray(a, dtype=np.float32) for a in (*draws[:2], controls, *start)
     )
+    keys = np.ascontiguousarray(draws[2], dtype=np.uint64)
     index = np.ascontiguousarray(draws[3], dtype=np.int64)
     n_samples, (n_maneuvers, n_steps, _), n_rows = len(sets), controls.shape, z.shape[-1]
     if len(car) != lib.al_dynamic_car_count() or sets.shape[1:] != (lib.al_dynamic_set_count(),):
@@ -551,7 +553,7 @@ def dynamic_free_runs(
     shapes = {
         "z": (z.shape, (n_samples, 4, n_rows)),
         "noise_std": (noise_std.shape, (n_samples, 2, n_rows)),
-        "noise": (noise.shape, (n_samples, 2, n_maneuvers, n_steps)),
+        "keys": (keys.shape, (n_samples,)),
         "index": (index.shape, (n_maneuvers, n_steps)),
         "start": (starts[0].shape, (n_samples, 2, n_maneuvers)),
         "start_hidden": (starts[1].shape, (n_samples, 2, n_maneuvers)),
@@ -569,7 +571,7 @@ def dynamic_free_runs(
         *(_address(a) for a in (car, sets, grid, speed)), len(grid), _address(limits),
         n_samples, n_maneuvers, n_steps, n_rows, float(dt), int(substeps), int(rate_lag),
         int(spread != 1.0), float(spread),
-        *(_address(a) for a in (controls, index, z, noise_std, noise, *starts, *runs, *moments)),
+        *(_address(a) for a in (controls, index, z, noise_std, keys, *starts, *runs, *moments)),
         int(threads),
     )  # fmt: skip
     if status != 0:

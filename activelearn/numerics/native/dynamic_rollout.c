@@ -291,7 +291,8 @@ typedef struct {
     double spread;
     const float *controls; /* (M, T, 2): the control each step reads */
     const int64_t *index;  /* (M, T): each step's control row among the n_rows distinct ones */
-    const float *z, *noise_std, *noise, *start, *start_hidden;
+    const float *z, *noise_std, *start, *start_hidden;
+    const uint64_t *keys; /* each draw's noise key (the counter-based noise of static_rollout.c) */
     float *states, *rates, *hidden, *centre, *aleatoric, *epistemic;
     double *residuals; /* (S, 2, n_rows): each draw's correction at each row (residual_chunk) */
 } free_run_context;
@@ -300,12 +301,14 @@ typedef struct {
     block *blocks; /* ceil(S / LANES) of each: the draws' own step, */
     block *common; /* and their step from the draws' mean past (`widen`) */
     double *gain, *v, *w, *cv, *cw;
+    float *zv, *zw; /* each draw's noise over the current tile of steps (S x al_tile()) */
 } free_run_scratch;
 
 static void free_run_free(void *scratch) {
     free_run_scratch *r = scratch;
     if (!r) return;
     free(r->blocks), free(r->common), free(r->gain), free(r->v), free(r->w), free(r->cv), free(r->cw);
+    free(r->zv), free(r->zw);
     free(r);
 }
 
@@ -318,7 +321,9 @@ static void *free_run_scratch_new(void *context) {
     r->gain = malloc((size_t)lanes * sizeof(double));
     r->v = malloc((size_t)lanes * sizeof(double)), r->w = malloc((size_t)lanes * sizeof(double));
     r->cv = malloc((size_t)lanes * sizeof(double)), r->cw = malloc((size_t)lanes * sizeof(double));
-    if (!r->blocks || !r->common || !r->gain || !r->v || !r->w || !r->cv || !r->cw) {
+    r->zv = malloc((size_t)(c->n_samples * al_tile()) * sizeof(float));
+    r->zw = malloc((size_t)(c->n_samples * al_tile()) * sizeof(float));
+    if (!r->blocks || !r->common || !r->gain || !r->v || !r->w || !r->cv || !r->cw || !r->zv || !r->zw) {
         free_run_free(r);
         return NULL;
     }
@@ -369,7 +374,12 @@ static void free_run_maneuver(void *context, void *scratch, int64_t m) {
     const int64_t n_blocks = (S + LANES - 1) / LANES, plane = M * T; /* (S, 2, M, T): a rate's plane */
     const figures f = figures_of(c->core.car, c->core.dt, c->core.substeps);
     const substep_run run_substeps = substeps_for(c->core.car, 1);
+    const int64_t tile = al_tile();
     for (int64_t k = 0; k < T; ++k) {
+        if (k % tile == 0) /* the next tile's noise, each draw's from its key */
+            for (int64_t s = 0; s < S; ++s)
+                al_tile_noise((uint32_t)(k / tile), (uint32_t)m, (uint32_t)(c->keys[s] & 0xFFFFFFFFu),
+                              (uint32_t)(c->keys[s] >> 32), r->zv + s * tile, r->zw + s * tile);
         const float *u = c->controls + (m * T + k) * 2;
         const int64_t row = c->index[m * T + k];
         double mean[4] = {0.0, 0.0, 0.0, 0.0}; /* the draws' mean past (v_x, v_y, r, delta_w) */
@@ -421,8 +431,8 @@ static void free_run_maneuver(void *context, void *scratch, int64_t m) {
             const double std_v = c->noise_std[s * 2 * c->n_rows + row];
             const double std_w = c->noise_std[(s * 2 + 1) * c->n_rows + row];
             c->states[at] = (float)r->v[s], c->states[at + plane] = (float)r->w[s];
-            c->rates[at] = (float)(r->v[s] + std_v * c->noise[at]);
-            c->rates[at + plane] = (float)(r->w[s] + std_w * c->noise[at + plane]);
+            c->rates[at] = (float)(r->v[s] + std_v * r->zv[s * tile + k % tile]);
+            c->rates[at + plane] = (float)(r->w[s] + std_w * r->zw[s * tile + k % tile]);
             const block *b = &r->blocks[s / LANES];
             c->hidden[at] = (float)b->vy[s % LANES], c->hidden[at + plane] = (float)b->delta[s % LANES];
             alea_v += std_v * std_v, alea_w += std_w * std_w;
@@ -443,8 +453,8 @@ static void free_run_maneuver(void *context, void *scratch, int64_t m) {
  * `car` (C_COUNT), sets (S, S_COUNT) each draw's figures, grid and speed the speed table; `limits`
  * (L_COUNT) the correction's bounds; controls (M, T, 2) the control each step reads, index (M, T) its
  * row among the n_rows distinct ones; z (S, 4, n_rows) the correction's raw outputs (speed, yaw rate,
- * their lags; gated), noise_std (S, 2, n_rows) the sensors' noise sizes and noise (S, 2, M, T) its
- * normals; start and start_hidden (S, 2, M) the (v_x, r) and (v_y, delta_w) before the first step, read
+ * their lags; gated), noise_std (S, 2, n_rows) the sensors' noise sizes and keys (S) each draw's
+ * noise key (its normals drawn here, al_tile_noise); start and start_hidden (S, 2, M) the (v_x, r) and (v_y, delta_w) before the first step, read
  * until `rate_lag` steps have run. Writes each draw's rates without noise (states) and with it (rates),
  * its (v_y, delta_w) after each step (hidden), all (S, 2, M, T), and the moments over draws (centre,
  * aleatoric, epistemic; each (M, T, 2)). Returns 0, or -1 when out of memory. */
@@ -452,15 +462,15 @@ int al_dynamic_free_runs(const double *car, const double *sets, const double *gr
                          int64_t n_table, const double *limits, int64_t n_samples, int64_t n_maneuvers,
                          int64_t n_steps, int64_t n_rows, double dt, int64_t substeps, int64_t rate_lag,
                          int64_t widen, double spread, const float *controls, const int64_t *index, const float *z,
-                         const float *noise_std, const float *noise, const float *start, const float *start_hidden,
+                         const float *noise_std, const uint64_t *keys, const float *start, const float *start_hidden,
                          float *states, float *rates, float *hidden, float *centre, float *aleatoric,
                          float *epistemic, int64_t n_threads) {
     if (n_maneuvers <= 0 || n_steps <= 0) return 0;
     if (n_samples <= 0 || rate_lag < 1 || substeps < 1 || n_table < 2) return -1;
     free_run_context context = {
         {car, sets, grid, speed, n_table, n_samples, n_maneuvers, n_steps, substeps, 1, NULL, NULL, dt, NULL},
-        limits, n_samples, n_rows, rate_lag, widen, spread, controls, index, z, noise_std, noise, start, start_hidden,
-        states, rates, hidden, centre, aleatoric, epistemic, NULL};
+        limits, n_samples, n_rows, rate_lag, widen, spread, controls, index, z, noise_std, start, start_hidden,
+        keys, states, rates, hidden, centre, aleatoric, epistemic, NULL};
     context.residuals = malloc((size_t)(n_samples * 2 * n_rows) * sizeof(double));
     if (!context.residuals) return -1;
     al_job residuals = {dynamic_scratch, dynamic_free, residual_chunk, &context, n_samples, 0, 0};

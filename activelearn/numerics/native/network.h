@@ -70,6 +70,9 @@ int al_run_parallel(al_job *job, int64_t n_threads);
  * to rows_x (2, 512), each step's row index to row; returns their count (static_rollout.c). */
 int32_t al_tile_rows(const float *u, int64_t n, float *rows_x, int32_t *row);
 
+/* The steps of one tile of noise and rollout (512; static_rollout.c's TILE, counter_noise.TILE). */
+int al_tile(void);
+
 /* Standard normal (v, w) noise of steps [tile * 512, tile * 512 + 512) of maneuver m under a draw's
  * 64-bit key (key0 low word, key1 high word): counter-based, so it depends on nothing else
  * (static_rollout.c; the NumPy reference is activelearn/numerics/counter_noise.py). */
