@@ -52,6 +52,7 @@ from activelearn.numerics.models.dynamic_track import (
     dynamic_bounds,
     dynamic_step,
     identify_dynamic,
+    kernels_for,
     log_information,
     misfit,
     native_car,
@@ -320,7 +321,7 @@ class DynamicPhysicsModel(PhysicsModel):
         correction's outputs at zero."""
         correction, spread, keys, controls = self._free_run_setup(n_samples, seed, controls, lags, backend)
         rate_lag = lags.rate_lags[0]
-        lib = None if backend == "reference" else native.library()
+        lib = kernels_for(backend)
         z, noise_std, index, noise = self._free_run_draws(correction, controls, keys, noise=lib is None)
         if not self.corrected:
             z = torch.zeros_like(z)

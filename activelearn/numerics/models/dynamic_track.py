@@ -391,6 +391,18 @@ def native_sets(car: DynamicCar, batch: tuple[int, ...]) -> np.ndarray:
     return np.stack(figures, axis=-1).reshape(-1, len(NATIVE_SET))
 
 
+def kernels_for(backend: str):
+    """The compiled kernels (dynamic_rollout.c's) a `backend` runs on: None for `"reference"`, or for
+    `"auto"` where they do not build; `"native"` where they do not build, and an unknown name, are
+    errors naming the field."""
+    if backend not in BACKENDS:
+        raise InputError("backend", backend, f"must be one of {', '.join(BACKENDS)}")
+    lib = None if backend == "reference" else native.library()
+    if backend == "native" and lib is None:
+        raise InputError("backend", backend, "the compiled kernel could not be built on this machine")
+    return lib
+
+
 def _native_rate_runs(
     lib, car: DynamicCar, controls: np.ndarray, start: np.ndarray, dt: float, substeps: int, implicit: bool
 ) -> np.ndarray:
@@ -414,13 +426,9 @@ def rate_runs(
     is a `scaled` car's batch of parameter sets. `implicit`: the step with implicit tyre damping.
     `backend`: the compiled kernel (`"native"`, dynamic_rollout.c; some 10x NumPy's), this NumPy loop
     (`"reference"`), or the kernel where it builds (`"auto"`)."""
-    if backend not in BACKENDS:
-        raise InputError("backend", backend, f"must be one of {', '.join(BACKENDS)}")
+    lib = kernels_for(backend)
     state = np.asarray(start, np.float64)
     substeps = car.implicit_substeps(dt) if implicit else car.substeps(dt)
-    lib = None if backend == "reference" else native.library()
-    if backend == "native" and lib is None:
-        raise InputError("backend", backend, "the compiled kernel could not be built on this machine")
     if lib is not None:
         return _native_rate_runs(lib, car, np.asarray(controls, np.float64), state, dt, substeps, implicit)
     rates = []

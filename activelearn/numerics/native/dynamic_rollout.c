@@ -331,9 +331,8 @@ static void *free_run_scratch_new(void *context) {
         const int64_t s = i < c->n_samples ? i : c->n_samples - 1;
         load_figures(&r->blocks[i / LANES], r->gain + (i / LANES) * LANES, (int)(i % LANES),
                      c->core.sets + s * S_COUNT);
-        load_figures(&r->common[i / LANES], r->gain + (i / LANES) * LANES, (int)(i % LANES),
-                     c->core.sets + s * S_COUNT);
     }
+    memcpy(r->common, r->blocks, (size_t)n_blocks * sizeof(block)); /* the same draws' figures */
     return r;
 }
 
@@ -373,7 +372,7 @@ static void free_run_maneuver(void *context, void *scratch, int64_t m) {
     const int64_t S = c->n_samples, M = c->core.n_runs, T = c->core.n_steps, lag = c->rate_lag;
     const int64_t n_blocks = (S + LANES - 1) / LANES, plane = M * T; /* (S, 2, M, T): a rate's plane */
     const figures f = figures_of(c->core.car, c->core.dt, c->core.substeps);
-    const substep_run run_substeps = substeps_for(c->core.car, 1);
+    const substep_run run_substeps = substeps_for(c->core.car, c->core.implicit);
     const int64_t tile = al_tile();
     for (int64_t k = 0; k < T; ++k) {
         if (k % tile == 0) /* the next tile's noise, each draw's from its key */
