@@ -11,10 +11,12 @@ import torch
 from pydantic import ValidationError
 
 from activelearn.config import ModelConfig
+from activelearn.errors import InputError
 from activelearn.numerics.lags import model_lags
 from activelearn.numerics.models import build_model, load_model, physics, save_model
-from activelearn.numerics.models.dynamic_physics import DynamicPhysicsModel
-from activelearn.numerics.models.dynamic_track import DynamicCar, dynamic_step
+from activelearn.numerics.models.dynamic_physics import DynamicPhysicsModel, identify_scales
+from activelearn.numerics.models.dynamic_track import DynamicCar, dynamic_bounds, dynamic_step
+from activelearn.numerics.models.single_track import Identified, widened
 from activelearn.numerics.multistep import window_loss, windows_from_logs
 from activelearn.numerics.surrogate import simulate
 from activelearn.numerics.training_data import TrainingData
@@ -148,6 +150,77 @@ def test_it_identifies_a_twins_grip_and_motor_and_saves_them(tmp_path):
     save_model(model, tmp_path / "model.pt")
     loaded = load_model(tmp_path / "model.pt")
     assert isinstance(loaded, DynamicPhysicsModel) and loaded.physical_parameters() == found
+
+
+def _identify(model: DynamicPhysicsModel, logs, of_another_car=None) -> None:
+    empty = TrainingData(x=np.zeros((0, 16)), y=np.zeros((0, 2)), logs=logs, of_another_car=of_another_car)
+    model.identify(empty)
+
+
+def _covariance(model: DynamicPhysicsModel) -> np.ndarray:
+    scale = model.theta_scale.double()
+    return (scale @ scale.T).numpy()
+
+
+def test_another_cars_logs_centre_the_identification_and_stand_alone_widened():
+    """Logs flagged as another car's (a grid of the nominal simulator): identified alone, their scales,
+    widened by the file's widths, are the prior this car's logs are identified under; with no log of this
+    car that prior stands, its width in the draws. The other car's grip is not pooled with the twin's."""
+    model = _untrained(parameter_uncertainty="by_log")
+    car = model.dynamic_car
+    others = twin_logs(car, implicit=True, scales=(1.2, 1.0, 1.0, 1.0, 1.0))
+    own = twin_logs(car, implicit=True)[2:3]  # one log of this car (the twin): throttle 0.4
+    prior = widened(identify_scales(others, car, DT), dynamic_bounds().width)
+
+    _identify(model, others, [True] * 4)
+    np.testing.assert_allclose(model.theta.numpy(), prior.values, rtol=1e-6)
+    np.testing.assert_allclose(_covariance(model), prior.covariance, rtol=1e-4, atol=1e-9)
+    assert model.physical_parameters()["friction"] == pytest.approx(1.2, abs=0.05)
+
+    _identify(model, others + own, [True] * 4 + [False])
+    expected = identify_scales(own, car, DT, prior=prior)
+    np.testing.assert_allclose(model.theta.numpy(), expected.values, rtol=1e-5)
+    pooled = identify_scales(others + own, car, DT)
+    assert abs(model.physical_parameters()["motor"] - 0.9) < abs(pooled.values[3] - 0.9)
+
+
+def test_it_starts_from_another_cars_model_its_core_as_the_prior_and_its_correction(tmp_path):
+    """`start_from_another_car`: the donor's identified scales and covariance, widened by the file's
+    widths, are the recipient's prior (standing alone before it has logs); with `correction` the
+    recipient's correction is the donor's. A donor of another core is refused, naming the field."""
+    donor = _untrained(parameter_uncertainty="by_log")
+    _identify(donor, twin_logs(donor.dynamic_car, implicit=True, scales=(1.2, 1.0, 1.0, 1.0, 1.0)))
+    save_model(donor, tmp_path / "donor.pt")
+    donor = load_model(tmp_path / "donor.pt")
+    recipient = build_model(_config(parameter_uncertainty="by_log"), seed=1)
+    recipient.start_from_another_car(donor, correction=False)
+    prior = widened(Identified(donor.theta.double().numpy(), _covariance(donor)), dynamic_bounds().width)
+    np.testing.assert_allclose(recipient.core_prior.values, prior.values)
+    np.testing.assert_allclose(recipient.core_prior.covariance, prior.covariance)
+    _identify(recipient, [])
+    np.testing.assert_allclose(recipient.theta.numpy(), donor.theta.numpy(), rtol=1e-6)
+    assert np.all(np.diag(_covariance(recipient)) > np.diag(_covariance(donor)))  # the car is another
+    own = twin_logs(recipient.dynamic_car, implicit=True)[2:3]
+    _identify(recipient, own)
+    expected = identify_scales(own, recipient.dynamic_car, DT, prior=prior)
+    np.testing.assert_allclose(recipient.theta.numpy(), expected.values, rtol=1e-5)
+
+    different = [n for n, a in recipient.correction.state_dict().items()
+                 if not torch.equal(a, donor.correction.state_dict()[n])]  # fmt: skip
+    assert different  # another seed's correction ...
+    recipient.start_from_another_car(donor, correction=True)
+    for name, array in recipient.correction.state_dict().items():  # ... until it starts from the donor's
+        assert torch.equal(array, donor.correction.state_dict()[name]), name
+    kinematic = build_model(ModelConfig(kind="physics", arch="D16-V", n_inputs=16, history_step=3), seed=0)
+    with pytest.raises(InputError, match=r"design\.prior\.model"):
+        recipient.start_from_another_car(kinematic, correction=False)
+    # scales carry to another vehicle file; the kinematic core's own gains and lags do not
+    full_size = build_model(_config("bmw320i", parameter_uncertainty="by_log"), seed=0)
+    full_size.start_from_another_car(donor, correction=False)
+    np.testing.assert_allclose(full_size.core_prior.values, prior.values)
+    kinematic_f1tenth = build_model(kinematic.config.model_copy(update={"vehicle": "f1tenth"}), seed=0)
+    with pytest.raises(InputError, match="another vehicle"):
+        kinematic_f1tenth.start_from_another_car(kinematic, correction=False)
 
 
 def test_the_discrepancy_is_the_cores_misfit_of_its_logs_and_widens_the_fan_not_the_path(tmp_path):
@@ -284,5 +357,14 @@ def test_identify_command_prints_the_dynamic_cores_scales_beside_the_file(tmp_pa
     assert float(fitted) == pytest.approx(float(scale) * float(figure), rel=1e-3)
     assert float(rows["friction"][1]) == pytest.approx(0.8, abs=0.06)  # its grip
     assert "cluster-robust" in out and "f1tenth" in out
-    assert main(["identify", str(tmp_path), "--core", "dynamic", "--other-car", str(tmp_path)]) == 2
-    assert "--other-car" in capsys.readouterr().err
+    # under the scales of the nominal car's log (another car of the file): the twin's motor still found
+    nominal_car = build_vehicle(load_vehicle("f1tenth"))
+    nominal = collect([Maneuver("slalom", 0.3, 0.1, "ccw", 12.0)], seed=0, vehicle=nominal_car)
+    nominal.to_parquet(tmp_path / "nominal.parquet")
+    logs = [str(tmp_path / f"log{i}.parquet") for i in range(2)]
+    command = ["identify", *logs, "--core", "dynamic", "--vehicle", "f1tenth"]
+    assert main([*command, "--other-car", str(tmp_path / "nominal.parquet")]) == 0
+    out = capsys.readouterr().out
+    assert "under the scales of 1 log(s) of another car" in out
+    motor = next(line.split() for line in out.splitlines() if line.strip().startswith("motor"))
+    assert float(motor[1]) == pytest.approx(0.9, abs=0.03)

@@ -56,10 +56,13 @@ def test_a_twin_with_less_grip_slides_earlier():
     assert slippery[0] * slippery[2] < 0.9 * full[0] * full[2]
 
 
-def twin_logs(car: DynamicCar, implicit: bool = False) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Four 12-s logs (controls, rates) of the core itself with less grip (0.8) and a weaker motor (0.9):
-    sine steering at three throttles forward and one in reverse (`implicit`: the physics kind's step)."""
-    twin = scaled(car, np.array([[0.8, 1.0, 1.0, 0.9, 1.0]]))
+def twin_logs(
+    car: DynamicCar, implicit: bool = False, scales: tuple[float, ...] = (0.8, 1.0, 1.0, 0.9, 1.0)
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Four 12-s logs (controls, rates) of the core itself with less grip (0.8) and a weaker motor (0.9),
+    or other `scales`: sine steering at three throttles forward and one in reverse (`implicit`: the
+    physics kind's step)."""
+    twin = scaled(car, np.array([scales]))
     n = round(12.0 / DT)
     t = np.arange(n) * DT
     controls = np.zeros((4, n, 2))

@@ -13,7 +13,7 @@ import torch
 from activelearn.cli import main
 from activelearn.config import ModelConfig, TrainingConfig, load_config
 from activelearn.data import read_table, write_table
-from activelearn.errors import InputError
+from activelearn.errors import ConfigError, InputError
 from activelearn.loop.acquisition import (
     IntegratedVarianceStrategy,
     MaxEpistemicStrategy,
@@ -372,3 +372,80 @@ def test_auto_campaigns_are_deterministic_for_a_seed(tmp_path):
     assert a.history["test_rmse"].tolist() == b.history["test_rmse"].tolist()
     # a warm start: integrated variance in every round that picked (the last round only stops)
     assert a.history["auto_model_based"].dropna().tolist() == [1.0, 1.0]
+
+
+F1TENTH = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "dynamics_f1tenth.toml"
+
+
+def _small_f1tenth(tmp_path: Path, name: str, **overrides):
+    """dynamics_f1tenth.toml shrunk: a pool of 8-s maneuvers, two taken, one test maneuver, a short fit."""
+    small = {
+        "name": name, "output_dir": str(tmp_path / "runs"), "tracking": {"enabled": False},
+        "pool": {"size": 2, "duration": 8.0},
+        "design": {"initial": 2, "per_round": 2, "max_maneuvers": 2},
+        "model": {"discrepancy": "none", "correction_gate": False},
+        "training": {"epochs": 2, "rollout_horizon": 0, "warm_start": False},
+        "test": {"kinds": ["skidpad"], "throttles": [0.3], "steerings": [0.08], "duration": 8.0},
+    }  # fmt: skip
+    for section, values in overrides.items():
+        small[section] = {**small.get(section, {}), **values} if isinstance(values, dict) else values
+    return load_config(F1TENTH, overrides=small)
+
+
+@pytest.mark.slow
+def test_a_campaign_starts_from_another_cars_model(tmp_path):
+    """`[design.prior] model` of another car (`same_car = false`): the nominal car's campaign model, its
+    identified scales widened by the file's widths, is the prior the twin's own logs are identified
+    under; `use = "finetune"` starts the round from its correction as well. The same model as this
+    car's (`same_car = true`) would be fine-tuned as is, and another vehicle's is refused there."""
+    from activelearn.numerics.models.dynamic_physics import identify_scales
+    from activelearn.numerics.models.dynamic_track import dynamic_bounds
+
+    donor_dir = tmp_path / "donor"
+    Campaign(_small_f1tenth(tmp_path, "donor"), donor_dir).run(figures=False)
+    donor = load_model(donor_dir / MODEL_FILE)
+    scale = donor.theta_scale.double()
+    prior = st.widened(st.Identified(donor.theta.double().numpy(), (scale @ scale.T).numpy()),
+                       dynamic_bounds().width)  # fmt: skip
+    twin = {"kind": "twin", "overrides": {"tire_friction": 0.8, "motor_gain": 0.9}}
+    found = {}
+    for use in ("data", "finetune"):
+        section = {"model": str(donor_dir), "same_car": False, "use": use}
+        cfg = _small_f1tenth(tmp_path, f"twin_{use}", oracle=twin, design={"prior": section})
+        directory = tmp_path / f"twin_{use}"
+        Campaign(cfg, directory).run(figures=False)
+        model = load_model(directory / MODEL_FILE)
+        samples = read_table(directory / "samples.parquet")
+        logs = control_rate_logs([part for _, part in samples.groupby("pool_index", sort=False)])
+        expected = identify_scales(logs, model.dynamic_car, 1.0 / 30.0, prior=prior)
+        np.testing.assert_allclose(model.theta.numpy(), expected.values, rtol=1e-5)
+        found[use] = model
+    # fine-tuned from the donor's correction, the twin's ends elsewhere than the one trained from scratch
+    weights = {use: torch.cat([p.flatten() for p in m.correction.parameters()]) for use, m in found.items()}
+    assert not torch.allclose(weights["data"], weights["finetune"])
+
+    nigel = load_config(SMOKE, overrides={
+        "output_dir": str(tmp_path / "runs"), "tracking": {"enabled": False},
+        "design": {"prior": {"model": str(donor_dir), "use": "finetune"}},
+    })  # fmt: skip
+    with pytest.raises(InputError, match=r"design\.prior\.model.*same_car = false"):
+        Campaign(nigel, tmp_path / "nigel").run(figures=False)
+
+
+def test_another_cars_model_is_checked_at_the_edge(tmp_path):
+    """`same_car = false` with a model: a physics model's core is what crosses, so rows beside it, a
+    residual on it or a network kind are refused, naming the field; its core alone (`use = "data"`)
+    needs no rows."""
+    model = str(tmp_path / "donor")
+
+    def config(prior: dict):
+        return _small_f1tenth(tmp_path, "x", design={"prior": {"model": model, "same_car": False, **prior}})
+
+    assert config({"use": "data"}).design.prior.model == model
+    with pytest.raises(ConfigError, match="not both"):
+        config({"grid": PRIOR_GRID})
+    with pytest.raises(ConfigError, match="not 'residual'"):
+        config({"use": "residual"})
+    network = {"design": {"prior": {"model": model, "same_car": False, "use": "finetune"}}}
+    with pytest.raises(ConfigError, match=r"design\.prior\.model.*kind = \"physics\""):
+        load_config(SMOKE, overrides=network)

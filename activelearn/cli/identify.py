@@ -19,8 +19,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("logs", nargs="+", metavar="LOG", help="log files, or folders searched for .csv/.parquet")
     p.add_argument("--other-car", nargs="+", default=[], metavar="LOG",
-                   help="logs of another car (e.g. simulated on nominal Nigel): identified alone first, "
-                        "their estimate, widened by the datasheet's widths, is the prior LOG is fitted under")
+                   help="logs of another car of the same vehicle file (e.g. simulated on the nominal car): "
+                        "identified alone first, their estimate, widened by the datasheet's widths, is the "
+                        "prior LOG is fitted under (either core)")
     p.add_argument("--core", choices=("kinematic", "dynamic"), default="kinematic",
                    help="the physics kind's core ([model] core): the kinematic single track's seven "
                         "parameters (default), or the dynamic single track's five scales of the file's "
@@ -46,14 +47,12 @@ def _identify(args: argparse.Namespace) -> int:
     car = car_prior(spec)
     if args.rate_hz is not None and not (math.isfinite(args.rate_hz) and args.rate_hz > 0):
         raise InputError("--rate-hz", args.rate_hz, "must be a positive number")
-    if args.core == "dynamic" and args.other_car:
-        raise InputError("--other-car", args.other_car, "the dynamic core's prior is the vehicle file")
     tables = [read_log_file(path) for path in log_files(args.logs)]
     if args.rate_hz is None:
         args.rate_hz = log_rate_hz(tables)
     logs = control_rate_logs(tables)
     if args.core == "dynamic":
-        _print_dynamic(logs, spec, 1.0 / args.rate_hz)
+        _print_dynamic(logs, spec, args.other_car, 1.0 / args.rate_hz)
     else:
         _print_kinematic(logs, car, args.other_car, 1.0 / args.rate_hz)
     _print_stderr_note(len(logs))
@@ -81,16 +80,28 @@ def _print_kinematic(logs, car, other_car: list[str], dt: float) -> None:
         print(f"  {row}  {p.unit:<5} {p.meaning}")
 
 
-def _print_dynamic(logs, spec, dt: float) -> None:
-    """The dynamic core's five scales, identified as its campaigns do, with the figures they scale."""
-    from activelearn.numerics.models.dynamic_physics import IDENTIFY_HORIZON, identify_scales
+def _print_dynamic(logs, spec, other_car: list[str], dt: float) -> None:
+    """The dynamic core's five scales, identified as its campaigns do, with the figures they scale (under
+    another car's logs' scales, widened, with `other_car`)."""
+    from activelearn.fidelity import read_log_file
+    from activelearn.loop.collection import control_rate_logs
+    from activelearn.numerics.models.dynamic_physics import (
+        IDENTIFY_HORIZON,
+        identify_scales,
+        scales_of_another_car,
+    )
     from activelearn.numerics.models.dynamic_track import DYNAMIC_PARAMETERS, DynamicCar, scaled_figures
 
     car = DynamicCar.of(spec)
-    found = identify_scales(logs, car, dt)
+    prior, under = None, f"under {spec.name}'s vehicle file (scale 1 ± its width)"
+    if other_car:
+        others = control_rate_logs([read_log_file(path) for path in log_files(other_car)])
+        prior = scales_of_another_car(others, car, dt)
+        under = f"under the scales of {len(others)} log(s) of another car ± the file's widths"
+    found = identify_scales(logs, car, dt, prior=prior)
     steps = sum(len(u) for u, _ in logs)
-    print(f"the dynamic core's scales from {len(logs)} log(s), {steps} steps, under {spec.name}'s vehicle "
-          f"file (scale 1 ± its width), free runs restarted every {IDENTIFY_HORIZON:g} s:")
+    print(f"the dynamic core's scales from {len(logs)} log(s), {steps} steps, {under}, free runs restarted "
+          f"every {IDENTIFY_HORIZON:g} s:")
     header = f"{'parameter':<16}{'scale':>7}{'± s.e.':>8}  {'figure':<8}{'file':>10}{'fitted':>10}"
     print(f"  {header}  unit    meaning")
     rows = zip(DYNAMIC_PARAMETERS, found.values, found.stderr, scaled_figures(car), strict=True)

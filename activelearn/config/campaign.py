@@ -135,6 +135,18 @@ class CampaignConfig(_Section):
         return self
 
     @model_validator(mode="after")
+    def _another_cars_model_needs_physics(self) -> CampaignConfig:
+        # another car's model carries its identified core across; a network has none to carry
+        prior = self.design.prior
+        of_another_car = prior is not None and not prior.same_car and prior.model is not None
+        if of_another_car and self.model.kind != "physics":
+            assert prior is not None
+            reason = ('another car\'s model (same_car = false) needs [model] kind = "physics": a network '
+                      "carries no core across cars (fine-tune it as this car's with same_car = true)")
+            raise ConfigError("design.prior.model", prior.model, reason)
+        return self
+
+    @model_validator(mode="after")
     def _within_the_cars_lock(self) -> CampaignConfig:
         lock = self.vehicle.spec.steering.limit.value
         if self.model.vehicle != self.vehicle.name:

@@ -311,11 +311,13 @@ class PriorConfig(_Section):
     )
     same_car: bool = Field(
         True,
-        description="Whether the prior's logs are of the car the campaign drives: a physics model "
+        description="Whether the prior's logs or model are of the car the campaign drives: a physics model "
         "(`[model] kind = \"physics\"`) then identifies its parameters on them beside the collected "
         "logs; false (another car, e.g. a grid simulated on nominal Nigel for a twin or a real car): "
         "they only centre the identification's prior, widened by the datasheet's widths, and train the "
-        "correction only until the first collected log (after it, the car's own logs alone)",
+        "correction only until the first collected log (after it, the car's own logs alone). With "
+        "`model` (another car's trained physics model, any vehicle), its identified core centres the "
+        "prior the same way; `use = \"finetune\"` also starts every round from its correction",
     )
 
     @model_validator(mode="before")
@@ -332,7 +334,16 @@ class PriorConfig(_Section):
     def _has_a_source(self) -> PriorConfig:
         if self.grid is None and not self.paths and self.model is None:
             raise ValueError("a prior needs a grid, paths or a model")
-        if self.use == "data" and self.grid is None and not self.paths:
+        rows = self.grid is not None or bool(self.paths)
+        if not self.same_car and self.model is not None:
+            if rows:
+                raise ValueError("same_car = false takes another car's logs (grid, paths) or its trained "
+                                 "model (model), not both")  # fmt: skip
+            if self.use == "residual":
+                raise ValueError("same_car = false with a model takes use = 'data' (its identified "
+                                 "core centres this car's) or 'finetune' (its correction too), not "
+                                 "'residual'")  # fmt: skip
+        elif self.use == "data" and not rows:
             raise ValueError("use = 'data' needs prior rows: give a grid or paths")
         if self.use != "data" and self.model is None and self.grid is None and not self.paths:
             raise ValueError(f"use = {self.use!r} needs a model, or rows (grid, paths) to train one")

@@ -177,7 +177,9 @@ class Fitting:
         seed = derived_seed(self.cfg.seed, Stream.ROUND, round_index)
         base = self.prior_model()
         use = self.cfg.design.prior.use if self.cfg.design.prior is not None else "data"
-        if base is not None and use == "residual":
+        if base is not None and self.prior_of_another_car:
+            model = self._fit_after_another_car(base, data, seed, use == "finetune", previous)
+        elif base is not None and use == "residual":
             residual = build_model(self.cfg.model)
             difference = data.y - base.predict(data.x, n_samples=EVAL_SAMPLES, seed=0).mean
             fit(residual, TrainingData(data.x, difference, data.groups), self.cfg.training, seed=seed)
@@ -198,6 +200,28 @@ class Fitting:
             fit(model, data, self.cfg.training, seed=seed)
         with torch.no_grad():
             model.epistemic_scale.fill_(epistemic_scale)
+        return model
+
+    def _fit_after_another_car(
+        self, other: Any, data: TrainingData, seed: int, finetune: bool, previous: Any | None
+    ) -> Any:
+        """This car's model of a round where the prior is another car's trained model (`same_car =
+        false`): the other's identified core centres this car's identification (`start_from_another_car`)
+        and, with `finetune`, every round starts from its core and correction; otherwise a round is fresh
+        or warm-started as without a prior."""
+        training = self.cfg.training
+        keep_scalers = False
+        if not finetune and previous is not None and training.warm_start:
+            model = load_model_copy(previous)
+            epochs = training.warm_epochs or max(1, training.epochs // 4)
+            training = training.model_copy(update={"reinit": False, "epochs": epochs})
+            keep_scalers = True
+        else:
+            model = build_model(self.cfg.model)
+            if finetune:
+                training = training.model_copy(update={"reinit": False})
+        model.start_from_another_car(other, correction=finetune)
+        fit(model, data, training, seed=seed, keep_scalers=keep_scalers)
         return model
 
     # ------------------------------------------------------------------ the warm-model store
@@ -237,6 +261,10 @@ def load_prior_model(spec: str, cfg: CampaignConfig) -> Any:
         model = load_model(path)
     except Exception as exc:
         raise InputError("design.prior.model", spec, f"cannot read the model: {exc}") from None
+    same_car = cfg.design.prior is None or cfg.design.prior.same_car
+    if same_car and model.config.vehicle != cfg.model.vehicle:
+        raise InputError("design.prior.model", spec, f"is a model of {model.config.vehicle!r}, the campaign "
+                         f"drives {cfg.model.vehicle!r}: set [design.prior] same_car = false")  # fmt: skip
     if model.n_inputs != cfg.model.n_inputs or model.config.n_outputs != cfg.model.n_outputs:
         raise InputError(
             "design.prior.model", spec,

@@ -61,8 +61,9 @@ class Prior:
 
     @property
     def trains(self) -> bool:
-        """Whether the prior rows join the training data of every round (use = "data")."""
-        return self.use == "data"
+        """Whether the prior rows join the training data of every round (use = "data"; a prior of another
+        car's model alone has none)."""
+        return self.use == "data" and not self.rows.empty
 
 
 def _sources(cfg: PriorConfig) -> list[tuple[str, Path]]:
@@ -176,7 +177,7 @@ def load_prior(cfg: CampaignConfig, nominal: SimulationCache) -> Prior | None:
         for frame in _read_source(field, path):
             _check_run(field, path, frame, cfg.simulation.rate_hz, cfg.vehicle.spec)
             frames.append(frame)
-    if prior.use == "data" and not frames:
+    if prior.use == "data" and not frames and (prior.model is None or prior.same_car):
         raise InputError("design.prior", prior.paths, "holds no rows")
     labelled = []
     for i, frame in enumerate(frames):

@@ -346,6 +346,12 @@ class Model(nn.Module, ABC):
         search from what this model identified before (a warm-started round). Networks know nothing
         beforehand: a no-op."""
 
+    def start_from_another_car(self, other: Model, *, correction: bool) -> None:
+        """Take what another car's trained model (`[design.prior] model` with `same_car = false`) knows that
+        carries over: for a kind that identifies itself on logs, the other's identified core as the prior
+        of this car's identification and, with `correction`, its correction's weights to train from."""
+        raise NotImplementedError(f"a {self.kind} model does not start from another car's model")
+
     def gates_correction(self, data: TrainingData) -> bool:
         """Whether `training.fit` chooses, on maneuvers held out of `data`, the share of this model's
         learnt correction to keep (`activelearn.numerics.correction_gate`). A kind without one: False."""

@@ -63,7 +63,13 @@ from activelearn.numerics.models.dynamic_track import (
     with_scales,
 )
 from activelearn.numerics.models.physics import PhysicsModel
-from activelearn.numerics.models.single_track import LAG_FACTOR, Identified, cholesky_factor, split_inputs
+from activelearn.numerics.models.single_track import (
+    LAG_FACTOR,
+    Identified,
+    others_estimate,
+    split_inputs,
+    widened,
+)
 from activelearn.numerics.pose import integrate_pose
 from activelearn.numerics.training_data import TrainingData
 
@@ -80,10 +86,21 @@ def identify_scales(
     car: DynamicCar,
     dt: float,
     search_from: np.ndarray | None = None,
+    prior: Identified | None = None,
 ) -> Identified:
     """The five scales from logs as the model identifies them (`identify_dynamic`: free runs of the step it
-    takes, restarted every `IDENTIFY_HORIZON` s, compared every `IDENTIFY_EVERY` log steps)."""
-    return identify_dynamic(logs, car, dt, search_from=search_from, **IDENTIFICATION)
+    takes, restarted every `IDENTIFY_HORIZON` s, compared every `IDENTIFY_EVERY` log steps), under `prior`
+    (default the file's)."""
+    return identify_dynamic(logs, car, dt, search_from=search_from, prior=prior, **IDENTIFICATION)
+
+
+def scales_of_another_car(
+    others: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float
+) -> Identified:
+    """The prior this car's logs are identified under where `others` are another car's logs of the same
+    file (a grid of the nominal simulator for a twin or a real car): the scales they give alone
+    (`identify_scales`, once per set of logs), their covariance widened by the scales' widths."""
+    return widened(others_estimate(others, identify_scales, car=car, dt=dt), dynamic_bounds().width)
 
 
 def identification_misfit(
@@ -182,6 +199,8 @@ def compiled_step(name: str) -> Callable:
 class DynamicPhysicsModel(PhysicsModel):
     """The physics kind on the dynamic single track: see the module docstring."""
 
+    core_in_scales = True  # its five parameters scale the vehicle file's figures
+
     def __init__(self, config: ModelConfig, *, generator: torch.Generator | None = None) -> None:
         super().__init__(config, generator=generator)  # the config checked correction_inputs (`core`)
         self.dynamic_car = DynamicCar.of(self.car.spec)
@@ -189,6 +208,7 @@ class DynamicPhysicsModel(PhysicsModel):
         bounds = dynamic_bounds()
         self.parameter_names = tuple(p.name for p in DYNAMIC_PARAMETERS)
         self.parameter_bounds = (bounds.low, bounds.high)
+        self.parameter_widths = bounds.width
         self.register_buffer("theta", torch.as_tensor(bounds.prior.values, dtype=torch.float32).clone())
         self.register_buffer("theta_scale", torch.zeros(len(self.parameter_names), len(self.parameter_names)))
         # the lags the correction's residuals are reached at: the kinematic prior's (speed, yaw)
@@ -211,25 +231,29 @@ class DynamicPhysicsModel(PhysicsModel):
     @torch.no_grad()
     def identify(self, data: TrainingData, *, warm: bool = False) -> None:
         """The five scales from the logs of this car (`identify_dynamic`, restarts every
-        `IDENTIFY_HORIZON` s); a prior grid of another car is not used (the file is the prior), nor are
-        rows without logs (the file's values stand). A no-op with `identify = false`."""
-        if not self.config.identify or not data.logs:
+        `IDENTIFY_HORIZON` s) under the file's prior, or under another car's: its logs' scales where the
+        data flag logs as another car's (`scales_of_another_car`), or its model's (`core_prior`). With no
+        log of this car that prior stands, its width in the fans; rows without logs leave the file's
+        values. A no-op with `identify = false`."""
+        if not self.config.identify:
             return
-        flags = list(data.of_another_car) if data.of_another_car is not None else [False] * len(data.logs)
-        logs = [log for log, other in zip(data.logs, flags, strict=True) if not other]
-        if not logs:
+        logs = list(data.logs or [])
+        flags = list(data.of_another_car) if data.of_another_car is not None else [False] * len(logs)
+        own = [log for log, other in zip(logs, flags, strict=True) if not other]
+        others = [log for log, other in zip(logs, flags, strict=True) if other]
+        dt = 1.0 / self.car.log_rate_hz
+        prior = scales_of_another_car(others, self.dynamic_car, dt) if others else self.core_prior
+        if not own:
+            if prior is not None:
+                self.set_identified(prior)
             return
         search_from = self.theta.double().numpy() if warm else None
-        dt = 1.0 / self.car.log_rate_hz
-        found = identify_scales(logs, self.dynamic_car, dt, search_from)
-        self.theta.copy_(torch.as_tensor(found.values, dtype=torch.float32))
-        self.theta_scale.zero_()
+        found = identify_scales(own, self.dynamic_car, dt, search_from, prior)
+        self.set_identified(found)
         if self.discrepancy is not None:
             cross = self.config.discrepancy == "cross_validated"
-            misfit_of_logs = identification_misfit(logs, self.dynamic_car, dt, found.values, cross)
+            misfit_of_logs = identification_misfit(own, self.dynamic_car, dt, found.values, cross)
             self.discrepancy.copy_(torch.as_tensor(misfit_of_logs, dtype=torch.float32))
-        if self.config.parameter_uncertainty == "by_log":
-            self.theta_scale.copy_(torch.as_tensor(cholesky_factor(found.covariance), dtype=torch.float32))
 
     def parameter_information(
         self, controls: list[np.ndarray], rate_hz: float

@@ -477,6 +477,7 @@ def _usable(logs: list[tuple[np.ndarray, np.ndarray]]) -> list[tuple[np.ndarray,
 def identify_dynamic(
     logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, every: int = 3,
     horizon: float | None = None, search_from: np.ndarray | None = None, implicit: bool = False,
+    prior: Identified | None = None,
 ) -> Identified:
     """Output-error MAP of the five `DYNAMIC_PARAMETERS` (scales of the file's figures, the file as the
     prior) from logs, (controls (T, 2), rates (T, 2) = speed, yaw rate), as the kinematic core's
@@ -485,13 +486,15 @@ def identify_dynamic(
     compared, each log a cluster of the covariance. `horizon` (s): free runs restart
     from the recorded rates every `horizon` s instead (a spinning car's 30 s are chaotic in the
     parameters; a few seconds are not). `search_from`: where the search begins (default the file);
-    `implicit`: free runs by the step with implicit tyre damping (the physics kind's)."""
+    `implicit`: free runs by the step with implicit tyre damping (the physics kind's); `prior`: the
+    Gaussian prior instead of the file's (another car's estimate, `single_track.widened`)."""
     logs = _usable(logs)
     bounds = dynamic_bounds()
+    prior = prior or bounds.prior
     if not logs:
-        return Identified(bounds.prior.values.copy(), bounds.prior.covariance.copy())
+        return Identified(prior.values.copy(), prior.covariance.copy())
     errors_of, clusters, spread = _restart_errors(logs, car, dt, every, horizon, implicit)
-    return _map_fit(errors_of, spread, clusters, bounds.prior, search_from, bounds)
+    return _map_fit(errors_of, spread, clusters, prior, search_from, bounds)
 
 
 def _squared_misfit(

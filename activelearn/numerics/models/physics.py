@@ -44,6 +44,7 @@ from activelearn.numerics.models.single_track import (
     PARAMETERS,
     THROTTLE_LIMIT,
     CarPrior,
+    Identified,
     car_prior,
     cholesky_factor,
     identify,
@@ -51,6 +52,7 @@ from activelearn.numerics.models.single_track import (
     identify_on_another_car,
     single_track_step,
     split_inputs,
+    widened,
 )
 from activelearn.numerics.training_data import TrainingData
 
@@ -80,6 +82,9 @@ class PhysicsModel(Model):
     # thread, whose torch ops then spin their intra-op threads: 19 s).
     rollout_block = 32
     identifies_on_logs = True
+    # Whether the core's parameters are shares of the vehicle file's figures, which carry to another
+    # file (`start_from_another_car`); the kinematic core's are the car's own gains, lags and scrub.
+    core_in_scales = False
 
     def __init__(self, config: ModelConfig, *, generator: torch.Generator | None = None) -> None:
         if config.n_inputs == N_CONTROLS or config.n_inputs % (N_CONTROLS + N_RATES):
@@ -112,6 +117,10 @@ class PhysicsModel(Model):
         # the core's parameters: their names and physical ranges (the kinematic core's seven here)
         self.parameter_names: tuple[str, ...] = PARAMETER_NAMES
         self.parameter_bounds: tuple[np.ndarray, np.ndarray] = (self.car.low, self.car.high)
+        self.parameter_widths: np.ndarray = self.car.width  # the file's prior widths
+        # the prior this car's identification runs under where another car's model gave one (its
+        # identified core, `widened`); None: the vehicle file's. Not saved: `Fitting` sets it every round.
+        self.core_prior: Identified | None = None
         self.register_buffer("theta", torch.as_tensor(self.car.nominal, dtype=torch.float32).clone())
         # Lower Cholesky factor of the identified parameters' covariance (`parameter_uncertainty =
         # "by_log"`; zeros: every draw shares `theta`). Models saved before it existed load with zeros.
@@ -141,6 +150,9 @@ class PhysicsModel(Model):
             return
         logs, of_another_car = data.logs, data.of_another_car
         search_from = self.theta.double().numpy() if warm else None
+        if not logs and self.core_prior is not None:
+            self.set_identified(self.core_prior)  # no log of this car yet: the other car's core stands
+            return
         if logs and of_another_car is not None and any(of_another_car):
             flags = list(of_another_car)
             found = identify_on_another_car(
@@ -150,13 +162,44 @@ class PhysicsModel(Model):
                 car=self.car,
             )
         elif logs:
-            found = identify_from_logs(logs, search_from=search_from, car=self.car)
+            found = identify_from_logs(logs, search_from=search_from, car=self.car, prior=self.core_prior)
         else:
             found = identify(np.asarray(data.x), np.asarray(data.y), self.dt, self.rate_at, self.car)
+        self.set_identified(found)
+
+    @torch.no_grad()
+    def set_identified(self, found: Identified) -> None:
+        """The core's parameters `found` and, with `parameter_uncertainty = "by_log"`, their covariance."""
         self.theta.copy_(torch.as_tensor(found.values, dtype=torch.float32))
         self.theta_scale.zero_()
         if self.config.parameter_uncertainty == "by_log":
             self.theta_scale.copy_(torch.as_tensor(cholesky_factor(found.covariance), dtype=torch.float32))
+
+    def start_from_another_car(self, other: Model, *, correction: bool) -> None:
+        """Another car's identified core, with its covariance widened by the file's widths
+        (`single_track.widened`: how far two cars of one datasheet may differ), becomes the prior this
+        car's logs are identified under; with `correction`, this model starts from the other's core and
+        correction weights (its scalers are refitted to this car's rows)."""
+        names = getattr(other, "parameter_names", None)
+        if not isinstance(other, PhysicsModel) or names != self.parameter_names:
+            core = "no core" if names is None else f"a core of {', '.join(names)}"
+            ours = ", ".join(self.parameter_names)
+            raise InputError("design.prior.model", other.kind, f"has {core}; this model's identifies {ours}")
+        if not self.core_in_scales and other.config.vehicle != self.config.vehicle:
+            reason = f"is another vehicle's: its core's {', '.join(names)} are not {self.config.vehicle!r}'s"
+            raise InputError("design.prior.model", other.config.vehicle, reason)
+        scale = other.theta_scale.double()
+        found = Identified(other.theta.double().numpy(), (scale @ scale.T).numpy())
+        self.core_prior = widened(found, self.parameter_widths)
+        if not correction:
+            return
+        try:
+            self.correction.load_state_dict(other.correction.state_dict())
+        except RuntimeError as exc:
+            raise InputError("design.prior.model", other.config.arch,
+                             f"its correction does not fit [model]'s ({exc})") from None  # fmt: skip
+        with torch.no_grad():
+            self.theta.copy_(other.theta)
 
     # ----- the correction gate (`activelearn.numerics.correction_gate`) -------------------------
     def gates_correction(self, data: TrainingData) -> bool:

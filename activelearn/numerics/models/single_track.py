@@ -19,6 +19,8 @@ from __future__ import annotations
 import functools
 import hashlib
 import math
+import pickle
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -345,22 +347,27 @@ def identify_on_another_car(
     reverse gain after forward logs, 0.71): conservative, and what `safe_track_twin.toml` was measured
     with; capping it at the datasheet's width is not measured. `search_from`: where the search for this
     car's parameters begins (the other car's is always searched from the datasheet)."""
-    found = _others_estimate(others, **kwargs)
+    found = others_estimate(others, **kwargs)
     if not any(len(u) > 1 for u, _ in logs):
         return found
-    width = (kwargs.get("car") or NIGEL).width
-    widened = Identified(found.values, found.covariance + np.diag(width**2))
-    return identify_from_logs(logs, prior=widened, search_from=search_from, **kwargs)
+    prior = widened(found, (kwargs.get("car") or NIGEL).width)
+    return identify_from_logs(logs, prior=prior, search_from=search_from, **kwargs)
 
 
 _OTHERS: dict[str, Identified] = {}  # the other car's estimate by its logs' digest (a few kept)
 
 
-def _others_estimate(others: list[tuple[np.ndarray, np.ndarray]], **kwargs) -> Identified:
-    """`identify_from_logs(others)`, computed once per set of logs: a campaign's prior grid is the same
-    every round (35 logs of 30 s, as dynamics_warm's grid: about 1 s a round)."""
+def others_estimate(
+    others: list[tuple[np.ndarray, np.ndarray]], identify_logs: Callable[..., Identified] | None = None,
+    **kwargs,
+) -> Identified:  # fmt: skip
+    """`identify_logs(others, **kwargs)` (default `identify_from_logs`), computed once per set of logs and
+    arguments: a campaign's prior grid is the same every round (35 logs of 30 s, as dynamics_warm's
+    grid: about 1 s a round)."""
+    identify_logs = identify_logs or identify_from_logs
     named = {k: (v.name if isinstance(v, CarPrior) else v) for k, v in kwargs.items()}
-    digest = hashlib.sha256(repr(sorted(named.items())).encode())
+    digest = hashlib.sha256(f"{identify_logs.__module__}.{identify_logs.__qualname__}".encode())
+    digest.update(pickle.dumps(sorted(named.items())))
     for u, y in others:
         digest.update(np.ascontiguousarray(u, np.float64).tobytes())
         digest.update(np.ascontiguousarray(y, np.float64).tobytes())
@@ -368,9 +375,15 @@ def _others_estimate(others: list[tuple[np.ndarray, np.ndarray]], **kwargs) -> I
     if key not in _OTHERS:
         while len(_OTHERS) >= 4:
             _OTHERS.pop(next(iter(_OTHERS)))
-        _OTHERS[key] = identify_from_logs(others, **kwargs)
+        _OTHERS[key] = identify_logs(others, **kwargs)
     found = _OTHERS[key]
     return Identified(found.values.copy(), found.covariance.copy())
+
+
+def widened(found: Identified, width: np.ndarray) -> Identified:
+    """Another car's estimate as this car's prior: its covariance plus the datasheet's widths squared (how
+    far two cars of one datasheet may differ)."""
+    return Identified(found.values.copy(), found.covariance + np.diag(np.asarray(width, np.float64) ** 2))
 
 
 def _map_fit(
