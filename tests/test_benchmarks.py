@@ -72,6 +72,9 @@ EXPECTED = {
     "bench_dynamic_speed": ("beside the truth simulator", True, Figure(
         "the 1:10 car's dynamic-core free runs, sample-steps per second",
         rf"^f1tenth dynamic: free runs x\S+ the truth's speed, {NUMBER} sample-steps/s", 1e3, 1e12)),
+    "bench_transfer": ("## Transfer:", True, Figure(
+        "the 1:10 twin's file arm, 30-s error of its free runs after the last round, m",
+        rf"^file\s+4\s+{NUMBER}", 0.0, 1e3)),  # quick 0.108
     "bench_scaleout": ("where one campaign's time goes", True, Figure(
         "smoke campaigns per hour on one process worker",
         rf"process\s+1 worker\(s\):\s+{NUMBER} campaigns/hour", 10.0, 1e5)),  # quick 238
@@ -99,7 +102,8 @@ def test_a_figure_is_read_and_a_nan_is_not_finite():
 
 # The campaign benchmarks run from tests/test_benchmarks_campaigns.py: a file of their own, so that
 # `make test`'s workers (a file each at a time) share the quick runs instead of one worker taking all.
-CAMPAIGN_BENCHMARKS = ("bench_warm_start", "bench_safety", "bench_sample_efficiency", "bench_scaleout")
+CAMPAIGN_BENCHMARKS = ("bench_warm_start", "bench_safety", "bench_sample_efficiency", "bench_scaleout",
+                       "bench_transfer")
 
 
 def run_quick(name: str, tmp_path: Path) -> None:
