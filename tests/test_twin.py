@@ -170,12 +170,19 @@ def test_the_twins_dynamics_config_is_dynamics_toml_answered_by_sim_to_reals_twi
 
 
 def test_the_fast_cars_twin_and_warm_configs_repeat_its_cold_start():
-    """dynamics_f1tenth_twin.toml and dynamics_f1tenth_warm.toml (issue 57's settings) are
-    dynamics_f1tenth.toml but for the oracle (the twin: less grip, a weaker motor) or the design (a
-    low-lateral-acceleration grid already driven, 12 new signals)."""
+    """dynamics_f1tenth_twin.toml, dynamics_f1tenth_warm.toml and dynamics_f1tenth_warm_twin.toml (issue
+    57's settings) are dynamics_f1tenth.toml but for the oracle (the twin: less grip, a weaker motor)
+    and/or the design (a low-lateral-acceleration grid already driven, 12 new signals; on the twin that
+    grid is another car's, `same_car = false`)."""
     configs = SMOKE.parent
-    cold, twin, warm = (load_config(configs / f"dynamics_f1tenth{s}.toml") for s in ("", "_twin", "_warm"))
+    cold, twin, warm, warm_twin = (load_config(configs / f"dynamics_f1tenth{s}.toml")
+                                   for s in ("", "_twin", "_warm", "_warm_twin"))  # fmt: skip
     assert twin.oracle.kind == "twin" and twin.oracle.overrides == {"tire_friction": 0.8, "motor_gain": 0.9}
     assert twin.model_copy(update={"name": cold.name, "oracle": cold.oracle}) == cold
     assert warm.design.prior is not None and warm.design.prior.grid is not None and warm.design.initial == 0
     assert warm.model_copy(update={"name": cold.name, "design": cold.design}) == cold
+    assert warm_twin.design.prior is not None and not warm_twin.design.prior.same_car
+    prior = warm_twin.design.prior.model_copy(update={"same_car": True})
+    design = warm_twin.design.model_copy(update={"prior": prior})
+    assert warm_twin.model_copy(update={"name": warm.name, "design": design, "oracle": warm.oracle}) == warm
+    assert warm_twin.oracle == twin.oracle
