@@ -185,6 +185,36 @@ def test_multi_step_training_changes_the_fit_and_is_seeded(slalom_log):
     np.testing.assert_array_equal(fits[1], fits[2])  # and the same seed gives the same weights
 
 
+def test_a_window_with_a_non_finite_gradient_is_skipped_not_trained_on(slalom_log, monkeypatch):
+    """A free run that leaves every bound gives a non-finite window loss (seen on the full-size car's
+    dynamic core at its extreme scales, which turned every weight into NaN): its step is skipped and
+    counted, the one-step steps still train, the weights stay finite. Injected: the real window loss
+    times NaN every other window step."""
+    import activelearn.numerics.training as training
+
+    data = DataConfig(stride=2, skip_seconds=0.0, **HISTORY)
+    x, y = _rows(slalom_log, data)
+    windows = training_windows([p for _, p in slalom_log.groupby("run_id", sort=False)], data, 10)
+    cfg = TrainingConfig(epochs=3, patience=None, rollout_horizon=10, rollout_batch=8)
+    clean = build_model(ModelConfig(n_inputs=12, history_step=2))
+    assert fit(clean, TrainingData(x, y, windows=windows), cfg, seed=3).skipped_steps == 0
+    calls = []
+
+    def every_other_nan(model, windows, rows):
+        calls.append(1)
+        loss = window_loss(model, windows, rows)
+        return loss * float("nan") if len(calls) % 2 else loss
+
+    monkeypatch.setattr(training, "window_loss", every_other_nan)
+    model = build_model(ModelConfig(n_inputs=12, history_step=2))
+    before = [p.detach().clone() for p in model.parameters()]
+    history = fit(model, TrainingData(x, y, windows=windows), cfg, seed=3)
+    assert history.skipped_steps == (len(calls) + 1) // 2 > 0
+    assert all(torch.isfinite(p).all() for p in model.parameters())
+    assert any(not torch.equal(a, b) for a, b in zip(before, model.parameters(), strict=True))  # it trained
+    assert all(np.isfinite(history.train_loss))
+
+
 def test_multi_step_training_runs_each_ensemble_member_on_its_own_predictions(slalom_log):
     data = DataConfig(stride=2, skip_seconds=0.0, **HISTORY)
     x, y = _rows(slalom_log, data)

@@ -56,6 +56,8 @@ class History:
     # free-run error (m); 1.0 and empty where nothing was gated
     correction_weight: float = 1.0
     gate_errors: dict[float, float] = field(default_factory=dict)
+    # multi-step windows whose gradient was not finite, their steps skipped (`_Stepper._eager_step`)
+    skipped_steps: int = 0
 
     @property
     def n_epochs(self) -> int:
@@ -402,6 +404,7 @@ def _fit(
             decay = 0.5 * (1.0 + math.cos(math.pi * epoch / config.epochs))
             stepper.set_lr(config.lr * (0.01 + 0.99 * decay))
         train_loss, train_data = stepper.epoch(xs, ys, gen)
+        history.skipped_steps = stepper.skipped
         metrics: dict[str, float] = {"train_loss": train_loss, "train_data": train_data}
         with torch.no_grad():
             metrics["kl"] = float(model.kl())
@@ -461,6 +464,7 @@ class _Stepper:
         self.model, self.config, self.kl_weight, self.batch = model, config, kl_weight, batch
         self.windows, self.gen = windows, gen
         self.n_steps = 0
+        self.skipped = 0  # window steps skipped for a non-finite gradient
         self.variational = kl_weight > 0 and model.is_variational()
         self.flat = _FlatTrainer(model, config, kl_weight, compiled=True) if use_compile else None
         self.opt = _optimizer([p for p in model.parameters() if p.requires_grad], config)
@@ -475,16 +479,29 @@ class _Stepper:
     def _eager_step(self, xb: Tensor, yb: Tensor) -> tuple[Tensor, Tensor]:
         loss, data = _elbo(self.model, xb, yb, self.config.loss, self.kl_weight, self.variational)
         self.n_steps += 1
-        if self.windows is not None and self.n_steps % self.config.rollout_every == 0:
-            rows = torch.randint(len(self.windows), (self.config.rollout_batch,), generator=self.gen)
+        windowed = self.windows is not None and self.n_steps % self.config.rollout_every == 0
+        total = loss
+        if windowed:
+            rows = torch.randint(len(self.windows), (self.config.rollout_batch,), generator=self.gen)  # type: ignore[arg-type]
             weight = self.config.rollout_weight * self.config.rollout_every
-            loss = loss + weight * window_loss(self.model, self.windows, rows)
+            total = loss + weight * window_loss(self.model, self.windows, rows)  # type: ignore[arg-type]
         self.opt.zero_grad(set_to_none=True)
-        loss.backward()
+        total.backward()
+        norm = None
         if self.windows is not None and self.config.rollout_clip > 0:
-            torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.config.rollout_clip)
+            norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.config.rollout_clip)
+        if windowed:
+            # A window whose free run left every bound (a spinning car at a core's extreme scales) gives
+            # a non-finite gradient: the step is skipped, or it would turn every weight into NaN (seen on
+            # the full-size car). Its one-step loss is what the epoch reports.
+            if norm is None:  # the norm alone: an infinite bound scales every gradient by exactly 1
+                norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), math.inf)
+            if not bool(torch.isfinite(norm)):
+                self.skipped += 1
+                self.opt.zero_grad(set_to_none=True)
+                return loss.detach(), data.detach()
         self.opt.step()
-        return loss.detach(), data.detach()
+        return total.detach(), data.detach()
 
     def _flat_step(self, xb: Tensor, yb: Tensor) -> tuple[Tensor, Tensor]:
         assert self.flat is not None
