@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from activelearn.config import CampaignConfig
+from activelearn.config import CampaignConfig, TrainingConfig
 from activelearn.errors import InputError
 from activelearn.loop.collection import (
     TARGETS,
@@ -177,52 +177,42 @@ class Fitting:
         seed = derived_seed(self.cfg.seed, Stream.ROUND, round_index)
         base = self.prior_model()
         use = self.cfg.design.prior.use if self.cfg.design.prior is not None else "data"
-        if base is not None and self.prior_of_another_car:
-            model = self._fit_after_another_car(base, data, seed, use == "finetune", previous)
-        elif base is not None and use == "residual":
+        another_car = base is not None and self.prior_of_another_car
+        if base is not None and not another_car and use == "residual":
             residual = build_model(self.cfg.model)
             difference = data.y - base.predict(data.x, n_samples=EVAL_SAMPLES, seed=0).mean
             fit(residual, TrainingData(data.x, difference, data.groups), self.cfg.training, seed=seed)
             model: Any = ResidualModel(base, residual)
-        elif base is not None:
+        elif base is not None and not another_car:
             model = load_model_copy(base)
             if len(data.x):
                 training = self.cfg.training.model_copy(update={"reinit": False})
                 fit(model, data, training, seed=seed, keep_scalers=True)
-        elif previous is not None and self.cfg.training.warm_start:
-            model = load_model_copy(previous)
-            training = self.cfg.training
-            epochs = training.warm_epochs or max(1, training.epochs // 4)
-            fit(model, data, training.model_copy(update={"reinit": False, "epochs": epochs}), seed=seed,
-                keep_scalers=True)  # fmt: skip
         else:
-            model = build_model(self.cfg.model)
-            fit(model, data, self.cfg.training, seed=seed)
+            # Another car's model (`same_car = false`) centres this car's identification
+            # (`start_from_another_car`); with use = "finetune" every round starts from its core and
+            # correction, otherwise a round is fresh or warm-started as without a prior.
+            finetune = another_car and use == "finetune"
+            model, training, keep_scalers = self._fresh_or_warm(None if finetune else previous)
+            if another_car:
+                model.start_from_another_car(base, correction=finetune)
+            if finetune:
+                training = training.model_copy(update={"reinit": False})
+            fit(model, data, training, seed=seed, keep_scalers=keep_scalers)
         with torch.no_grad():
             model.epistemic_scale.fill_(epistemic_scale)
         return model
 
-    def _fit_after_another_car(
-        self, other: Any, data: TrainingData, seed: int, finetune: bool, previous: Any | None
-    ) -> Any:
-        """This car's model of a round where the prior is another car's trained model (`same_car =
-        false`): the other's identified core centres this car's identification (`start_from_another_car`)
-        and, with `finetune`, every round starts from its core and correction; otherwise a round is fresh
-        or warm-started as without a prior."""
+    def _fresh_or_warm(self, previous: Any | None) -> tuple[Any, TrainingConfig, bool]:
+        """A round's model before it trains, how it trains and whether it keeps its scalers: with
+        `[training] warm_start`, a copy of `previous` (the last round's) for `warm_epochs` epochs;
+        otherwise a fresh one."""
         training = self.cfg.training
-        keep_scalers = False
-        if not finetune and previous is not None and training.warm_start:
-            model = load_model_copy(previous)
-            epochs = training.warm_epochs or max(1, training.epochs // 4)
-            training = training.model_copy(update={"reinit": False, "epochs": epochs})
-            keep_scalers = True
-        else:
-            model = build_model(self.cfg.model)
-            if finetune:
-                training = training.model_copy(update={"reinit": False})
-        model.start_from_another_car(other, correction=finetune)
-        fit(model, data, training, seed=seed, keep_scalers=keep_scalers)
-        return model
+        if previous is None or not training.warm_start:
+            return build_model(self.cfg.model), training, False
+        epochs = training.warm_epochs or max(1, training.epochs // 4)
+        warm = training.model_copy(update={"reinit": False, "epochs": epochs})
+        return load_model_copy(previous), warm, True
 
     # ------------------------------------------------------------------ the warm-model store
 

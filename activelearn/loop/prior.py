@@ -177,7 +177,7 @@ def load_prior(cfg: CampaignConfig, nominal: SimulationCache) -> Prior | None:
         for frame in _read_source(field, path):
             _check_run(field, path, frame, cfg.simulation.rate_hz, cfg.vehicle.spec)
             frames.append(frame)
-    if prior.use == "data" and not frames and (prior.model is None or prior.same_car):
+    if prior.use == "data" and not frames and prior.paths:  # without sources: another car's model alone
         raise InputError("design.prior", prior.paths, "holds no rows")
     labelled = []
     for i, frame in enumerate(frames):

@@ -479,18 +479,18 @@ class _Stepper:
     def _eager_step(self, xb: Tensor, yb: Tensor) -> tuple[Tensor, Tensor]:
         loss, data = _elbo(self.model, xb, yb, self.config.loss, self.kl_weight, self.variational)
         self.n_steps += 1
-        windowed = self.windows is not None and self.n_steps % self.config.rollout_every == 0
+        windows = self.windows if self.n_steps % self.config.rollout_every == 0 else None  # this step's
         total = loss
-        if windowed:
-            rows = torch.randint(len(self.windows), (self.config.rollout_batch,), generator=self.gen)  # type: ignore[arg-type]
+        if windows is not None:
+            rows = torch.randint(len(windows), (self.config.rollout_batch,), generator=self.gen)
             weight = self.config.rollout_weight * self.config.rollout_every
-            total = loss + weight * window_loss(self.model, self.windows, rows)  # type: ignore[arg-type]
+            total = loss + weight * window_loss(self.model, windows, rows)
         self.opt.zero_grad(set_to_none=True)
         total.backward()
         norm = None
         if self.windows is not None and self.config.rollout_clip > 0:
             norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.config.rollout_clip)
-        if windowed:
+        if windows is not None:
             # A window whose free run left every bound (a spinning car at a core's extreme scales) gives
             # a non-finite gradient: the step is skipped, or it would turn every weight into NaN (seen on
             # the full-size car). Its one-step loss is what the epoch reports.
