@@ -103,28 +103,39 @@ def test_free_runs_carry_the_lateral_speed_as_the_cores_own_runs_do():
 @pytest.mark.parametrize("vehicle", ["f1tenth", "nigel", "bmw320i"])
 def test_the_compiled_free_runs_are_torchs(vehicle: str, c_kernels):
     """dynamic_rollout.c's free runs against the torch loop: each draw its own scales, the correction
-    widened about the draws' mean (epistemic scale 3), the sensors' noise, the three interleaved chains
-    of history_step 3, 12 draws (not whole blocks of 8): rates, moments and poses to float rounding."""
-    model = _untrained(vehicle, parameter_uncertainty="by_log")
+    widened about the draws' mean (epistemic scale 3), the sensors' noise, the model discrepancy in the
+    pose fan, the three interleaved chains of history_step 3, 12 draws (not whole blocks): rates, moments
+    and poses to float rounding. The kernel computes in float, the reference partly in double (its
+    controls are), so float rounding is 1e-4 of a quantity's scale, or in a chaotic run (the 1:10 car
+    spinning at throttle 0.8) twice what the reference itself moves when its controls move by 1e-7."""
+    model = _untrained(vehicle, parameter_uncertainty="by_log", discrepancy="identification")
     model.theta_scale.copy_(0.1 * torch.eye(5))
     model.epistemic_scale.fill_(3.0)
+    model.discrepancy.copy_(torch.tensor([0.05, 0.02]))
     t = np.arange(150) * DT
     controls = [np.column_stack([np.full_like(t, throttle), steering * np.sin(0.8 * t)])
                 for throttle, steering in ((0.4, 0.1), (0.8, 0.3), (-0.5, 0.2), (0.0, 0.05))]  # fmt: skip
-    runs = [simulate(model, controls, rate_hz=30.0, n_samples=12, seed=3, backend=backend)
-            for backend in ("reference", "native")]  # fmt: skip
-    reference, compiled = runs
-    scale = np.abs(reference.mean_rates).max(axis=(0, 1))
+    nudged = [u * (1.0 + 1e-7) for u in controls]
+    reference, compiled, moved = (simulate(model, u, rate_hz=30.0, n_samples=12, seed=3, backend=backend)
+                                  for u, backend in ((controls, "reference"), (controls, "native"),
+                                                     (nudged, "reference")))  # fmt: skip
     assert np.abs(reference.epistemic_var).max() > 1e-6  # the draws differ: the spread is compared too
-    for name in ("mean_rates", "aleatoric_var", "epistemic_var"):
-        expected = getattr(reference, name)
-        np.testing.assert_allclose(getattr(compiled, name), expected, rtol=1e-3,
-                                   atol=1e-4 * float(np.abs(expected).max()), err_msg=name)  # fmt: skip
-    np.testing.assert_allclose(compiled.v, reference.v, atol=1e-4 * scale[0])
-    np.testing.assert_allclose(compiled.w, reference.w, atol=1e-4 * scale[1])
-    reach = np.abs(reference.x).max()
-    np.testing.assert_allclose(compiled.x, reference.x, atol=1e-4 * reach)
-    np.testing.assert_allclose(compiled.y, reference.y, atol=1e-4 * reach)
+    scale = np.abs(reference.mean_rates).max(axis=(0, 1))
+    reach = max(np.abs(reference.x).max(), np.abs(reference.y).max())
+    scales = {"mean_rates": None, "aleatoric_var": None, "epistemic_var": None, "v": scale[0], "w": scale[1],
+              "x": reach, "y": reach}  # fmt: skip
+    loose = 0
+    for name, size in scales.items():
+        expected, got, nearby = (getattr(r, name) for r in (reference, compiled, moved))
+        axis = 0 if size is None else 1  # moments (M, T, 2), draws (S, M, T)
+        size = float(np.abs(expected).max()) if size is None else size
+        for m in range(len(controls)):
+            e, g, n = (np.take(a, m, axis=axis) for a in (expected, got, nearby))
+            rounding = max(1e-4 * size, 2.0 * float(np.abs(n - e).max()))
+            loose += rounding > 1e-4 * size
+            relative = 1e-3 if axis == 0 else 0.0
+            np.testing.assert_allclose(g, e, rtol=relative, atol=rounding, err_msg=(name, m))
+    assert loose <= 2 * len(scales)  # the conditioning excuses one or two runs, not all
 
 
 @pytest.mark.parametrize("vehicle", ["f1tenth", "bmw320i"])
@@ -257,7 +268,7 @@ def test_the_discrepancy_is_the_cores_misfit_of_its_logs_and_widens_the_fan_not_
     save_model(model, tmp_path / "model.pt")
     assert torch.equal(load_model(tmp_path / "model.pt").discrepancy, model.discrepancy)
     # the process: from zero, stationary at its size, correlated over the identification's horizon
-    dv, dw = discrepancy_paths(np.array([0.5, 2.0]), (4000, 1, 600), DT, seed=0)
+    dv, dw = discrepancy_paths(np.array([0.5, 2.0]), list(range(4000)), 1, 600, DT)
     assert (dv[..., 0] == 0).all() and (dw[..., 0] == 0).all()
     assert float(dv[..., -1].std()) == pytest.approx(0.5, rel=0.05)
     assert float(dw[..., -1].std()) == pytest.approx(2.0, rel=0.05)

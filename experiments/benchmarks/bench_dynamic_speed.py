@@ -6,11 +6,18 @@ cores, no noise) and free-run by the physics kind with each core (an untrained m
 not depend on the weights), S = `--samples` sampled trajectories each, as a campaign's evaluation
 runs them; the dynamic core's recurrence in torch eagerly and compiled (torch.compile, as campaigns
 that train windows ran it before the C kernel; its first call, which compiles, timed apart) and in C
-(dynamic_rollout.c, what campaigns run now). Prints per car and core: wall seconds of each (best of
-`--repeats`), their ratio, and the absolute rate in sample-steps per second (S × maneuvers × steps /
-wall). Then the identification's cost: one evaluation of its residuals (the core's rates along every
-3-s window of the test logs, for 6 parameter sets as a finite-difference Jacobian asks) by NumPy and
-by the C kernel, side by side.
+(dynamic_rollout.c, what campaigns run now): bare; "widened", the draws' spread widened (epistemic
+scale 4), which steps every draw twice (its own step and the step from the draws' mean past); and as
+a calibrated campaign model runs it, widened and the model discrepancy in the pose fan. Prints per car
+and core: wall seconds of each (best of `--repeats`), their ratio, the absolute rate in sample-steps
+per second (S × maneuvers × steps / wall), and where the C variants' time goes (the kernel call, the
+correction's network, the rest: Python, torch, the logs' columns). Within the kernel: the widened
+run's extra time is one more pass of substeps (the substeps' own rate, in lane-substeps per second,
+and their share of the bare kernel), the calibrated run's extra the discrepancy's second pose; the
+rest of the bare kernel is per-step bookkeeping, the noise and the pose. Then the
+identification's cost: one evaluation of its residuals (the core's rates along every 3-s window of
+the test logs, for 6 parameter sets as a finite-difference Jacobian asks) by NumPy and by the C
+kernel, side by side.
 
 Usage: python experiments/benchmarks/bench_dynamic_speed.py [--cars f1tenth,bmw320i] [--samples 32]
        [--repeats 3] [--out DIR] [--quick]
@@ -21,17 +28,20 @@ from __future__ import annotations
 
 import argparse
 import time
+from contextlib import contextmanager
 from functools import partial
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import torch
 from quick import shrink
 
 import simulator
 from activelearn.config import load_config
 from activelearn.loop.campaign import Campaign
 from activelearn.names import CONTROLS, RATES
+from activelearn.numerics import native
 from activelearn.numerics.diagnostics import free_runs
 from activelearn.numerics.models import build_model
 from activelearn.numerics.models.dynamic_physics import IDENTIFY_HORIZON
@@ -40,8 +50,37 @@ from activelearn.numerics.models.dynamic_track import DynamicCar, quasi_static_l
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 CARS = ("f1tenth", "bmw320i")
 # the kinematic core (its compiled C kernel), the dynamic core in torch eager and compiled
-# (`compile_steps`), and in C (dynamic_rollout.c)
-VARIANTS = ("kinematic", "dynamic", "dynamic compiled", "dynamic C")
+# (`compile_steps`), and in C (dynamic_rollout.c), bare and as a calibrated campaign model runs it
+VARIANTS = (
+    "kinematic", "dynamic", "dynamic compiled", "dynamic C", "dynamic C, widened", "dynamic C, calibrated"
+)
+WIDENED_SCALE = 4.0  # the draws' spread widened (epistemic scale): every draw is stepped twice
+CALIBRATED_DISCREPANCY = (0.12, 0.027)  # m/s, rad/s: the 1:10 car's cross-validated misfit after 4 signals
+TIMED = {"kernel": (native, "dynamic_free_runs"), "network": (native.NetworkKernel, "forward")}
+
+
+@contextmanager
+def timed_calls(spent: dict[str, float]):
+    """Adds the wall seconds spent in each of `TIMED`'s functions to `spent` while the block runs."""
+    originals = {name: getattr(owner, attribute) for name, (owner, attribute) in TIMED.items()}
+
+    def timing(name, function):
+        def wrapper(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                spent[name] = spent.get(name, 0.0) + time.perf_counter() - start
+
+        return wrapper
+
+    for name, (owner, attribute) in TIMED.items():
+        setattr(owner, attribute, timing(name, originals[name]))
+    try:
+        yield spent
+    finally:
+        for name, (owner, attribute) in TIMED.items():
+            setattr(owner, attribute, originals[name])
 
 
 def identification_evaluation(car: DynamicCar, logs: list, repeats: int) -> dict[str, float]:
@@ -87,7 +126,7 @@ def main() -> None:
         parser.error(f"--cars: a subset of {', '.join(CARS)}")
     if args.samples < 2 or args.repeats < 1:
         parser.error("--samples: at least 2; --repeats: at least 1")
-    rows, identification = [], []
+    rows, identification, split = [], [], []
     for car in cars:
         cfg = load_config(CONFIGS / f"dynamics_{car}.toml")
         if args.quick:
@@ -104,9 +143,17 @@ def main() -> None:
                    for i, t in enumerate(logs)]  # fmt: skip
         truth = best_of(args.repeats, partial(simulator.collect, replays, noise=None, vehicle=vehicle))
         steps = sum(len(t) for t in logs)
+        kernel_walls = {}
         for core in VARIANTS:
-            model = build_model(cfg.model.model_copy(update={"core": core.split()[0]}), seed=0)
+            update = {"core": core.split()[0]}
+            if core.endswith("calibrated"):  # the discrepancy carried, as the 1:10 configs do
+                update["discrepancy"] = "identification"
+            model = build_model(cfg.model.model_copy(update=update), seed=0)
             model.set_scalers(test.x, test.y_clean)
+            if core.endswith(("widened", "calibrated")):
+                model.epistemic_scale.fill_(WIDENED_SCALE)
+            if core.endswith("calibrated"):
+                model.discrepancy.copy_(torch.tensor(CALIBRATED_DISCREPANCY))
             backend = "reference" if core in ("dynamic", "dynamic compiled") else "auto"
             run = partial(free_runs, model, logs, rate_hz=30.0, n_samples=args.samples, backend=backend)
             first = float("nan")
@@ -114,18 +161,33 @@ def main() -> None:
                 model.compile_steps()
                 first = best_of(1, run)  # compiles (torch's on-disk cache shortens a later process's)
             wall = best_of(args.repeats, run)
+            if core.startswith("dynamic C"):
+                with timed_calls({}) as spent:
+                    best = best_of(1, run)
+                kernel, network = spent["kernel"], spent.get("network", 0.0)
+                kernel_walls[core] = kernel
+                split.append({"car": car, "core": core, "wall s": round(best, 3),
+                              "kernel s": round(kernel, 3), "correction network s": round(network, 3),
+                              "the rest s": round(best - kernel - network, 3)})  # fmt: skip
             rows.append({"car": car, "core": core, "maneuvers": len(logs), "truth s": round(truth, 2),
                          "free runs s": round(wall, 2), "first call s": round(first, 1),
                          "truth / free runs": round(truth / wall, 1),
                          "sample-steps/s": f"{args.samples * steps / wall:.3g}"})  # fmt: skip
             print(f"{car} {core}: free runs x{truth / wall:.3g} the truth's speed,"
                   f" {args.samples * steps / wall:.3g} sample-steps/s", flush=True)
+        bare, widened = kernel_walls["dynamic C"], kernel_walls["dynamic C, widened"]
+        lane_substeps = args.samples * steps * model.substeps
+        split[-3]["substeps' share of the kernel"] = round((widened - bare) / bare, 2)  # one more pass
+        split[-3]["substeps: lane-substeps/s"] = f"{lane_substeps / max(widened - bare, 1e-9):.3g}"
+        split[-1]["discrepancy's pose s"] = round(kernel_walls["dynamic C, calibrated"] - widened, 3)
         costs = identification_evaluation(DynamicCar.of(cfg.vehicle.spec), logs, args.repeats)
         identification.append({"car": car, "NumPy s": round(costs["reference"], 4),
                                "C s": round(costs["native"], 4),
                                "NumPy / C": round(costs["reference"] / costs["native"], 1)})  # fmt: skip
     print("\n## The physics kind's free runs beside the truth simulator (best of", args.repeats, "each)")
     print(pd.DataFrame(rows).to_string(index=False))
+    print("\n## Where the C kernel's free runs spend their time (one call each)")
+    print(pd.DataFrame(split).to_string(index=False))
     print("\n## One residual evaluation of the dynamic core's identification (6 parameter sets, every 3-s"
           " window of the test logs; best of", args.repeats, "each)")
     print(pd.DataFrame(identification).to_string(index=False))

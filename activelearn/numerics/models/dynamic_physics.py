@@ -26,7 +26,7 @@ what no scale explains, about the core's own mean path.
 A step is written once as pure functions (`corrected_step`, `free_run_step`) that `compile_steps` has
 torch.compile fuse (`compiled_step`): eagerly each is a few hundred small operations. Free runs take the
 compiled kernel (`native.dynamic_free_runs`, dynamic_rollout.c: the whole recurrence, every draw and
-step) where it builds, and those steps in torch elsewhere.
+step, in float, and the pose with the discrepancy) where it builds, and those steps in torch elsewhere.
 """
 
 from __future__ import annotations
@@ -44,6 +44,7 @@ from torch import Tensor
 from activelearn.config import ModelConfig
 from activelearn.names import IDENTIFIED_PREFIX
 from activelearn.numerics import native
+from activelearn.numerics.counter_noise import step_noise
 from activelearn.numerics.lags import Lags
 from activelearn.numerics.models.dynamic_track import (
     DYNAMIC_PARAMETERS,
@@ -77,7 +78,7 @@ IDENTIFY_HORIZON = 3.0  # s: free runs restart from the logged rates (a spinning
 IDENTIFY_EVERY = 3  # log steps between the compared points of an identification's free runs
 # how the model identifies its scales and measures their misfit: the restarts, spacing and step above
 IDENTIFICATION = {"every": IDENTIFY_EVERY, "horizon": IDENTIFY_HORIZON, "implicit": True}
-DISCREPANCY_STREAM = 56  # the discrepancy's random stream, beside the free run's own seed
+DISCREPANCY_KEY_BIT = 1 << 63  # the discrepancy's noise keys: the draws' (below 2^62) with it set
 FALLBACK_NOISE = 0.01  # `parameter_information`'s rate errors without a measured misfit: share of the limits
 
 
@@ -115,16 +116,19 @@ def identification_misfit(
 
 
 def discrepancy_paths(
-    size: np.ndarray, shape: tuple[int, ...], dt: float, seed: int
+    size: np.ndarray, keys: list[int], n_maneuvers: int, n_steps: int, dt: float
 ) -> tuple[Tensor, Tensor]:
-    """Each draw's model discrepancy of (v, r) along a free run, `shape` (S, M, T) each: an
+    """Each draw's model discrepancy of (v, r) along a free run, (S, M, T) each, S = len(keys): an
     Ornstein-Uhlenbeck process from zero (a run starts at the recorded rates, as the identification's
-    restarts do), its stationary size `size` (2,), its correlation time `IDENTIFY_HORIZON`."""
+    restarts do), its stationary size `size` (2,), its correlation time `IDENTIFY_HORIZON`. Its normals
+    are `counter_noise`'s under each draw's noise key with `DISCREPANCY_KEY_BIT` set, a stream of their
+    own that dynamic_rollout.c draws alike."""
     keep = math.exp(-dt / IDENTIFY_HORIZON)
-    shocks = np.random.default_rng((seed, DISCREPANCY_STREAM)).standard_normal((2, *shape))
+    draws = [np.stack(step_noise(key | DISCREPANCY_KEY_BIT, n_maneuvers, n_steps)) for key in keys]
+    shocks = np.stack(draws, axis=1).astype(np.float64)  # (2, S, M, T)
     shocks[..., 0] = 0.0
     paths = lfilter([math.sqrt(1.0 - keep**2)], [1.0, -keep], shocks, axis=-1)
-    paths *= np.asarray(size, np.float64).reshape(2, *([1] * len(shape)))
+    paths *= np.asarray(size, np.float64).reshape(2, 1, 1, 1)
     return torch.as_tensor(paths[0], dtype=torch.float32), torch.as_tensor(paths[1], dtype=torch.float32)
 
 
@@ -355,21 +359,28 @@ class DynamicPhysicsModel(PhysicsModel):
         start_hidden = torch.stack(
             [quasi_static_lateral(car, start[:, 0], start[:, 1]), u[:, 0, 1].expand(n_samples, -1)], dim=1
         )
-        if lib is not None:  # the whole recurrence in C (dynamic_rollout.c), its noise drawn there
-            sets = native_sets(scaled(self.dynamic_car, theta.double().numpy()), (n_samples, 1))
-            outputs = native.dynamic_free_runs(
-                lib, native_car(self.dynamic_car), sets, (self.dynamic_car.table_throttle,
-                self.dynamic_car.table_speed), self.native_limits(), self.dt, self.substeps,
-                (z.numpy(), noise_std.numpy(), np.array(keys, dtype=np.uint64), index.numpy()), controls,
-                (start.numpy(), start_hidden.numpy()), rate_lag, spread, threads=torch.get_num_threads(),
-            )  # fmt: skip
-            states, rates, hidden, *moment_arrays = (torch.from_numpy(a) for a in outputs)
-            moments = tuple(moment_arrays)
-        else:
+        if lib is None:
             states, rates, hidden, moments = self._torch_free_runs(
                 car, u, (start, start_hidden), z, noise_std, index, noise, rate_lag, spread
             )
-        return rates, moments, self._free_run_pose(states, hidden, pose, seed)
+            return rates, moments, self._free_run_pose(states, hidden, pose, keys)
+        # the whole recurrence and the pose in C (dynamic_rollout.c), its noise drawn there
+        sets = native_sets(scaled(self.dynamic_car, theta.double().numpy()), (n_samples, 1))
+        native_pose = None
+        if pose is not None:  # (dt, lever arm, headings, the discrepancy's sizes and correlation time)
+            discrepancy = None
+            if self._carries_discrepancy:
+                discrepancy = (*self.discrepancy.tolist(), IDENTIFY_HORIZON)
+            native_pose = (*pose[::2], pose[1], discrepancy)
+        outputs = native.dynamic_free_runs(
+            lib, native_car(self.dynamic_car), sets, (self.dynamic_car.table_throttle,
+            self.dynamic_car.table_speed), self.native_limits(), self.dt, self.substeps,
+            (z.numpy(), noise_std.numpy(), np.array(keys, dtype=np.uint64), index.numpy()), controls,
+            (start.numpy(), start_hidden.numpy()), rate_lag, spread, pose=native_pose,
+            threads=torch.get_num_threads(),
+        )  # fmt: skip
+        rates, *moments = (torch.from_numpy(a) for a in outputs[:4])
+        return rates, tuple(moments), outputs[4:] or None
 
     def native_limits(self) -> np.ndarray:
         """The correction's bounds as dynamic_rollout.c reads them (its L_ enum)."""
@@ -408,7 +419,7 @@ class DynamicPhysicsModel(PhysicsModel):
         return states, rates, hidden, moments
 
     def _free_run_pose(
-        self, states: Tensor, hidden: Tensor, pose: tuple[float, np.ndarray, float] | None, seed: int
+        self, states: Tensor, hidden: Tensor, pose: tuple[float, np.ndarray, float] | None, keys: list[int]
     ) -> tuple[np.ndarray, ...] | None:
         """Each draw's pose (x, y, ψ) from its rates and sideslip, widened by the discrepancy, where
         `pose` = (dt, headings, lever arm) asks for it."""
@@ -418,16 +429,21 @@ class DynamicPhysicsModel(PhysicsModel):
             slip = hidden[:, 0] - self.dynamic_car.lr * states[:, 1]  # the rear axle's lateral speed
             yaw0 = torch.as_tensor(yaw0, dtype=states.dtype)[:, None]
             pose = integrate_pose(states[:, 0], states[:, 1], dt, yaw0, lever_arm=arm, lateral=slip)
-            if self.discrepancy is not None and bool(self.discrepancy.any()):
-                pose = self._with_discrepancy(pose, states, (dt, yaw0, arm, slip), seed)
+            if self._carries_discrepancy:
+                pose = self._with_discrepancy(pose, states, (dt, yaw0, arm, slip), keys)
             paths = tuple(part.numpy() for part in pose)
         return paths
 
-    def _with_discrepancy(self, pose, states: Tensor, frame, seed: int) -> tuple[Tensor, ...]:
+    @property
+    def _carries_discrepancy(self) -> bool:
+        """Whether the free runs' fans carry a measured model discrepancy."""
+        return self.discrepancy is not None and bool(self.discrepancy.any())
+
+    def _with_discrepancy(self, pose, states: Tensor, frame, keys: list[int]) -> tuple[Tensor, ...]:
         """The pose fan (x, y, ψ) of draws whose rates carry the model discrepancy (`discrepancy_paths`),
         moved onto the core's mean path `pose`: the discrepancy widens the fan, not the path."""
         dt, yaw0, arm, slip = frame
-        dv, dw = discrepancy_paths(self.discrepancy.numpy(), tuple(states[:, 0].shape), dt, seed)
+        dv, dw = discrepancy_paths(self.discrepancy.numpy(), keys, *states.shape[2:], dt)
         wide = integrate_pose(states[:, 0] + dv, states[:, 1] + dw, dt, yaw0, lever_arm=arm, lateral=slip)
         pairs = zip(wide, pose, strict=True)
         return tuple(part - part.mean(dim=0) + path.mean(dim=0) for part, path in pairs)

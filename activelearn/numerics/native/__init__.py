@@ -12,7 +12,8 @@ Four fused loops that no library provides:
     track's recurrence, the moments and the noise per step (`physics_rollout`);
   * `dynamic_rollout.c`: the dynamic single track's rates along free runs, many parameter sets at
     once in double precision (`dynamic_rate_runs`, what an identification's search spends its time
-    on), and the physics kind's S free runs on that core (`dynamic_free_runs`).
+    on), and the physics kind's S free runs on that core in float, with their poses
+    (`dynamic_free_runs`); its substep is `dynamic_substep.h`, a template included once per precision.
 All start their own threads (`threads` arguments), which take chunks of work from a shared counter.
 
 They are compiled once per machine (sources, flags, compiler and CPU features form the cache key) into
@@ -43,7 +44,8 @@ SOURCES = tuple(
     Path(__file__).with_name(name)
     for name in ("static_rollout.c", "network.c", "physics_rollout.c", "dynamic_rollout.c")
 )
-HEADERS = (Path(__file__).with_name("network.h"),)  # part of the cache key, not compiled on their own
+HEADERS = tuple(Path(__file__).with_name(name) for name in ("network.h", "dynamic_substep.h"))  # in the cache
+# key, not compiled on their own
 # Compile flags. -ffast-math lets GCC vectorise logf/sinf/cosf through glibc's libmvec; -march=native
 # is safe because the cache key includes this machine's CPU features.
 FLAGS = ("-O3", "-ffast-math", "-march=native", "-fPIC", "-pthread")
@@ -138,7 +140,8 @@ SIGNATURES = {
     "al_dynamic_limit_count": ([], ctypes.c_int),
     "al_dynamic_free_runs": (
         [_ptr] * 4 + [ctypes.c_int64, _ptr] + [ctypes.c_int64] * 4 + [ctypes.c_double]
-        + [ctypes.c_int64] * 3 + [ctypes.c_double] + [_ptr] * 13 + [ctypes.c_int64],
+        + [ctypes.c_int64] * 3 + [ctypes.c_double] + [_ptr] * 11 + [ctypes.c_float] * 2 + [_ptr] * 5
+        + [ctypes.c_int64],
         ctypes.c_int,
     ),
     "al_network_forward": (
@@ -526,6 +529,7 @@ def dynamic_free_runs(
     rate_lag: int,
     spread: float,
     *,
+    pose: tuple[float, float, np.ndarray, tuple[float, float, float] | None] | None = None,
     threads: int = 1,
 ) -> tuple[np.ndarray, ...]:
     """S free runs of the physics kind on the dynamic core with `al_dynamic_free_runs` (see there).
@@ -534,8 +538,11 @@ def dynamic_free_runs(
     (L_COUNT); `draws` = (z (S, 4, U), noise std (S, 2, U), each draw's noise key (S,) uint64: the
     kernel draws its normals, `counter_noise`'s stream, each step's row (M, T));
     `controls` (M, T, 2) the control each step reads; `start` = ((v_x, r), (v_y, δ_w)), each (S, 2, M).
-    Returns (states, rates, hidden), each (S, 2, M, T), and the moments (centre, aleatoric, epistemic),
-    each (M, T, 2), float32.
+    `pose` = (dt, lever arm, headings (M,), the model discrepancy's (size of v, size of r, correlation
+    time) or None) asks for each draw's pose as well: the kernel draws the discrepancy's normals from each
+    draw's key with its top bit set (`dynamic_physics.discrepancy_paths`' stream). Returns the rates with
+    the sensors' noise (S, 2, M, T), the moments (centre, aleatoric, epistemic), each (M, T, 2), and with
+    `pose` (x, y, yaw), each (S, M, T); float32.
     """
     car, sets, grid, speed, limits = (
         np.ascontiguousarray(a, dtype=np.float64) for a in (car, sets, *table, limits)
@@ -550,6 +557,8 @@ def dynamic_free_runs(
         raise ValueError("car and sets do not match dynamic_rollout.c's layout")
     if len(limits) != lib.al_dynamic_limit_count():
         raise ValueError("limits do not match dynamic_rollout.c's layout")
+    pose_dt, arm, yaw0, discrepancy = pose if pose is not None else (0.0, 0.0, None, None)
+    paths = (n_samples, n_maneuvers, n_steps)
     shapes = {
         "z": (z.shape, (n_samples, 4, n_rows)),
         "noise_std": (noise_std.shape, (n_samples, 2, n_rows)),
@@ -558,6 +567,12 @@ def dynamic_free_runs(
         "start": (starts[0].shape, (n_samples, 2, n_maneuvers)),
         "start_hidden": (starts[1].shape, (n_samples, 2, n_maneuvers)),
     }
+    if pose is not None:
+        yaw0 = np.ascontiguousarray(yaw0, dtype=np.float32)
+        shapes["headings"] = (yaw0.shape, (n_maneuvers,))
+    if discrepancy is not None:
+        discrepancy = np.ascontiguousarray(discrepancy, dtype=np.float64)
+        shapes["discrepancy"] = (discrepancy.shape, (3,))
     for name, (shape, expected) in shapes.items():
         if shape != expected:
             raise ValueError(f"{name} must be {expected}, not {shape}")
@@ -565,15 +580,18 @@ def dynamic_free_runs(
         raise ValueError("rate_lag must be at least 1")
     if index.size and (index.min() < 0 or index.max() >= n_rows):
         raise ValueError("index must name rows of z")
-    runs = tuple(np.empty((n_samples, 2, n_maneuvers, n_steps), np.float32) for _ in range(3))
+    rates = np.empty((n_samples, 2, n_maneuvers, n_steps), np.float32)
     moments = tuple(np.empty((n_maneuvers, n_steps, 2), np.float32) for _ in range(3))
+    poses = tuple(np.empty(paths, np.float32) for _ in range(3)) if pose is not None else ()
+    pose_arrays = (yaw0, discrepancy, *(poses or (None,) * 3))
     status = lib.al_dynamic_free_runs(
         *(_address(a) for a in (car, sets, grid, speed)), len(grid), _address(limits),
         n_samples, n_maneuvers, n_steps, n_rows, float(dt), int(substeps), int(rate_lag),
         int(spread != 1.0), float(spread),
-        *(_address(a) for a in (controls, index, z, noise_std, keys, *starts, *runs, *moments)),
+        *(_address(a) for a in (controls, index, z, noise_std, keys, *starts, rates, *moments)),
+        float(pose_dt), float(arm), *(_address(a) for a in pose_arrays),
         int(threads),
     )  # fmt: skip
     if status != 0:
         raise MemoryError("al_dynamic_free_runs could not allocate its scratch memory")
-    return (*runs, *moments)
+    return (rates, *moments, *poses)

@@ -1,4 +1,5 @@
-/* Free runs of the dynamic single track's rates, in double precision, many parameter sets at once.
+/* Free runs of the dynamic single track's rates, many parameter sets at once (double precision), and
+ * the physics kind's free runs on it (float, the pose integrated too).
  *
  * The twin of `dynamic_track.rate_runs` (activelearn/numerics/models/dynamic_track.py; the equations
  * are in its module docstring): B lanes, each a (parameter set, run) pair with its own per-set
@@ -7,19 +8,22 @@
  * spends its time on: a least-squares search evaluates 1 + 5 parameter sets (the finite-difference
  * Jacobian's) on every restarted 3-s window of the logs, a thousand times a campaign.
  *
- * Lanes go in blocks of LANES, stored side by side, so each substep's arithmetic is one vectorised
- * pass over a block (libmvec's atan, sin, cos, tan, tanh, expm1 under -ffast-math); blocks are shared
- * out to threads. Conditions are written as selects so the passes stay branch-free.
+ * Lanes go in blocks, stored side by side, so each substep's arithmetic is one vectorised pass over a
+ * block (libmvec's atan, sin, tanh, expm1 under -ffast-math); blocks are shared out to threads.
+ * Conditions are written as selects so the passes stay branch-free. The substep is
+ * dynamic_substep.h's, included once per precision.
  */
-#include <math.h>
+#include <tgmath.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "network.h"
 
-#define LANES 8
+#define LANES_D 8  /* a rate run's block: doubles */
+#define LANES_F 16 /* a free run's block: floats */
 #define BLOCKS_PER_CHUNK 4
+#define OUT_FIELDS 5 /* a free run's tile buffer: rates (v, r), states (v, r), v_y */
 
 /* The car's figures shared by every lane (dynamic_track.py's NATIVE_CAR, same order). */
 enum {
@@ -57,17 +61,6 @@ enum {
 int al_dynamic_car_count(void) { return C_COUNT; }
 int al_dynamic_set_count(void) { return S_COUNT; }
 
-static inline double clip(double x, double low, double high) { return x < low ? low : (x > high ? high : x); }
-static inline double sign(double x) { return (double)(x > 0.0) - (double)(x < 0.0); }
-
-/* The speed table at |throttle| (np.interp: linear between points, flat beyond the ends). */
-static double table_speed(const double *grid, const double *speed, int64_t n, double throttle) {
-    const double x = clip(fabs(throttle), grid[0], grid[n - 1]);
-    int64_t i = 0;
-    while (i < n - 2 && grid[i + 1] <= x) ++i;
-    return speed[i] + (x - grid[i]) / (grid[i + 1] - grid[i]) * (speed[i + 1] - speed[i]);
-}
-
 typedef struct {
     const double *car, *sets, *grid, *speed;
     int64_t n_table, n_lanes, n_runs, n_steps, substeps, implicit;
@@ -79,149 +72,43 @@ typedef struct {
 static void *dynamic_scratch(void *context) { return context; } /* nothing per thread */
 static void dynamic_free(void *scratch) { (void)scratch; }
 
-/* One block's lanes and the car's figures derived once. */
-typedef struct {
-    double mu[LANES], brake[LANES], cf0[LANES], cr0[LANES], inertia[LANES], top[LANES], reverse[LANES];
-    double a_max[LANES], vx[LANES], vy[LANES], r[LANES], delta[LANES];
-    double tau[LANES], target[LANES], drive[LANES]; /* this step's controls; drive: the table's speed */
-} block;
-
-typedef struct {
-    double g, m, lf, lr, hcg, L, shape, curvature, static_f, static_r, blend, floor_speed, share, h, turn;
-    double vsw, lag;
-} figures;
-
-/* One substep of every lane of a block. `motor`, `linear` and `implicit` are constants at each call
- * (always inlined), so each variant's lane loop has no branch and vectorises with libmvec. */
-static inline __attribute__((always_inline)) void substep(block *b, const figures *f, const int motor,
-                                                          const int linear, const int implicit) {
-    const double g = f->g, m = f->m, lf = f->lf, lr = f->lr, L = f->L, h = f->h, floor_speed = f->floor_speed;
-#pragma GCC ivdep
-    for (int l = 0; l < LANES; ++l) {
-        const double delta = b->delta[l] + clip(b->target[l] - b->delta[l], -f->turn, f->turn);
-        const double vx0 = b->vx[l], vy0 = b->vy[l], r0 = b->r[l], tau = b->tau[l], mu = b->mu[l];
-        const double grip = mu * g, speed_x = fabs(vx0);
-        double a;
-        if (motor) {
-            const double top_speed = tau > 0.0 ? b->top[l] : b->reverse[l];
-            const double limit = b->a_max[l] * f->vsw / fmax(speed_x, f->vsw);
-            a = clip(b->a_max[l] * (tau - vx0 / top_speed), -limit, limit);
-        } else {
-            a = (b->drive[l] - vx0) / f->lag;
-        }
-        const double stop_rate = fmin(speed_x / h, b->brake[l]); /* brakes to rest, not past it */
-        a = clip(tau == 0.0 ? -sign(vx0) * stop_rate : a, -grip, grip);
-        const double load_f = fmax(m * (g * lr - a * f->hcg) / L, 0.0);
-        const double load_r = fmax(m * (g * lf + a * f->hcg) / L, 0.0);
-        /* cos from sin (|delta| is within the lock, below pi/2): GCC would fuse a sin and cos into a
-         * sincos, which does not vectorise */
-        const double sn = sin(delta), cs = sqrt(1.0 - sn * sn);
-        const double front_y = vy0 + lf * r0;
-        const double long_f = vx0 * cs + front_y * sn, lat_f = front_y * cs - vx0 * sn;
-        const double alpha_f = atan(-lat_f / fmax(fabs(long_f), floor_speed));
-        const double alpha_r = atan(-(vy0 - lr * r0) / fmax(speed_x, floor_speed));
-        const double cap_f = mu * load_f, cap_r = mu * load_r;
-        double f_f, f_r;
-        if (linear) {
-            f_f = clip(b->cf0[l] * load_f / f->static_f * alpha_f, -cap_f, cap_f);
-            f_r = clip(b->cr0[l] * load_r / f->static_r * alpha_r, -cap_r, cap_r);
-        } else {
-            double xf = b->cf0[l] / f->static_f / (f->shape * mu) * alpha_f;
-            double xr = b->cr0[l] / f->static_r / (f->shape * mu) * alpha_r;
-            xf -= f->curvature * (xf - atan(xf));
-            xr -= f->curvature * (xr - atan(xr));
-            f_f = cap_f * sin(f->shape * atan(xf));
-            f_r = cap_r * sin(f->shape * atan(xr));
-        }
-        const double drive_r = m * a * f->share; /* the drive's share of the rear friction circle */
-        const double room = sqrt(fmax(cap_r * cap_r - drive_r * drive_r, 0.0));
-        f_r = clip(f_r, -room, room);
-        const double dvx = a - f_f * sn / m, dvy = (f_f * cs + f_r) / m;
-        const double dr = (lf * f_f * cs - lr * f_r) / b->inertia[l];
-        double vx, vy, r;
-        if (implicit) { /* dynamic_step(implicit=True): exponential tyre damping */
-            const double speed = fmax(speed_x, floor_speed);
-            const double c_f = b->cf0[l] * load_f / f->static_f, c_r = b->cr0[l] * load_r / f->static_r;
-            const double x_lat = fmax(h * (c_f + c_r) / (m * speed), 1e-300);
-            const double x_yaw = fmax(h * (lf * lf * c_f + lr * lr * c_r) / (b->inertia[l] * speed), 1e-300);
-            vy = vy0 + h * (dvy - vx0 * r0) * (-expm1(-x_lat) / x_lat);
-            vx = vx0 + h * (dvx + vy * r0);
-            r = r0 + h * dr * (-expm1(-x_yaw) / x_yaw);
-        } else {
-            vx = vx0 + h * (dvx + vy0 * r0);
-            vy = vy0 + h * (dvy - vx0 * r0);
-            r = r0 + h * dr;
-        }
-        const double w = 0.5 * (1.0 + tanh((fabs(vx) - f->blend) / (0.25 * f->blend)));
-        const double r_kin = vx * tan(delta) / L;
-        b->r[l] = w * r + (1.0 - w) * r_kin;
-        b->vy[l] = w * vy + (1.0 - w) * lr * r_kin;
-        b->vx[l] = vx, b->delta[l] = delta;
-    }
-}
-
-#define SUBSTEPS(MOTOR, LINEAR, IMPLICIT)                                         \
-    static void substeps_##MOTOR##LINEAR##IMPLICIT(block *b, const figures *f, int64_t n) { \
-        for (int64_t i = 0; i < n; ++i) substep(b, f, MOTOR, LINEAR, IMPLICIT);   \
-    }
-SUBSTEPS(0, 0, 0)
-SUBSTEPS(0, 0, 1)
-SUBSTEPS(0, 1, 0)
-SUBSTEPS(0, 1, 1)
-SUBSTEPS(1, 0, 0)
-SUBSTEPS(1, 0, 1)
-SUBSTEPS(1, 1, 0)
-SUBSTEPS(1, 1, 1)
-static void (*const SUBSTEP_VARIANTS[8])(block *, const figures *, int64_t) = {
-    substeps_000, substeps_001, substeps_010, substeps_011, substeps_100, substeps_101, substeps_110, substeps_111};
-
-/* The car's shared figures as a substep reads them, for steps of dt in `substeps` substeps. */
-static figures figures_of(const double *k, double dt, int64_t substeps) {
-    figures f;
-    f.g = k[C_GRAVITY], f.m = k[C_MASS], f.lf = k[C_LF], f.lr = k[C_LR], f.hcg = k[C_CG_HEIGHT];
-    f.L = f.lf + f.lr, f.shape = k[C_SHAPE], f.curvature = k[C_CURVATURE];
-    f.static_f = f.m * f.g * f.lr / f.L, f.static_r = f.m * f.g * f.lf / f.L;
-    f.blend = k[C_BLEND_SPEED], f.floor_speed = 0.5 * f.blend, f.share = k[C_REAR_DRIVE_SHARE];
-    f.h = dt / (double)substeps, f.turn = k[C_STEERING_RATE] * f.h;
-    f.vsw = k[C_POWER_LIMIT_SPEED], f.lag = k[C_SPEED_TIME_CONSTANT];
-    return f;
-}
-
-typedef void (*substep_run)(block *, const figures *, int64_t);
-
-static substep_run substeps_for(const double *k, int64_t implicit) {
-    return SUBSTEP_VARIANTS[4 * (k[C_MOTOR] != 0.0) + 2 * (k[C_SHAPE] == 0.0) + (implicit != 0)];
-}
-
-/* Lane l of a block takes parameter set `s`'s figures (its table gain into gain[l]). */
-static void load_figures(block *b, double *gain, int l, const double *s) {
-    b->mu[l] = s[S_FRICTION], b->brake[l] = s[S_BRAKE], b->cf0[l] = s[S_STIFFNESS_FRONT];
-    b->cr0[l] = s[S_STIFFNESS_REAR], b->inertia[l] = s[S_YAW_INERTIA], b->top[l] = s[S_TOP_SPEED];
-    b->reverse[l] = s[S_REVERSE_TOP_SPEED], b->a_max[l] = s[S_MAX_ACCELERATION], gain[l] = s[S_TABLE_GAIN];
-}
+#define REAL double
+#define LANES LANES_D
+#define NAME(x) x##_d
+#include "dynamic_substep.h"
+#undef REAL
+#undef LANES
+#undef NAME
+#define REAL float
+#define LANES LANES_F
+#define NAME(x) x##_f
+#include "dynamic_substep.h"
+#undef REAL
+#undef LANES
+#undef NAME
 
 /* Lane l's controls for the coming step: throttle, the steering target within the lock, and for a
  * table car the table's speed (it depends on the control alone: once a step, not a substep). */
-static void load_controls(block *b, const double *gain, int l, const dynamic_context *c, double tau,
+static void load_controls(block_d *b, const double *gain, int l, const dynamic_context *c, double tau,
                           double steering) {
-    const double *k = c->car;
+    const double *k = c->car, lock = k[C_STEERING_LIMIT];
     b->tau[l] = tau;
-    b->target[l] = clip(steering, -k[C_STEERING_LIMIT], k[C_STEERING_LIMIT]);
-    b->drive[l] = k[C_MOTOR] != 0.0 ? 0.0 : sign(tau) * table_speed(c->grid, c->speed, c->n_table, tau) * gain[l];
+    b->target[l] = fmin(fmax(steering, -lock), lock);
+    b->drive[l] = k[C_MOTOR] != 0.0 ? 0.0 : sign_d(tau) * table_speed_d(c->grid, c->speed, c->n_table, tau) * gain[l];
 }
 
-/* One block of up to LANES lanes through all steps. */
+/* One block of up to LANES_D lanes through all steps. */
 static void dynamic_block(const dynamic_context *c, int64_t first) {
-    const int64_t n = c->n_lanes - first < LANES ? c->n_lanes - first : LANES;
+    const int64_t n = c->n_lanes - first < LANES_D ? c->n_lanes - first : LANES_D;
     const int64_t T = c->n_steps;
-    const figures f = figures_of(c->car, c->dt, c->substeps);
-    const substep_run run_substeps = substeps_for(c->car, c->implicit);
-    block b;
-    double gain[LANES];
-    for (int l = 0; l < LANES; ++l) { /* lanes past the end repeat the last one, unwritten */
+    const figures_d f = figures_of_d(c->car, c->dt, c->substeps);
+    const substep_run_d run_substeps = substeps_for_d(c->car, c->implicit);
+    block_d b;
+    double gain[LANES_D];
+    for (int l = 0; l < LANES_D; ++l) { /* lanes past the end repeat the last one, unwritten */
         const int64_t lane = first + (l < n ? l : n - 1);
         const double *x0 = c->start + lane * 4;
-        load_figures(&b, gain, l, c->sets + lane * S_COUNT);
+        load_figures_d(&b, gain, l, c->sets + lane * S_COUNT, c->car);
         b.vx[l] = x0[0], b.vy[l] = x0[1], b.r[l] = x0[2], b.delta[l] = x0[3];
     }
     for (int64_t l = 0; l < n; ++l) {
@@ -229,7 +116,7 @@ static void dynamic_block(const dynamic_context *c, int64_t first) {
         out[0] = b.vx[l], out[1] = b.r[l];
     }
     for (int64_t step = 1; step < T; ++step) {
-        for (int l = 0; l < LANES; ++l) {
+        for (int l = 0; l < LANES_D; ++l) {
             const int64_t run = (first + (l < n ? l : n - 1)) % c->n_runs;
             const double *u = c->controls + (run * T + step - 1) * 2;
             load_controls(&b, gain, l, c, u[0], u[1]);
@@ -246,7 +133,7 @@ static void dynamic_chunk(void *context, void *scratch, int64_t chunk) {
     (void)scratch;
     const dynamic_context *c = context;
     for (int64_t b = 0; b < BLOCKS_PER_CHUNK; ++b) {
-        const int64_t first = (chunk * BLOCKS_PER_CHUNK + b) * LANES;
+        const int64_t first = (chunk * BLOCKS_PER_CHUNK + b) * LANES_D;
         if (first >= c->n_lanes) return;
         dynamic_block(c, first);
     }
@@ -265,19 +152,20 @@ int al_dynamic_rate_runs(const double *car, const double *sets, const double *gr
     if (n_runs <= 0 || substeps < 1 || n_table < 2) return -1;
     dynamic_context context = {car,      sets,     grid, speed, n_table, n_lanes, n_runs, n_steps, substeps,
                                implicit, controls, start, dt,    rates};
-    const int64_t per_chunk = LANES * BLOCKS_PER_CHUNK;
+    const int64_t per_chunk = LANES_D * BLOCKS_PER_CHUNK;
     al_job job = {dynamic_scratch, dynamic_free, dynamic_chunk, &context, (n_lanes + per_chunk - 1) / per_chunk,
                   0, 0};
     return al_run_parallel(&job, n_threads);
 }
 
 /* ----- the physics kind's free runs on the dynamic core ------------------------------------------
- * The twin of DynamicPhysicsModel's torch loop (dynamic_physics.py, `free_run_step`): S draws, each
- * with its own figures (its posterior draw of the scales) and its correction's raw outputs at each
- * step's control row, step (v_x, v_y, r, delta_w) from the state `rate_lag` steps back; the bounded
- * correction moves v_x and r towards their residuals at the car's lags; with `widen` each draw's
- * correction is spread about the draws' mean from their common past; then the moments over draws and
- * each draw's sensor noise. One maneuver is a chunk: its S draws are ceil(S / LANES) blocks. */
+ * The twin of DynamicPhysicsModel's torch loop (dynamic_physics.py, `free_run_step`), in float as
+ * torch runs it: S draws, each with its own figures (its posterior draw of the scales) and its
+ * correction's raw outputs at each step's control row, step (v_x, v_y, r, delta_w) from the state
+ * `rate_lag` steps back; the bounded correction moves v_x and r towards their residuals at the car's
+ * lags; with `widen` each draw's correction is spread about the draws' mean from their common past;
+ * then the moments over draws and each draw's sensor noise; then, asked for, each draw's pose
+ * (`_free_run_pose`). One maneuver is a chunk: its S draws are ceil(S / LANES_F) blocks. */
 
 /* The correction's limits (dynamic_physics.py's CorrectionLimits, `native_limits`, same order). */
 enum { L_SPEED_BOUND, L_YAW_BOUND, L_YAW_CAP, L_SPEED_LAG, L_YAW_LAG, L_LOG_FACTOR, L_COUNT };
@@ -293,58 +181,80 @@ typedef struct {
     const int64_t *index;  /* (M, T): each step's control row among the n_rows distinct ones */
     const float *z, *noise_std, *start, *start_hidden;
     const uint64_t *keys; /* each draw's noise key (the counter-based noise of static_rollout.c) */
-    float *states, *rates, *hidden, *centre, *aleatoric, *epistemic;
+    float *rates, *centre, *aleatoric, *epistemic;
     double *residuals; /* (S, 2, n_rows): each draw's correction at each row (residual_chunk) */
+    /* the pose (NULL x: none): the log's dt, the lever arm, each maneuver's heading (M); with
+     * `discrepancy` not NULL, (size of v, size of r, correlation time) of the model discrepancy each
+     * draw's rates carry for the fan about the mean path (`discrepancy_paths`) */
+    float pose_dt, arm;
+    const float *yaw0;
+    const double *discrepancy;
+    float *x, *y, *yaw;
 } free_run_context;
 
 typedef struct {
-    block *blocks; /* ceil(S / LANES) of each: the draws' own step, */
-    block *common; /* and their step from the draws' mean past (`widen`) */
-    double *gain, *v, *w, *cv, *cw;
-    float *zv, *zw; /* each draw's noise over the current tile of steps (S x al_tile()) */
+    block_f *blocks; /* ceil(S / LANES_F) of each: the draws' own step, */
+    block_f *common; /* and their step from the draws' mean past (`widen`) */
+    float *gain;
+    double *v, *w, *cv, *cw;
+    float *zv, *zw;   /* each draw's noise over the current tile of steps (S x al_tile()) */
+    float *ring;      /* (rate_lag, 4, lanes): each draw's (v_x, v_y, r, delta_w) of the last rate_lag steps */
+    float *out;       /* (OUT_FIELDS, al_tile(), S): the tile's rates with the noise (v, r) and without, v_y */
+    float *track;     /* (3, S, T): the maneuver's rates without noise (v, r) and v_y, for its pose */
+    float *path;      /* (5, al_tile()): a draw's v, w, rear-axle slip and discrepancy noise over a tile */
+    float *wide;      /* (3, S, T): the draws' poses with the discrepancy (where it is asked for) */
+    double *mean;     /* (6, T): the poses' means over draws, without and with the discrepancy */
 } free_run_scratch;
 
 static void free_run_free(void *scratch) {
     free_run_scratch *r = scratch;
     if (!r) return;
     free(r->blocks), free(r->common), free(r->gain), free(r->v), free(r->w), free(r->cv), free(r->cw);
-    free(r->zv), free(r->zw);
+    free(r->zv), free(r->zw), free(r->ring), free(r->out), free(r->track), free(r->path), free(r->wide);
+    free(r->mean);
     free(r);
 }
 
 static void *free_run_scratch_new(void *context) {
     const free_run_context *c = context;
-    const int64_t n_blocks = (c->n_samples + LANES - 1) / LANES, lanes = n_blocks * LANES;
+    const int64_t S = c->n_samples, T = c->core.n_steps, tile = al_tile();
+    const int64_t n_blocks = (S + LANES_F - 1) / LANES_F, lanes = n_blocks * LANES_F;
     free_run_scratch *r = calloc(1, sizeof *r);
     if (!r) return NULL;
-    r->blocks = malloc((size_t)n_blocks * sizeof(block)), r->common = malloc((size_t)n_blocks * sizeof(block));
-    r->gain = malloc((size_t)lanes * sizeof(double));
+    r->blocks = malloc((size_t)n_blocks * sizeof(block_f)), r->common = malloc((size_t)n_blocks * sizeof(block_f));
+    r->gain = malloc((size_t)lanes * sizeof(float));
     r->v = malloc((size_t)lanes * sizeof(double)), r->w = malloc((size_t)lanes * sizeof(double));
     r->cv = malloc((size_t)lanes * sizeof(double)), r->cw = malloc((size_t)lanes * sizeof(double));
-    r->zv = malloc((size_t)(c->n_samples * al_tile()) * sizeof(float));
-    r->zw = malloc((size_t)(c->n_samples * al_tile()) * sizeof(float));
-    if (!r->blocks || !r->common || !r->gain || !r->v || !r->w || !r->cv || !r->cw || !r->zv || !r->zw) {
+    r->zv = malloc((size_t)(S * tile) * sizeof(float)), r->zw = malloc((size_t)(S * tile) * sizeof(float));
+    r->ring = malloc((size_t)(c->rate_lag * 4 * lanes) * sizeof(float));
+    r->out = malloc((size_t)(OUT_FIELDS * tile * S) * sizeof(float));
+    r->track = c->x ? malloc((size_t)(3 * S * T) * sizeof(float)) : NULL;
+    r->path = malloc((size_t)(5 * tile) * sizeof(float));
+    r->wide = c->discrepancy ? malloc((size_t)(3 * S * T) * sizeof(float)) : NULL;
+    r->mean = malloc((size_t)(6 * T) * sizeof(double));
+    if (!r->blocks || !r->common || !r->gain || !r->v || !r->w || !r->cv || !r->cw || !r->zv || !r->zw ||
+        !r->ring || !r->out || (c->x && !r->track) || !r->path || (c->discrepancy && !r->wide) || !r->mean) {
         free_run_free(r);
         return NULL;
     }
     for (int64_t i = 0; i < lanes; ++i) { /* lanes past the S draws repeat the last draw, unwritten */
-        const int64_t s = i < c->n_samples ? i : c->n_samples - 1;
-        load_figures(&r->blocks[i / LANES], r->gain + (i / LANES) * LANES, (int)(i % LANES),
-                     c->core.sets + s * S_COUNT);
+        const int64_t s = i < S ? i : S - 1;
+        load_figures_f(&r->blocks[i / LANES_F], r->gain + (i / LANES_F) * LANES_F, (int)(i % LANES_F),
+                       c->core.sets + s * S_COUNT, c->core.car);
     }
-    memcpy(r->common, r->blocks, (size_t)n_blocks * sizeof(block)); /* the same draws' figures */
+    memcpy(r->common, r->blocks, (size_t)n_blocks * sizeof(block_f)); /* the same draws' figures */
     return r;
 }
 
-/* corrected_step's correction on a block's stepped lanes: v and w of draws [first, first + LANES), each
- * draw's residuals at the step's control row taken from `residuals` (S, 2, n_rows). */
-static void correct(const free_run_context *c, const block *b, int64_t first, int64_t row, double *v, double *w) {
+/* corrected_step's correction on a block's stepped lanes: v and w of draws [first, first + LANES_F),
+ * each draw's residuals at the step's control row taken from `residuals` (S, 2, n_rows). */
+static void correct(const free_run_context *c, const block_f *b, int64_t first, int64_t row, double *v, double *w) {
     const int64_t S = c->n_samples, U = c->n_rows;
     const double cap = c->limits[L_YAW_CAP];
-    for (int l = 0; l < LANES; ++l) {
+    for (int l = 0; l < LANES_F; ++l) {
         const int64_t s = first + l < S ? first + l : S - 1;
         v[first + l] = b->vx[l] + c->residuals[s * 2 * U + row];
-        w[first + l] = clip(b->r[l] + c->residuals[(s * 2 + 1) * U + row], -cap, cap);
+        w[first + l] = fmin(fmax(b->r[l] + c->residuals[(s * 2 + 1) * U + row], -cap), cap);
     }
 }
 
@@ -366,54 +276,144 @@ static void residual_chunk(void *context, void *scratch, int64_t s) {
     }
 }
 
+/* The key of draw s's model discrepancy: its noise key with the top bit set (the keys are below 2^62),
+ * so its normals are a Philox stream of their own (`discrepancy_paths`' `DISCREPANCY_KEY_BIT`). */
+static uint64_t discrepancy_key(uint64_t key) { return key | (UINT64_C(1) << 63); }
+
+/* One draw's pose over maneuver m from its rates and its rear axle's slip v_y - l_r r, tile by tile
+ * (al_pose_tile), into x, y, yaw (each T, contiguous). With `widened` its rates carry the model
+ * discrepancy: an Ornstein-Uhlenbeck process from zero, its normals from the draw's discrepancy key. */
+static void draw_pose(const free_run_context *c, free_run_scratch *r, int64_t s, int64_t m, int widened,
+                      float *x, float *y, float *yaw) {
+    const int64_t S = c->n_samples, T = c->core.n_steps, tile = al_tile();
+    const float lr = (float)c->core.car[C_LR];
+    const float *v = r->track + s * T, *w = v + S * T, *vy = w + S * T;
+    float *pv = r->path, *pw = pv + tile, *pl = pw + tile, *zv = pl + tile, *zw = zv + tile;
+    const uint64_t key = discrepancy_key(c->keys[s]);
+    double keep = 0.0, shock = 0.0, dv = 0.0, dw = 0.0; /* the process and its state */
+    if (widened) keep = exp(-(double)c->pose_dt / c->discrepancy[2]), shock = sqrt(1.0 - keep * keep);
+    double sums[3] = {0.0, 0.0, 0.0};
+    for (int64_t t0 = 0; t0 < T; t0 += tile) {
+        const int64_t n = T - t0 < tile ? T - t0 : tile;
+        for (int64_t i = 0; i < n; ++i) {
+            pv[i] = v[t0 + i], pw[i] = w[t0 + i];
+            pl[i] = vy[t0 + i] - lr * w[t0 + i];
+        }
+        if (widened) {
+            al_tile_noise((uint32_t)(t0 / tile), (uint32_t)m, (uint32_t)(key & 0xFFFFFFFFu), (uint32_t)(key >> 32),
+                          zv, zw);
+            for (int64_t i = 0; i < n; ++i) {
+                if (t0 + i > 0) dv = keep * dv + shock * zv[i], dw = keep * dw + shock * zw[i];
+                pv[i] += (float)(c->discrepancy[0] * dv), pw[i] += (float)(c->discrepancy[1] * dw);
+            }
+        }
+        for (int64_t i = n; i < tile; ++i) pv[i] = pw[i] = pl[i] = 0.0f;
+        al_pose_tile(n, c->pose_dt, c->arm, c->yaw0[m], pv, pw, pl, sums, x + t0, y + t0, yaw + t0);
+    }
+}
+
+/* Every draw's pose over maneuver m (`_free_run_pose`): the core's rates and slip integrated; with the
+ * discrepancy, the draws' poses with it, moved so that their mean over draws is the core's (the
+ * discrepancy widens the fan, not the path). */
+static void maneuver_pose(const free_run_context *c, free_run_scratch *r, int64_t m) {
+    const int64_t S = c->n_samples, M = c->core.n_runs, T = c->core.n_steps;
+    for (int64_t s = 0; s < S; ++s) {
+        const int64_t o = (s * M + m) * T;
+        draw_pose(c, r, s, m, 0, c->x + o, c->y + o, c->yaw + o);
+    }
+    if (!c->discrepancy) return;
+    double *mean = r->mean; /* x, y, yaw without, then with the discrepancy */
+    memset(mean, 0, (size_t)(6 * T) * sizeof(double));
+    for (int64_t s = 0; s < S; ++s) {
+        const int64_t o = (s * M + m) * T;
+        float *wx = r->wide + s * T, *wy = wx + S * T, *wyaw = wy + S * T;
+        draw_pose(c, r, s, m, 1, wx, wy, wyaw);
+        const float *part[6] = {c->x + o, c->y + o, c->yaw + o, wx, wy, wyaw};
+        for (int j = 0; j < 6; ++j)
+            for (int64_t k = 0; k < T; ++k) mean[j * T + k] += part[j][k];
+    }
+    for (int64_t s = 0; s < S; ++s) {
+        const int64_t o = (s * M + m) * T;
+        float *out[3] = {c->x + o, c->y + o, c->yaw + o};
+        for (int j = 0; j < 3; ++j) {
+            const float *wide = r->wide + (j * S + s) * T;
+            for (int64_t k = 0; k < T; ++k)
+                out[j][k] = (float)(wide[k] + (mean[j * T + k] - mean[(3 + j) * T + k]) / (double)S);
+        }
+    }
+}
+
+/* Every lane of a block takes the step's controls, the same for every draw of a maneuver
+ * (`load_controls`'). */
+static void block_controls(block_f *b, const float *gain, const dynamic_context *c, double tau, double steering) {
+    const double *k = c->car, lock = k[C_STEERING_LIMIT];
+    const float target = (float)fmin(fmax(steering, -lock), lock);
+    const float drive =
+        k[C_MOTOR] != 0.0 ? 0.0f : sign_f((float)tau) * table_speed_f(c->grid, c->speed, c->n_table, tau);
+    for (int l = 0; l < LANES_F; ++l) b->tau[l] = (float)tau, b->target[l] = target, b->drive[l] = drive * gain[l];
+}
+
+/* The tile of steps [t0, t0 + n) of maneuver m from the scratch's `out` (step by step, the draws side
+ * by side) to the rates (S, 2, M, T) and, for the pose, to the maneuver's track (3, S, T). */
+static void flush_tile(const free_run_context *c, free_run_scratch *r, int64_t m, int64_t t0, int64_t n) {
+    const int64_t S = c->n_samples, M = c->core.n_runs, T = c->core.n_steps, plane = M * T, tile = al_tile();
+    for (int f = 0; f < OUT_FIELDS; ++f) {
+        if (f >= 2 && !c->x) break;
+        for (int64_t s = 0; s < S; ++s) {
+            float *into = f < 2 ? c->rates + (s * 2 + f) * plane + m * T : r->track + ((f - 2) * S + s) * T;
+            const float *from = r->out + f * tile * S + s;
+            for (int64_t i = 0; i < n; ++i) into[t0 + i] = from[i * S];
+        }
+    }
+}
+
 static void free_run_maneuver(void *context, void *scratch, int64_t m) {
     const free_run_context *c = context;
     free_run_scratch *r = scratch;
     const int64_t S = c->n_samples, M = c->core.n_runs, T = c->core.n_steps, lag = c->rate_lag;
-    const int64_t n_blocks = (S + LANES - 1) / LANES, plane = M * T; /* (S, 2, M, T): a rate's plane */
-    const figures f = figures_of(c->core.car, c->core.dt, c->core.substeps);
-    const substep_run run_substeps = substeps_for(c->core.car, c->core.implicit);
+    const int64_t n_blocks = (S + LANES_F - 1) / LANES_F, lanes = n_blocks * LANES_F;
+    const figures_f f = figures_of_f(c->core.car, c->core.dt, c->core.substeps);
+    const substep_run_f run_substeps = substeps_for_f(c->core.car, c->core.implicit);
     const int64_t tile = al_tile();
+    for (int64_t i = 0; i < lanes; ++i) { /* every slot of the ring starts as the state before step 0 */
+        const int64_t at = (i < S ? i : S - 1) * 2 * M + m;
+        for (int64_t j = 0; j < lag; ++j) {
+            float *slot = r->ring + j * 4 * lanes;
+            slot[i] = c->start[at], slot[lanes + i] = c->start_hidden[at];
+            slot[2 * lanes + i] = c->start[at + M], slot[3 * lanes + i] = c->start_hidden[at + M];
+        }
+    }
     for (int64_t k = 0; k < T; ++k) {
-        if (k % tile == 0) /* the next tile's noise, each draw's from its key */
+        const int64_t j = k % tile;
+        if (j == 0) /* the next tile's noise, each draw's from its key */
             for (int64_t s = 0; s < S; ++s)
                 al_tile_noise((uint32_t)(k / tile), (uint32_t)m, (uint32_t)(c->keys[s] & 0xFFFFFFFFu),
                               (uint32_t)(c->keys[s] >> 32), r->zv + s * tile, r->zw + s * tile);
         const float *u = c->controls + (m * T + k) * 2;
         const int64_t row = c->index[m * T + k];
-        double mean[4] = {0.0, 0.0, 0.0, 0.0}; /* the draws' mean past (v_x, v_y, r, delta_w) */
+        float *past = r->ring + (k % lag) * 4 * lanes; /* the state `lag` steps back, then this step's */
+        double mean[4] = {0.0, 0.0, 0.0, 0.0};        /* the draws' mean past (v_x, v_y, r, delta_w) */
+        for (int i = 0; i < 4; ++i)
+            for (int64_t s = 0; s < S; ++s) mean[i] += past[i * lanes + s];
         for (int64_t bi = 0; bi < n_blocks; ++bi) {
-            block *b = &r->blocks[bi];
-            for (int l = 0; l < LANES; ++l) {
-                const int64_t s = bi * LANES + l < S ? bi * LANES + l : S - 1;
-                double past[4];
-                if (k >= lag) {
-                    const int64_t at = s * 2 * plane + m * T + k - lag;
-                    past[0] = c->states[at], past[2] = c->states[at + plane];
-                    past[1] = c->hidden[at], past[3] = c->hidden[at + plane];
-                } else {
-                    const int64_t at = s * 2 * M + m;
-                    past[0] = c->start[at], past[2] = c->start[at + M];
-                    past[1] = c->start_hidden[at], past[3] = c->start_hidden[at + M];
-                }
-                b->vx[l] = past[0], b->vy[l] = past[1], b->r[l] = past[2], b->delta[l] = past[3];
-                if (bi * LANES + l < S)
-                    for (int i = 0; i < 4; ++i) mean[i] += past[i];
-                load_controls(b, r->gain + bi * LANES, l, &c->core, u[0], u[1]);
-            }
+            block_f *b = &r->blocks[bi];
+            float *const fields[4] = {b->vx, b->vy, b->r, b->delta};
+            for (int i = 0; i < 4; ++i) memcpy(fields[i], past + i * lanes + bi * LANES_F, sizeof(float) * LANES_F);
+            block_controls(b, r->gain + bi * LANES_F, &c->core, u[0], u[1]);
             run_substeps(b, &f, c->core.substeps);
-            correct(c, b, bi * LANES, row, r->v, r->w);
+            correct(c, b, bi * LANES_F, row, r->v, r->w);
         }
         if (c->widen) { /* surrogate.widened_step: each draw's correction spread, not its past */
             double common_v = 0.0, common_w = 0.0;
             for (int64_t bi = 0; bi < n_blocks; ++bi) {
-                block *b = &r->common[bi];
-                for (int l = 0; l < LANES; ++l) {
-                    b->vx[l] = mean[0] / S, b->vy[l] = mean[1] / S, b->r[l] = mean[2] / S, b->delta[l] = mean[3] / S;
-                    load_controls(b, r->gain + bi * LANES, l, &c->core, u[0], u[1]);
+                block_f *b = &r->common[bi];
+                for (int l = 0; l < LANES_F; ++l) {
+                    b->vx[l] = (float)(mean[0] / S), b->vy[l] = (float)(mean[1] / S);
+                    b->r[l] = (float)(mean[2] / S), b->delta[l] = (float)(mean[3] / S);
                 }
+                block_controls(b, r->gain + bi * LANES_F, &c->core, u[0], u[1]);
                 run_substeps(b, &f, c->core.substeps);
-                correct(c, b, bi * LANES, row, r->cv, r->cw);
+                correct(c, b, bi * LANES_F, row, r->cv, r->cw);
             }
             for (int64_t s = 0; s < S; ++s) common_v += r->cv[s], common_w += r->cw[s];
             for (int64_t s = 0; s < S; ++s) {
@@ -425,25 +425,33 @@ static void free_run_maneuver(void *context, void *scratch, int64_t m) {
         for (int64_t s = 0; s < S; ++s) centre_v += r->v[s], centre_w += r->w[s];
         centre_v /= S, centre_w /= S;
         double alea_v = 0.0, alea_w = 0.0, epi_v = 0.0, epi_w = 0.0;
-        for (int64_t s = 0; s < S; ++s) {
-            const int64_t at = s * 2 * plane + m * T + k;
-            const double std_v = c->noise_std[s * 2 * c->n_rows + row];
-            const double std_w = c->noise_std[(s * 2 + 1) * c->n_rows + row];
-            c->states[at] = (float)r->v[s], c->states[at + plane] = (float)r->w[s];
-            c->rates[at] = (float)(r->v[s] + std_v * r->zv[s * tile + k % tile]);
-            c->rates[at + plane] = (float)(r->w[s] + std_w * r->zw[s * tile + k % tile]);
-            const block *b = &r->blocks[s / LANES];
-            c->hidden[at] = (float)b->vy[s % LANES], c->hidden[at + plane] = (float)b->delta[s % LANES];
-            alea_v += std_v * std_v, alea_w += std_w * std_w;
-            epi_v += (r->v[s] - centre_v) * (r->v[s] - centre_v), epi_w += (r->w[s] - centre_w) * (r->w[s] - centre_w);
+        float *out = r->out + j * S; /* field f of draw s at out[f * tile * S + s] */
+        const int64_t field = tile * S, U = c->n_rows;
+        for (int64_t bi = 0; bi < n_blocks; ++bi) {
+            const block_f *b = &r->blocks[bi];
+            const int64_t first = bi * LANES_F, n = S - first < LANES_F ? S - first : LANES_F;
+            for (int64_t l = 0; l < n; ++l) {
+                const int64_t s = first + l;
+                const double std_v = c->noise_std[s * 2 * U + row], std_w = c->noise_std[(s * 2 + 1) * U + row];
+                const float v = (float)r->v[s], w = (float)r->w[s];
+                out[s] = (float)(r->v[s] + std_v * r->zv[s * tile + j]);
+                out[field + s] = (float)(r->w[s] + std_w * r->zw[s * tile + j]);
+                out[2 * field + s] = v, out[3 * field + s] = w, out[4 * field + s] = b->vy[l];
+                past[s] = v, past[lanes + s] = b->vy[l], past[2 * lanes + s] = w, past[3 * lanes + s] = b->delta[l];
+                alea_v += std_v * std_v, alea_w += std_w * std_w;
+                epi_v += (r->v[s] - centre_v) * (r->v[s] - centre_v);
+                epi_w += (r->w[s] - centre_w) * (r->w[s] - centre_w);
+            }
         }
-        float *out = c->centre + (m * T + k) * 2;
-        out[0] = (float)centre_v, out[1] = (float)centre_w;
-        out = c->aleatoric + (m * T + k) * 2;
-        out[0] = (float)(alea_v / S), out[1] = (float)(alea_w / S);
-        out = c->epistemic + (m * T + k) * 2;
-        out[0] = (float)(epi_v / S), out[1] = (float)(epi_w / S);
+        float *moment = c->centre + (m * T + k) * 2;
+        moment[0] = (float)centre_v, moment[1] = (float)centre_w;
+        moment = c->aleatoric + (m * T + k) * 2;
+        moment[0] = (float)(alea_v / S), moment[1] = (float)(alea_w / S);
+        moment = c->epistemic + (m * T + k) * 2;
+        moment[0] = (float)(epi_v / S), moment[1] = (float)(epi_w / S);
+        if (j == tile - 1 || k == T - 1) flush_tile(c, r, m, k - j, j + 1);
     }
+    if (c->x) maneuver_pose(c, r, m);
 }
 
 /* S free runs of the physics kind on the dynamic core for maneuvers [0, n_maneuvers), on up to
@@ -453,23 +461,27 @@ static void free_run_maneuver(void *context, void *scratch, int64_t m) {
  * (L_COUNT) the correction's bounds; controls (M, T, 2) the control each step reads, index (M, T) its
  * row among the n_rows distinct ones; z (S, 4, n_rows) the correction's raw outputs (speed, yaw rate,
  * their lags; gated), noise_std (S, 2, n_rows) the sensors' noise sizes and keys (S) each draw's
- * noise key (its normals drawn here, al_tile_noise); start and start_hidden (S, 2, M) the (v_x, r) and (v_y, delta_w) before the first step, read
- * until `rate_lag` steps have run. Writes each draw's rates without noise (states) and with it (rates),
- * its (v_y, delta_w) after each step (hidden), all (S, 2, M, T), and the moments over draws (centre,
- * aleatoric, epistemic; each (M, T, 2)). Returns 0, or -1 when out of memory. */
+ * noise key (its normals drawn here, al_tile_noise); start and start_hidden (S, 2, M) the (v_x, r) and
+ * (v_y, delta_w) before the first step, read until `rate_lag` steps have run. Writes each draw's rates
+ * with the noise (S, 2, M, T) and the moments over draws (centre, aleatoric, epistemic; each (M, T, 2));
+ * the rates without it and v_y stay in the worker's scratch, a maneuver at a time, for the pose. With x not
+ * NULL, also each draw's pose x, y, yaw (S, M, T) integrated at pose_dt from the headings yaw0 (M,), the
+ * point `arm` ahead of the rear axle, its rates carrying the model discrepancy where `discrepancy` =
+ * (size of v, size of r, correlation time) is not NULL (`maneuver_pose`). Returns 0, or -1 when out of
+ * memory. */
 int al_dynamic_free_runs(const double *car, const double *sets, const double *grid, const double *speed,
                          int64_t n_table, const double *limits, int64_t n_samples, int64_t n_maneuvers,
                          int64_t n_steps, int64_t n_rows, double dt, int64_t substeps, int64_t rate_lag,
                          int64_t widen, double spread, const float *controls, const int64_t *index, const float *z,
                          const float *noise_std, const uint64_t *keys, const float *start, const float *start_hidden,
-                         float *states, float *rates, float *hidden, float *centre, float *aleatoric,
-                         float *epistemic, int64_t n_threads) {
+                         float *rates, float *centre, float *aleatoric, float *epistemic, float pose_dt, float arm, const float *yaw0, const double *discrepancy,
+                         float *x, float *y, float *yaw, int64_t n_threads) {
     if (n_maneuvers <= 0 || n_steps <= 0) return 0;
     if (n_samples <= 0 || rate_lag < 1 || substeps < 1 || n_table < 2) return -1;
     free_run_context context = {
         {car, sets, grid, speed, n_table, n_samples, n_maneuvers, n_steps, substeps, 1, NULL, NULL, dt, NULL},
         limits, n_samples, n_rows, rate_lag, widen, spread, controls, index, z, noise_std, start, start_hidden,
-        keys, states, rates, hidden, centre, aleatoric, epistemic, NULL};
+        keys, rates, centre, aleatoric, epistemic, NULL, pose_dt, arm, yaw0, discrepancy, x, y, yaw};
     context.residuals = malloc((size_t)(n_samples * 2 * n_rows) * sizeof(double));
     if (!context.residuals) return -1;
     al_job residuals = {dynamic_scratch, dynamic_free, residual_chunk, &context, n_samples, 0, 0};

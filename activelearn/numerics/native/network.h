@@ -78,9 +78,10 @@ int al_tile(void);
  * (static_rollout.c; the NumPy reference is activelearn/numerics/counter_noise.py). */
 void al_tile_noise(uint32_t tile, uint32_t m, uint32_t key0, uint32_t key1, float *zv, float *zw);
 
-/* The planar pose of one draw over one tile of n <= 512 steps from its rates vt, wt (512 each, zero
- * beyond n), `sums` (w, v cos yaw, v sin yaw) carried from tile to tile (static_rollout.c). */
+/* The planar pose of one draw over one tile of n <= 512 steps from its rates vt, wt and, unless NULL,
+ * the rear axle's lateral speed lt (512 each, zero beyond n), `sums` (w, v cos yaw - lat sin yaw,
+ * v sin yaw + lat cos yaw) carried from tile to tile (static_rollout.c). */
 void al_pose_tile(int64_t n, float dt, float arm, float start_yaw, const float *vt, const float *wt,
-                  double sums[3], float *x, float *y, float *yaw);
+                  const float *lt, double sums[3], float *x, float *y, float *yaw);
 
 #endif

@@ -380,7 +380,7 @@ static void physics_maneuver(void *context, void *scratch, int64_t m) {
             memcpy(w_at, path_w, (size_t)n * sizeof(float));
             if (c->x) {
                 const int64_t o = (s * M + m) * T + t0;
-                al_pose_tile(n, c->pose_dt, c->arm, c->yaw0[m], path_v, path_w, r->sums + 3 * s, c->x + o,
+                al_pose_tile(n, c->pose_dt, c->arm, c->yaw0[m], path_v, path_w, NULL, r->sums + 3 * s, c->x + o,
                              c->y + o, c->yaw + o);
             }
         }

@@ -120,14 +120,15 @@ static double exclusive_prefix(const float *restrict values, double *restrict su
 }
 
 /* The planar pose of one draw over one tile of `n` steps from its sampled rates vt, wt (TILE each,
- * zero beyond n). `sums` carries the running sums of w, v cos(yaw) and v sin(yaw) from tile to tile.
- * Writes n steps at x, y, yaw. The pose is torch's reference (`integrate_pose`): yaw[t] = yaw0 + dt *
- * sum(w[:t]), x[t] = dt * sum(v cos yaw [:t]) + arm * (cos yaw[t] - cos yaw0), likewise y with sin,
- * with the sums in double: the sums move the rear axle, which does not slip sideways, and the logged
- * point sits `arm` ahead of it. */
+ * zero beyond n) and, where `lt` is not NULL, the rear axle's lateral speed (TILE, to the left: a
+ * dynamic core's sideslip). `sums` carries the running sums of w, v cos(yaw) - lat sin(yaw) and
+ * v sin(yaw) + lat cos(yaw) from tile to tile. Writes n steps at x, y, yaw. The pose is torch's
+ * reference (`integrate_pose`): yaw[t] = yaw0 + dt * sum(w[:t]), x[t] = dt * sum(v cos yaw [:t]) +
+ * arm * (cos yaw[t] - cos yaw0), likewise y with sin, with the sums in double: the sums move the rear
+ * axle, and the logged point sits `arm` ahead of it. */
 void al_pose_tile(int64_t n, float dt, float arm, float start_yaw, const float *restrict vt,
-                  const float *restrict wt, double sums_carried[3], float *restrict x, float *restrict y,
-                  float *restrict yaw) {
+                  const float *restrict wt, const float *restrict lt, double sums_carried[3], float *restrict x,
+                  float *restrict y, float *restrict yaw) {
     float yt[TILE], c[TILE], s[TILE], cos_yaw[TILE], sin_yaw[TILE];
     double sums[TILE];
     const double total_w = exclusive_prefix(wt, sums);
@@ -137,6 +138,8 @@ void al_pose_tile(int64_t n, float dt, float arm, float start_yaw, const float *
     for (int i = 0; i < TILE; ++i) sin_yaw[i] = sinf(yt[i]);
     for (int i = 0; i < TILE; ++i) c[i] = cos_yaw[i] * vt[i];
     for (int i = 0; i < TILE; ++i) s[i] = sin_yaw[i] * vt[i];
+    if (lt)
+        for (int i = 0; i < TILE; ++i) c[i] -= sin_yaw[i] * lt[i], s[i] += cos_yaw[i] * lt[i];
     const float cos0 = arm * cosf(start_yaw), sin0 = arm * sinf(start_yaw);
     const double total_x = exclusive_prefix(c, sums);
     for (int64_t i = 0; i < n; ++i) x[i] = (float)(sums_carried[1] + sums[i]) * dt + (arm * cos_yaw[i] - cos0);
@@ -168,7 +171,7 @@ static void trajectory_tile(int64_t n, uint32_t tile, uint32_t m, uint32_t k0, u
     for (int64_t i = n; i < TILE; ++i) vt[i] = wt[i] = var_vt[i] = var_wt[i] = 0.0f;
     for (int i = 0; i < TILE; ++i) vt[i] += sqrtf(var_vt[i]) * zv[i];
     for (int i = 0; i < TILE; ++i) wt[i] += sqrtf(var_wt[i]) * zw[i];
-    al_pose_tile(n, dt, arm, start_yaw, vt, wt, sums_carried, x, y, yaw);
+    al_pose_tile(n, dt, arm, start_yaw, vt, wt, NULL, sums_carried, x, y, yaw);
     memcpy(v, vt, (size_t)n * sizeof(float));
     memcpy(w, wt, (size_t)n * sizeof(float));
 }

@@ -1,0 +1,171 @@
+/* The dynamic single track's substep over a block of lanes, in one precision: a template that
+ * dynamic_rollout.c includes twice, once in double (an identification's rate runs, whose
+ * finite-difference Jacobian needs it) and once in float (the physics kind's free runs, whose states
+ * are float32 as the torch twin's: twice the lanes a vector, the kernel 1.6x the double one's speed).
+ *
+ * Before each inclusion define REAL (float or double), LANES (lanes a block) and NAME(x) (a suffix for
+ * every name defined here, e.g. x##_f); <tgmath.h> makes sin, atan, ... the precision's own. Every
+ * literal goes through K() so that no expression is promoted to double in the float variant.
+ */
+#define K(x) ((REAL)(x))
+
+static inline REAL NAME(clip)(REAL x, REAL low, REAL high) { return x < low ? low : (x > high ? high : x); }
+
+static inline REAL NAME(sign)(REAL x) { return (REAL)(x > K(0)) - (REAL)(x < K(0)); }
+
+/* The speed table at |throttle| (np.interp: linear between points, flat beyond the ends). */
+static REAL NAME(table_speed)(const double *grid, const double *speed, int64_t n, double throttle) {
+    const double x = fmin(fmax(fabs(throttle), grid[0]), grid[n - 1]);
+    int64_t i = 0;
+    while (i < n - 2 && grid[i + 1] <= x) ++i;
+    return (REAL)(speed[i] + (x - grid[i]) / (grid[i + 1] - grid[i]) * (speed[i + 1] - speed[i]));
+}
+
+/* One block's lanes: their figures, state and this step's controls. */
+typedef struct {
+    REAL mu[LANES], brake[LANES], a_max[LANES];
+    /* derived once from the figures (divisions out of the substep): the axles' cornering stiffness per
+     * newton of load, their magic formula's B per newton, 1 / yaw inertia, 1 / top speeds */
+    REAL k_f[LANES], k_r[LANES], b_f[LANES], b_r[LANES], inv_inertia[LANES], inv_top[LANES], inv_reverse[LANES];
+    REAL vx[LANES], vy[LANES], r[LANES], delta[LANES];
+    REAL tau[LANES], target[LANES], drive[LANES]; /* this step's controls; drive: the table's speed */
+} NAME(block);
+
+/* The car's shared figures as a substep reads them. */
+typedef struct {
+    REAL g, m, lf, lr, hcg, L, shape, curvature, blend, floor_speed, share, h, turn;
+    REAL vsw, lag, tiny;
+} NAME(figures);
+
+/* One substep of every lane of a block. `motor`, `linear`, `implicit` and `curved` (the magic formula's
+ * curvature E is not 0: two more atan a substep) are constants at each call (always inlined), so each
+ * variant's lane loop has no branch and vectorises with libmvec. */
+static inline __attribute__((always_inline)) void NAME(substep)(NAME(block) *b, const NAME(figures) *f,
+                                                                const int motor, const int linear,
+                                                                const int implicit, const int curved) {
+    const REAL g = f->g, m = f->m, lf = f->lf, lr = f->lr, L = f->L, h = f->h, floor_speed = f->floor_speed;
+#pragma GCC ivdep
+    for (int l = 0; l < LANES; ++l) {
+        const REAL delta = b->delta[l] + NAME(clip)(b->target[l] - b->delta[l], -f->turn, f->turn);
+        const REAL vx0 = b->vx[l], vy0 = b->vy[l], r0 = b->r[l], tau = b->tau[l], mu = b->mu[l];
+        const REAL grip = mu * g, speed_x = fabs(vx0);
+        REAL a;
+        if (motor) {
+            const REAL inv_top = tau > K(0) ? b->inv_top[l] : b->inv_reverse[l];
+            const REAL limit = b->a_max[l] * f->vsw / fmax(speed_x, f->vsw);
+            a = NAME(clip)(b->a_max[l] * (tau - vx0 * inv_top), -limit, limit);
+        } else {
+            a = (b->drive[l] - vx0) / f->lag;
+        }
+        const REAL stop_rate = fmin(speed_x / h, b->brake[l]); /* brakes to rest, not past it */
+        a = NAME(clip)(tau == K(0) ? -NAME(sign)(vx0) * stop_rate : a, -grip, grip);
+        const REAL load_f = fmax(m * (g * lr - a * f->hcg) / L, K(0));
+        const REAL load_r = fmax(m * (g * lf + a * f->hcg) / L, K(0));
+        /* cos from sin (|delta| is within the lock, below pi/2): GCC would fuse a sin and cos into a
+         * sincos, which does not vectorise; tan as their ratio */
+        const REAL sn = sin(delta), cs = sqrt(K(1) - sn * sn);
+        const REAL front_y = vy0 + lf * r0;
+        const REAL long_f = vx0 * cs + front_y * sn, lat_f = front_y * cs - vx0 * sn;
+        const REAL alpha_f = atan(-lat_f / fmax(fabs(long_f), floor_speed));
+        const REAL alpha_r = atan(-(vy0 - lr * r0) / fmax(speed_x, floor_speed));
+        const REAL cap_f = mu * load_f, cap_r = mu * load_r;
+        REAL f_f, f_r;
+        if (linear) {
+            f_f = NAME(clip)(b->k_f[l] * load_f * alpha_f, -cap_f, cap_f);
+            f_r = NAME(clip)(b->k_r[l] * load_r * alpha_r, -cap_r, cap_r);
+        } else {
+            REAL xf = b->b_f[l] * alpha_f;
+            REAL xr = b->b_r[l] * alpha_r;
+            if (curved) {
+                xf -= f->curvature * (xf - atan(xf));
+                xr -= f->curvature * (xr - atan(xr));
+            }
+            f_f = cap_f * sin(f->shape * atan(xf));
+            f_r = cap_r * sin(f->shape * atan(xr));
+        }
+        const REAL drive_r = m * a * f->share; /* the drive's share of the rear friction circle */
+        const REAL room = sqrt(fmax(cap_r * cap_r - drive_r * drive_r, K(0)));
+        f_r = NAME(clip)(f_r, -room, room);
+        const REAL dvx = a - f_f * sn / m, dvy = (f_f * cs + f_r) / m;
+        const REAL dr = (lf * f_f * cs - lr * f_r) * b->inv_inertia[l];
+        REAL vx, vy, r;
+        if (implicit) { /* dynamic_step(implicit=True): exponential tyre damping */
+            const REAL speed = fmax(speed_x, floor_speed);
+            const REAL c_f = b->k_f[l] * load_f, c_r = b->k_r[l] * load_r;
+            const REAL x_lat = fmax(h * (c_f + c_r) / (m * speed), f->tiny);
+            const REAL x_yaw = fmax(h * (lf * lf * c_f + lr * lr * c_r) * b->inv_inertia[l] / speed, f->tiny);
+            vy = vy0 + h * (dvy - vx0 * r0) * (-expm1(-x_lat) / x_lat);
+            vx = vx0 + h * (dvx + vy * r0);
+            r = r0 + h * dr * (-expm1(-x_yaw) / x_yaw);
+        } else {
+            vx = vx0 + h * (dvx + vy0 * r0);
+            vy = vy0 + h * (dvy - vx0 * r0);
+            r = r0 + h * dr;
+        }
+        const REAL w = K(0.5) * (K(1) + tanh((fabs(vx) - f->blend) / (K(0.25) * f->blend)));
+        const REAL r_kin = vx * sn / (cs * L);
+        b->r[l] = w * r + (K(1) - w) * r_kin;
+        b->vy[l] = w * vy + (K(1) - w) * lr * r_kin;
+        b->vx[l] = vx, b->delta[l] = delta;
+    }
+}
+
+#define NAME_SUBSTEPS(MOTOR, LINEAR, IMPLICIT, CURVED)                                                     \
+    static void NAME(substeps_##MOTOR##LINEAR##IMPLICIT##CURVED)(NAME(block) * b, const NAME(figures) * f,    \
+                                                                  int64_t n) {                             \
+        for (int64_t i = 0; i < n; ++i) NAME(substep)(b, f, MOTOR, LINEAR, IMPLICIT, CURVED);             \
+    }
+NAME_SUBSTEPS(0, 0, 0, 0)
+NAME_SUBSTEPS(0, 0, 0, 1)
+NAME_SUBSTEPS(0, 0, 1, 0)
+NAME_SUBSTEPS(0, 0, 1, 1)
+NAME_SUBSTEPS(0, 1, 0, 0)
+NAME_SUBSTEPS(0, 1, 1, 0)
+NAME_SUBSTEPS(1, 0, 0, 0)
+NAME_SUBSTEPS(1, 0, 0, 1)
+NAME_SUBSTEPS(1, 0, 1, 0)
+NAME_SUBSTEPS(1, 0, 1, 1)
+NAME_SUBSTEPS(1, 1, 0, 0)
+NAME_SUBSTEPS(1, 1, 1, 0)
+#undef NAME_SUBSTEPS
+
+typedef void (*NAME(substep_run))(NAME(block) *, const NAME(figures) *, int64_t);
+
+/* The variant for the car's drive and tyre and the step's kind (a linear tyre has no curvature). */
+static NAME(substep_run) NAME(substeps_for)(const double *k, int64_t implicit) {
+    static const NAME(substep_run) variants[16] = {
+        NAME(substeps_0000), NAME(substeps_0001), NAME(substeps_0010), NAME(substeps_0011),
+        NAME(substeps_0100), NAME(substeps_0100), NAME(substeps_0110), NAME(substeps_0110),
+        NAME(substeps_1000), NAME(substeps_1001), NAME(substeps_1010), NAME(substeps_1011),
+        NAME(substeps_1100), NAME(substeps_1100), NAME(substeps_1110), NAME(substeps_1110)};
+    const int linear = k[C_SHAPE] == 0.0, curved = k[C_CURVATURE] != 0.0;
+    return variants[8 * (k[C_MOTOR] != 0.0) + 4 * linear + 2 * (implicit != 0) + curved];
+}
+
+/* The car's shared figures as a substep reads them, for steps of dt in `substeps` substeps. */
+static NAME(figures) NAME(figures_of)(const double *k, double dt, int64_t substeps) {
+    NAME(figures) f;
+    const double L = k[C_LF] + k[C_LR], h = dt / (double)substeps;
+    f.g = (REAL)k[C_GRAVITY], f.m = (REAL)k[C_MASS], f.lf = (REAL)k[C_LF], f.lr = (REAL)k[C_LR];
+    f.hcg = (REAL)k[C_CG_HEIGHT], f.L = (REAL)L, f.shape = (REAL)k[C_SHAPE], f.curvature = (REAL)k[C_CURVATURE];
+    f.blend = (REAL)k[C_BLEND_SPEED], f.floor_speed = (REAL)(0.5 * k[C_BLEND_SPEED]);
+    f.share = (REAL)k[C_REAR_DRIVE_SHARE], f.h = (REAL)h, f.turn = (REAL)(k[C_STEERING_RATE] * h);
+    f.vsw = (REAL)k[C_POWER_LIMIT_SPEED], f.lag = (REAL)k[C_SPEED_TIME_CONSTANT];
+    f.tiny = sizeof(REAL) == sizeof(float) ? (REAL)1e-30 : (REAL)1e-300; /* (1 - e^-x) / x at x = 0 */
+    return f;
+}
+
+/* Lane l of a block takes parameter set `s`'s figures (its table gain into gain[l]); `k` the car's. */
+static void NAME(load_figures)(NAME(block) *b, REAL *gain, int l, const double *s, const double *k) {
+    const double L = k[C_LF] + k[C_LR], weight = k[C_MASS] * k[C_GRAVITY];
+    const double k_f = s[S_STIFFNESS_FRONT] / (weight * k[C_LR] / L);
+    const double k_r = s[S_STIFFNESS_REAR] / (weight * k[C_LF] / L);
+    b->mu[l] = (REAL)s[S_FRICTION], b->brake[l] = (REAL)s[S_BRAKE], b->a_max[l] = (REAL)s[S_MAX_ACCELERATION];
+    b->k_f[l] = (REAL)k_f, b->k_r[l] = (REAL)k_r;
+    b->b_f[l] = (REAL)(k_f / (k[C_SHAPE] * s[S_FRICTION])), b->b_r[l] = (REAL)(k_r / (k[C_SHAPE] * s[S_FRICTION]));
+    b->inv_inertia[l] = (REAL)(1.0 / s[S_YAW_INERTIA]), b->inv_top[l] = (REAL)(1.0 / s[S_TOP_SPEED]);
+    b->inv_reverse[l] = (REAL)(1.0 / s[S_REVERSE_TOP_SPEED]);
+    gain[l] = (REAL)s[S_TABLE_GAIN];
+}
+
+#undef K
