@@ -112,6 +112,7 @@ def test_the_compiled_free_runs_are_torchs(vehicle: str, c_kernels):
     model.theta_scale.copy_(0.1 * torch.eye(5))
     model.epistemic_scale.fill_(3.0)
     model.discrepancy.copy_(torch.tensor([0.05, 0.02]))
+    model.discrepancy_logs.fill_(4.0)  # each draw its own discrepancy size
     t = np.arange(150) * DT
     controls = [np.column_stack([np.full_like(t, throttle), steering * np.sin(0.8 * t)])
                 for throttle, steering in ((0.4, 0.1), (0.8, 0.3), (-0.5, 0.2), (0.0, 0.05))]  # fmt: skip
@@ -254,6 +255,7 @@ def test_the_discrepancy_is_the_cores_misfit_of_its_logs_and_widens_the_fan_not_
     model.identify(TrainingData(x=np.zeros((0, 16)), y=np.zeros((0, 2)), logs=logs))
     expected = identification_misfit(logs, car, DT, model.theta.double().numpy())
     assert np.allclose(model.discrepancy.numpy(), expected, rtol=1e-5) and expected[1] > 0.1
+    assert float(model.discrepancy_logs) == len(logs)
     bare = copy.deepcopy(model)
     bare.discrepancy.zero_()
     controls = [u for u, _ in logs]
@@ -266,7 +268,22 @@ def test_the_discrepancy_is_the_cores_misfit_of_its_logs_and_widens_the_fan_not_
     again = simulate(model, controls, rate_hz=30.0, n_samples=16, seed=3)
     assert np.array_equal(again.y, wide.y)  # a seed fixes the discrepancy's draws
     save_model(model, tmp_path / "model.pt")
-    assert torch.equal(load_model(tmp_path / "model.pt").discrepancy, model.discrepancy)
+    loaded = load_model(tmp_path / "model.pt")
+    assert torch.equal(loaded.discrepancy, model.discrepancy)
+    assert torch.equal(loaded.discrepancy_logs, model.discrepancy_logs)
+    # the size's uncertainty: each draw's size ŝ √(n / X), X ~ χ²(n), so (ŝ / size)² averages 1; the
+    # fewer the logs, the more the sizes spread; a file saved before the count existed: every draw ŝ
+    for n in (4.0, 64.0):
+        model.discrepancy_logs.fill_(n)
+        ratio = (model.discrepancy.double().numpy() / model.discrepancy_sizes(20000, seed=1)) ** 2
+        assert ratio.mean() == pytest.approx(1.0, abs=0.03)
+        assert ratio[:, 0].std() == pytest.approx(np.sqrt(2.0 / n), rel=0.1)  # X / n: variance 2 / n
+    payload = torch.load(tmp_path / "model.pt", weights_only=True)
+    del payload["state_dict"]["discrepancy_logs"]
+    torch.save(payload, tmp_path / "old.pt")
+    old = load_model(tmp_path / "old.pt")
+    assert float(old.discrepancy_logs) == 0.0
+    assert np.array_equal(old.discrepancy_sizes(5, seed=1), np.tile(old.discrepancy.double().numpy(), (5, 1)))
     # the process: from zero, stationary at its size, correlated over the identification's horizon
     dv, dw = discrepancy_paths(np.array([0.5, 2.0]), list(range(4000)), 1, 600, DT)
     assert (dv[..., 0] == 0).all() and (dw[..., 0] == 0).all()

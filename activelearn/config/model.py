@@ -130,10 +130,11 @@ class ModelConfig(_Section):
         "none",
         description="core = 'dynamic': 'identification' widens the free-run fans by the core's model "
         "discrepancy: each draw's speed and yaw rate take a random error (an Ornstein-Uhlenbeck process "
-        "from zero, its size the identified core's rms misfit of its own logs, its correlation time the "
-        "identification's restart horizon) that moves the pose fan about the core's mean path, not the "
-        "path; 'cross_validated' takes the misfit out of sample (4 folds of the logs, each at the scales "
-        "identified without it)",
+        "from zero, its size the identified core's rms misfit of its own logs, each draw's size drawn "
+        "from that estimate's uncertainty over the n logs it was measured on (√(n / χ²(n)) times it: "
+        "Student-t fans), its correlation time the identification's restart horizon) that moves the "
+        "pose fan about the core's mean path, not the path; 'cross_validated' takes the misfit out of "
+        "sample (4 folds of the logs, each at the scales identified without it)",
     )
     residual_bound: Annotated[float, Field(ge=0.0, le=0.5)] = Field(
         0.05,

@@ -79,6 +79,7 @@ IDENTIFY_EVERY = 3  # log steps between the compared points of an identification
 # how the model identifies its scales and measures their misfit: the restarts, spacing and step above
 IDENTIFICATION = {"every": IDENTIFY_EVERY, "horizon": IDENTIFY_HORIZON, "implicit": True}
 DISCREPANCY_KEY_BIT = 1 << 63  # the discrepancy's noise keys: the draws' (below 2^62) with it set
+DISCREPANCY_SIZE_STREAM = 56  # the draws' discrepancy sizes' random stream, beside the free run's seed
 FALLBACK_NOISE = 0.01  # `parameter_information`'s rate errors without a measured misfit: share of the limits
 
 
@@ -120,16 +121,22 @@ def discrepancy_paths(
 ) -> tuple[Tensor, Tensor]:
     """Each draw's model discrepancy of (v, r) along a free run, (S, M, T) each, S = len(keys): an
     Ornstein-Uhlenbeck process from zero (a run starts at the recorded rates, as the identification's
-    restarts do), its stationary size `size` (2,), its correlation time `IDENTIFY_HORIZON`. Its normals
-    are `counter_noise`'s under each draw's noise key with `DISCREPANCY_KEY_BIT` set, a stream of their
-    own that dynamic_rollout.c draws alike."""
+    restarts do), its stationary size `size` ((2,), or (S, 2) a draw), its correlation time
+    `IDENTIFY_HORIZON`. Its normals are `counter_noise`'s under each draw's noise key with
+    `DISCREPANCY_KEY_BIT` set, a stream of their own that dynamic_rollout.c draws alike."""
     keep = math.exp(-dt / IDENTIFY_HORIZON)
     draws = [np.stack(step_noise(key | DISCREPANCY_KEY_BIT, n_maneuvers, n_steps)) for key in keys]
     shocks = np.stack(draws, axis=1).astype(np.float64)  # (2, S, M, T)
     shocks[..., 0] = 0.0
     paths = lfilter([math.sqrt(1.0 - keep**2)], [1.0, -keep], shocks, axis=-1)
-    paths *= np.asarray(size, np.float64).reshape(2, 1, 1, 1)
+    paths *= np.broadcast_to(np.asarray(size, np.float64), (len(keys), 2)).T[:, :, None, None]
     return torch.as_tensor(paths[0], dtype=torch.float32), torch.as_tensor(paths[1], dtype=torch.float32)
+
+
+def _unknown_discrepancy_logs(module, state_dict, prefix, *args) -> None:
+    """Load hook: a state dict saved before `discrepancy_logs` existed takes its misfit as known (0)."""
+    if module.discrepancy_logs is not None:
+        state_dict.setdefault(prefix + "discrepancy_logs", torch.zeros(()))
 
 
 @dataclass(frozen=True)
@@ -222,8 +229,11 @@ class DynamicPhysicsModel(PhysicsModel):
             float(self.car.nominal[names.index("yaw_lag")]),
         )
         self.compiled = False  # whether the model's steps run compiled (`compile_steps`)
-        # the core's misfit of its logs (v, r) that `discrepancy` widens the fans by (None: "none")
+        # the core's misfit of its logs (v, r) that `discrepancy` widens the fans by (None: "none"), and
+        # the number of logs it was measured on (0: unknown, a file saved before it; `discrepancy_sizes`)
         self.register_buffer("discrepancy", torch.zeros(2) if config.discrepancy != "none" else None)
+        self.register_buffer("discrepancy_logs", torch.zeros(()) if config.discrepancy != "none" else None)
+        self.register_load_state_dict_pre_hook(_unknown_discrepancy_logs)
         # the correction's bounds on this car, fixed with it: built once, not per step
         self.limits = CorrectionLimits(
             bound=config.residual_bound, max_speed=self.car.max_speed, max_yaw_rate=self.car.max_yaw_rate,
@@ -258,6 +268,7 @@ class DynamicPhysicsModel(PhysicsModel):
             cross = self.config.discrepancy == "cross_validated"
             misfit_of_logs = identification_misfit(own, self.dynamic_car, dt, found.values, cross)
             self.discrepancy.copy_(torch.as_tensor(misfit_of_logs, dtype=torch.float32))
+            self.discrepancy_logs.fill_(float(len(own)))
 
     def parameter_information(
         self, controls: list[np.ndarray], rate_hz: float
@@ -363,14 +374,14 @@ class DynamicPhysicsModel(PhysicsModel):
             states, rates, hidden, moments = self._torch_free_runs(
                 car, u, (start, start_hidden), z, noise_std, index, noise, rate_lag, spread
             )
-            return rates, moments, self._free_run_pose(states, hidden, pose, keys)
+            return rates, moments, self._free_run_pose(states, hidden, pose, (keys, seed))
         # the whole recurrence and the pose in C (dynamic_rollout.c), its noise drawn there
         sets = native_sets(scaled(self.dynamic_car, theta.double().numpy()), (n_samples, 1))
         native_pose = None
         if pose is not None:  # (dt, lever arm, headings, the discrepancy's sizes and correlation time)
             discrepancy = None
             if self._carries_discrepancy:
-                discrepancy = (*self.discrepancy.tolist(), IDENTIFY_HORIZON)
+                discrepancy = (self.discrepancy_sizes(n_samples, seed), IDENTIFY_HORIZON)
             native_pose = (*pose[::2], pose[1], discrepancy)
         outputs = native.dynamic_free_runs(
             lib, native_car(self.dynamic_car), sets, (self.dynamic_car.table_throttle,
@@ -419,7 +430,8 @@ class DynamicPhysicsModel(PhysicsModel):
         return states, rates, hidden, moments
 
     def _free_run_pose(
-        self, states: Tensor, hidden: Tensor, pose: tuple[float, np.ndarray, float] | None, keys: list[int]
+        self, states: Tensor, hidden: Tensor, pose: tuple[float, np.ndarray, float] | None,
+        draws: tuple[list[int], int],
     ) -> tuple[np.ndarray, ...] | None:
         """Each draw's pose (x, y, ψ) from its rates and sideslip, widened by the discrepancy, where
         `pose` = (dt, headings, lever arm) asks for it."""
@@ -430,7 +442,7 @@ class DynamicPhysicsModel(PhysicsModel):
             yaw0 = torch.as_tensor(yaw0, dtype=states.dtype)[:, None]
             pose = integrate_pose(states[:, 0], states[:, 1], dt, yaw0, lever_arm=arm, lateral=slip)
             if self._carries_discrepancy:
-                pose = self._with_discrepancy(pose, states, (dt, yaw0, arm, slip), keys)
+                pose = self._with_discrepancy(pose, states, (dt, yaw0, arm, slip), draws)
             paths = tuple(part.numpy() for part in pose)
         return paths
 
@@ -439,11 +451,27 @@ class DynamicPhysicsModel(PhysicsModel):
         """Whether the free runs' fans carry a measured model discrepancy."""
         return self.discrepancy is not None and bool(self.discrepancy.any())
 
-    def _with_discrepancy(self, pose, states: Tensor, frame, keys: list[int]) -> tuple[Tensor, ...]:
+    def discrepancy_sizes(self, n_samples: int, seed: int) -> np.ndarray:
+        """(S, 2) each draw's discrepancy size (v, r): the measured misfit ŝ times √(n / X), X ~ χ²(n), n the
+        logs it was measured on (each a cluster). That is the posterior of an rms size measured on n
+        clusters under a Jeffreys prior, so the fan is the Student-t marginal over the size, not the
+        Gaussian at ŝ: a misfit of 4 logs may well be twice as large. n unknown (0): ŝ for every draw."""
+        size = np.broadcast_to(self.discrepancy.double().numpy(), (n_samples, 2))
+        n = float(self.discrepancy_logs)
+        if n <= 0.0:
+            return size.copy()
+        chi2 = np.random.default_rng((seed, DISCREPANCY_SIZE_STREAM)).chisquare(n, n_samples)
+        return size * np.sqrt(n / chi2)[:, None]
+
+    def _with_discrepancy(
+        self, pose, states: Tensor, frame, draws: tuple[list[int], int]
+    ) -> tuple[Tensor, ...]:
         """The pose fan (x, y, ψ) of draws whose rates carry the model discrepancy (`discrepancy_paths`),
         moved onto the core's mean path `pose`: the discrepancy widens the fan, not the path."""
         dt, yaw0, arm, slip = frame
-        dv, dw = discrepancy_paths(self.discrepancy.numpy(), keys, *states.shape[2:], dt)
+        keys, seed = draws
+        sizes = self.discrepancy_sizes(len(keys), seed)
+        dv, dw = discrepancy_paths(sizes, keys, *states.shape[2:], dt)
         wide = integrate_pose(states[:, 0] + dv, states[:, 1] + dw, dt, yaw0, lever_arm=arm, lateral=slip)
         pairs = zip(wide, pose, strict=True)
         return tuple(part - part.mean(dim=0) + path.mean(dim=0) for part, path in pairs)

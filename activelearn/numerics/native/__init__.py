@@ -140,7 +140,8 @@ SIGNATURES = {
     "al_dynamic_limit_count": ([], ctypes.c_int),
     "al_dynamic_free_runs": (
         [_ptr] * 4 + [ctypes.c_int64, _ptr] + [ctypes.c_int64] * 4 + [ctypes.c_double]
-        + [ctypes.c_int64] * 3 + [ctypes.c_double] + [_ptr] * 11 + [ctypes.c_float] * 2 + [_ptr] * 5
+        + [ctypes.c_int64] * 3 + [ctypes.c_double] + [_ptr] * 11 + [ctypes.c_float] * 2 + [ctypes.c_double]
+        + [_ptr] * 5
         + [ctypes.c_int64],
         ctypes.c_int,
     ),
@@ -529,7 +530,7 @@ def dynamic_free_runs(
     rate_lag: int,
     spread: float,
     *,
-    pose: tuple[float, float, np.ndarray, tuple[float, float, float] | None] | None = None,
+    pose: tuple[float, float, np.ndarray, tuple[np.ndarray, float] | None] | None = None,
     threads: int = 1,
 ) -> tuple[np.ndarray, ...]:
     """S free runs of the physics kind on the dynamic core with `al_dynamic_free_runs` (see there).
@@ -538,11 +539,11 @@ def dynamic_free_runs(
     (L_COUNT); `draws` = (z (S, 4, U), noise std (S, 2, U), each draw's noise key (S,) uint64: the
     kernel draws its normals, `counter_noise`'s stream, each step's row (M, T));
     `controls` (M, T, 2) the control each step reads; `start` = ((v_x, r), (v_y, δ_w)), each (S, 2, M).
-    `pose` = (dt, lever arm, headings (M,), the model discrepancy's (size of v, size of r, correlation
-    time) or None) asks for each draw's pose as well: the kernel draws the discrepancy's normals from each
-    draw's key with its top bit set (`dynamic_physics.discrepancy_paths`' stream). Returns the rates with
-    the sensors' noise (S, 2, M, T), the moments (centre, aleatoric, epistemic), each (M, T, 2), and with
-    `pose` (x, y, yaw), each (S, M, T); float32.
+    `pose` = (dt, lever arm, headings (M,), the model discrepancy's (each draw's sizes of v and r (S, 2),
+    correlation time) or None) asks for each draw's pose as well: the kernel draws the discrepancy's
+    normals from each draw's key with its top bit set (`dynamic_physics.discrepancy_paths`' stream).
+    Returns the rates with the sensors' noise (S, 2, M, T), the moments (centre, aleatoric, epistemic),
+    each (M, T, 2), and with `pose` (x, y, yaw), each (S, M, T); float32.
     """
     car, sets, grid, speed, limits = (
         np.ascontiguousarray(a, dtype=np.float64) for a in (car, sets, *table, limits)
@@ -570,9 +571,10 @@ def dynamic_free_runs(
     if pose is not None:
         yaw0 = np.ascontiguousarray(yaw0, dtype=np.float32)
         shapes["headings"] = (yaw0.shape, (n_maneuvers,))
+    correlation_time = 1.0
     if discrepancy is not None:
-        discrepancy = np.ascontiguousarray(discrepancy, dtype=np.float64)
-        shapes["discrepancy"] = (discrepancy.shape, (3,))
+        discrepancy, correlation_time = np.ascontiguousarray(discrepancy[0], dtype=np.float64), discrepancy[1]
+        shapes["discrepancy"] = (discrepancy.shape, (n_samples, 2))
     for name, (shape, expected) in shapes.items():
         if shape != expected:
             raise ValueError(f"{name} must be {expected}, not {shape}")
@@ -589,7 +591,7 @@ def dynamic_free_runs(
         n_samples, n_maneuvers, n_steps, n_rows, float(dt), int(substeps), int(rate_lag),
         int(spread != 1.0), float(spread),
         *(_address(a) for a in (controls, index, z, noise_std, keys, *starts, rates, *moments)),
-        float(pose_dt), float(arm), *(_address(a) for a in pose_arrays),
+        float(pose_dt), float(arm), float(correlation_time), *(_address(a) for a in pose_arrays),
         int(threads),
     )  # fmt: skip
     if status != 0:

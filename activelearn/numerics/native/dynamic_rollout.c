@@ -184,9 +184,10 @@ typedef struct {
     float *rates, *centre, *aleatoric, *epistemic;
     double *residuals; /* (S, 2, n_rows): each draw's correction at each row (residual_chunk) */
     /* the pose (NULL x: none): the log's dt, the lever arm, each maneuver's heading (M); with
-     * `discrepancy` not NULL, (size of v, size of r, correlation time) of the model discrepancy each
-     * draw's rates carry for the fan about the mean path (`discrepancy_paths`) */
+     * `discrepancy` not NULL, each draw's sizes of v and r (S, 2) of the model discrepancy its rates carry
+     * for the fan about the mean path, an OU process of `correlation_time` s (`discrepancy_paths`) */
     float pose_dt, arm;
+    double correlation_time;
     const float *yaw0;
     const double *discrepancy;
     float *x, *y, *yaw;
@@ -291,7 +292,7 @@ static void draw_pose(const free_run_context *c, free_run_scratch *r, int64_t s,
     float *pv = r->path, *pw = pv + tile, *pl = pw + tile, *zv = pl + tile, *zw = zv + tile;
     const uint64_t key = discrepancy_key(c->keys[s]);
     double keep = 0.0, shock = 0.0, dv = 0.0, dw = 0.0; /* the process and its state */
-    if (widened) keep = exp(-(double)c->pose_dt / c->discrepancy[2]), shock = sqrt(1.0 - keep * keep);
+    if (widened) keep = exp(-(double)c->pose_dt / c->correlation_time), shock = sqrt(1.0 - keep * keep);
     double sums[3] = {0.0, 0.0, 0.0};
     for (int64_t t0 = 0; t0 < T; t0 += tile) {
         const int64_t n = T - t0 < tile ? T - t0 : tile;
@@ -304,7 +305,7 @@ static void draw_pose(const free_run_context *c, free_run_scratch *r, int64_t s,
                           zv, zw);
             for (int64_t i = 0; i < n; ++i) {
                 if (t0 + i > 0) dv = keep * dv + shock * zv[i], dw = keep * dw + shock * zw[i];
-                pv[i] += (float)(c->discrepancy[0] * dv), pw[i] += (float)(c->discrepancy[1] * dw);
+                pv[i] += (float)(c->discrepancy[2 * s] * dv), pw[i] += (float)(c->discrepancy[2 * s + 1] * dw);
             }
         }
         for (int64_t i = n; i < tile; ++i) pv[i] = pw[i] = pl[i] = 0.0f;
@@ -466,22 +467,25 @@ static void free_run_maneuver(void *context, void *scratch, int64_t m) {
  * with the noise (S, 2, M, T) and the moments over draws (centre, aleatoric, epistemic; each (M, T, 2));
  * the rates without it and v_y stay in the worker's scratch, a maneuver at a time, for the pose. With x not
  * NULL, also each draw's pose x, y, yaw (S, M, T) integrated at pose_dt from the headings yaw0 (M,), the
- * point `arm` ahead of the rear axle, its rates carrying the model discrepancy where `discrepancy` =
- * (size of v, size of r, correlation time) is not NULL (`maneuver_pose`). Returns 0, or -1 when out of
+ * point `arm` ahead of the rear axle, its rates carrying the model discrepancy where `discrepancy`
+ * (S, 2: each draw's sizes of v and r) is not NULL, an OU process of `correlation_time` s
+ * (`maneuver_pose`). Returns 0, or -1 when out of
  * memory. */
 int al_dynamic_free_runs(const double *car, const double *sets, const double *grid, const double *speed,
                          int64_t n_table, const double *limits, int64_t n_samples, int64_t n_maneuvers,
                          int64_t n_steps, int64_t n_rows, double dt, int64_t substeps, int64_t rate_lag,
                          int64_t widen, double spread, const float *controls, const int64_t *index, const float *z,
                          const float *noise_std, const uint64_t *keys, const float *start, const float *start_hidden,
-                         float *rates, float *centre, float *aleatoric, float *epistemic, float pose_dt, float arm, const float *yaw0, const double *discrepancy,
+                         float *rates, float *centre, float *aleatoric, float *epistemic, float pose_dt,
+                         float arm, double correlation_time, const float *yaw0, const double *discrepancy,
                          float *x, float *y, float *yaw, int64_t n_threads) {
     if (n_maneuvers <= 0 || n_steps <= 0) return 0;
     if (n_samples <= 0 || rate_lag < 1 || substeps < 1 || n_table < 2) return -1;
     free_run_context context = {
         {car, sets, grid, speed, n_table, n_samples, n_maneuvers, n_steps, substeps, 1, NULL, NULL, dt, NULL},
         limits, n_samples, n_rows, rate_lag, widen, spread, controls, index, z, noise_std, start, start_hidden,
-        keys, rates, centre, aleatoric, epistemic, NULL, pose_dt, arm, yaw0, discrepancy, x, y, yaw};
+        keys, rates, centre, aleatoric, epistemic, NULL, pose_dt, arm, correlation_time, yaw0, discrepancy, x, y,
+        yaw};
     context.residuals = malloc((size_t)(n_samples * 2 * n_rows) * sizeof(double));
     if (!context.residuals) return -1;
     al_job residuals = {dynamic_scratch, dynamic_free, residual_chunk, &context, n_samples, 0, 0};
