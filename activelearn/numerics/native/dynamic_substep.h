@@ -115,18 +115,13 @@ static inline __attribute__((always_inline)) void NAME(substep)(NAME(block) *b, 
                                                                   int64_t n) {                             \
         for (int64_t i = 0; i < n; ++i) NAME(substep)(b, f, MOTOR, LINEAR, IMPLICIT, CURVED);             \
     }
-NAME_SUBSTEPS(0, 0, 0, 0)
-NAME_SUBSTEPS(0, 0, 0, 1)
-NAME_SUBSTEPS(0, 0, 1, 0)
-NAME_SUBSTEPS(0, 0, 1, 1)
-NAME_SUBSTEPS(0, 1, 0, 0)
-NAME_SUBSTEPS(0, 1, 1, 0)
-NAME_SUBSTEPS(1, 0, 0, 0)
-NAME_SUBSTEPS(1, 0, 0, 1)
-NAME_SUBSTEPS(1, 0, 1, 0)
-NAME_SUBSTEPS(1, 0, 1, 1)
-NAME_SUBSTEPS(1, 1, 0, 0)
-NAME_SUBSTEPS(1, 1, 1, 0)
+/* a drive law's six variants: tyre x step x curvature (a linear tyre has none) */
+#define NAME_SUBSTEPS_OF_DRIVE(MOTOR)                                                                   \
+    NAME_SUBSTEPS(MOTOR, 0, 0, 0) NAME_SUBSTEPS(MOTOR, 0, 0, 1) NAME_SUBSTEPS(MOTOR, 0, 1, 0)         \
+    NAME_SUBSTEPS(MOTOR, 0, 1, 1) NAME_SUBSTEPS(MOTOR, 1, 0, 0) NAME_SUBSTEPS(MOTOR, 1, 1, 0)
+NAME_SUBSTEPS_OF_DRIVE(0)
+NAME_SUBSTEPS_OF_DRIVE(1)
+#undef NAME_SUBSTEPS_OF_DRIVE
 #undef NAME_SUBSTEPS
 
 typedef void (*NAME(substep_run))(NAME(block) *, const NAME(figures) *, int64_t);
