@@ -121,7 +121,7 @@ static void dynamic_block(const dynamic_context *c, int64_t first) {
             const double *u = c->controls + (run * T + step - 1) * 2;
             load_controls(&b, gain, l, c, u[0], u[1]);
         }
-        run_substeps(&b, &f, c->substeps);
+        run_substeps(&b, NULL, &f, c->substeps);
         for (int64_t l = 0; l < n; ++l) {
             double *out = c->rates + ((first + l) * T + step) * 2;
             out[0] = b.vx[l], out[1] = b.r[l];
@@ -368,6 +368,12 @@ static void flush_tile(const free_run_context *c, free_run_scratch *r, int64_t m
     }
 }
 
+/* The substeps of n blocks, two at a time in one lane loop (`substep_pair`), the odd one alone. */
+static void step_blocks(block_f *blocks, int64_t n, substep_run_f run, const figures_f *f, int64_t substeps) {
+    for (int64_t bi = 0; bi + 1 < n; bi += 2) run(&blocks[bi], &blocks[bi + 1], f, substeps);
+    if (n % 2) run(&blocks[n - 1], NULL, f, substeps);
+}
+
 static void free_run_maneuver(void *context, void *scratch, int64_t m) {
     const free_run_context *c = context;
     free_run_scratch *r = scratch;
@@ -401,9 +407,9 @@ static void free_run_maneuver(void *context, void *scratch, int64_t m) {
             float *const fields[4] = {b->vx, b->vy, b->r, b->delta};
             for (int i = 0; i < 4; ++i) memcpy(fields[i], past + i * lanes + bi * LANES_F, sizeof(float) * LANES_F);
             block_controls(b, r->gain + bi * LANES_F, &c->core, u[0], u[1]);
-            run_substeps(b, &f, c->core.substeps);
-            correct(c, b, bi * LANES_F, row, r->v, r->w);
         }
+        step_blocks(r->blocks, n_blocks, run_substeps, &f, c->core.substeps);
+        for (int64_t bi = 0; bi < n_blocks; ++bi) correct(c, &r->blocks[bi], bi * LANES_F, row, r->v, r->w);
         if (c->widen) { /* surrogate.widened_step: each draw's correction spread, not its past */
             double common_v = 0.0, common_w = 0.0;
             for (int64_t bi = 0; bi < n_blocks; ++bi) {
@@ -413,9 +419,9 @@ static void free_run_maneuver(void *context, void *scratch, int64_t m) {
                     b->r[l] = (float)(mean[2] / S), b->delta[l] = (float)(mean[3] / S);
                 }
                 block_controls(b, r->gain + bi * LANES_F, &c->core, u[0], u[1]);
-                run_substeps(b, &f, c->core.substeps);
-                correct(c, b, bi * LANES_F, row, r->cv, r->cw);
             }
+            step_blocks(r->common, n_blocks, run_substeps, &f, c->core.substeps);
+            for (int64_t bi = 0; bi < n_blocks; ++bi) correct(c, &r->common[bi], bi * LANES_F, row, r->cv, r->cw);
             for (int64_t s = 0; s < S; ++s) common_v += r->cv[s], common_w += r->cw[s];
             for (int64_t s = 0; s < S; ++s) {
                 r->v[s] += (c->spread - 1.0) * (r->cv[s] - common_v / S);

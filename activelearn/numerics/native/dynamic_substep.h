@@ -37,15 +37,15 @@ typedef struct {
     REAL vsw, lag, tiny;
 } NAME(figures);
 
-/* One substep of every lane of a block. `motor`, `linear`, `implicit` and `curved` (the magic formula's
+/* One substep of lane l of a block. `motor`, `linear`, `implicit` and `curved` (the magic formula's
  * curvature E is not 0: two more atan a substep) are constants at each call (always inlined), so each
- * variant's lane loop has no branch and vectorises with libmvec. */
-static inline __attribute__((always_inline)) void NAME(substep)(NAME(block) *b, const NAME(figures) *f,
-                                                                const int motor, const int linear,
-                                                                const int implicit, const int curved) {
+ * variant's lane loop (`substep`, `substep_pair`) has no branch and vectorises with libmvec. */
+static inline __attribute__((always_inline)) void NAME(lane_step)(NAME(block) *b, const int l,
+                                                                  const NAME(figures) *f, const int motor,
+                                                                  const int linear, const int implicit,
+                                                                  const int curved) {
     const REAL g = f->g, m = f->m, lf = f->lf, lr = f->lr, L = f->L, h = f->h, floor_speed = f->floor_speed;
-#pragma GCC ivdep
-    for (int l = 0; l < LANES; ++l) {
+    {
         const REAL delta = b->delta[l] + NAME(clip)(b->target[l] - b->delta[l], -f->turn, f->turn);
         const REAL vx0 = b->vx[l], vy0 = b->vy[l], r0 = b->r[l], tau = b->tau[l], mu = b->mu[l];
         const REAL grip = mu * g, speed_x = fabs(vx0);
@@ -110,10 +110,34 @@ static inline __attribute__((always_inline)) void NAME(substep)(NAME(block) *b, 
     }
 }
 
+/* One substep of every lane of a block. */
+static inline __attribute__((always_inline)) void NAME(substep)(NAME(block) *b, const NAME(figures) *f,
+                                                                const int motor, const int linear,
+                                                                const int implicit, const int curved) {
+#pragma GCC ivdep
+    for (int l = 0; l < LANES; ++l) NAME(lane_step)(b, l, f, motor, linear, implicit, curved);
+}
+
+/* Two blocks' substeps in one lane loop: two independent chains of transcendental calls in each vector
+ * pass, so that one's latency hides the other's. */
+static inline __attribute__((always_inline)) void NAME(substep_pair)(NAME(block) *a, NAME(block) *b,
+                                                                     const NAME(figures) *f, const int motor,
+                                                                     const int linear, const int implicit,
+                                                                     const int curved) {
+#pragma GCC ivdep
+    for (int l = 0; l < LANES; ++l) {
+        NAME(lane_step)(a, l, f, motor, linear, implicit, curved);
+        NAME(lane_step)(b, l, f, motor, linear, implicit, curved);
+    }
+}
+
 #define NAME_SUBSTEPS(MOTOR, LINEAR, IMPLICIT, CURVED)                                                     \
-    static void NAME(substeps_##MOTOR##LINEAR##IMPLICIT##CURVED)(NAME(block) * b, const NAME(figures) * f,    \
-                                                                  int64_t n) {                             \
-        for (int64_t i = 0; i < n; ++i) NAME(substep)(b, f, MOTOR, LINEAR, IMPLICIT, CURVED);             \
+    static void NAME(substeps_##MOTOR##LINEAR##IMPLICIT##CURVED)(NAME(block) * b, NAME(block) * pair,         \
+                                                                  const NAME(figures) * f, int64_t n) {    \
+        if (pair)                                                                                           \
+            for (int64_t i = 0; i < n; ++i) NAME(substep_pair)(b, pair, f, MOTOR, LINEAR, IMPLICIT, CURVED); \
+        else                                                                                                \
+            for (int64_t i = 0; i < n; ++i) NAME(substep)(b, f, MOTOR, LINEAR, IMPLICIT, CURVED);         \
     }
 /* a drive law's six variants: tyre x step x curvature (a linear tyre has none) */
 #define NAME_SUBSTEPS_OF_DRIVE(MOTOR)                                                                   \
@@ -124,7 +148,7 @@ NAME_SUBSTEPS_OF_DRIVE(1)
 #undef NAME_SUBSTEPS_OF_DRIVE
 #undef NAME_SUBSTEPS
 
-typedef void (*NAME(substep_run))(NAME(block) *, const NAME(figures) *, int64_t);
+typedef void (*NAME(substep_run))(NAME(block) *, NAME(block) *, const NAME(figures) *, int64_t);
 
 /* The variant for the car's drive and tyre and the step's kind (a linear tyre has no curvature). */
 static NAME(substep_run) NAME(substeps_for)(const double *k, int64_t implicit) {
