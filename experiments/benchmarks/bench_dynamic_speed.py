@@ -143,7 +143,7 @@ def main() -> None:
                    for i, t in enumerate(logs)]  # fmt: skip
         truth = best_of(args.repeats, partial(simulator.collect, replays, noise=None, vehicle=vehicle))
         steps = sum(len(t) for t in logs)
-        kernel_walls = {}
+        kernel_walls, car_split = {}, {}
         for core in VARIANTS:
             update = {"core": core.split()[0]}
             if core.endswith("calibrated"):  # the discrepancy carried, as the 1:10 configs do
@@ -166,9 +166,9 @@ def main() -> None:
                     best = best_of(1, run)
                 kernel, network = spent["kernel"], spent.get("network", 0.0)
                 kernel_walls[core] = kernel
-                split.append({"car": car, "core": core, "wall s": round(best, 3),
-                              "kernel s": round(kernel, 3), "correction network s": round(network, 3),
-                              "the rest s": round(best - kernel - network, 3)})  # fmt: skip
+                car_split[core] = {"car": car, "core": core, "wall s": round(best, 3),
+                                   "kernel s": round(kernel, 3), "correction network s": round(network, 3),
+                                   "the rest s": round(best - kernel - network, 3)}  # fmt: skip
             rows.append({"car": car, "core": core, "maneuvers": len(logs), "truth s": round(truth, 2),
                          "free runs s": round(wall, 2), "first call s": round(first, 1),
                          "truth / free runs": round(truth / wall, 1),
@@ -177,9 +177,13 @@ def main() -> None:
                   f" {args.samples * steps / wall:.3g} sample-steps/s", flush=True)
         bare, widened = kernel_walls["dynamic C"], kernel_walls["dynamic C, widened"]
         lane_substeps = args.samples * steps * model.substeps
-        split[-3]["substeps' share of the kernel"] = round((widened - bare) / bare, 2)  # one more pass
-        split[-3]["substeps: lane-substeps/s"] = f"{lane_substeps / max(widened - bare, 1e-9):.3g}"
-        split[-1]["discrepancy's pose s"] = round(kernel_walls["dynamic C, calibrated"] - widened, 3)
+        extra = widened - bare  # one more pass of substeps
+        car_split["dynamic C"]["substeps' share of the kernel"] = round(extra / bare, 2)
+        car_split["dynamic C"]["substeps: lane-substeps/s"] = f"{lane_substeps / max(extra, 1e-9):.3g}"
+        car_split["dynamic C, calibrated"]["discrepancy's pose s"] = round(
+            kernel_walls["dynamic C, calibrated"] - widened, 3
+        )
+        split.extend(car_split.values())
         costs = identification_evaluation(DynamicCar.of(cfg.vehicle.spec), logs, args.repeats)
         identification.append({"car": car, "NumPy s": round(costs["reference"], 4),
                                "C s": round(costs["native"], 4),

@@ -455,7 +455,8 @@ class DynamicPhysicsModel(PhysicsModel):
         """(S, 2) each draw's discrepancy size (v, r): the measured misfit ŝ times √(n / X), X ~ χ²(n), n the
         logs it was measured on (each a cluster). That is the posterior of an rms size measured on n
         clusters under a Jeffreys prior, so the fan is the Student-t marginal over the size, not the
-        Gaussian at ŝ: a misfit of 4 logs may well be twice as large. n unknown (0): ŝ for every draw."""
+        Gaussian at ŝ: after 4 logs one draw in 4.5 is half again as large. n unknown (0): ŝ for every
+        draw."""
         size = np.broadcast_to(self.discrepancy.double().numpy(), (n_samples, 2))
         n = float(self.discrepancy_logs)
         if n <= 0.0:

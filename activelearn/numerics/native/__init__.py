@@ -44,8 +44,8 @@ SOURCES = tuple(
     Path(__file__).with_name(name)
     for name in ("static_rollout.c", "network.c", "physics_rollout.c", "dynamic_rollout.c")
 )
-HEADERS = tuple(Path(__file__).with_name(name) for name in ("network.h", "dynamic_substep.h"))  # in the cache
-# key, not compiled on their own
+# part of the cache key, not compiled on their own
+HEADERS = tuple(Path(__file__).with_name(name) for name in ("network.h", "dynamic_substep.h"))
 # Compile flags. -ffast-math lets GCC vectorise logf/sinf/cosf through glibc's libmvec; -march=native
 # is safe because the cache key includes this machine's CPU features.
 FLAGS = ("-O3", "-ffast-math", "-march=native", "-fPIC", "-pthread")
@@ -140,9 +140,8 @@ SIGNATURES = {
     "al_dynamic_limit_count": ([], ctypes.c_int),
     "al_dynamic_free_runs": (
         [_ptr] * 4 + [ctypes.c_int64, _ptr] + [ctypes.c_int64] * 4 + [ctypes.c_double]
-        + [ctypes.c_int64] * 3 + [ctypes.c_double] + [_ptr] * 11 + [ctypes.c_float] * 2 + [ctypes.c_double]
-        + [_ptr] * 5
-        + [ctypes.c_int64],
+        + [ctypes.c_int64] * 3 + [ctypes.c_double] + [_ptr] * 11
+        + [ctypes.c_float] * 2 + [ctypes.c_double] + [_ptr] * 5 + [ctypes.c_int64],
         ctypes.c_int,
     ),
     "al_network_forward": (

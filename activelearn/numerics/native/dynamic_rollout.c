@@ -93,49 +93,56 @@ static void load_controls(block_d *b, const double *gain, int l, const dynamic_c
                           double steering) {
     const double *k = c->car, lock = k[C_STEERING_LIMIT];
     b->tau[l] = tau;
-    b->target[l] = fmin(fmax(steering, -lock), lock);
+    b->target[l] = clip_d(steering, -lock, lock);
     b->drive[l] = k[C_MOTOR] != 0.0 ? 0.0 : sign_d(tau) * table_speed_d(c->grid, c->speed, c->n_table, tau) * gain[l];
 }
 
-/* One block of up to LANES_D lanes through all steps. */
-static void dynamic_block(const dynamic_context *c, int64_t first) {
-    const int64_t n = c->n_lanes - first < LANES_D ? c->n_lanes - first : LANES_D;
+/* One or two blocks of up to LANES_D lanes each, from lane `first`, through all steps; two step in one
+ * lane loop (`substep_pair`: the two chains of transcendental calls hide each other's latency). */
+static void dynamic_blocks(const dynamic_context *c, int64_t first, int count) {
     const int64_t T = c->n_steps;
     const figures_d f = figures_of_d(c->car, c->dt, c->substeps);
     const substep_run_d run_substeps = substeps_for_d(c->car, c->implicit);
-    block_d b;
-    double gain[LANES_D];
-    for (int l = 0; l < LANES_D; ++l) { /* lanes past the end repeat the last one, unwritten */
-        const int64_t lane = first + (l < n ? l : n - 1);
-        const double *x0 = c->start + lane * 4;
-        load_figures_d(&b, gain, l, c->sets + lane * S_COUNT, c->car);
-        b.vx[l] = x0[0], b.vy[l] = x0[1], b.r[l] = x0[2], b.delta[l] = x0[3];
-    }
-    for (int64_t l = 0; l < n; ++l) {
-        double *out = c->rates + (first + l) * T * 2;
-        out[0] = b.vx[l], out[1] = b.r[l];
+    block_d b[2];
+    double gain[2][LANES_D];
+    int64_t n[2];
+    for (int k = 0; k < count; ++k) {
+        const int64_t at = first + k * LANES_D;
+        n[k] = c->n_lanes - at < LANES_D ? c->n_lanes - at : LANES_D;
+        for (int l = 0; l < LANES_D; ++l) { /* lanes past the end repeat the last one, unwritten */
+            const int64_t lane = at + (l < n[k] ? l : n[k] - 1);
+            const double *x0 = c->start + lane * 4;
+            load_figures_d(&b[k], gain[k], l, c->sets + lane * S_COUNT, c->car);
+            b[k].vx[l] = x0[0], b[k].vy[l] = x0[1], b[k].r[l] = x0[2], b[k].delta[l] = x0[3];
+        }
+        for (int64_t l = 0; l < n[k]; ++l) {
+            double *out = c->rates + (at + l) * T * 2;
+            out[0] = b[k].vx[l], out[1] = b[k].r[l];
+        }
     }
     for (int64_t step = 1; step < T; ++step) {
-        for (int l = 0; l < LANES_D; ++l) {
-            const int64_t run = (first + (l < n ? l : n - 1)) % c->n_runs;
-            const double *u = c->controls + (run * T + step - 1) * 2;
-            load_controls(&b, gain, l, c, u[0], u[1]);
-        }
-        run_substeps(&b, NULL, &f, c->substeps);
-        for (int64_t l = 0; l < n; ++l) {
-            double *out = c->rates + ((first + l) * T + step) * 2;
-            out[0] = b.vx[l], out[1] = b.r[l];
-        }
+        for (int k = 0; k < count; ++k)
+            for (int l = 0; l < LANES_D; ++l) {
+                const int64_t run = (first + k * LANES_D + (l < n[k] ? l : n[k] - 1)) % c->n_runs;
+                const double *u = c->controls + (run * T + step - 1) * 2;
+                load_controls(&b[k], gain[k], l, c, u[0], u[1]);
+            }
+        run_substeps(&b[0], count == 2 ? &b[1] : NULL, &f, c->substeps);
+        for (int k = 0; k < count; ++k)
+            for (int64_t l = 0; l < n[k]; ++l) {
+                double *out = c->rates + ((first + k * LANES_D + l) * T + step) * 2;
+                out[0] = b[k].vx[l], out[1] = b[k].r[l];
+            }
     }
 }
 
 static void dynamic_chunk(void *context, void *scratch, int64_t chunk) {
     (void)scratch;
     const dynamic_context *c = context;
-    for (int64_t b = 0; b < BLOCKS_PER_CHUNK; ++b) {
+    for (int64_t b = 0; b < BLOCKS_PER_CHUNK; b += 2) { /* BLOCKS_PER_CHUNK is even: blocks go in pairs */
         const int64_t first = (chunk * BLOCKS_PER_CHUNK + b) * LANES_D;
         if (first >= c->n_lanes) return;
-        dynamic_block(c, first);
+        dynamic_blocks(c, first, first + LANES_D < c->n_lanes ? 2 : 1);
     }
 }
 
@@ -159,8 +166,8 @@ int al_dynamic_rate_runs(const double *car, const double *sets, const double *gr
 }
 
 /* ----- the physics kind's free runs on the dynamic core ------------------------------------------
- * The twin of DynamicPhysicsModel's torch loop (dynamic_physics.py, `free_run_step`), in float as
- * torch runs it: S draws, each with its own figures (its posterior draw of the scales) and its
+ * The twin of DynamicPhysicsModel's torch loop (dynamic_physics.py, `free_run_step`), in float (the
+ * states are float32 there too): S draws, each with its own figures (its posterior draw of the scales) and its
  * correction's raw outputs at each step's control row, step (v_x, v_y, r, delta_w) from the state
  * `rate_lag` steps back; the bounded correction moves v_x and r towards their residuals at the car's
  * lags; with `widen` each draw's correction is spread about the draws' mean from their common past;
@@ -255,7 +262,7 @@ static void correct(const free_run_context *c, const block_f *b, int64_t first, 
     for (int l = 0; l < LANES_F; ++l) {
         const int64_t s = first + l < S ? first + l : S - 1;
         v[first + l] = b->vx[l] + c->residuals[s * 2 * U + row];
-        w[first + l] = fmin(fmax(b->r[l] + c->residuals[(s * 2 + 1) * U + row], -cap), cap);
+        w[first + l] = clip_d(b->r[l] + c->residuals[(s * 2 + 1) * U + row], -cap, cap);
     }
 }
 
@@ -348,7 +355,7 @@ static void maneuver_pose(const free_run_context *c, free_run_scratch *r, int64_
  * (`load_controls`'). */
 static void block_controls(block_f *b, const float *gain, const dynamic_context *c, double tau, double steering) {
     const double *k = c->car, lock = k[C_STEERING_LIMIT];
-    const float target = (float)fmin(fmax(steering, -lock), lock);
+    const float target = (float)clip_d(steering, -lock, lock);
     const float drive =
         k[C_MOTOR] != 0.0 ? 0.0f : sign_f((float)tau) * table_speed_f(c->grid, c->speed, c->n_table, tau);
     for (int l = 0; l < LANES_F; ++l) b->tau[l] = (float)tau, b->target[l] = target, b->drive[l] = drive * gain[l];
@@ -475,8 +482,7 @@ static void free_run_maneuver(void *context, void *scratch, int64_t m) {
  * NULL, also each draw's pose x, y, yaw (S, M, T) integrated at pose_dt from the headings yaw0 (M,), the
  * point `arm` ahead of the rear axle, its rates carrying the model discrepancy where `discrepancy`
  * (S, 2: each draw's sizes of v and r) is not NULL, an OU process of `correlation_time` s
- * (`maneuver_pose`). Returns 0, or -1 when out of
- * memory. */
+ * (`maneuver_pose`). Returns 0, or -1 when out of memory. */
 int al_dynamic_free_runs(const double *car, const double *sets, const double *grid, const double *speed,
                          int64_t n_table, const double *limits, int64_t n_samples, int64_t n_maneuvers,
                          int64_t n_steps, int64_t n_rows, double dt, int64_t substeps, int64_t rate_lag,

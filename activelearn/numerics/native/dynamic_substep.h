@@ -1,7 +1,7 @@
 /* The dynamic single track's substep over a block of lanes, in one precision: a template that
  * dynamic_rollout.c includes twice, once in double (an identification's rate runs, whose
  * finite-difference Jacobian needs it) and once in float (the physics kind's free runs, whose states
- * are float32 as the torch twin's: twice the lanes a vector, the kernel 1.6x the double one's speed).
+ * are float32 as the torch twin's: twice the lanes a vector).
  *
  * Before each inclusion define REAL (float or double), LANES (lanes a block) and NAME(x) (a suffix for
  * every name defined here, e.g. x##_f); <tgmath.h> makes sin, atan, ... the precision's own. Every
