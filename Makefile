@@ -4,6 +4,8 @@
 # with --no-deps: its selection code needs torch, numpy and dill only, while its install_requires pull
 # its benchmark's openml, seaborn, mat4py and more (pyproject.toml says the same).
 PYTHON ?= python3
+# No pip cache: a fresh machine installs once, and the cache would double the ~2 GB the venv takes on disk.
+export PIP_NO_CACHE_DIR := 1
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
