@@ -323,6 +323,29 @@ def test_the_cross_validated_misfit_is_each_folds_at_the_scales_identified_witho
     assert np.array_equal(one, identification_misfit(logs[:1], car, DT, theta))
 
 
+def test_the_core_is_identified_on_a_log_up_to_its_live_stop():
+    """A live stop's braking (a trailing block of throttle 0 after the maneuver's own throttle) is left
+    out of the identification: the core has no combined slip to follow it with. Logs without one stay
+    whole, a maneuver that never drives as well; the identification then sees the cut log alone."""
+    from activelearn.numerics.models.dynamic_physics import before_a_stop
+
+    model = _untrained(parameter_uncertainty="by_log")
+    car = model.dynamic_car
+    u, y = twin_logs(car, implicit=True)[0]
+    braking = np.column_stack([np.zeros(40), np.full(40, u[-1, 1])])
+    stopped = (np.vstack([u, braking]), np.vstack([y, np.linspace(y[-1], 0.0, 40)]))
+    cut = before_a_stop(stopped)
+    assert np.array_equal(cut[0], u) and np.array_equal(cut[1], y)
+    assert before_a_stop((u, y))[0] is u  # ends driven: whole
+    idle = (np.zeros((30, 2)), np.zeros((30, 2)))
+    assert before_a_stop(idle)[0] is idle[0]  # never driven: whole
+    empty = TrainingData(x=np.zeros((0, 16)), y=np.zeros((0, 2)), logs=[stopped])
+    model.identify(empty)
+    alone = _untrained(parameter_uncertainty="by_log")
+    alone.identify(TrainingData(x=np.zeros((0, 16)), y=np.zeros((0, 2)), logs=[(u, y)]))
+    assert torch.equal(model.theta, alone.theta)
+
+
 @pytest.mark.parametrize("vehicle", ["nigel", "f1tenth", "bmw320i"])
 def test_the_step_traces_whole_on_every_car(vehicle: str):
     """torch.compile fuses the model's step only where dynamo traces it whole: a speed-table car's step

@@ -14,14 +14,14 @@ import pandas as pd
 import pytest
 
 from activelearn.config import SafetyConfig, SimulationConfig, load_config, polygon_clearance, validate_config
-from activelearn.config.safety import braking_distance
+from activelearn.config.safety import braking_distance, car_braking, settle_seconds
 from activelearn.errors import ConfigError
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import SimulationCache
 from activelearn.loop.safety.limits import log_violation, placed_path, violations
 from activelearn.loop.safety.live_stop import braked_paths, live_stop, stop_rule
 from activelearn.loop.state import STATE_FILE, CampaignState
-from simulator import Maneuver, NoiseConfig, StopRule, collect, twin_vehicle
+from simulator import Maneuver, NoiseConfig, StopRule, build_vehicle, collect, load_vehicle, twin_vehicle
 
 SMOKE = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "smoke.toml"
 SQUARE = [[-1.5, -1.5], [1.5, -1.5], [1.5, 1.5], [-1.5, 1.5]]
@@ -83,7 +83,7 @@ def test_a_live_stop_brakes_in_mujoco_until_the_car_stands():
     assert log_violation(log, live, 30.0) == "" and log_violation(free, live, 30.0) == "arena"
     travel = log["posX"].iloc[-1] - log["posX"].iloc[j]
     assert 0.015 < travel < live.stop_buffer  # 2.4 cm from top speed (one 30-Hz pose late, then braking)
-    assert travel <= braking_distance(speed[j])
+    assert travel <= braking_distance(speed[j], 1.9)
     assert live.margin < clearance_at_end(log, live) < live.margin + live.stop_buffer
     # deterministic, and the noise never feeds the stop: noisy and clean logs share one trajectory
     pd.testing.assert_frame_equal(collect(STRAIGHT, noise=None, stop=rule), log)
@@ -128,9 +128,9 @@ def test_a_stop_buffer_the_car_cannot_stop_in_is_refused_or_counted():
     with pytest.raises(ConfigError) as info:
         validate_config({"safety": {"arena": SQUARE, "stop": "live", "stop_buffer": 0.02}})
     assert str(info.value).startswith("safety.stop_buffer") and "0.034 m" in str(info.value)
-    assert braking_distance(0.3) == pytest.approx(0.0337, abs=1e-4)
-    SafetyConfig(arena=SQUARE, stop="live", stop_buffer=0.02, max_speed=0.1)  # slow enough to stop in it
-    SafetyConfig(arena=SQUARE, stop="planned", stop_buffer=0.0)  # unused by a planned stop
+    assert braking_distance(0.3, 1.9) == pytest.approx(0.0337, abs=1e-4)
+    validate_config({"safety": {"arena": SQUARE, "stop": "live", "stop_buffer": 0.02, "max_speed": 0.1}})
+    validate_config({"safety": {"arena": SQUARE, "stop": "planned", "stop_buffer": 0.0}})  # unused
     # Where it gets through (a config built without validation, a car slower to stop than the model
     # assumes), the closed loop shows it: the braking ends within the margin, an arena violation.
     live = live_config()
@@ -309,3 +309,65 @@ def test_propose_plot_draws_where_the_live_stop_brakes(tmp_path, monkeypatch):
         assert len(proposal["brakes"][0]) <= proposal["n_paths"]
     # in the 1.2 x 1.2 m arena some fan reaches the brake line
     assert sum(len(p["brakes"][0]) for p in proposals) > 0
+
+
+# --------------------------------------------------------------------------------- other cars
+
+
+F1TENTH_ARENA = [[-5.0, -5.0], [60.0, -5.0], [60.0, 5.0], [-5.0, 5.0]]
+
+
+def test_the_stop_buffer_is_checked_against_the_cars_own_braking(tmp_path):
+    # The 1:10 car brakes at its grip (0.95 x 0.65 g = 6.06 m/s²): from 6 m/s it needs 0.2 + 2.97 m.
+    spec = load_vehicle("f1tenth")
+    assert car_braking(spec) == pytest.approx(0.95 * 0.65 * 9.81)
+    assert car_braking(spec, {"tire_friction": 0.8}) == pytest.approx(0.8 * car_braking(spec))
+    assert car_braking(spec, {"tire_friction": 1.5}) == car_braking(spec)  # a brake limit is not lifted
+    assert car_braking(load_vehicle("nigel")) == 1.9  # the file's measured figure
+    safety = {"arena": F1TENTH_ARENA, "stop": "live", "max_speed": 6.0, "margin": 0.3}
+    base = {"vehicle": {"name": "f1tenth"}, "test": {"kinds": ["straight"]}}
+    with pytest.raises(ConfigError) as info:
+        validate_config({**base, "safety": {**safety, "stop_buffer": 3.0}})
+    assert str(info.value).startswith("safety.stop_buffer") and "3.171 m" in str(info.value)
+    assert "f1tenth" in str(info.value)
+    validate_config({**base, "safety": {**safety, "stop_buffer": 3.2}})
+    # on the twin with less grip it needs more room
+    twin = {"oracle": {"kind": "twin", "overrides": {"tire_friction": 0.8}}}
+    with pytest.raises(ConfigError, match=r"3\.914 m"):
+        validate_config({**base, **twin, "safety": {**safety, "stop_buffer": 3.2}})
+    assert settle_seconds(spec, car_braking(spec)) == pytest.approx(5.0)  # 20 m/s: 3.3 s to stand
+    # a speed-table car whose file gives no braking cannot have a live stop checked: refused, named
+    nigel = Path(load_vehicle("nigel").path).read_text()
+    unbraked = tmp_path / "unbraked.toml"
+    unbraked.write_text("\n".join(line for line in nigel.splitlines() if "stopping_deceleration" not in line)
+                        .replace('"../assets/nigel.xml"', f'"{Path(load_vehicle("nigel").path).parent.parent}'
+                                 '/assets/nigel.xml"'))
+    assert load_vehicle(unbraked).stopping_deceleration is None
+    with pytest.raises(ConfigError, match="gives no braking") as info:
+        validate_config({"vehicle": {"name": str(unbraked)}, "safety": {"arena": SQUARE, "stop": "live"}})
+    assert info.value.field == "safety.stop_buffer"
+    validate_config({"vehicle": {"name": str(unbraked)}, "safety": {"arena": SQUARE}})  # planned: fine
+    assert settle_seconds(load_vehicle("nigel"), 1.9) == 1.0  # Nigel's stop rule (and cache key) as before
+
+
+def test_a_fast_car_brakes_until_it_stands_within_its_braking_distance():
+    # MuJoCo's 1:10 car at 10 m/s, the stop triggered as the maneuver ends: it brakes for 1.6 s, longer
+    # than Nigel's one-second settle, and stands inside the arena within the braking distance the
+    # config is checked with.
+    spec = load_vehicle("f1tenth")
+    arena = [[-15.0, -15.0], [109.8, -15.0], [109.8, 15.0], [-15.0, 15.0]]  # the trigger at x = 100 m
+    live = SafetyConfig(arena=arena, stop="live", max_speed=10.5, margin=0.3, stop_buffer=9.5)
+    rule = stop_rule(live, settle_seconds(spec, car_braking(spec)))
+    assert rule is not None and rule.settle == pytest.approx(5.0)
+    straight = Maneuver("straight", 0.5, 0.0, "ccw", 12.1)  # 9.97 m/s at 99 m after 12 s
+    vehicle = build_vehicle(spec)
+    log = collect(straight, noise=None, stop=rule, vehicle=vehicle)
+    j = trigger_row(log)
+    speed = log["speed"].to_numpy()
+    assert j >= 360 and speed[j] > 9.9 and abs(speed[-1]) < rule.still_speed
+    travel = log["posX"].iloc[-1] - log["posX"].iloc[j]
+    assert 7.5 < travel <= braking_distance(speed[j], car_braking(spec), 1.0 / 30.0)
+    assert log_violation(log, live, 30.0) == ""
+    # Nigel's one-second settle would have ended the log while the car still ran at about 4 m/s
+    short = collect(straight, noise=None, stop=stop_rule(live), vehicle=vehicle)
+    assert abs(short["speed"].iloc[-1]) > 3.0

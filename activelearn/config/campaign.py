@@ -11,7 +11,7 @@ from pydantic import BaseModel, Field, ValidationError, field_validator, model_v
 from activelearn.config.base import Seed, _Section
 from activelearn.config.evaluation import OracleConfig, TargetConfig, TestSetConfig, TrackingConfig
 from activelearn.config.model import ModelConfig, TrainingConfig
-from activelearn.config.safety import SafetyConfig
+from activelearn.config.safety import SafetyConfig, braking_distance, car_braking
 from activelearn.config.sections import (
     AcquisitionConfig,
     DataConfig,
@@ -167,6 +167,27 @@ class CampaignConfig(_Section):
             worst = max((v for v in values or () if v is not None), default=0.0)
             if worst > lock + 1e-12:
                 raise ConfigError(field, worst, f"is beyond the car's full lock {lock:g} rad ([vehicle])")
+        return self
+
+    @model_validator(mode="after")
+    def _live_stop_within_braking(self) -> CampaignConfig:
+        # a live stop's buffer must hold the braking distance from max_speed of the car the oracle drives
+        safety = self.safety
+        if safety is None or safety.stop != "live":
+            return self
+        spec = self.vehicle.spec
+        overrides = self.oracle.overrides if self.oracle.kind == "twin" else None
+        deceleration = car_braking(spec, overrides)
+        if deceleration is None:
+            raise ConfigError("safety.stop_buffer", safety.stop_buffer, f"cannot be checked: the vehicle "
+                              f"{spec.name!r} gives no braking (set its limits.stopping_deceleration)")
+        latency = 1.0 / spec.log_rate_hz
+        need = braking_distance(safety.max_speed, deceleration, latency)
+        if safety.stop_buffer < need:
+            reason = (f"is below the {need:.3f} m the car needs to stop from max_speed = "
+                      f"{safety.max_speed:g} m/s (one {spec.log_rate_hz:g}-Hz pose of latency, then braking "
+                      f"at {deceleration:.3g} m/s², {spec.name})")
+            raise ConfigError("safety.stop_buffer", safety.stop_buffer, reason)
         return self
 
     @model_validator(mode="after")

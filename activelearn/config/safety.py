@@ -7,6 +7,7 @@ The admissibility of candidates is computed in `activelearn.loop.safety`; the ar
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
@@ -14,17 +15,37 @@ from pydantic import Field, field_validator, model_validator
 from activelearn.config.base import NonNegative, Positive, _Section
 from activelearn.config.geometry import boundary_distance, polygon_area, polygon_self_crossing
 from activelearn.errors import ConfigError
+from simulator.vehicles import VehicleSpec
 
-# Braking in MuJoCo (tests/test_live_stop.py, experiments/results/bench_safety.txt): from the pose that
-# triggers a live stop Nigel travels 2.4 cm at 0.267 m/s (top speed), 1.2 cm at 0.165 and 0.4 cm at 0.085
-# before it stands: one 30-Hz pose sample at the trigger speed, then a mean deceleration of 1.9-3.9 m/s².
-BRAKE_DECELERATION = 1.9  # m/s²: the lowest measured
+# Braking in MuJoCo (experiments/investigations/braking.py, experiments/results/braking.txt): from the
+# pose that triggers a live stop a car travels one log sample at the trigger speed, then brakes at its
+# vehicle file's `limits.stopping_deceleration` or more (Nigel 1.9 m/s², the 1:10 car 6.38, the
+# full-size car 10.28: the tyre cars' grip).
 POSE_LATENCY = 1.0 / 30.0  # s: the brake acts one 30-Hz pose sample after the pose that triggered it
 
 
-def braking_distance(speed: float) -> float:
-    """Distance (m) Nigel travels from the pose that triggers a live stop at `speed` until it stands."""
-    return speed * POSE_LATENCY + speed**2 / (2.0 * BRAKE_DECELERATION)
+def braking_distance(speed: float, deceleration: float, latency: float = POSE_LATENCY) -> float:
+    """Distance (m) a car travels from the pose that triggers a live stop at `speed` until it stands:
+    `latency` (s) at that speed, then braking at `deceleration` (m/s²)."""
+    return speed * latency + speed**2 / (2.0 * deceleration)
+
+
+def car_braking(spec: VehicleSpec, overrides: Mapping[str, float] | None = None) -> float | None:
+    """The deceleration (m/s²) a live stop may count on for a car: its vehicle file's stopping
+    deceleration, times a twin's `tire_friction` scale where below 1 (the tyre cars brake at their
+    grip); None where the file gives no braking."""
+    deceleration = spec.stopping_deceleration
+    if deceleration is None:
+        return None
+    return deceleration * min(1.0, float((overrides or {}).get("tire_friction", 1.0)))
+
+
+def settle_seconds(spec: VehicleSpec, deceleration: float | None) -> float:
+    """How long a live stop's log may run on after its trigger (s): 1 s, or 1.5 × the time the car
+    needs to stop from its top speed where that is longer."""
+    if deceleration is None:
+        return 1.0
+    return max(1.0, round(1.5 * (spec.max_speed / deceleration + 1.0 / spec.log_rate_hz), 1))
 
 
 class SafetyConfig(_Section):
@@ -112,7 +133,7 @@ class SafetyConfig(_Section):
         "(`activelearn.loop.safety.kinematic_bound.turn_speed`); false assumes no speed is lost in turns",
     )
     # Nigel stops within 1.7 cm and 0.17 s from any speed in MuJoCo (results/bench_safety.txt); 2.4 cm from
-    # the triggering pose at top speed with the 30-Hz pose's latency (BRAKE_DECELERATION above).
+    # the triggering pose at top speed with the 30-Hz pose's latency (`braking_distance` above).
     stop: Literal["planned", "live"] = Field(
         "planned",
         description="`planned`: a proposal is admitted, or cut short in advance, by its fan's risk of a wall "
@@ -120,13 +141,14 @@ class SafetyConfig(_Section):
         "stop_buffer` of a wall and the fan judges the limits only. Simulated campaigns drive the stop "
         "closed-loop in MuJoCo: the log runs on, braking, until the car stands, and violations count it",
     )
-    # ~0.27 m/s x latency + braking; 0.05 m is an automatic stop on a 30-Hz pose.
+    # Nigel: ~0.27 m/s x latency + braking; 0.05 m is an automatic stop on a 30-Hz pose.
     stop_buffer: NonNegative = Field(
         0.05,
         description="`live` stop only: distance (m) the car travels between the pose that triggers the "
         "stop and standing still (braking plus the pose's latency). Refused below the braking distance "
-        "from `max_speed` (speed x 1/30 s + speed² / (2 x 1.9 m/s²), measured in MuJoCo: 0.034 m at "
-        "0.3 m/s); a buffer the car cannot stop in shows as arena violations",
+        "from `max_speed`: speed x one log sample + speed² / (2 x the vehicle's stopping deceleration, "
+        "measured in MuJoCo; on a twin times its tyre friction scale where below 1): Nigel (1.9 m/s²) "
+        "0.034 m at 0.3 m/s. A buffer the car cannot stop in shows as arena violations",
     )
     enforce: bool = Field(
         True, description="False: measure risk and violations only, and pick from every candidate"
@@ -164,12 +186,4 @@ class SafetyConfig(_Section):
         if room <= self.margin:
             where = "outside the arena" if room <= 0 else f"within margin = {self.margin} m of a wall"
             raise ConfigError("start", list(self.start), f"the start lies {where}")
-        need = braking_distance(self.max_speed)
-        if self.stop == "live" and self.stop_buffer < need:
-            raise ConfigError(
-                "stop_buffer",
-                self.stop_buffer,
-                f"is below the {need:.3f} m the car needs to stop from max_speed = {self.max_speed:g} m/s "
-                "(one 30-Hz pose of latency, then braking at 1.9 m/s²)",
-            )
         return self

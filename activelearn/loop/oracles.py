@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from activelearn.config import CampaignConfig
+from activelearn.config.safety import car_braking, settle_seconds
 from activelearn.data import read_autodrive_log
 from activelearn.errors import ActiveLearnError, DataFormatError, InputError
 from activelearn.loop.collection import (
@@ -98,7 +99,9 @@ class SimulatorOracle(Oracle):
 
         self.cfg = cfg
         self.cache = cache
-        rule = stop_rule(cfg.safety)
+        spec = cfg.vehicle.spec
+        overrides = cfg.oracle.overrides if cfg.oracle.kind == "twin" else None
+        rule = stop_rule(cfg.safety, settle_seconds(spec, car_braking(spec, overrides)))
         self.driven = cache if rule is None else cache.stopped(rule)  # the cache answers come from
         self._test: TestSet | None = None
 

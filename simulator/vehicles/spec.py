@@ -26,6 +26,7 @@ from simulator.errors import SimulatorError
 
 VEHICLE_DIR = Path(__file__).resolve().parent
 GRAVITY = 9.81  # m/s^2, the one constant every car shares
+STOPPING_MARGIN = 0.95  # share of the brake or grip limit a live stop counts on where no stop was measured
 
 
 class VehicleFileError(SimulatorError, ValueError):
@@ -178,6 +179,10 @@ class Limits(_Strict):
 
     max_speed: PositiveFigure | None = Field(None, description="linear velocity limit (m/s)")
     max_yaw_rate: PositiveFigure | None = Field(None, description="angular velocity limit (rad/s)")
+    stopping_deceleration: PositiveFigure | None = Field(
+        None, description="mean deceleration of a stop at throttle 0, from one log sample after the "
+        "command until standing, the lowest measured on the truth (m/s^2); unset: 0.95 x the smaller of "
+        "brake_deceleration and friction x g")
 
 
 class Sensors(_Strict):
@@ -295,6 +300,18 @@ class VehicleSpec(_Strict):
         grip = self.tyres.friction.value * GRAVITY
         crossing = math.sqrt(grip / kinematic)  # speed where the two limits meet
         return float(min(self.max_speed, crossing) * kinematic)
+
+    @property
+    def stopping_deceleration(self) -> float | None:
+        """Deceleration (m/s²) a live stop may count on: the file's measured figure, else 0.95 × the
+        smaller of the brake's and the grip's (the shipped tyre cars stop within 0.1 % of that
+        smaller one in MuJoCo), else None (a speed-table car with no brake figure)."""
+        if self.limits.stopping_deceleration is not None:
+            return self.limits.stopping_deceleration.value
+        brake = self.drivetrain.brake_deceleration
+        if brake is None:
+            return None
+        return STOPPING_MARGIN * min(brake.value, self.tyres.friction.value * GRAVITY)
 
     @property
     def log_rate_hz(self) -> float:

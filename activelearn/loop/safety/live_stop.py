@@ -17,13 +17,14 @@ from activelearn.config import SafetyConfig, polygon_clearance
 from activelearn.loop.safety.limits import placed_path
 
 
-def stop_rule(cfg: SafetyConfig | None) -> simulator.StopRule | None:
+def stop_rule(cfg: SafetyConfig | None, settle: float = 1.0) -> simulator.StopRule | None:
     """The live stop of an enforced `[safety] stop = "live"` as the simulator drives it (None otherwise):
-    brake once the pose, placed at the start pose, comes within `margin + stop_buffer` of a wall."""
+    brake once the pose, placed at the start pose, comes within `margin + stop_buffer` of a wall, the
+    log running on at most `settle` seconds (`activelearn.config.safety.settle_seconds`)."""
     if cfg is None or cfg.stop != "live" or not cfg.enforce:
         return None
     return simulator.StopRule(
-        polygon=tuple(cfg.arena), start=tuple(cfg.start), distance=cfg.margin + cfg.stop_buffer
+        polygon=tuple(cfg.arena), start=tuple(cfg.start), distance=cfg.margin + cfg.stop_buffer, settle=settle
     )
 
 

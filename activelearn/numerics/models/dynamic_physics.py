@@ -105,6 +105,20 @@ def scales_of_another_car(
     return widened(others_estimate(others, identify_scales, car=car, dt=dt), dynamic_bounds().width)
 
 
+def before_a_stop(log: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """A log (controls (T, 2), rates (T, 2)) up to a live stop's trigger: the trailing block of throttle
+    exactly 0 after a nonzero throttle is the stop's braking (`simulator.stop`), which the core cannot
+    follow (it has no combined slip: braking at the grip limit with the steering held leaves a car no
+    lateral grip, the core all of it). Identified on, those rows bent a 1:10 safe campaign's scales to
+    their bounds. Other logs whole."""
+    throttle = log[0][:, 0]
+    driven = np.flatnonzero(throttle != 0.0)
+    if len(driven) == 0 or driven[-1] == len(throttle) - 1:
+        return log
+    end = int(driven[-1]) + 1
+    return log[0][:end], log[1][:end]
+
+
 def identification_misfit(
     logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, theta: np.ndarray,
     cross_validated: bool = False,
@@ -253,7 +267,7 @@ class DynamicPhysicsModel(PhysicsModel):
             return
         logs = list(data.logs or [])
         flags = list(data.of_another_car) if data.of_another_car is not None else [False] * len(logs)
-        own = [log for log, other in zip(logs, flags, strict=True) if not other]
+        own = [before_a_stop(log) for log, other in zip(logs, flags, strict=True) if not other]
         others = [log for log, other in zip(logs, flags, strict=True) if other]
         dt = 1.0 / self.car.log_rate_hz
         prior = scales_of_another_car(others, self.dynamic_car, dt) if others else self.core_prior
