@@ -100,15 +100,17 @@ def test_free_runs_carry_the_lateral_speed_as_the_cores_own_runs_do():
     assert np.allclose(rollout.x.mean(axis=0), x, atol=1e-2)
 
 
-@pytest.mark.parametrize("vehicle", ["f1tenth", "nigel", "bmw320i"])
-def test_the_compiled_free_runs_are_torchs(vehicle: str, c_kernels):
+@pytest.mark.parametrize(("vehicle", "combined_slip"),
+                         [("f1tenth", False), ("nigel", False), ("bmw320i", False), ("f1tenth", True)])
+def test_the_compiled_free_runs_are_torchs(vehicle: str, combined_slip: bool, c_kernels):
     """dynamic_rollout.c's free runs against the torch loop: each draw its own scales, the correction
     widened about the draws' mean (epistemic scale 3), the sensors' noise, the model discrepancy in the
     pose fan, the three interleaved chains of history_step 3, 12 draws (not whole blocks): rates, moments
     and poses to float rounding. The kernel computes in float, the reference partly in double (its
     controls are), so float rounding is 1e-4 of a quantity's scale, or in a chaotic run (the 1:10 car
     spinning at throttle 0.8) twice what the reference itself moves when its controls move by 1e-7."""
-    model = _untrained(vehicle, parameter_uncertainty="by_log", discrepancy="identification")
+    model = _untrained(vehicle, parameter_uncertainty="by_log", discrepancy="identification",
+                       combined_slip=combined_slip)
     model.theta_scale.copy_(0.1 * torch.eye(5))
     model.epistemic_scale.fill_(3.0)
     model.discrepancy.copy_(torch.tensor([0.05, 0.02]))
@@ -243,6 +245,8 @@ def test_the_discrepancy_is_the_cores_misfit_of_its_logs_and_widens_the_fan_not_
 
     with pytest.raises(ValidationError, match="discrepancy"):
         ModelConfig(kind="physics", discrepancy="identification")  # the kinematic core has none
+    with pytest.raises(ValidationError, match="combined_slip"):
+        ModelConfig(kind="physics", combined_slip=True)  # nor combined slip
     model = _untrained(parameter_uncertainty="by_log", discrepancy="identification")
     car = model.dynamic_car
     logs = twin_logs(car, implicit=True)

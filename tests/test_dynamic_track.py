@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -13,6 +14,7 @@ from activelearn.numerics.models.dynamic_track import (
     free_runs,
     identify_dynamic,
     log_information,
+    quasi_static_lateral,
     rate_runs,
     scaled,
 )
@@ -56,6 +58,33 @@ def test_a_twin_with_less_grip_slides_earlier():
     assert slippery[0] * slippery[2] < 0.9 * full[0] * full[2]
 
 
+def test_with_combined_slip_the_core_follows_a_braking_turn():
+    """MuJoCo's 1:10 car in a steady turn, then braked (throttle 0) with the steering held: the brake takes
+    its tyres' whole grip, so they keep no lateral force. The core with combined slip (each axle's circle
+    shared with its share of the braking) follows the truth's speed and yaw rate; without it, its tyres
+    keep their lateral grip and its yaw rate runs away from the truth's."""
+    from simulator import Replay, build_vehicle, collect
+
+    spec = load_vehicle("f1tenth")
+    for throttle, steering in ((0.25, 0.05), (0.2, 0.15)):
+        turn, braking = 150, 45
+        throttles = np.r_[np.full(turn, throttle), np.zeros(braking)]
+        controls = np.column_stack([throttles, np.full(turn + braking, steering)])
+        log = collect(Replay("braking turn", *controls.T), noise=None, vehicle=build_vehicle(spec))
+        v, r = log["speed"].to_numpy(), log["angZ"].to_numpy()
+        k = turn - 1  # the last step of the turn: from its state, through the braking
+        misses = {}
+        for combined in (False, True):
+            car = dataclasses.replace(DynamicCar.of(spec), combined_slip=combined)
+            lateral = quasi_static_lateral(car, v[k : k + 1], r[k : k + 1])
+            start = np.array([[v[k], lateral[0], r[k], steering]])
+            rates = rate_runs(car, controls[k:][None], start, DT, implicit=True)[0]
+            n = min(len(rates), len(v) - k)
+            misses[combined] = np.sqrt(np.mean((rates[:n] - np.column_stack([v, r])[k : k + n]) ** 2, axis=0))
+        assert misses[True][1] < 0.3 < 1.0 < misses[False][1], (throttle, steering, misses)  # yaw rate, rad/s
+        assert misses[True][0] < 0.5 * misses[False][0]  # speed
+
+
 def twin_logs(
     car: DynamicCar, implicit: bool = False, scales: tuple[float, ...] = (0.8, 1.0, 1.0, 0.9, 1.0)
 ) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -81,13 +110,15 @@ def test_identification_recovers_a_twins_grip_and_motor_from_its_own_logs():
     assert friction == pytest.approx(0.8, abs=0.04) and motor == pytest.approx(0.9, abs=0.02)
 
 
+@pytest.mark.parametrize("combined_slip", [False, True])
 @pytest.mark.parametrize("implicit", [True, False])
 @pytest.mark.parametrize("name", ["nigel", "f1tenth", "bmw320i"])
-def test_the_compiled_rate_runs_are_numpys(name, implicit, c_kernels):
+def test_the_compiled_rate_runs_are_numpys(name, implicit, combined_slip, c_kernels):
     """dynamic_rollout.c against the NumPy loop: random controls with braking steps, starts forward and
-    reversing, one car and a batch of scaled ones (the identification's shapes), equal to rounding."""
+    reversing, one car and a batch of scaled ones (the identification's shapes), with and without
+    combined slip, equal to rounding."""
     rng = np.random.default_rng(7)
-    car = DynamicCar.of(load_vehicle(name))
+    car = dataclasses.replace(DynamicCar.of(load_vehicle(name)), combined_slip=combined_slip)
     n_runs, n_steps = 21, 46  # lanes not a multiple of the kernel's block of 8
     shape = (n_runs, n_steps)
     controls = np.stack([rng.uniform(-1, 1, shape), rng.uniform(-0.5, 0.5, shape)], -1)

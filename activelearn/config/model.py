@@ -136,6 +136,14 @@ class ModelConfig(_Section):
         "pose fan about the core's mean path, not the path; 'cross_validated' takes the misfit out of "
         "sample (4 folds of the logs, each at the scales identified without it)",
     )
+    # A live stop brakes at the grip limit with the steering held: the truth keeps no lateral grip, a core
+    # without combined slip all of it (experiments/results/bench_safety.txt, session 34).
+    combined_slip: bool = Field(
+        False,
+        description="core = 'dynamic': each axle's lateral force within what its share of the longitudinal "
+        "force leaves of its friction circle (the drive's shares under throttle, the brake's by load at "
+        "throttle 0); false: the rear axle's drive share alone",
+    )
     residual_bound: Annotated[float, Field(ge=0.0, le=0.5)] = Field(
         0.05,
         description="kind = 'physics': largest learnt change of a steady rate, as a share of its limit "
@@ -194,6 +202,8 @@ class ModelConfig(_Section):
                 "core: 'dynamic' needs correction_inputs = 'control' (its free runs carry the lateral speed "
                 "an input window does not hold)"
             )
+        if self.combined_slip and self.core != "dynamic":
+            raise ValueError(f"combined_slip: the dynamic core's (core = 'dynamic'), not core {self.core!r}")
         if self.discrepancy != "none" and self.core != "dynamic":
             raise ValueError(
                 f"discrepancy: {self.discrepancy!r} is the dynamic core's (core = 'dynamic'), not "

@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -228,7 +228,7 @@ class DynamicPhysicsModel(PhysicsModel):
 
     def __init__(self, config: ModelConfig, *, generator: torch.Generator | None = None) -> None:
         super().__init__(config, generator=generator)  # the config checked correction_inputs (`core`)
-        self.dynamic_car = DynamicCar.of(self.car.spec)
+        self.dynamic_car = replace(DynamicCar.of(self.car.spec), combined_slip=config.combined_slip)
         self.substeps = self.dynamic_car.implicit_substeps(self.dt)
         bounds = dynamic_bounds()
         self.parameter_names = tuple(p.name for p in DYNAMIC_PARAMETERS)

@@ -50,6 +50,10 @@ BLEND_SHARE = 0.5  # the blend speed, a share of √(g L)
 IMPLICIT_SUBSTEP = 0.025
 
 
+# `combined_slip`: the share of an axle's friction circle its lateral force keeps at a grip-limited stop
+ROOM_FLOOR = 1e-3
+
+
 @dataclass(frozen=True)
 class DynamicCar:
     """The dynamic single track's figures of one car (`of(spec)` reads a vehicle file)."""
@@ -77,6 +81,10 @@ class DynamicCar:
     table_speed: np.ndarray
     speed_time_constant: float
     table_gain: float = 1.0  # a scale of the speed table (identification's drive scale, table cars)
+    # each axle's lateral force within what its share of the longitudinal force leaves of its friction
+    # circle: the drive's shares under throttle, the brake's by load at throttle 0 (False: the rear
+    # axle's drive share alone, the core before it; `[model] combined_slip`)
+    combined_slip: bool = False
 
     @classmethod
     def of(cls, spec: VehicleSpec, tire_friction: float = 1.0, motor_gain: float = 1.0) -> DynamicCar:
@@ -235,9 +243,19 @@ def dynamic_step(
         alpha_r = xp.arctan(-(vy - car.lr * r) / _maximum(xp.abs(vx), floor))
         f_f = _lateral_force(car, alpha_f, load_f, static_f, car.stiffness_front)
         f_r = _lateral_force(car, alpha_r, load_r, static_r, car.stiffness_rear)
-        # the drive's share of the rear axle's friction circle
-        drive_r = m * a * car.rear_drive_share
-        room = xp.sqrt(_maximum((car.friction * load_r) ** 2 - drive_r**2, 0.0))
+        if car.combined_slip:  # the longitudinal force's share of each axle's friction circle; at a
+            # grip-limited stop a share is its axle's whole circle, where the root's slope is infinite:
+            # the room keeps ROOM_FLOOR of the circle, so rounding is not magnified there
+            braking, by_load = _where(throttle == 0.0, 1.0, 0.0), load_r / _maximum(load_f + load_r, 1e-9)
+            share_r = car.rear_drive_share + braking * (by_load - car.rear_drive_share)  # as the C kernel
+            drive_r, drive_f = xp.abs(m * a * share_r), xp.abs(m * a * (1.0 - share_r))
+            cap_r, cap_f = car.friction * load_r, car.friction * load_f
+            room = xp.sqrt(_maximum((cap_r - drive_r) * (cap_r + drive_r), (ROOM_FLOOR * cap_r) ** 2))
+            room_f = xp.sqrt(_maximum((cap_f - drive_f) * (cap_f + drive_f), (ROOM_FLOOR * cap_f) ** 2))
+            f_f = _clip(f_f, -room_f, room_f)
+        else:  # the drive's share of the rear axle's friction circle
+            drive_r = m * a * car.rear_drive_share
+            room = xp.sqrt(_maximum((car.friction * load_r) ** 2 - drive_r**2, 0.0))
         f_r = _clip(f_r, -room, room)
         dvx = a - f_f * sin / m
         dvy = (f_f * cos + f_r) / m
@@ -376,7 +394,8 @@ def native_car(car: DynamicCar) -> np.ndarray:
     return np.array([
         GRAVITY, car.mass, car.lf, car.lr, car.cg_height, car.shape or 0.0, car.curvature,
         car.steering_limit, car.steering_rate, car.rear_drive_share, float(motor),
-        car.power_limit_speed or 0.0, car.speed_time_constant, car.blend_speed,
+        car.power_limit_speed or 0.0, car.speed_time_constant, car.blend_speed, float(car.combined_slip),
+        ROOM_FLOOR,
     ])  # fmt: skip
 
 

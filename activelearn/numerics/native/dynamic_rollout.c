@@ -41,6 +41,8 @@ enum {
     C_POWER_LIMIT_SPEED,
     C_SPEED_TIME_CONSTANT,
     C_BLEND_SPEED,
+    C_COMBINED_SLIP, /* 1: both axles' friction circles share the longitudinal force; 0: the rear drive's */
+    C_ROOM_FLOOR,    /* with it, the share of a circle a lateral force keeps at a grip-limited stop */
     C_COUNT
 };
 

@@ -34,16 +34,17 @@ typedef struct {
 /* The car's shared figures as a substep reads them. */
 typedef struct {
     REAL g, m, lf, lr, hcg, L, shape, curvature, blend, floor_speed, share, h, turn;
-    REAL vsw, lag, tiny;
+    REAL vsw, lag, tiny, room_floor;
 } NAME(figures);
 
-/* One substep of lane l of a block. `motor`, `linear`, `implicit` and `curved` (the magic formula's
- * curvature E is not 0: two more atan a substep) are constants at each call (always inlined), so each
- * variant's lane loop (`substep`, `substep_pair`) has no branch and vectorises with libmvec. */
+/* One substep of lane l of a block. `motor`, `linear`, `implicit`, `curved` (the magic formula's
+ * curvature E is not 0: two more atan a substep) and `combined` (combined slip) are constants at each call
+ * (always inlined), so each variant's lane loop (`substep`, `substep_pair`) has no branch and vectorises
+ * with libmvec. */
 static inline __attribute__((always_inline)) void NAME(lane_step)(NAME(block) *b, const int l,
                                                                   const NAME(figures) *f, const int motor,
                                                                   const int linear, const int implicit,
-                                                                  const int curved) {
+                                                                  const int curved, const int combined) {
     const REAL g = f->g, m = f->m, lf = f->lf, lr = f->lr, L = f->L, h = f->h, floor_speed = f->floor_speed;
     {
         const REAL delta = b->delta[l] + NAME(clip)(b->target[l] - b->delta[l], -f->turn, f->turn);
@@ -83,8 +84,21 @@ static inline __attribute__((always_inline)) void NAME(lane_step)(NAME(block) *b
             f_f = cap_f * sin(f->shape * atan(xf));
             f_r = cap_r * sin(f->shape * atan(xr));
         }
-        const REAL drive_r = m * a * f->share; /* the drive's share of the rear friction circle */
-        const REAL room = sqrt(fmax(cap_r * cap_r - drive_r * drive_r, K(0)));
+        REAL room;
+        if (combined) { /* the longitudinal force's share of each axle's friction circle, the brake's by
+                         * load; at a grip-limited stop a share is the whole circle: the room keeps
+                         * C_ROOM_FLOOR of it, away from the root's infinite slope */
+            const REAL braking = (REAL)(tau == K(0)), by_load = load_r / fmax(load_f + load_r, f->tiny);
+            const REAL share_r = f->share + braking * (by_load - f->share);
+            const REAL drive_r = fabs(m * a * share_r), drive_f = fabs(m * a * (K(1) - share_r));
+            const REAL floor_r = f->room_floor * cap_r, floor_f = f->room_floor * cap_f;
+            const REAL room_f = sqrt(fmax((cap_f - drive_f) * (cap_f + drive_f), floor_f * floor_f));
+            room = sqrt(fmax((cap_r - drive_r) * (cap_r + drive_r), floor_r * floor_r));
+            f_f = NAME(clip)(f_f, -room_f, room_f);
+        } else {
+            const REAL drive_r = m * a * f->share; /* the drive's share of the rear friction circle */
+            room = sqrt(fmax(cap_r * cap_r - drive_r * drive_r, K(0)));
+        }
         f_r = NAME(clip)(f_r, -room, room);
         const REAL dvx = a - f_f * sn / m, dvy = (f_f * cs + f_r) / m;
         const REAL dr = (lf * f_f * cs - lr * f_r) * b->inv_inertia[l];
@@ -113,9 +127,10 @@ static inline __attribute__((always_inline)) void NAME(lane_step)(NAME(block) *b
 /* One substep of every lane of a block. */
 static inline __attribute__((always_inline)) void NAME(substep)(NAME(block) *b, const NAME(figures) *f,
                                                                 const int motor, const int linear,
-                                                                const int implicit, const int curved) {
+                                                                const int implicit, const int curved,
+                                                                const int combined) {
 #pragma GCC ivdep
-    for (int l = 0; l < LANES; ++l) NAME(lane_step)(b, l, f, motor, linear, implicit, curved);
+    for (int l = 0; l < LANES; ++l) NAME(lane_step)(b, l, f, motor, linear, implicit, curved, combined);
 }
 
 /* Two blocks' substeps in one lane loop: two independent chains of transcendental calls in each vector
@@ -123,42 +138,51 @@ static inline __attribute__((always_inline)) void NAME(substep)(NAME(block) *b, 
 static inline __attribute__((always_inline)) void NAME(substep_pair)(NAME(block) *a, NAME(block) *b,
                                                                      const NAME(figures) *f, const int motor,
                                                                      const int linear, const int implicit,
-                                                                     const int curved) {
+                                                                     const int curved, const int combined) {
 #pragma GCC ivdep
     for (int l = 0; l < LANES; ++l) {
-        NAME(lane_step)(a, l, f, motor, linear, implicit, curved);
-        NAME(lane_step)(b, l, f, motor, linear, implicit, curved);
+        NAME(lane_step)(a, l, f, motor, linear, implicit, curved, combined);
+        NAME(lane_step)(b, l, f, motor, linear, implicit, curved, combined);
     }
 }
 
-#define NAME_SUBSTEPS(MOTOR, LINEAR, IMPLICIT, CURVED)                                                     \
-    static void NAME(substeps_##MOTOR##LINEAR##IMPLICIT##CURVED)(NAME(block) * b, NAME(block) * pair,         \
-                                                                  const NAME(figures) * f, int64_t n) {    \
+#define NAME_SUBSTEPS(MOTOR, LINEAR, IMPLICIT, CURVED, COMBINED)                                           \
+    static void NAME(substeps_##MOTOR##LINEAR##IMPLICIT##CURVED##COMBINED)(NAME(block) * b, NAME(block) * pair, \
+                                                                            const NAME(figures) * f,         \
+                                                                            int64_t n) {                     \
         if (pair)                                                                                           \
-            for (int64_t i = 0; i < n; ++i) NAME(substep_pair)(b, pair, f, MOTOR, LINEAR, IMPLICIT, CURVED); \
+            for (int64_t i = 0; i < n; ++i)                                                                 \
+                NAME(substep_pair)(b, pair, f, MOTOR, LINEAR, IMPLICIT, CURVED, COMBINED);                   \
         else                                                                                                \
-            for (int64_t i = 0; i < n; ++i) NAME(substep)(b, f, MOTOR, LINEAR, IMPLICIT, CURVED);         \
+            for (int64_t i = 0; i < n; ++i) NAME(substep)(b, f, MOTOR, LINEAR, IMPLICIT, CURVED, COMBINED); \
     }
-/* a drive law's six variants: tyre x step x curvature (a linear tyre has none) */
-#define NAME_SUBSTEPS_OF_DRIVE(MOTOR)                                                                   \
-    NAME_SUBSTEPS(MOTOR, 0, 0, 0) NAME_SUBSTEPS(MOTOR, 0, 0, 1) NAME_SUBSTEPS(MOTOR, 0, 1, 0)         \
-    NAME_SUBSTEPS(MOTOR, 0, 1, 1) NAME_SUBSTEPS(MOTOR, 1, 0, 0) NAME_SUBSTEPS(MOTOR, 1, 1, 0)
-NAME_SUBSTEPS_OF_DRIVE(0)
-NAME_SUBSTEPS_OF_DRIVE(1)
-#undef NAME_SUBSTEPS_OF_DRIVE
+/* six variants of a drive law and a slip law: tyre x step x curvature (a linear tyre has none) */
+#define NAME_SUBSTEPS_OF(MOTOR, COMBINED)                                                                 \
+    NAME_SUBSTEPS(MOTOR, 0, 0, 0, COMBINED) NAME_SUBSTEPS(MOTOR, 0, 0, 1, COMBINED)                       \
+    NAME_SUBSTEPS(MOTOR, 0, 1, 0, COMBINED) NAME_SUBSTEPS(MOTOR, 0, 1, 1, COMBINED)                       \
+    NAME_SUBSTEPS(MOTOR, 1, 0, 0, COMBINED) NAME_SUBSTEPS(MOTOR, 1, 1, 0, COMBINED)
+NAME_SUBSTEPS_OF(0, 0)
+NAME_SUBSTEPS_OF(1, 0)
+NAME_SUBSTEPS_OF(0, 1)
+NAME_SUBSTEPS_OF(1, 1)
+#undef NAME_SUBSTEPS_OF
 #undef NAME_SUBSTEPS
 
 typedef void (*NAME(substep_run))(NAME(block) *, NAME(block) *, const NAME(figures) *, int64_t);
 
-/* The variant for the car's drive and tyre and the step's kind (a linear tyre has no curvature). */
+/* The variant for the car's drive, tyre and slip law and the step's kind (a linear tyre has no curvature). */
 static NAME(substep_run) NAME(substeps_for)(const double *k, int64_t implicit) {
-    static const NAME(substep_run) variants[16] = {
-        NAME(substeps_0000), NAME(substeps_0001), NAME(substeps_0010), NAME(substeps_0011),
-        NAME(substeps_0100), NAME(substeps_0100), NAME(substeps_0110), NAME(substeps_0110),
-        NAME(substeps_1000), NAME(substeps_1001), NAME(substeps_1010), NAME(substeps_1011),
-        NAME(substeps_1100), NAME(substeps_1100), NAME(substeps_1110), NAME(substeps_1110)};
-    const int linear = k[C_SHAPE] == 0.0, curved = k[C_CURVATURE] != 0.0;
-    return variants[8 * (k[C_MOTOR] != 0.0) + 4 * linear + 2 * (implicit != 0) + curved];
+    static const NAME(substep_run) variants[32] = {
+        NAME(substeps_00000), NAME(substeps_00010), NAME(substeps_00100), NAME(substeps_00110),
+        NAME(substeps_01000), NAME(substeps_01000), NAME(substeps_01100), NAME(substeps_01100),
+        NAME(substeps_10000), NAME(substeps_10010), NAME(substeps_10100), NAME(substeps_10110),
+        NAME(substeps_11000), NAME(substeps_11000), NAME(substeps_11100), NAME(substeps_11100),
+        NAME(substeps_00001), NAME(substeps_00011), NAME(substeps_00101), NAME(substeps_00111),
+        NAME(substeps_01001), NAME(substeps_01001), NAME(substeps_01101), NAME(substeps_01101),
+        NAME(substeps_10001), NAME(substeps_10011), NAME(substeps_10101), NAME(substeps_10111),
+        NAME(substeps_11001), NAME(substeps_11001), NAME(substeps_11101), NAME(substeps_11101)};
+    const int linear = k[C_SHAPE] == 0.0, curved = k[C_CURVATURE] != 0.0, combined = k[C_COMBINED_SLIP] != 0.0;
+    return variants[16 * combined + 8 * (k[C_MOTOR] != 0.0) + 4 * linear + 2 * (implicit != 0) + curved];
 }
 
 /* The car's shared figures as a substep reads them, for steps of dt in `substeps` substeps. */
@@ -170,6 +194,7 @@ static NAME(figures) NAME(figures_of)(const double *k, double dt, int64_t subste
     f.blend = (REAL)k[C_BLEND_SPEED], f.floor_speed = (REAL)(0.5 * k[C_BLEND_SPEED]);
     f.share = (REAL)k[C_REAR_DRIVE_SHARE], f.h = (REAL)h, f.turn = (REAL)(k[C_STEERING_RATE] * h);
     f.vsw = (REAL)k[C_POWER_LIMIT_SPEED], f.lag = (REAL)k[C_SPEED_TIME_CONSTANT];
+    f.room_floor = (REAL)k[C_ROOM_FLOOR];
     f.tiny = sizeof(REAL) == sizeof(float) ? (REAL)1e-30 : (REAL)1e-300; /* (1 - e^-x) / x at x = 0 */
     return f;
 }
