@@ -169,6 +169,10 @@ class CampaignConfig(_Section):
                 raise ConfigError(field, worst, f"is beyond the car's full lock {lock:g} rad ([vehicle])")
         return self
 
+    def stopping_deceleration(self) -> float | None:
+        """What the car the oracle drives brakes at in a live stop (m/s²; `safety.car_braking`)."""
+        return car_braking(self.vehicle.spec, self.oracle.overrides if self.oracle.kind == "twin" else None)
+
     @model_validator(mode="after")
     def _live_stop_within_braking(self) -> CampaignConfig:
         # a live stop's buffer must hold the braking distance from max_speed of the car the oracle drives
@@ -176,8 +180,7 @@ class CampaignConfig(_Section):
         if safety is None or safety.stop != "live":
             return self
         spec = self.vehicle.spec
-        overrides = self.oracle.overrides if self.oracle.kind == "twin" else None
-        deceleration = car_braking(spec, overrides)
+        deceleration = self.stopping_deceleration()
         if deceleration is None:
             raise ConfigError("safety.stop_buffer", safety.stop_buffer, f"cannot be checked: the vehicle "
                               f"{spec.name!r} gives no braking (set its limits.stopping_deceleration)")

@@ -18,9 +18,9 @@ from activelearn.errors import ConfigError
 from simulator.vehicles import VehicleSpec
 
 # Braking in MuJoCo (experiments/investigations/braking.py, experiments/results/braking.txt): from the
-# pose that triggers a live stop a car travels one log sample at the trigger speed, then brakes at its
-# vehicle file's `limits.stopping_deceleration` or more (Nigel 1.9 m/s², the 1:10 car 6.38, the
-# full-size car 10.28: the tyre cars' grip).
+# pose that triggers a live stop a car travels one log sample at the trigger speed, then brakes at what
+# `VehicleSpec.stopping_deceleration` counts on or more (Nigel's measured 1.9 m/s²; the tyre cars brake at
+# their grip, 6.38 and 10.28 m/s² measured, counted as 0.95 of it).
 POSE_LATENCY = 1.0 / 30.0  # s: the brake acts one 30-Hz pose sample after the pose that triggered it
 
 

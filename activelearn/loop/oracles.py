@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 
 from activelearn.config import CampaignConfig
-from activelearn.config.safety import car_braking, settle_seconds
+from activelearn.config.safety import settle_seconds
 from activelearn.data import read_autodrive_log
 from activelearn.errors import ActiveLearnError, DataFormatError, InputError
 from activelearn.loop.collection import (
@@ -99,9 +99,7 @@ class SimulatorOracle(Oracle):
 
         self.cfg = cfg
         self.cache = cache
-        spec = cfg.vehicle.spec
-        overrides = cfg.oracle.overrides if cfg.oracle.kind == "twin" else None
-        rule = stop_rule(cfg.safety, settle_seconds(spec, car_braking(spec, overrides)))
+        rule = stop_rule(cfg.safety, settle_seconds(cfg.vehicle.spec, cfg.stopping_deceleration()))
         self.driven = cache if rule is None else cache.stopped(rule)  # the cache answers come from
         self._test: TestSet | None = None
 
