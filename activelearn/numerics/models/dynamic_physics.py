@@ -107,10 +107,10 @@ def scales_of_another_car(
 
 def before_a_stop(log: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """A log (controls (T, 2), rates (T, 2)) up to a live stop's trigger: the trailing block of throttle
-    exactly 0 after a nonzero throttle is the stop's braking (`simulator.stop`), which the core cannot
-    follow (it has no combined slip: braking at the grip limit with the steering held leaves a car no
-    lateral grip, the core all of it). Identified on, those rows bent a 1:10 safe campaign's scales to
-    their bounds. Other logs whole."""
+    exactly 0 after a nonzero throttle is the stop's braking (`simulator.stop`), an intervention, not the
+    maneuver. Without `combined_slip` the core cannot follow it (braking at the grip limit with the
+    steering held leaves a car no lateral grip, the core all of it): identified on, those rows bent a
+    1:10 safe campaign's scales to their bounds. Other logs whole."""
     throttle = log[0][:, 0]
     driven = np.flatnonzero(throttle != 0.0)
     if len(driven) == 0 or driven[-1] == len(throttle) - 1:

@@ -246,7 +246,7 @@ def dynamic_step(
         if car.combined_slip:  # the longitudinal force's share of each axle's friction circle; at a
             # grip-limited stop a share is its axle's whole circle, where the root's slope is infinite:
             # the room keeps ROOM_FLOOR of the circle, so rounding is not magnified there
-            braking, by_load = _where(throttle == 0.0, 1.0, 0.0), load_r / _maximum(load_f + load_r, 1e-9)
+            braking, by_load = _where(throttle == 0.0, 1.0, 0.0), load_r / (load_f + load_r)  # sum >= m g
             share_r = car.rear_drive_share + braking * (by_load - car.rear_drive_share)  # as the C kernel
             drive_r, drive_f = xp.abs(m * a * share_r), xp.abs(m * a * (1.0 - share_r))
             cap_r, cap_f = car.friction * load_r, car.friction * load_f

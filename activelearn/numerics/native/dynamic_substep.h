@@ -88,7 +88,7 @@ static inline __attribute__((always_inline)) void NAME(lane_step)(NAME(block) *b
         if (combined) { /* the longitudinal force's share of each axle's friction circle, the brake's by
                          * load; at a grip-limited stop a share is the whole circle: the room keeps
                          * C_ROOM_FLOOR of it, away from the root's infinite slope */
-            const REAL braking = (REAL)(tau == K(0)), by_load = load_r / fmax(load_f + load_r, f->tiny);
+            const REAL braking = (REAL)(tau == K(0)), by_load = load_r / (load_f + load_r); /* >= m g */
             const REAL share_r = f->share + braking * (by_load - f->share);
             const REAL drive_r = fabs(m * a * share_r), drive_f = fabs(m * a * (K(1) - share_r));
             const REAL floor_r = f->room_floor * cap_r, floor_f = f->room_floor * cap_f;
