@@ -38,15 +38,18 @@ test set, the truth against the kinematic single track (dotted) and the linear s
 file's cornering stiffnesses (dashed), both at the truth's own speed; and the physics kind's dynamic
 core at its own speed: with the file's values (dash-dot), and for the two fast cars a campaign's last
 model (fine dots: its identified core; solid: with its correction). A: `dynamics_f1tenth.toml`, uniform,
-seed 0, 16 signals; B: `dynamics_bmw320i.toml` on the dynamic core (`bench_vehicle_baselines.py
---variants "dynamic physics"`), seed 0, 16 signals. Nigel never leaves the kinematic model (0.03 μg
+seed 0, 16 signals; B: `dynamics_bmw320i.toml` (its dynamic core with the wheels' forces, session 35),
+uniform, seed 0, 16 signals. Nigel never leaves the kinematic model (0.03 μg
 at most), and the dynamic core with the file's values turns too fast at its lowest speed at large
 steering (it lacks the kinematic core's understeer and scrub under its blend); the 1:10 car's tyres
 understeer from the first degree and saturate near μ g, and its dynamic core follows the truth to the
 limit, identified or not; the full-size car is neutral until its tyres saturate, then slides or
-spins (hollow: not steady): the file's dynamic core follows it within the grip, the identified one
-does not (scales: grip 0.71, cornering stiffnesses 0.35 and 0.38, motor 0.87, yaw inertia at its
-bound 3; both fast cars' gates keep none of the correction, so solid and fine dots coincide).
+spins (hollow: not steady): its dynamic core with the wheels' forces follows it within the grip, with
+the file's values and identified (scales: grip 0.99, cornering stiffnesses 0.95 and 0.92, motor 1.00,
+yaw inertia 1.21; before the wheels' forces the identified one did not: grip 0.71, stiffnesses 0.35
+and 0.38, yaw inertia at its bound 3); beyond it, where the truth spins, no run is steady and the
+curves scatter. Both fast cars' gates keep none of the correction, so solid and fine dots coincide
+within the grip.
 
 """
 COLUMNS = ("car", "scale", "truth", "wheelbase (m)", "full lock (rad)", "top speed (m/s)", "μ",

@@ -100,9 +100,9 @@ def test_free_runs_carry_the_lateral_speed_as_the_cores_own_runs_do():
     assert np.allclose(rollout.x.mean(axis=0), x, atol=1e-2)
 
 
-@pytest.mark.parametrize(("vehicle", "combined_slip"),
-                         [("f1tenth", False), ("nigel", False), ("bmw320i", False), ("f1tenth", True)])
-def test_the_compiled_free_runs_are_torchs(vehicle: str, combined_slip: bool, c_kernels):
+@pytest.mark.parametrize(("vehicle", "slip"), [("f1tenth", "axle"), ("nigel", "axle"), ("bmw320i", "axle"),
+                                               ("f1tenth", "combined"), ("bmw320i", "wheels")])
+def test_the_compiled_free_runs_are_torchs(vehicle: str, slip: str, c_kernels):
     """dynamic_rollout.c's free runs against the torch loop: each draw its own scales, the correction
     widened about the draws' mean (epistemic scale 3), the sensors' noise, the model discrepancy in the
     pose fan, the three interleaved chains of history_step 3, 12 draws (not whole blocks): rates, moments
@@ -110,7 +110,7 @@ def test_the_compiled_free_runs_are_torchs(vehicle: str, combined_slip: bool, c_
     controls are), so float rounding is 1e-4 of a quantity's scale, or in a chaotic run (the 1:10 car
     spinning at throttle 0.8) twice what the reference itself moves when its controls move by 1e-7."""
     model = _untrained(vehicle, parameter_uncertainty="by_log", discrepancy="identification",
-                       combined_slip=combined_slip)
+                       combined_slip=slip == "combined", wheel_forces=slip == "wheels")
     model.theta_scale.copy_(0.1 * torch.eye(5))
     model.epistemic_scale.fill_(3.0)
     model.discrepancy.copy_(torch.tensor([0.05, 0.02]))
@@ -247,6 +247,11 @@ def test_the_discrepancy_is_the_cores_misfit_of_its_logs_and_widens_the_fan_not_
         ModelConfig(kind="physics", discrepancy="identification")  # the kinematic core has none
     with pytest.raises(ValidationError, match="combined_slip"):
         ModelConfig(kind="physics", combined_slip=True)  # nor combined slip
+    with pytest.raises(ValidationError, match="wheel_forces"):
+        ModelConfig(kind="physics", wheel_forces=True)  # nor the wheels' forces
+    with pytest.raises(ValidationError, match="wheel_forces"):  # two slip laws at once
+        ModelConfig(kind="physics", core="dynamic", correction_inputs="control", combined_slip=True,
+                    wheel_forces=True)
     model = _untrained(parameter_uncertainty="by_log", discrepancy="identification")
     car = model.dynamic_car
     logs = twin_logs(car, implicit=True)
@@ -423,3 +428,10 @@ def test_identify_command_prints_the_dynamic_cores_scales_beside_the_file(tmp_pa
     assert "under the scales of 1 log(s) of another car" in out
     motor = next(line.split() for line in out.splitlines() if line.strip().startswith("motor"))
     assert float(motor[1]) == pytest.approx(0.9, abs=0.03)
+    # the full-size config's law and loss: four wheels' forces, the Cauchy loss; the twin's motor still found
+    assert main([*command, "--wheel-forces", "--loss", "cauchy"]) == 0
+    out = capsys.readouterr().out
+    motor = next(line.split() for line in out.splitlines() if line.strip().startswith("motor"))
+    assert float(motor[1]) == pytest.approx(0.9, abs=0.03)
+    assert main(["identify", *logs, "--wheel-forces", "--vehicle", "f1tenth"]) != 0  # the kinematic core's
+    assert "--wheel-forces" in capsys.readouterr().err  # no wheels: the flag is named

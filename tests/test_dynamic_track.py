@@ -85,6 +85,43 @@ def test_with_combined_slip_the_core_follows_a_braking_turn():
         assert misses[True][0] < 0.5 * misses[False][0]  # speed
 
 
+def test_the_kernels_wheel_passes_are_the_numpy_steps(c_kernels):
+    """The kernel's fixed-point passes of the wheels' loads are a compile-time constant (the pass loop
+    unrolls, the lane loop vectorises): the same number as the NumPy step's."""
+    from activelearn.numerics import native
+    from activelearn.numerics.models.dynamic_track import WHEEL_PASSES
+
+    assert native.library().al_dynamic_wheel_passes() == WHEEL_PASSES
+
+
+def test_with_the_wheels_forces_the_full_size_core_turns_and_spins_with_the_truth():
+    """MuJoCo's full-size car (rear drive) on a circle at a fixed steering: at throttle 0.4 it settles at
+    about 0.9 μg; at 0.6 the inner rear wheel, unloaded by the turn, is driven past its circle and the
+    car spins (power oversteer). The core with the wheels' forces (each wheel's load and circle) turns
+    as the truth does (its yaw rate's rms miss a fifth of the axles' core's or less) and spins within a
+    second of it; with one circle an axle it never spins."""
+    from simulator import Replay, build_vehicle, collect
+
+    spec = load_vehicle("bmw320i")
+    n = round(16.0 / DT)
+    cases = {0.4: "steady", 0.6: "spins"}
+    logs = collect([Replay(kind, np.full(n, throttle), np.full(n, 0.08)) for throttle, kind in cases.items()],
+                   noise=None, vehicle=build_vehicle(spec))  # fmt: skip
+    truths = [t for _, t in logs.groupby("run_id", sort=False)]
+    steady_truth, spin_truth = (t["angZ"].to_numpy() for t in truths)
+    assert 0.85 < steady_truth[-1] * truths[0]["speed"].to_numpy()[-1] / (spec.tyres.friction.value * GRAVITY)
+    spins_from = np.flatnonzero(spin_truth > 1.0)[0] * DT  # yaw rate past 1 rad/s
+    controls = np.stack([t[["throttle", "steering"]].to_numpy(np.float64) for t in truths])
+    miss, spins = {}, {}
+    for wheels in (False, True):
+        car = dataclasses.replace(DynamicCar.of(spec), wheel_forces=wheels)
+        rates = rate_runs(car, controls, np.zeros((2, 4)), DT, implicit=True)
+        miss[wheels] = np.sqrt(np.mean((rates[0, :, 1] - steady_truth) ** 2))
+        spins[wheels] = np.flatnonzero(rates[1, :, 1] > 1.0) * DT
+    assert miss[True] < 0.2 * miss[False], miss
+    assert len(spins[True]) and abs(spins[True][0] - spins_from) < 1.0 and not len(spins[False]), spins
+
+
 def twin_logs(
     car: DynamicCar, implicit: bool = False, scales: tuple[float, ...] = (0.8, 1.0, 1.0, 0.9, 1.0)
 ) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -110,15 +147,16 @@ def test_identification_recovers_a_twins_grip_and_motor_from_its_own_logs():
     assert friction == pytest.approx(0.8, abs=0.04) and motor == pytest.approx(0.9, abs=0.02)
 
 
-@pytest.mark.parametrize("combined_slip", [False, True])
+@pytest.mark.parametrize("slip", ["axle", "combined", "wheels"])
 @pytest.mark.parametrize("implicit", [True, False])
 @pytest.mark.parametrize("name", ["nigel", "f1tenth", "bmw320i"])
-def test_the_compiled_rate_runs_are_numpys(name, implicit, combined_slip, c_kernels):
+def test_the_compiled_rate_runs_are_numpys(name, implicit, slip, c_kernels):
     """dynamic_rollout.c against the NumPy loop: random controls with braking steps, starts forward and
-    reversing, one car and a batch of scaled ones (the identification's shapes), with and without
-    combined slip, equal to rounding."""
+    reversing, one car and a batch of scaled ones (the identification's shapes), under each slip law
+    (the rear drive's share of its axle's circle, combined slip, the wheels' forces), equal to rounding."""
     rng = np.random.default_rng(7)
-    car = dataclasses.replace(DynamicCar.of(load_vehicle(name)), combined_slip=combined_slip)
+    car = dataclasses.replace(DynamicCar.of(load_vehicle(name)), combined_slip=slip == "combined",
+                              wheel_forces=slip == "wheels")  # fmt: skip
     n_runs, n_steps = 21, 46  # lanes not a multiple of the kernel's block of 8
     shape = (n_runs, n_steps)
     controls = np.stack([rng.uniform(-1, 1, shape), rng.uniform(-0.5, 0.5, shape)], -1)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 from activelearn.cli.fidelity import log_files
 from activelearn.cli.maneuver_args import add_vehicle_option
@@ -27,6 +28,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "parameters (default), or the dynamic single track's five scales of the file's "
                         "figures (grip, cornering stiffnesses, drive, yaw inertia), identified as its "
                         "campaigns do")
+    p.add_argument("--wheel-forces", action="store_true",
+                   help="--core dynamic: the forces of four wheels, each in its own friction circle "
+                        "([model] wheel_forces)")
+    p.add_argument("--loss", choices=("squares", "cauchy"), default="squares",
+                   help="--core dynamic: the identification's loss ([model] identification_loss)")
     add_vehicle_option(p, "nigel")
     p.add_argument("--rate-hz", type=float, metavar="HZ",
                    help="the logs' rate (default: read off their time columns)")
@@ -51,8 +57,12 @@ def _identify(args: argparse.Namespace) -> int:
     if args.rate_hz is None:
         args.rate_hz = log_rate_hz(tables)
     logs = control_rate_logs(tables)
+    if args.core != "dynamic" and args.wheel_forces:
+        raise InputError("--wheel-forces", True, "needs --core dynamic")
+    if args.core != "dynamic" and args.loss != "squares":
+        raise InputError("--loss", args.loss, "needs --core dynamic")
     if args.core == "dynamic":
-        _print_dynamic(logs, spec, args.other_car, 1.0 / args.rate_hz)
+        _print_dynamic(logs, spec, args.other_car, 1.0 / args.rate_hz, args.wheel_forces, args.loss)
     else:
         _print_kinematic(logs, car, args.other_car, 1.0 / args.rate_hz)
     _print_stderr_note(len(logs))
@@ -80,7 +90,7 @@ def _print_kinematic(logs, car, other_car: list[str], dt: float) -> None:
         print(f"  {row}  {p.unit:<5} {p.meaning}")
 
 
-def _print_dynamic(logs, spec, other_car: list[str], dt: float) -> None:
+def _print_dynamic(logs, spec, other_car: list[str], dt: float, wheel_forces: bool, loss: str) -> None:
     """The dynamic core's five scales, identified as its campaigns do, with the figures they scale (under
     another car's logs' scales, widened, with `other_car`)."""
     from activelearn.fidelity import read_log_file
@@ -92,13 +102,13 @@ def _print_dynamic(logs, spec, other_car: list[str], dt: float) -> None:
     )
     from activelearn.numerics.models.dynamic_track import DYNAMIC_PARAMETERS, DynamicCar, scaled_figures
 
-    car = DynamicCar.of(spec)
+    car = dataclasses.replace(DynamicCar.of(spec), wheel_forces=wheel_forces)
     prior, under = None, f"under {spec.name}'s vehicle file (scale 1 ± its width)"
     if other_car:
         others = control_rate_logs([read_log_file(path) for path in log_files(other_car)])
         prior = scales_of_another_car(others, car, dt)
         under = f"under the scales of {len(others)} log(s) of another car ± the file's widths"
-    found = identify_scales(logs, car, dt, prior=prior)
+    found = identify_scales(logs, car, dt, prior=prior, loss=loss)
     steps = sum(len(u) for u, _ in logs)
     print(f"the dynamic core's scales from {len(logs)} log(s), {steps} steps, {under}, free runs restarted "
           f"every {IDENTIFY_HORIZON:g} s:")

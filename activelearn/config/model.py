@@ -144,6 +144,26 @@ class ModelConfig(_Section):
         "force leaves of its friction circle (the drive's shares under throttle, the brake's by load at "
         "throttle 0); false: the rear axle's drive share alone",
     )
+    # The truth's tyres are four wheels, each in its own friction circle, on a chassis whose loads shift
+    # left and right: at the limit it spins where an axle's circle holds (docs/results/vehicles.md,
+    # session 35).
+    wheel_forces: bool = Field(
+        False,
+        description="core = 'dynamic': the forces of four wheels on the single track's states: each "
+        "wheel's load with the longitudinal and the lateral transfer (a rigid chassis on four equal "
+        "contacts), its own friction circle (Kamm's: where the drive or brake and the lateral force "
+        "exceed μ F_z both are scaled back, their direction kept), the yaw moment of unequal wheel "
+        "forces, and the kinematic blend weighed by the speed over ground; false: an axle's circle "
+        "(`combined_slip`)",
+    )
+    # A spinning car's logs hold rows that no scale fits to the second (a spin a little early or late):
+    # by squares they pulled the full-size car's scales to their bounds (docs/results/vehicles.md).
+    identification_loss: Literal["squares", "cauchy"] = Field(
+        "squares",
+        description="core = 'dynamic': the identification's loss: 'squares' (Gaussian errors), or "
+        "'cauchy', each error weighing 1 / (1 + (e / (0.3 × the rate's rms error))²), so that the few "
+        "rows no parameter set fits (a spin a little off the truth's) do not pull the rest",
+    )
     residual_bound: Annotated[float, Field(ge=0.0, le=0.5)] = Field(
         0.05,
         description="kind = 'physics': largest learnt change of a steady rate, as a share of its limit "
@@ -202,8 +222,13 @@ class ModelConfig(_Section):
                 "core: 'dynamic' needs correction_inputs = 'control' (its free runs carry the lateral speed "
                 "an input window does not hold)"
             )
-        if self.combined_slip and self.core != "dynamic":
-            raise ValueError(f"combined_slip: the dynamic core's (core = 'dynamic'), not core {self.core!r}")
+        dynamic_only = {"combined_slip": self.combined_slip, "wheel_forces": self.wheel_forces,
+                        "identification_loss": self.identification_loss != "squares"}  # fmt: skip
+        for name, set_here in dynamic_only.items():
+            if set_here and self.core != "dynamic":
+                raise ValueError(f"{name}: the dynamic core's (core = 'dynamic'), not core {self.core!r}")
+        if self.combined_slip and self.wheel_forces:
+            raise ValueError("wheel_forces: each wheel's own circle replaces combined_slip's axles; set one")
         if self.discrepancy != "none" and self.core != "dynamic":
             raise ValueError(
                 f"discrepancy: {self.discrepancy!r} is the dynamic core's (core = 'dynamic'), not "

@@ -18,7 +18,9 @@ a weaker motor: `TWIN`), each file model's free runs from each test log's first 
 CG's path; lateral speed 0, the logs do not hold it):
   * kinematic file   the kinematic single track (the physics kind's core at the file's values);
   * dynamic file     the dynamic single track (`activelearn.numerics.models.dynamic_track`): tyre slip,
-                     saturating tyres, load transfer, blended into the kinematic model at low speed.
+                     saturating tyres, load transfer, blended into the kinematic model at low speed;
+  * dynamic file, wheels  the same with the forces of four wheels (`wheel_forces`: each wheel's load
+                     with the lateral transfer, its own friction circle).
 A model built from the same figures as the truth is flattered on the nominal truth; the twin says how
 it does when the figures are off.
 Prints per car and variant the 30-s position error of the free runs' mean path after the last round
@@ -35,6 +37,7 @@ scales of the kinds that identify them (`identified_*` round metrics).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 from typing import Any
@@ -58,9 +61,10 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 CARS = ("f1tenth", "bmw320i")
 # each variant's model knobs over the car's config (whatever core the config ships; the kinematic core
 # has no discrepancy term)
-BLACK_BOX = {"kind": "ensemble", "ensemble_size": 5, "kinematic_feature": True, "core": "kinematic",
-             "discrepancy": "none"}  # fmt: skip
-KINEMATIC = {"core": "kinematic", "parameter_uncertainty": "none", "discrepancy": "none"}
+KINEMATIC_CORE = {"core": "kinematic", "discrepancy": "none", "wheel_forces": False, "combined_slip": False,
+                  "identification_loss": "squares"}  # fmt: skip
+BLACK_BOX = {"kind": "ensemble", "ensemble_size": 5, "kinematic_feature": True, **KINEMATIC_CORE}
+KINEMATIC = {**KINEMATIC_CORE, "parameter_uncertainty": "none"}
 DYNAMIC = {"core": "dynamic", "parameter_uncertainty": "by_log"}  # issue 56's core under the correction
 UPDATES = {"datasheet": KINEMATIC, "physics": KINEMATIC, "dynamic physics": DYNAMIC, "black box": BLACK_BOX}
 VARIANTS = ("datasheet", "physics", "dynamic physics", "black box")
@@ -118,7 +122,9 @@ def by_band(cfg: CampaignConfig, directory: Path, twin: bool) -> pd.DataFrame:
     cfg = twin_of(cfg) if twin else cfg
     test = Campaign(cfg, directory).evaluation.test_set
     spec = cfg.vehicle.spec
-    errors = test_errors(test, cfg, {"kinematic file": "kinematic", "dynamic file": DynamicCar.of(spec)})
+    car = DynamicCar.of(spec)
+    errors = test_errors(test, cfg, {"kinematic file": "kinematic", "dynamic file": car,
+                                     "dynamic file, wheels": dataclasses.replace(car, wheel_forces=True)})
     bands = bands_of(test, cfg, twin)
     return pd.DataFrame([{"variant": name, "band": band, "error": error[i]}
                          for name, error in errors.items() for i, band in enumerate(bands)])  # fmt: skip

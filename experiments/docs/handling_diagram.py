@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import math
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import matplotlib
@@ -68,7 +69,9 @@ def steady_turns(car: str, points: int, model_path: Path | None = None) -> list[
         table = collect(maneuvers, vehicle=build_vehicle(spec), noise=None)
     commands = np.array([[m.throttle, m.steering] for m in maneuvers])
     controls = np.repeat(commands[:, None, :], round(seconds * RATE), axis=1)  # (M, T, 2)
-    models = {"file core": _steady(rate_runs(DynamicCar.of(spec), controls, np.zeros((len(maneuvers), 4)),
+    # the file's core under the slip law the car's dynamics config runs (`[model] wheel_forces`)
+    file_core = replace(DynamicCar.of(spec), wheel_forces=load_config(config_for(car)).model.wheel_forces)
+    models = {"file core": _steady(rate_runs(file_core, controls, np.zeros((len(maneuvers), 4)),
                                              1.0 / RATE, implicit=True))}  # fmt: skip
     if model_path is not None:
         model = load_model(model_path)

@@ -10,12 +10,15 @@ for the file's kinematic and dynamic single track and the identified dynamic one
 issue 56 for the twin: the identified friction and motor within 10 % of the change (0.8, 0.9).
 
 Usage: python experiments/investigations/dynamic_identification.py [--cars f1tenth,bmw320i] [--seeds 3]
-       [--signals 16] [--out runs/dynamic_identification]
+       [--signals 16] [--out runs/dynamic_identification] [--horizon S] [--wheel-forces] [--loss cauchy]
+`--wheel-forces`: the core with the forces of four wheels (`[model] wheel_forces`), identified and run;
+`--loss`: the identification's (`[model] identification_loss`).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -55,6 +58,8 @@ def main() -> None:
     parser.add_argument("--signals", type=int, default=16)
     parser.add_argument("--out", default="runs/dynamic_identification")
     parser.add_argument("--horizon", type=float, default=None, help="restart the free runs every S s")
+    parser.add_argument("--wheel-forces", action="store_true", help="the core with four wheels' forces")
+    parser.add_argument("--loss", choices=("squares", "cauchy"), default="squares", help="identification's")
     args = parser.parse_args()
     out = Path(args.out).resolve()
     rows = []
@@ -62,6 +67,7 @@ def main() -> None:
         for twin in (False, True):
             campaign = campaign_of(car, twin, out)
             file_car = DynamicCar.of(campaign.cfg.vehicle.spec)
+            file_car = dataclasses.replace(file_car, wheel_forces=args.wheel_forces)
             candidates = campaign.oracle.candidates()
             for seed in range(args.seeds):
                 rng = np.random.default_rng(seed)
@@ -69,7 +75,8 @@ def main() -> None:
                 frames = campaign.oracle.answer([candidates[i] for i in chosen], seed)
                 started = time.perf_counter()
                 dt = 1.0 / campaign.cfg.simulation.rate_hz
-                found = identify_dynamic(control_rate_logs(frames), file_car, dt, horizon=args.horizon)
+                logs = control_rate_logs(frames)
+                found = identify_dynamic(logs, file_car, dt, horizon=args.horizon, loss=args.loss)
                 seconds = time.perf_counter() - started
                 identified = scaled(file_car, found.values)
                 identified = type(file_car)(**{k: (np.asarray(v).item() if np.ndim(v) == 2 else v)

@@ -89,11 +89,12 @@ def identify_scales(
     dt: float,
     search_from: np.ndarray | None = None,
     prior: Identified | None = None,
+    loss: str = "squares",
 ) -> Identified:
     """The five scales from logs as the model identifies them (`identify_dynamic`: free runs of the step it
     takes, restarted every `IDENTIFY_HORIZON` s, compared every `IDENTIFY_EVERY` log steps), under `prior`
-    (default the file's)."""
-    return identify_dynamic(logs, car, dt, search_from=search_from, prior=prior, **IDENTIFICATION)
+    (default the file's), by `loss` (`[model] identification_loss`)."""
+    return identify_dynamic(logs, car, dt, search_from=search_from, prior=prior, loss=loss, **IDENTIFICATION)
 
 
 def scales_of_another_car(
@@ -108,9 +109,9 @@ def scales_of_another_car(
 def before_a_stop(log: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """A log (controls (T, 2), rates (T, 2)) up to a live stop's trigger: the trailing block of throttle
     exactly 0 after a nonzero throttle is the stop's braking (`simulator.stop`), an intervention, not the
-    maneuver. Without `combined_slip` the core cannot follow it (braking at the grip limit with the
-    steering held leaves a car no lateral grip, the core all of it): identified on, those rows bent a
-    1:10 safe campaign's scales to their bounds. Other logs whole."""
+    maneuver. With neither `combined_slip` nor `wheel_forces` the core cannot follow it (braking at the
+    grip limit with the steering held leaves a car no lateral grip, the core all of it): identified on,
+    those rows bent a 1:10 safe campaign's scales to their bounds. Other logs whole."""
     throttle = log[0][:, 0]
     driven = np.flatnonzero(throttle != 0.0)
     if len(driven) == 0 or driven[-1] == len(throttle) - 1:
@@ -121,12 +122,13 @@ def before_a_stop(log: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.nd
 
 def identification_misfit(
     logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, theta: np.ndarray,
-    cross_validated: bool = False,
+    cross_validated: bool = False, loss: str = "squares",
 ) -> np.ndarray:  # fmt: skip
     """(2,) the rms misfit (v, r) of `identify_scales`' own free runs at scales `theta` (`misfit`), or
-    out of sample (`cross_validated_misfit`: each of 4 folds at the scales identified without it)."""
+    out of sample (`cross_validated_misfit`: each of 4 folds at the scales identified without it, by
+    `loss`)."""
     if cross_validated:
-        return cross_validated_misfit(logs, car, dt, theta, **IDENTIFICATION)
+        return cross_validated_misfit(logs, car, dt, theta, loss=loss, **IDENTIFICATION)
     return misfit(logs, car, dt, theta, **IDENTIFICATION)
 
 
@@ -228,7 +230,9 @@ class DynamicPhysicsModel(PhysicsModel):
 
     def __init__(self, config: ModelConfig, *, generator: torch.Generator | None = None) -> None:
         super().__init__(config, generator=generator)  # the config checked correction_inputs (`core`)
-        self.dynamic_car = replace(DynamicCar.of(self.car.spec), combined_slip=config.combined_slip)
+        self.dynamic_car = replace(
+            DynamicCar.of(self.car.spec), combined_slip=config.combined_slip, wheel_forces=config.wheel_forces
+        )
         self.substeps = self.dynamic_car.implicit_substeps(self.dt)
         bounds = dynamic_bounds()
         self.parameter_names = tuple(p.name for p in DYNAMIC_PARAMETERS)
@@ -276,11 +280,12 @@ class DynamicPhysicsModel(PhysicsModel):
                 self.set_identified(prior)
             return
         search_from = self.theta.double().numpy() if warm else None
-        found = identify_scales(own, self.dynamic_car, dt, search_from, prior)
+        loss = self.config.identification_loss
+        found = identify_scales(own, self.dynamic_car, dt, search_from, prior, loss)
         self.set_identified(found)
         if self.discrepancy is not None:
             cross = self.config.discrepancy == "cross_validated"
-            misfit_of_logs = identification_misfit(own, self.dynamic_car, dt, found.values, cross)
+            misfit_of_logs = identification_misfit(own, self.dynamic_car, dt, found.values, cross, loss)
             self.discrepancy.copy_(torch.as_tensor(misfit_of_logs, dtype=torch.float32))
             self.discrepancy_logs.fill_(float(len(own)))
 

@@ -16,6 +16,14 @@ State (v_x, v_y, r, δ_w) at the CG: forward and lateral speed, yaw rate, the fr
   μ F_z; the drive's longitudinal force takes its share of the driven axle's friction circle.
 - Slip angles from each axle's velocity in its wheel frame, the forward speed floored at half the blend
   speed (a tyre is a lateral damper near rest, as in the truth).
+- With `wheel_forces` (`[model] wheel_forces`), the forces of four wheels on these states instead: each
+  wheel's load is its axle's half ± m a_y h / (2 t) (the lateral transfer of a rigid chassis on four
+  equal contacts, t the track); it asks for its share of m a (the drive's, halved left and right, or the
+  brake's by load) and for its axle's pure-slip F_y per newton times its load; where the two exceed μ F_z
+  both are scaled back onto the circle, their direction kept (Kamm's circle). a_x, a_y are the sums of
+  those forces over m, the loads taken from them in `WHEEL_PASSES` fixed-point passes; the yaw moment
+  adds t/2 times the wheels' unequal forces (F_x right − left, and the front F_y's turn with δ_w). The
+  blend below weighs the speed over ground √(v_x² + v_y²), so a car sliding sideways keeps spinning.
 - v̇_x = a − F_yf sin δ_w / m + v_y r,  v̇_y = (F_yf cos δ_w + F_yr) / m − v_x r,
   ṙ = (l_f F_yf cos δ_w − l_r F_yr) / I_z.
 - Below the blend speed v_b = ½ √(g L) the state is pulled to the kinematic one (r = v_x tan δ_w / L,
@@ -52,6 +60,11 @@ IMPLICIT_SUBSTEP = 0.025
 
 # `combined_slip`: the share of an axle's friction circle its lateral force keeps at a grip-limited stop
 ROOM_FLOOR = 1e-3
+# `wheel_forces`: fixed-point passes of the wheels' loads on the accelerations their forces give (from the
+# demand and v_x r: one pass lets the full-size car's near-limit turns ring, 2-3 follow the truth's), and
+# the least resultant a friction circle divides by
+WHEEL_PASSES = 3
+TINY = 1e-30
 
 
 @dataclass(frozen=True)
@@ -85,6 +98,11 @@ class DynamicCar:
     # circle: the drive's shares under throttle, the brake's by load at throttle 0 (False: the rear
     # axle's drive share alone, the core before it; `[model] combined_slip`)
     combined_slip: bool = False
+    # the forces of four wheels on the single track's states (`[model] wheel_forces`, `_wheel_forces`):
+    # each wheel's load with longitudinal and lateral transfer, its own friction circle, the yaw moment
+    # of unequal wheel forces; the kinematic blend weighed by the speed over ground
+    wheel_forces: bool = False
+    track: float = 0.0  # m, the wheels' lateral spacing (the file's mean track)
 
     @classmethod
     def of(cls, spec: VehicleSpec, tire_friction: float = 1.0, motor_gain: float = 1.0) -> DynamicCar:
@@ -114,7 +132,7 @@ class DynamicCar:
             max_acceleration=value(d.max_acceleration, motor_gain),
             power_limit_speed=value(d.power_limit_speed),
             table_throttle=np.asarray(grid, float), table_speed=np.asarray(speed, float) * motor_gain,
-            speed_time_constant=lag,
+            speed_time_constant=lag, track=g.track.value,
         )  # fmt: skip
 
     @property
@@ -189,8 +207,13 @@ def _table(car: DynamicCar, throttle):
 
 def _acceleration(car: DynamicCar, throttle, vx, dt: float):
     """Longitudinal acceleration (m/s²) from the drivetrain or the brake, within μ g."""
-    xp = _namespace(vx)
     grip = car.friction * GRAVITY
+    return _clip(_demand(car, throttle, vx, dt), -grip, grip)
+
+
+def _demand(car: DynamicCar, throttle, vx, dt: float):
+    """The longitudinal acceleration (m/s²) the drivetrain or the brake asks for."""
+    xp = _namespace(vx)
     if car.top_speed is not None and car.max_acceleration is not None:
         top = _where(throttle > 0, car.top_speed, car.reverse_top_speed)
         a_max = car.max_acceleration
@@ -200,7 +223,7 @@ def _acceleration(car: DynamicCar, throttle, vx, dt: float):
         target = xp.sign(throttle) * _table(car, throttle)
         drive = (target * car.table_gain - vx) / car.speed_time_constant
     stop = -xp.sign(vx) * _minimum(xp.abs(vx) / dt, car.brake)  # brakes to rest, not past it
-    return _clip(_where(throttle == 0.0, stop, drive), -grip, grip)
+    return _where(throttle == 0.0, stop, drive)
 
 
 def _lateral_force(car: DynamicCar, alpha, load, static: float, stiffness):
@@ -233,6 +256,9 @@ def dynamic_step(
     target = _clip(steering, -car.steering_limit, car.steering_limit)
     for _ in range(n):
         delta = delta + _clip(target - delta, -car.steering_rate * h, car.steering_rate * h)
+        if car.wheel_forces:
+            vx, vy, r = _wheel_substep(car, (vx, vy, r, delta), throttle, h, implicit)
+            continue
         a = _acceleration(car, throttle, vx, h)
         load_f = _maximum(m * (g * car.lr - a * car.cg_height) / L, 0.0)
         load_r = _maximum(m * (g * car.lf + a * car.cg_height) / L, 0.0)
@@ -277,6 +303,79 @@ def dynamic_step(
         vy = w * vy + (1.0 - w) * car.lr * r_kin
     parts = xp.broadcast_arrays(vx, vy, r, delta) if xp is np else torch.broadcast_tensors(vx, vy, r, delta)
     return xp.stack(parts, axis=-1) if xp is np else torch.stack(parts, dim=-1)  # δ_w: no parameter axis
+
+
+def _wheel_substep(car: DynamicCar, state: tuple, throttle, h: float, implicit: bool) -> tuple:
+    """(v_x, v_y, r) after a substep of `h` s under the forces of four wheels (`_wheel_forces`), δ_w
+    already moved; the kinematic blend weighed by the speed over ground, so that a car sliding sideways
+    at a low forward speed keeps spinning."""
+    vx, vy, r, delta = state
+    xp = _namespace(vx)
+    m, L = car.mass, car.wheelbase
+    static_f, static_r = m * GRAVITY * car.lr / L, m * GRAVITY * car.lf / L
+    floor, blend = 0.5 * car.blend_speed, car.blend_speed
+    cos, sin = xp.cos(delta), xp.sin(delta)
+    front_y = vy + car.lf * r
+    long_f, lat_f = vx * cos + front_y * sin, front_y * cos - vx * sin
+    alpha_f = xp.arctan(-lat_f / _maximum(xp.abs(long_f), floor))
+    alpha_r = xp.arctan(-(vy - car.lr * r) / _maximum(xp.abs(vx), floor))
+    unit = (_lateral_force(car, alpha_f, static_f, static_f, car.stiffness_front) / static_f,
+            _lateral_force(car, alpha_r, static_r, static_r, car.stiffness_rear) / static_r)  # fmt: skip
+    ax, ay, (x_f, y_f, y_r), moment, (load_f, load_r) = _wheel_forces(
+        car, _demand(car, throttle, vx, h), throttle == 0.0, unit, vx * r, (cos, sin)
+    )
+    dr = (car.lf * (y_f * cos + x_f * sin) - car.lr * y_r + moment) / car.yaw_inertia
+    if implicit:  # as dynamic_step's
+        speed = _maximum(xp.abs(vx), floor)
+        c_f, c_r = car.stiffness_front * load_f / static_f, car.stiffness_rear * load_r / static_r
+        vy = vy + h * (ay - vx * r) * _relaxed(h * (c_f + c_r) / (m * speed))
+        vx = vx + h * (ax + vy * r)
+        r = r + h * dr * _relaxed(h * (car.lf**2 * c_f + car.lr**2 * c_r) / (car.yaw_inertia * speed))
+    else:
+        vx, vy, r = vx + h * (ax + vy * r), vy + h * (ay - vx * r), r + h * dr
+    w = 0.5 * (1.0 + xp.tanh((xp.sqrt(vx * vx + vy * vy) - blend) / (0.25 * blend)))
+    r_kin = vx * xp.tan(delta) / L
+    return vx, w * vy + (1.0 - w) * car.lr * r_kin, w * r + (1.0 - w) * r_kin
+
+
+def _wheel_forces(car: DynamicCar, demand, braking, unit: tuple, lateral, turn: tuple) -> tuple:
+    """The forces of four wheels on the single track: (a_x, a_y) in the body frame, the front axle's
+    longitudinal and lateral force and the rear's lateral one (wheel frames), the yaw moment of the
+    wheels' unequal forces, and the axles' loads.
+
+    Each wheel's load: its axle's (longitudinal transfer) shared left and right with the lateral
+    transfer of a rigid body on four equal contacts, m a_y h / (2 t) a wheel on either axle (what the
+    truth's MuJoCo chassis gives). Each wheel asks for its share of m `demand` (the drive's shares
+    under throttle, the brake's by load at throttle 0) and for its axle's lateral force per newton of
+    load (`unit`, pure slip) times its load; where the two exceed μ F_z both are scaled back onto the
+    circle, their direction kept (Kamm's circle, as the truth's tyres). The loads follow the
+    accelerations those forces give: `WHEEL_PASSES` fixed-point passes from the demand within μ g and
+    the state's v_x r (`lateral`). `turn` = (cos δ_w, sin δ_w)."""
+    xp = _namespace(demand)
+    m, L, g, height, half = car.mass, car.wheelbase, GRAVITY, car.cg_height, 0.5 * car.track
+    cos, sin = turn
+    grip = car.friction * g
+    ax, ay = _clip(demand, -grip, grip), lateral
+    drive = (m * demand * 0.5 * (1.0 - car.rear_drive_share), m * demand * 0.5 * car.rear_drive_share)
+    for _ in range(WHEEL_PASSES):
+        load_f = _maximum(m * (g * car.lr - ax * height) / L, 0.0)
+        load_r = _maximum(m * (g * car.lf + ax * height) / L, 0.0)
+        shift = m * ay * height / (4.0 * half)  # to the wheels on the outside of the turn
+        loads = (_maximum(0.5 * load_f - shift, 0.0), _maximum(0.5 * load_f + shift, 0.0),
+                 _maximum(0.5 * load_r - shift, 0.0), _maximum(0.5 * load_r + shift, 0.0))  # fmt: skip
+        total = loads[0] + loads[1] + loads[2] + loads[3]  # at least m g
+        forces = []
+        for i, load in enumerate(loads):  # front left, front right, rear left, rear right
+            f_long = _where(braking, m * demand * load / total, drive[i // 2])
+            f_lat = unit[i // 2] * load
+            resultant = _maximum(xp.sqrt(f_long * f_long + f_lat * f_lat), TINY)
+            scale = _minimum(car.friction * load / resultant, 1.0)
+            forces.append((f_long * scale, f_lat * scale))
+        (x_fl, y_fl), (x_fr, y_fr), (x_rl, y_rl), (x_rr, y_rr) = forces
+        x_f, y_f, x_r, y_r = x_fl + x_fr, y_fl + y_fr, x_rl + x_rr, y_rl + y_rr
+        ax, ay = (x_f * cos - y_f * sin + x_r) / m, (x_f * sin + y_f * cos + y_r) / m
+    moment = half * ((x_fr - x_fl) * cos + (x_rr - x_rl) + (y_fl - y_fr) * sin)
+    return ax, ay, (x_f, y_f, y_r), moment, (load_f, load_r)
 
 
 def _relaxed(x):
@@ -395,7 +494,7 @@ def native_car(car: DynamicCar) -> np.ndarray:
         GRAVITY, car.mass, car.lf, car.lr, car.cg_height, car.shape or 0.0, car.curvature,
         car.steering_limit, car.steering_rate, car.rear_drive_share, float(motor),
         car.power_limit_speed or 0.0, car.speed_time_constant, car.blend_speed, float(car.combined_slip),
-        ROOM_FLOOR,
+        ROOM_FLOOR, float(car.wheel_forces), car.track,
     ])  # fmt: skip
 
 
@@ -496,7 +595,7 @@ def _usable(logs: list[tuple[np.ndarray, np.ndarray]]) -> list[tuple[np.ndarray,
 def identify_dynamic(
     logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, every: int = 3,
     horizon: float | None = None, search_from: np.ndarray | None = None, implicit: bool = False,
-    prior: Identified | None = None,
+    prior: Identified | None = None, loss: str = "squares",
 ) -> Identified:
     """Output-error MAP of the five `DYNAMIC_PARAMETERS` (scales of the file's figures, the file as the
     prior) from logs, (controls (T, 2), rates (T, 2) = speed, yaw rate), as the kinematic core's
@@ -506,14 +605,15 @@ def identify_dynamic(
     from the recorded rates every `horizon` s instead (a spinning car's 30 s are chaotic in the
     parameters; a few seconds are not). `search_from`: where the search begins (default the file);
     `implicit`: free runs by the step with implicit tyre damping (the physics kind's); `prior`: the
-    Gaussian prior instead of the file's (another car's estimate, `single_track.widened`)."""
+    Gaussian prior instead of the file's (another car's estimate, `single_track.widened`); `loss`:
+    `single_track._map_fit`'s ("cauchy": rows no parameter set fits weigh less)."""
     logs = _usable(logs)
     bounds = dynamic_bounds()
     prior = prior or bounds.prior
     if not logs:
         return Identified(prior.values.copy(), prior.covariance.copy())
     errors_of, clusters, spread = _restart_errors(logs, car, dt, every, horizon, implicit)
-    return _map_fit(errors_of, spread, clusters, prior, search_from, bounds)
+    return _map_fit(errors_of, spread, clusters, prior, search_from, bounds, loss)
 
 
 def _squared_misfit(
@@ -543,10 +643,10 @@ def misfit(
 
 def cross_validated_misfit(
     logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, theta: np.ndarray, folds: int = 4,
-    every: int = 3, horizon: float | None = None, implicit: bool = False,
+    every: int = 3, horizon: float | None = None, implicit: bool = False, loss: str = "squares",
 ) -> np.ndarray:  # fmt: skip
     """(2,) `misfit` out of sample: the logs in min(`folds`, logs) folds (in their order), each fold's
-    errors at the scales identified on the others (searched from `theta`, the fit on all of them). A
+    errors at the scales identified on the others (by `loss`, searched from `theta`, the fit on all). A
     core fitted to a few logs misses maneuvers unlike them by more than its own (after a 1:10 cold
     start's 4 signals: 0.12 m/s against 0.028). One log: the in-sample misfit."""
     logs = _usable(logs)
@@ -555,7 +655,7 @@ def cross_validated_misfit(
     squares, count = np.zeros(2), 0
     for held in np.array_split(np.arange(len(logs)), min(folds, len(logs))):
         rest = [log for i, log in enumerate(logs) if i not in held]
-        found = identify_dynamic(rest, car, dt, every, horizon, search_from=theta, implicit=implicit)
+        found = identify_dynamic(rest, car, dt, every, horizon, theta, implicit, loss=loss)
         fold_squares, fold_count = _squared_misfit(
             [logs[i] for i in held], car, dt, found.values, every, horizon, implicit
         )

@@ -386,6 +386,11 @@ def widened(found: Identified, width: np.ndarray) -> Identified:
     return Identified(found.values.copy(), found.covariance + np.diag(np.asarray(width, np.float64) ** 2))
 
 
+# `_map_fit(loss="cauchy")`: the error size, as a share of the rates' rms error, beyond which a row's
+# weight falls off (a pilot on the full-size car's spinning logs: 0.3 and 1 gave the same scales)
+CAUCHY_SCALE = 0.3
+
+
 def _map_fit(
     errors_of,
     spread: np.ndarray,
@@ -393,13 +398,17 @@ def _map_fit(
     prior: Identified | None = None,
     search_from: np.ndarray | None = None,
     car: CarPrior | None = None,
+    loss: str = "squares",
 ) -> Identified:
     """MAP parameters under a Gaussian prior (default the car's; independent parameters, its
     covariance's diagonal): Gaussian errors of unknown size per rate, found in two passes (the first,
     with the prior at 1/`PRIOR_ROWS` of its weight, measures the error size), and their
     cluster-robust covariance. `errors_of` maps parameter sets (P, 7) to errors (P, n, 2); `clusters`
     (n,) labels the error rows whose errors may be correlated (one log's steps). The first pass searches
-    from `search_from` (default the prior's centre), the second from the first's solution."""
+    from `search_from` (default the prior's centre), the second from the first's solution.
+    `loss = "cauchy"`: each error row weighs 1 / (1 + (e / (`CAUCHY_SCALE` × the rate's rms error))²)
+    (scipy's Cauchy loss), so the few rows no parameter set fits (a spin a second off the truth's) do not
+    pull the rest; the covariance is then the sandwich of that weighted fit at its weights."""
     car = car or NIGEL
     low, high, scale = car.low, car.high, car.width
     prior = prior or car.prior
@@ -423,11 +432,20 @@ def _map_fit(
             res = residuals_of(np.vstack([p, p + np.diag(step)]))
             return ((res[1:] - res[0]) / step[:, None]).T
 
-        sol = least_squares(fun, x0, jac=jac, bounds=(low, high), x_scale=scale, method="trf", max_nfev=100)
+        robust = {} if loss == "squares" else {"loss": loss, "f_scale": CAUCHY_SCALE}
+        sol = least_squares(fun, x0, jac=jac, bounds=(low, high), x_scale=scale, method="trf", max_nfev=100,
+                            **robust)  # fmt: skip
         x0 = sol.x
         err = errors_of(sol.x[None])[0]
         noise = np.maximum(np.sqrt(np.mean(err**2, axis=0)), 1e-6 * np.maximum(spread, 1e-3))
-    return Identified(sol.x, _sandwich(sol.jac, sol.fun, clusters))
+    if loss == "squares":
+        return Identified(sol.x, _sandwich(sol.jac, sol.fun, clusters))
+    # the weighted least-squares fit the robust one is at its solution (scipy's `jac` is modified)
+    residuals, jacobian = fun(sol.x), jac(sol.x)
+    weight = np.ones_like(residuals)
+    weight[: -len(sol.x)] = 1.0 / (1.0 + (residuals[: -len(sol.x)] / CAUCHY_SCALE) ** 2)
+    root = np.sqrt(weight)
+    return Identified(sol.x, _sandwich(jacobian * root[:, None], residuals * root, clusters))
 
 
 def _sandwich(jac: np.ndarray, residuals: np.ndarray, clusters: np.ndarray) -> np.ndarray:

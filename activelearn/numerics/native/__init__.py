@@ -132,6 +132,7 @@ SIGNATURES = {
     ),
     "al_dynamic_car_count": ([], ctypes.c_int),
     "al_dynamic_set_count": ([], ctypes.c_int),
+    "al_dynamic_wheel_passes": ([], ctypes.c_int),
     "al_dynamic_rate_runs": (
         [_ptr] * 4 + [ctypes.c_int64] * 4 + [_ptr] * 2 + [ctypes.c_double] + [ctypes.c_int64] * 2
         + [_ptr, ctypes.c_int64],

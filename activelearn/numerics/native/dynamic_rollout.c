@@ -43,8 +43,14 @@ enum {
     C_BLEND_SPEED,
     C_COMBINED_SLIP, /* 1: both axles' friction circles share the longitudinal force; 0: the rear drive's */
     C_ROOM_FLOOR,    /* with it, the share of a circle a lateral force keeps at a grip-limited stop */
+    C_WHEEL_FORCES,  /* 1: the forces of four wheels, each in its own circle (overrides C_COMBINED_SLIP) */
+    C_TRACK,         /* m, with them: the wheels' lateral spacing */
     C_COUNT
 };
+
+/* The wheels' forces' fixed-point passes of their loads (dynamic_track.py's WHEEL_PASSES). */
+#define WHEEL_PASSES 3
+int al_dynamic_wheel_passes(void) { return WHEEL_PASSES; }
 
 /* Each lane's figures (dynamic_track.py's NATIVE_SET, same order): what the identified scales move. */
 enum {

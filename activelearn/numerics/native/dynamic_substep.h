@@ -34,18 +34,118 @@ typedef struct {
 /* The car's shared figures as a substep reads them. */
 typedef struct {
     REAL g, m, lf, lr, hcg, L, shape, curvature, blend, floor_speed, share, h, turn;
-    REAL vsw, lag, tiny, room_floor;
+    REAL vsw, lag, tiny, room_floor, half_track;
 } NAME(figures);
 
+/* One wheel's forces within its friction circle (Kamm's): where the longitudinal and lateral forces it
+ * asks for exceed mu F_z, both scaled back onto the circle, their direction kept. */
+static inline __attribute__((always_inline)) void NAME(circle)(REAL f_long, REAL f_lat, REAL cap, REAL tiny,
+                                                               REAL *x, REAL *y) {
+    const REAL scale = fmin(cap / fmax(sqrt(f_long * f_long + f_lat * f_lat), tiny), K(1));
+    *x = f_long * scale, *y = f_lat * scale;
+}
+
+/* One substep of lane l under the forces of four wheels (dynamic_track._wheel_substep and
+ * _wheel_forces): each wheel's load with the longitudinal and the lateral transfer (a rigid body on four
+ * equal contacts), its own friction circle, the yaw moment of unequal wheel forces; WHEEL_PASSES
+ * passes of the loads on the accelerations the forces give; the kinematic blend by the speed over
+ * ground. The same constants as `lane_step`. */
+static inline __attribute__((always_inline)) void NAME(wheel_step)(NAME(block) *b, const int l,
+                                                                   const NAME(figures) *f, const int motor,
+                                                                   const int linear, const int implicit,
+                                                                   const int curved) {
+    const REAL g = f->g, m = f->m, lf = f->lf, lr = f->lr, L = f->L, h = f->h, floor_speed = f->floor_speed;
+    const REAL delta = b->delta[l] + NAME(clip)(b->target[l] - b->delta[l], -f->turn, f->turn);
+    const REAL vx0 = b->vx[l], vy0 = b->vy[l], r0 = b->r[l], tau = b->tau[l], mu = b->mu[l];
+    const REAL grip = mu * g, speed_x = fabs(vx0);
+    REAL demand; /* not within the grip: each wheel's circle caps its share */
+    if (motor) {
+        const REAL inv_top = tau > K(0) ? b->inv_top[l] : b->inv_reverse[l];
+        const REAL limit = b->a_max[l] * f->vsw / fmax(speed_x, f->vsw);
+        demand = NAME(clip)(b->a_max[l] * (tau - vx0 * inv_top), -limit, limit);
+    } else {
+        demand = (b->drive[l] - vx0) / f->lag;
+    }
+    const REAL stop_rate = fmin(speed_x / h, b->brake[l]);
+    const int braking = tau == K(0);
+    demand = braking ? -NAME(sign)(vx0) * stop_rate : demand;
+    const REAL sn = sin(delta), cs = sqrt(K(1) - sn * sn); /* as lane_step's */
+    const REAL front_y = vy0 + lf * r0;
+    const REAL long_f = vx0 * cs + front_y * sn, lat_f = front_y * cs - vx0 * sn;
+    const REAL alpha_f = atan(-lat_f / fmax(fabs(long_f), floor_speed));
+    const REAL alpha_r = atan(-(vy0 - lr * r0) / fmax(speed_x, floor_speed));
+    REAL unit_f, unit_r; /* each axle's lateral force per newton of load, pure slip */
+    if (linear) {
+        unit_f = NAME(clip)(b->k_f[l] * alpha_f, -mu, mu);
+        unit_r = NAME(clip)(b->k_r[l] * alpha_r, -mu, mu);
+    } else {
+        REAL xf = b->b_f[l] * alpha_f;
+        REAL xr = b->b_r[l] * alpha_r;
+        if (curved) {
+            xf -= f->curvature * (xf - atan(xf));
+            xr -= f->curvature * (xr - atan(xr));
+        }
+        unit_f = mu * sin(f->shape * atan(xf));
+        unit_r = mu * sin(f->shape * atan(xr));
+    }
+    const REAL drive_f = m * demand * K(0.5) * (K(1) - f->share), drive_r = m * demand * K(0.5) * f->share;
+    REAL ax = NAME(clip)(demand, -grip, grip), ay = vx0 * r0, load_f = K(0), load_r = K(0);
+    REAL x_fl = K(0), x_fr = K(0), x_rl = K(0), x_rr = K(0), y_fl = K(0), y_fr = K(0), y_rl = K(0), y_rr = K(0);
+#pragma GCC unroll 8 /* whole: the lane loop vectorises only around straight code */
+    for (int pass = 0; pass < WHEEL_PASSES; ++pass) {
+        load_f = fmax(m * (g * lr - ax * f->hcg) / L, K(0));
+        load_r = fmax(m * (g * lf + ax * f->hcg) / L, K(0));
+        const REAL shift = m * ay * f->hcg / (K(4) * f->half_track); /* to the outside of the turn */
+        const REAL fl = fmax(K(0.5) * load_f - shift, K(0)), fr = fmax(K(0.5) * load_f + shift, K(0));
+        const REAL rl = fmax(K(0.5) * load_r - shift, K(0)), rr = fmax(K(0.5) * load_r + shift, K(0));
+        const REAL total = fl + fr + rl + rr; /* at least m g */
+        NAME(circle)(braking ? m * demand * fl / total : drive_f, unit_f * fl, mu * fl, f->tiny, &x_fl, &y_fl);
+        NAME(circle)(braking ? m * demand * fr / total : drive_f, unit_f * fr, mu * fr, f->tiny, &x_fr, &y_fr);
+        NAME(circle)(braking ? m * demand * rl / total : drive_r, unit_r * rl, mu * rl, f->tiny, &x_rl, &y_rl);
+        NAME(circle)(braking ? m * demand * rr / total : drive_r, unit_r * rr, mu * rr, f->tiny, &x_rr, &y_rr);
+        const REAL x_f = x_fl + x_fr, y_f = y_fl + y_fr;
+        ax = (x_f * cs - y_f * sn + (x_rl + x_rr)) / m;
+        ay = (x_f * sn + y_f * cs + (y_rl + y_rr)) / m;
+    }
+    const REAL x_f = x_fl + x_fr, y_f = y_fl + y_fr, y_r = y_rl + y_rr;
+    const REAL moment = f->half_track * ((x_fr - x_fl) * cs + (x_rr - x_rl) + (y_fl - y_fr) * sn);
+    const REAL dr = (lf * (y_f * cs + x_f * sn) - lr * y_r + moment) * b->inv_inertia[l];
+    REAL vx, vy, r;
+    if (implicit) { /* as lane_step's */
+        const REAL speed = fmax(speed_x, floor_speed);
+        const REAL c_f = b->k_f[l] * load_f, c_r = b->k_r[l] * load_r;
+        const REAL x_lat = fmax(h * (c_f + c_r) / (m * speed), f->tiny);
+        const REAL x_yaw = fmax(h * (lf * lf * c_f + lr * lr * c_r) * b->inv_inertia[l] / speed, f->tiny);
+        vy = vy0 + h * (ay - vx0 * r0) * (-expm1(-x_lat) / x_lat);
+        vx = vx0 + h * (ax + vy * r0);
+        r = r0 + h * dr * (-expm1(-x_yaw) / x_yaw);
+    } else {
+        vx = vx0 + h * (ax + vy0 * r0);
+        vy = vy0 + h * (ay - vx0 * r0);
+        r = r0 + h * dr;
+    }
+    const REAL w = K(0.5) * (K(1) + tanh((sqrt(vx * vx + vy * vy) - f->blend) / (K(0.25) * f->blend)));
+    const REAL r_kin = vx * sn / (cs * L);
+    b->r[l] = w * r + (K(1) - w) * r_kin;
+    b->vy[l] = w * vy + (K(1) - w) * lr * r_kin;
+    b->vx[l] = vx, b->delta[l] = delta;
+}
+
 /* One substep of lane l of a block. `motor`, `linear`, `implicit`, `curved` (the magic formula's
- * curvature E is not 0: two more atan a substep) and `combined` (combined slip) are constants at each call
+ * curvature E is not 0: two more atan a substep) and `law` (the slip law: 0 the rear drive's share of
+ * its axle's circle, 1 combined slip, 2 the wheels' forces, `wheel_step`) are constants at each call
  * (always inlined), so each variant's lane loop (`substep`, `substep_pair`) has no branch and vectorises
  * with libmvec. */
 static inline __attribute__((always_inline)) void NAME(lane_step)(NAME(block) *b, const int l,
                                                                   const NAME(figures) *f, const int motor,
                                                                   const int linear, const int implicit,
-                                                                  const int curved, const int combined) {
+                                                                  const int curved, const int law) {
     const REAL g = f->g, m = f->m, lf = f->lf, lr = f->lr, L = f->L, h = f->h, floor_speed = f->floor_speed;
+    const int combined = law == 1;
+    if (law == 2) {
+        NAME(wheel_step)(b, l, f, motor, linear, implicit, curved);
+        return;
+    }
     {
         const REAL delta = b->delta[l] + NAME(clip)(b->target[l] - b->delta[l], -f->turn, f->turn);
         const REAL vx0 = b->vx[l], vy0 = b->vy[l], r0 = b->r[l], tau = b->tau[l], mu = b->mu[l];
@@ -128,9 +228,9 @@ static inline __attribute__((always_inline)) void NAME(lane_step)(NAME(block) *b
 static inline __attribute__((always_inline)) void NAME(substep)(NAME(block) *b, const NAME(figures) *f,
                                                                 const int motor, const int linear,
                                                                 const int implicit, const int curved,
-                                                                const int combined) {
+                                                                const int law) {
 #pragma GCC ivdep
-    for (int l = 0; l < LANES; ++l) NAME(lane_step)(b, l, f, motor, linear, implicit, curved, combined);
+    for (int l = 0; l < LANES; ++l) NAME(lane_step)(b, l, f, motor, linear, implicit, curved, law);
 }
 
 /* Two blocks' substeps in one lane loop: two independent chains of transcendental calls in each vector
@@ -138,33 +238,33 @@ static inline __attribute__((always_inline)) void NAME(substep)(NAME(block) *b, 
 static inline __attribute__((always_inline)) void NAME(substep_pair)(NAME(block) *a, NAME(block) *b,
                                                                      const NAME(figures) *f, const int motor,
                                                                      const int linear, const int implicit,
-                                                                     const int curved, const int combined) {
+                                                                     const int curved, const int law) {
 #pragma GCC ivdep
     for (int l = 0; l < LANES; ++l) {
-        NAME(lane_step)(a, l, f, motor, linear, implicit, curved, combined);
-        NAME(lane_step)(b, l, f, motor, linear, implicit, curved, combined);
+        NAME(lane_step)(a, l, f, motor, linear, implicit, curved, law);
+        NAME(lane_step)(b, l, f, motor, linear, implicit, curved, law);
     }
 }
 
-#define NAME_SUBSTEPS(MOTOR, LINEAR, IMPLICIT, CURVED, COMBINED)                                           \
-    static void NAME(substeps_##MOTOR##LINEAR##IMPLICIT##CURVED##COMBINED)(NAME(block) * b, NAME(block) * pair, \
-                                                                            const NAME(figures) * f,         \
-                                                                            int64_t n) {                     \
+#define NAME_SUBSTEPS(MOTOR, LINEAR, IMPLICIT, CURVED, LAW)                                                \
+    static void NAME(substeps_##MOTOR##LINEAR##IMPLICIT##CURVED##LAW)(NAME(block) * b, NAME(block) * pair,     \
+                                                                       const NAME(figures) * f, int64_t n) {  \
         if (pair)                                                                                           \
-            for (int64_t i = 0; i < n; ++i)                                                                 \
-                NAME(substep_pair)(b, pair, f, MOTOR, LINEAR, IMPLICIT, CURVED, COMBINED);                   \
+            for (int64_t i = 0; i < n; ++i) NAME(substep_pair)(b, pair, f, MOTOR, LINEAR, IMPLICIT, CURVED, LAW); \
         else                                                                                                \
-            for (int64_t i = 0; i < n; ++i) NAME(substep)(b, f, MOTOR, LINEAR, IMPLICIT, CURVED, COMBINED); \
+            for (int64_t i = 0; i < n; ++i) NAME(substep)(b, f, MOTOR, LINEAR, IMPLICIT, CURVED, LAW);         \
     }
 /* six variants of a drive law and a slip law: tyre x step x curvature (a linear tyre has none) */
-#define NAME_SUBSTEPS_OF(MOTOR, COMBINED)                                                                 \
-    NAME_SUBSTEPS(MOTOR, 0, 0, 0, COMBINED) NAME_SUBSTEPS(MOTOR, 0, 0, 1, COMBINED)                       \
-    NAME_SUBSTEPS(MOTOR, 0, 1, 0, COMBINED) NAME_SUBSTEPS(MOTOR, 0, 1, 1, COMBINED)                       \
-    NAME_SUBSTEPS(MOTOR, 1, 0, 0, COMBINED) NAME_SUBSTEPS(MOTOR, 1, 1, 0, COMBINED)
+#define NAME_SUBSTEPS_OF(MOTOR, LAW)                                                                      \
+    NAME_SUBSTEPS(MOTOR, 0, 0, 0, LAW) NAME_SUBSTEPS(MOTOR, 0, 0, 1, LAW)                                 \
+    NAME_SUBSTEPS(MOTOR, 0, 1, 0, LAW) NAME_SUBSTEPS(MOTOR, 0, 1, 1, LAW)                                 \
+    NAME_SUBSTEPS(MOTOR, 1, 0, 0, LAW) NAME_SUBSTEPS(MOTOR, 1, 1, 0, LAW)
 NAME_SUBSTEPS_OF(0, 0)
 NAME_SUBSTEPS_OF(1, 0)
 NAME_SUBSTEPS_OF(0, 1)
 NAME_SUBSTEPS_OF(1, 1)
+NAME_SUBSTEPS_OF(0, 2)
+NAME_SUBSTEPS_OF(1, 2)
 #undef NAME_SUBSTEPS_OF
 #undef NAME_SUBSTEPS
 
@@ -172,7 +272,7 @@ typedef void (*NAME(substep_run))(NAME(block) *, NAME(block) *, const NAME(figur
 
 /* The variant for the car's drive, tyre and slip law and the step's kind (a linear tyre has no curvature). */
 static NAME(substep_run) NAME(substeps_for)(const double *k, int64_t implicit) {
-    static const NAME(substep_run) variants[32] = {
+    static const NAME(substep_run) variants[48] = {
         NAME(substeps_00000), NAME(substeps_00010), NAME(substeps_00100), NAME(substeps_00110),
         NAME(substeps_01000), NAME(substeps_01000), NAME(substeps_01100), NAME(substeps_01100),
         NAME(substeps_10000), NAME(substeps_10010), NAME(substeps_10100), NAME(substeps_10110),
@@ -180,9 +280,14 @@ static NAME(substep_run) NAME(substeps_for)(const double *k, int64_t implicit) {
         NAME(substeps_00001), NAME(substeps_00011), NAME(substeps_00101), NAME(substeps_00111),
         NAME(substeps_01001), NAME(substeps_01001), NAME(substeps_01101), NAME(substeps_01101),
         NAME(substeps_10001), NAME(substeps_10011), NAME(substeps_10101), NAME(substeps_10111),
-        NAME(substeps_11001), NAME(substeps_11001), NAME(substeps_11101), NAME(substeps_11101)};
-    const int linear = k[C_SHAPE] == 0.0, curved = k[C_CURVATURE] != 0.0, combined = k[C_COMBINED_SLIP] != 0.0;
-    return variants[16 * combined + 8 * (k[C_MOTOR] != 0.0) + 4 * linear + 2 * (implicit != 0) + curved];
+        NAME(substeps_11001), NAME(substeps_11001), NAME(substeps_11101), NAME(substeps_11101),
+        NAME(substeps_00002), NAME(substeps_00012), NAME(substeps_00102), NAME(substeps_00112),
+        NAME(substeps_01002), NAME(substeps_01002), NAME(substeps_01102), NAME(substeps_01102),
+        NAME(substeps_10002), NAME(substeps_10012), NAME(substeps_10102), NAME(substeps_10112),
+        NAME(substeps_11002), NAME(substeps_11002), NAME(substeps_11102), NAME(substeps_11102)};
+    const int linear = k[C_SHAPE] == 0.0, curved = k[C_CURVATURE] != 0.0;
+    const int law = k[C_WHEEL_FORCES] != 0.0 ? 2 : k[C_COMBINED_SLIP] != 0.0;
+    return variants[16 * law + 8 * (k[C_MOTOR] != 0.0) + 4 * linear + 2 * (implicit != 0) + curved];
 }
 
 /* The car's shared figures as a substep reads them, for steps of dt in `substeps` substeps. */
@@ -194,7 +299,7 @@ static NAME(figures) NAME(figures_of)(const double *k, double dt, int64_t subste
     f.blend = (REAL)k[C_BLEND_SPEED], f.floor_speed = (REAL)(0.5 * k[C_BLEND_SPEED]);
     f.share = (REAL)k[C_REAR_DRIVE_SHARE], f.h = (REAL)h, f.turn = (REAL)(k[C_STEERING_RATE] * h);
     f.vsw = (REAL)k[C_POWER_LIMIT_SPEED], f.lag = (REAL)k[C_SPEED_TIME_CONSTANT];
-    f.room_floor = (REAL)k[C_ROOM_FLOOR];
+    f.room_floor = (REAL)k[C_ROOM_FLOOR], f.half_track = (REAL)(0.5 * k[C_TRACK]);
     f.tiny = sizeof(REAL) == sizeof(float) ? (REAL)1e-30 : (REAL)1e-300; /* (1 - e^-x) / x at x = 0 */
     return f;
 }
