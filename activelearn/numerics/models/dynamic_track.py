@@ -252,7 +252,6 @@ def dynamic_step(
     vx, vy, r, delta = state[..., 0], state[..., 1], state[..., 2], state[..., 3]
     m, L, g = car.mass, car.wheelbase, GRAVITY
     static_f, static_r = m * g * car.lr / L, m * g * car.lf / L
-    floor, blend = 0.5 * car.blend_speed, car.blend_speed
     target = _clip(steering, -car.steering_limit, car.steering_limit)
     for _ in range(n):
         delta = delta + _clip(target - delta, -car.steering_rate * h, car.steering_rate * h)
@@ -263,10 +262,7 @@ def dynamic_step(
         load_f = _maximum(m * (g * car.lr - a * car.cg_height) / L, 0.0)
         load_r = _maximum(m * (g * car.lf + a * car.cg_height) / L, 0.0)
         cos, sin = xp.cos(delta), xp.sin(delta)
-        front_y = vy + car.lf * r  # the front axle's velocity, body frame, then in the wheel's
-        long_f, lat_f = vx * cos + front_y * sin, front_y * cos - vx * sin
-        alpha_f = xp.arctan(-lat_f / _maximum(xp.abs(long_f), floor))
-        alpha_r = xp.arctan(-(vy - car.lr * r) / _maximum(xp.abs(vx), floor))
+        alpha_f, alpha_r = _slip_angles(car, vx, vy, r, (cos, sin))
         f_f = _lateral_force(car, alpha_f, load_f, static_f, car.stiffness_front)
         f_r = _lateral_force(car, alpha_r, load_r, static_r, car.stiffness_rear)
         if car.combined_slip:  # the longitudinal force's share of each axle's friction circle; at a
@@ -286,21 +282,8 @@ def dynamic_step(
         dvx = a - f_f * sin / m
         dvy = (f_f * cos + f_r) / m
         dr = (car.lf * f_f * cos - car.lr * f_r) / car.yaw_inertia
-        if implicit:
-            # The tyres' damping of v_y and r exponential (stable at any substep), and the body
-            # frame's turn of the velocity semi-implicit, v_x from the new v_y (an explicit turn adds
-            # speed in a spin, √(1 + (r h)²) a substep). The steady states are the explicit step's.
-            speed = _maximum(xp.abs(vx), floor)
-            c_f, c_r = car.stiffness_front * load_f / static_f, car.stiffness_rear * load_r / static_r
-            vy = vy + h * (dvy - vx * r) * _relaxed(h * (c_f + c_r) / (m * speed))
-            vx = vx + h * (dvx + vy * r)
-            r = r + h * dr * _relaxed(h * (car.lf**2 * c_f + car.lr**2 * c_r) / (car.yaw_inertia * speed))
-        else:
-            vx, vy, r = vx + h * (dvx + vy * r), vy + h * (dvy - vx * r), r + h * dr
-        w = 0.5 * (1.0 + xp.tanh((xp.abs(vx) - blend) / (0.25 * blend)))  # 1: dynamic, 0: kinematic
-        r_kin = vx * xp.tan(delta) / L
-        r = w * r + (1.0 - w) * r_kin
-        vy = w * vy + (1.0 - w) * car.lr * r_kin
+        rates = (dvx, dvy, dr)
+        vx, vy, r = _advance(car, (vx, vy, r), rates, (load_f, load_r), delta, h, implicit, ground=False)
     parts = xp.broadcast_arrays(vx, vy, r, delta) if xp is np else torch.broadcast_tensors(vx, vy, r, delta)
     return xp.stack(parts, axis=-1) if xp is np else torch.stack(parts, dim=-1)  # δ_w: no parameter axis
 
@@ -313,27 +296,51 @@ def _wheel_substep(car: DynamicCar, state: tuple, throttle, h: float, implicit: 
     xp = _namespace(vx)
     m, L = car.mass, car.wheelbase
     static_f, static_r = m * GRAVITY * car.lr / L, m * GRAVITY * car.lf / L
-    floor, blend = 0.5 * car.blend_speed, car.blend_speed
     cos, sin = xp.cos(delta), xp.sin(delta)
-    front_y = vy + car.lf * r
-    long_f, lat_f = vx * cos + front_y * sin, front_y * cos - vx * sin
-    alpha_f = xp.arctan(-lat_f / _maximum(xp.abs(long_f), floor))
-    alpha_r = xp.arctan(-(vy - car.lr * r) / _maximum(xp.abs(vx), floor))
+    alpha_f, alpha_r = _slip_angles(car, vx, vy, r, (cos, sin))
     unit = (_lateral_force(car, alpha_f, static_f, static_f, car.stiffness_front) / static_f,
             _lateral_force(car, alpha_r, static_r, static_r, car.stiffness_rear) / static_r)  # fmt: skip
     ax, ay, (x_f, y_f, y_r), moment, (load_f, load_r) = _wheel_forces(
         car, _demand(car, throttle, vx, h), throttle == 0.0, unit, vx * r, (cos, sin)
     )
     dr = (car.lf * (y_f * cos + x_f * sin) - car.lr * y_r + moment) / car.yaw_inertia
-    if implicit:  # as dynamic_step's
-        speed = _maximum(xp.abs(vx), floor)
+    return _advance(car, (vx, vy, r), (ax, ay, dr), (load_f, load_r), delta, h, implicit, ground=True)
+
+
+def _slip_angles(car: DynamicCar, vx, vy, r, turn: tuple) -> tuple:
+    """Each axle's slip angle from its velocity in its wheel frame (`turn` = (cos δ_w, sin δ_w)), the
+    forward speed floored at half the blend speed (a tyre is a lateral damper near rest)."""
+    xp = _namespace(vx)
+    cos, sin = turn
+    floor = 0.5 * car.blend_speed
+    front_y = vy + car.lf * r  # the front axle's velocity, body frame, then in the wheel's
+    long_f, lat_f = vx * cos + front_y * sin, front_y * cos - vx * sin
+    alpha_f = xp.arctan(-lat_f / _maximum(xp.abs(long_f), floor))
+    return alpha_f, xp.arctan(-(vy - car.lr * r) / _maximum(xp.abs(vx), floor))
+
+
+def _advance(car: DynamicCar, state: tuple, rates: tuple, loads: tuple, delta, h: float, implicit: bool,
+             ground: bool) -> tuple:  # fmt: skip
+    """(v_x, v_y, r) after `h` s of their rates of change (the forces over m and I_z, without the body
+    frame's turn) at the axles' `loads`, then blended into the kinematic state below the blend speed,
+    weighed by |v_x| or, with `ground`, by the speed over ground."""
+    (vx, vy, r), (dvx, dvy, dr), (load_f, load_r) = state, rates, loads
+    xp = _namespace(vx)
+    m, L, blend = car.mass, car.wheelbase, car.blend_speed
+    static_f, static_r = m * GRAVITY * car.lr / L, m * GRAVITY * car.lf / L
+    if implicit:
+        # The tyres' damping of v_y and r exponential (stable at any substep), and the body
+        # frame's turn of the velocity semi-implicit, v_x from the new v_y (an explicit turn adds
+        # speed in a spin, √(1 + (r h)²) a substep). The steady states are the explicit step's.
+        speed = _maximum(xp.abs(vx), 0.5 * blend)
         c_f, c_r = car.stiffness_front * load_f / static_f, car.stiffness_rear * load_r / static_r
-        vy = vy + h * (ay - vx * r) * _relaxed(h * (c_f + c_r) / (m * speed))
-        vx = vx + h * (ax + vy * r)
+        vy = vy + h * (dvy - vx * r) * _relaxed(h * (c_f + c_r) / (m * speed))
+        vx = vx + h * (dvx + vy * r)
         r = r + h * dr * _relaxed(h * (car.lf**2 * c_f + car.lr**2 * c_r) / (car.yaw_inertia * speed))
     else:
-        vx, vy, r = vx + h * (ax + vy * r), vy + h * (ay - vx * r), r + h * dr
-    w = 0.5 * (1.0 + xp.tanh((xp.sqrt(vx * vx + vy * vy) - blend) / (0.25 * blend)))
+        vx, vy, r = vx + h * (dvx + vy * r), vy + h * (dvy - vx * r), r + h * dr
+    speed = xp.sqrt(vx * vx + vy * vy) if ground else xp.abs(vx)
+    w = 0.5 * (1.0 + xp.tanh((speed - blend) / (0.25 * blend)))  # 1: dynamic, 0: kinematic
     r_kin = vx * xp.tan(delta) / L
     return vx, w * vy + (1.0 - w) * car.lr * r_kin, w * r + (1.0 - w) * r_kin
 

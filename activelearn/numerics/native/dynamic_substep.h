@@ -37,6 +37,57 @@ typedef struct {
     REAL vsw, lag, tiny, room_floor, half_track;
 } NAME(figures);
 
+/* Lane l's drive: the motor law on v_x (`motor`) or the lag to the speed table's speed, m/s². */
+static inline __attribute__((always_inline)) REAL NAME(drive)(const NAME(block) *b, const int l,
+                                                              const NAME(figures) *f, const int motor) {
+    const REAL vx0 = b->vx[l], tau = b->tau[l];
+    if (!motor) return (b->drive[l] - vx0) / f->lag;
+    const REAL inv_top = tau > K(0) ? b->inv_top[l] : b->inv_reverse[l];
+    const REAL limit = b->a_max[l] * f->vsw / fmax(fabs(vx0), f->vsw);
+    return NAME(clip)(b->a_max[l] * (tau - vx0 * inv_top), -limit, limit);
+}
+
+/* The simplified magic formula's share of the grip at B alpha: sin(C atan(B alpha - E (B alpha - atan B alpha)))
+ * (`curved`: E is not 0). */
+static inline __attribute__((always_inline)) REAL NAME(magic)(REAL b_alpha, const NAME(figures) *f, const int curved) {
+    if (curved) b_alpha -= f->curvature * (b_alpha - atan(b_alpha));
+    return sin(f->shape * atan(b_alpha));
+}
+
+/* The end of lane l's substep: the state moved by its rates of change dvx, dvy, dr (the forces over m and
+ * I_z, without the body frame's turn), explicitly or with the tyres' damping exponential and the turn
+ * semi-implicit (dynamic_step(implicit=True)), then blended into the kinematic state below the blend
+ * speed, weighed by |v_x| or, with `ground`, the speed over ground; the wheels' angle set to `delta`. */
+static inline __attribute__((always_inline)) void NAME(advance)(NAME(block) *b, const int l,
+                                                                const NAME(figures) *f, const int implicit,
+                                                                const int ground, const REAL dvx,
+                                                                const REAL dvy, const REAL dr,
+                                                                const REAL load_f, const REAL load_r,
+                                                                const REAL delta, const REAL sn, const REAL cs) {
+    const REAL m = f->m, lf = f->lf, lr = f->lr, h = f->h;
+    const REAL vx0 = b->vx[l], vy0 = b->vy[l], r0 = b->r[l];
+    REAL vx, vy, r;
+    if (implicit) {
+        const REAL speed = fmax(fabs(vx0), f->floor_speed);
+        const REAL c_f = b->k_f[l] * load_f, c_r = b->k_r[l] * load_r;
+        const REAL x_lat = fmax(h * (c_f + c_r) / (m * speed), f->tiny);
+        const REAL x_yaw = fmax(h * (lf * lf * c_f + lr * lr * c_r) * b->inv_inertia[l] / speed, f->tiny);
+        vy = vy0 + h * (dvy - vx0 * r0) * (-expm1(-x_lat) / x_lat);
+        vx = vx0 + h * (dvx + vy * r0);
+        r = r0 + h * dr * (-expm1(-x_yaw) / x_yaw);
+    } else {
+        vx = vx0 + h * (dvx + vy0 * r0);
+        vy = vy0 + h * (dvy - vx0 * r0);
+        r = r0 + h * dr;
+    }
+    const REAL speed = ground ? sqrt(vx * vx + vy * vy) : fabs(vx);
+    const REAL w = K(0.5) * (K(1) + tanh((speed - f->blend) / (K(0.25) * f->blend)));
+    const REAL r_kin = vx * sn / (cs * f->L);
+    b->r[l] = w * r + (K(1) - w) * r_kin;
+    b->vy[l] = w * vy + (K(1) - w) * lr * r_kin;
+    b->vx[l] = vx, b->delta[l] = delta;
+}
+
 /* One wheel's forces within its friction circle (Kamm's): where the longitudinal and lateral forces it
  * asks for exceed mu F_z, both scaled back onto the circle, their direction kept. */
 static inline __attribute__((always_inline)) void NAME(circle)(REAL f_long, REAL f_lat, REAL cap, REAL tiny,
@@ -58,14 +109,7 @@ static inline __attribute__((always_inline)) void NAME(wheel_step)(NAME(block) *
     const REAL delta = b->delta[l] + NAME(clip)(b->target[l] - b->delta[l], -f->turn, f->turn);
     const REAL vx0 = b->vx[l], vy0 = b->vy[l], r0 = b->r[l], tau = b->tau[l], mu = b->mu[l];
     const REAL grip = mu * g, speed_x = fabs(vx0);
-    REAL demand; /* not within the grip: each wheel's circle caps its share */
-    if (motor) {
-        const REAL inv_top = tau > K(0) ? b->inv_top[l] : b->inv_reverse[l];
-        const REAL limit = b->a_max[l] * f->vsw / fmax(speed_x, f->vsw);
-        demand = NAME(clip)(b->a_max[l] * (tau - vx0 * inv_top), -limit, limit);
-    } else {
-        demand = (b->drive[l] - vx0) / f->lag;
-    }
+    REAL demand = NAME(drive)(b, l, f, motor); /* not within the grip: each wheel's circle caps its share */
     const REAL stop_rate = fmin(speed_x / h, b->brake[l]);
     const int braking = tau == K(0);
     demand = braking ? -NAME(sign)(vx0) * stop_rate : demand;
@@ -79,14 +123,8 @@ static inline __attribute__((always_inline)) void NAME(wheel_step)(NAME(block) *
         unit_f = NAME(clip)(b->k_f[l] * alpha_f, -mu, mu);
         unit_r = NAME(clip)(b->k_r[l] * alpha_r, -mu, mu);
     } else {
-        REAL xf = b->b_f[l] * alpha_f;
-        REAL xr = b->b_r[l] * alpha_r;
-        if (curved) {
-            xf -= f->curvature * (xf - atan(xf));
-            xr -= f->curvature * (xr - atan(xr));
-        }
-        unit_f = mu * sin(f->shape * atan(xf));
-        unit_r = mu * sin(f->shape * atan(xr));
+        unit_f = mu * NAME(magic)(b->b_f[l] * alpha_f, f, curved);
+        unit_r = mu * NAME(magic)(b->b_r[l] * alpha_r, f, curved);
     }
     const REAL drive_f = m * demand * K(0.5) * (K(1) - f->share), drive_r = m * demand * K(0.5) * f->share;
     REAL ax = NAME(clip)(demand, -grip, grip), ay = vx0 * r0, load_f = K(0), load_r = K(0);
@@ -110,25 +148,7 @@ static inline __attribute__((always_inline)) void NAME(wheel_step)(NAME(block) *
     const REAL x_f = x_fl + x_fr, y_f = y_fl + y_fr, y_r = y_rl + y_rr;
     const REAL moment = f->half_track * ((x_fr - x_fl) * cs + (x_rr - x_rl) + (y_fl - y_fr) * sn);
     const REAL dr = (lf * (y_f * cs + x_f * sn) - lr * y_r + moment) * b->inv_inertia[l];
-    REAL vx, vy, r;
-    if (implicit) { /* as lane_step's */
-        const REAL speed = fmax(speed_x, floor_speed);
-        const REAL c_f = b->k_f[l] * load_f, c_r = b->k_r[l] * load_r;
-        const REAL x_lat = fmax(h * (c_f + c_r) / (m * speed), f->tiny);
-        const REAL x_yaw = fmax(h * (lf * lf * c_f + lr * lr * c_r) * b->inv_inertia[l] / speed, f->tiny);
-        vy = vy0 + h * (ay - vx0 * r0) * (-expm1(-x_lat) / x_lat);
-        vx = vx0 + h * (ax + vy * r0);
-        r = r0 + h * dr * (-expm1(-x_yaw) / x_yaw);
-    } else {
-        vx = vx0 + h * (ax + vy0 * r0);
-        vy = vy0 + h * (ay - vx0 * r0);
-        r = r0 + h * dr;
-    }
-    const REAL w = K(0.5) * (K(1) + tanh((sqrt(vx * vx + vy * vy) - f->blend) / (K(0.25) * f->blend)));
-    const REAL r_kin = vx * sn / (cs * L);
-    b->r[l] = w * r + (K(1) - w) * r_kin;
-    b->vy[l] = w * vy + (K(1) - w) * lr * r_kin;
-    b->vx[l] = vx, b->delta[l] = delta;
+    NAME(advance)(b, l, f, implicit, 1, ax, ay, dr, load_f, load_r, delta, sn, cs);
 }
 
 /* One substep of lane l of a block. `motor`, `linear`, `implicit`, `curved` (the magic formula's
@@ -150,14 +170,7 @@ static inline __attribute__((always_inline)) void NAME(lane_step)(NAME(block) *b
         const REAL delta = b->delta[l] + NAME(clip)(b->target[l] - b->delta[l], -f->turn, f->turn);
         const REAL vx0 = b->vx[l], vy0 = b->vy[l], r0 = b->r[l], tau = b->tau[l], mu = b->mu[l];
         const REAL grip = mu * g, speed_x = fabs(vx0);
-        REAL a;
-        if (motor) {
-            const REAL inv_top = tau > K(0) ? b->inv_top[l] : b->inv_reverse[l];
-            const REAL limit = b->a_max[l] * f->vsw / fmax(speed_x, f->vsw);
-            a = NAME(clip)(b->a_max[l] * (tau - vx0 * inv_top), -limit, limit);
-        } else {
-            a = (b->drive[l] - vx0) / f->lag;
-        }
+        REAL a = NAME(drive)(b, l, f, motor);
         const REAL stop_rate = fmin(speed_x / h, b->brake[l]); /* brakes to rest, not past it */
         a = NAME(clip)(tau == K(0) ? -NAME(sign)(vx0) * stop_rate : a, -grip, grip);
         const REAL load_f = fmax(m * (g * lr - a * f->hcg) / L, K(0));
@@ -175,14 +188,8 @@ static inline __attribute__((always_inline)) void NAME(lane_step)(NAME(block) *b
             f_f = NAME(clip)(b->k_f[l] * load_f * alpha_f, -cap_f, cap_f);
             f_r = NAME(clip)(b->k_r[l] * load_r * alpha_r, -cap_r, cap_r);
         } else {
-            REAL xf = b->b_f[l] * alpha_f;
-            REAL xr = b->b_r[l] * alpha_r;
-            if (curved) {
-                xf -= f->curvature * (xf - atan(xf));
-                xr -= f->curvature * (xr - atan(xr));
-            }
-            f_f = cap_f * sin(f->shape * atan(xf));
-            f_r = cap_r * sin(f->shape * atan(xr));
+            f_f = cap_f * NAME(magic)(b->b_f[l] * alpha_f, f, curved);
+            f_r = cap_r * NAME(magic)(b->b_r[l] * alpha_r, f, curved);
         }
         REAL room;
         if (combined) { /* the longitudinal force's share of each axle's friction circle, the brake's by
@@ -202,25 +209,7 @@ static inline __attribute__((always_inline)) void NAME(lane_step)(NAME(block) *b
         f_r = NAME(clip)(f_r, -room, room);
         const REAL dvx = a - f_f * sn / m, dvy = (f_f * cs + f_r) / m;
         const REAL dr = (lf * f_f * cs - lr * f_r) * b->inv_inertia[l];
-        REAL vx, vy, r;
-        if (implicit) { /* dynamic_step(implicit=True): exponential tyre damping */
-            const REAL speed = fmax(speed_x, floor_speed);
-            const REAL c_f = b->k_f[l] * load_f, c_r = b->k_r[l] * load_r;
-            const REAL x_lat = fmax(h * (c_f + c_r) / (m * speed), f->tiny);
-            const REAL x_yaw = fmax(h * (lf * lf * c_f + lr * lr * c_r) * b->inv_inertia[l] / speed, f->tiny);
-            vy = vy0 + h * (dvy - vx0 * r0) * (-expm1(-x_lat) / x_lat);
-            vx = vx0 + h * (dvx + vy * r0);
-            r = r0 + h * dr * (-expm1(-x_yaw) / x_yaw);
-        } else {
-            vx = vx0 + h * (dvx + vy0 * r0);
-            vy = vy0 + h * (dvy - vx0 * r0);
-            r = r0 + h * dr;
-        }
-        const REAL w = K(0.5) * (K(1) + tanh((fabs(vx) - f->blend) / (K(0.25) * f->blend)));
-        const REAL r_kin = vx * sn / (cs * L);
-        b->r[l] = w * r + (K(1) - w) * r_kin;
-        b->vy[l] = w * vy + (K(1) - w) * lr * r_kin;
-        b->vx[l] = vx, b->delta[l] = delta;
+        NAME(advance)(b, l, f, implicit, 0, dvx, dvy, dr, load_f, load_r, delta, sn, cs);
     }
 }
 
