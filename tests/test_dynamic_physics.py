@@ -306,12 +306,12 @@ def test_the_discrepancy_is_the_cores_misfit_of_its_logs_and_widens_the_fan_not_
 def test_the_cross_validated_misfit_is_each_folds_at_the_scales_identified_without_it():
     """`discrepancy = "cross_validated"`: four folds of the logs, each's errors at the scales identified on
     the others; out of sample the core misses more than in its own logs; one log: the in-sample misfit."""
+    from activelearn.numerics.models.dynamic_fit import identify_dynamic, misfit
     from activelearn.numerics.models.dynamic_physics import (
         IDENTIFY_EVERY,
         IDENTIFY_HORIZON,
         identification_misfit,
     )
-    from activelearn.numerics.models.dynamic_track import identify_dynamic, misfit
 
     model = _untrained(discrepancy="cross_validated")
     car = model.dynamic_car

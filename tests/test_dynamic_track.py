@@ -9,11 +9,10 @@ import numpy as np
 import pytest
 
 from activelearn.errors import InputError
+from activelearn.numerics.models.dynamic_fit import identify_dynamic, log_information
 from activelearn.numerics.models.dynamic_track import (
     DynamicCar,
     free_runs,
-    identify_dynamic,
-    log_information,
     quasi_static_lateral,
     rate_runs,
     scaled,

@@ -31,12 +31,8 @@ from bench_vehicle_baselines import config_of, test_errors, twin_of
 
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import control_rate_logs
-from activelearn.numerics.models.dynamic_track import (
-    DYNAMIC_PARAMETERS,
-    DynamicCar,
-    identify_dynamic,
-    scaled,
-)
+from activelearn.numerics.models.dynamic_fit import identify_dynamic
+from activelearn.numerics.models.dynamic_track import DYNAMIC_PARAMETERS, DynamicCar, scaled
 
 
 def campaign_of(car: str, twin: bool, out: Path) -> Campaign:

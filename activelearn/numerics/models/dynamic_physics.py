@@ -46,16 +46,18 @@ from activelearn.names import IDENTIFIED_PREFIX
 from activelearn.numerics import native
 from activelearn.numerics.counter_noise import step_noise
 from activelearn.numerics.lags import Lags
+from activelearn.numerics.models.dynamic_fit import (
+    cross_validated_misfit,
+    identify_dynamic,
+    log_information,
+    misfit,
+)
 from activelearn.numerics.models.dynamic_track import (
     DYNAMIC_PARAMETERS,
     DynamicCar,
-    cross_validated_misfit,
     dynamic_bounds,
     dynamic_step,
-    identify_dynamic,
     kernels_for,
-    log_information,
-    misfit,
     native_car,
     native_sets,
     quasi_static_lateral,
