@@ -47,6 +47,22 @@ static inline __attribute__((always_inline)) REAL NAME(drive)(const NAME(block) 
     return NAME(clip)(b->a_max[l] * (tau - vx0 * inv_top), -limit, limit);
 }
 
+/* Lane l's wheel angle `delta` (its sin and cos) and each axle's slip angle from its velocity in its
+ * wheel frame, the forward speed floored (dynamic_track._slip_angles). cos from sin (|delta| is within
+ * the lock, below pi/2): GCC would fuse a sin and cos into a sincos, which does not vectorise; tan is
+ * their ratio. */
+static inline __attribute__((always_inline)) void NAME(slip_angles)(const NAME(block) *b, const int l,
+                                                                    const NAME(figures) *f, const REAL delta,
+                                                                    REAL *sn, REAL *cs, REAL *alpha_f,
+                                                                    REAL *alpha_r) {
+    const REAL vx0 = b->vx[l], vy0 = b->vy[l], r0 = b->r[l];
+    *sn = sin(delta), *cs = sqrt(K(1) - *sn * *sn);
+    const REAL front_y = vy0 + f->lf * r0;
+    const REAL long_f = vx0 * *cs + front_y * *sn, lat_f = front_y * *cs - vx0 * *sn;
+    *alpha_f = atan(-lat_f / fmax(fabs(long_f), f->floor_speed));
+    *alpha_r = atan(-(vy0 - f->lr * r0) / fmax(fabs(vx0), f->floor_speed));
+}
+
 /* The simplified magic formula's share of the grip at B alpha: sin(C atan(B alpha - E (B alpha - atan B alpha)))
  * (`curved`: E is not 0). */
 static inline __attribute__((always_inline)) REAL NAME(magic)(REAL b_alpha, const NAME(figures) *f, const int curved) {
@@ -105,19 +121,16 @@ static inline __attribute__((always_inline)) void NAME(wheel_step)(NAME(block) *
                                                                    const NAME(figures) *f, const int motor,
                                                                    const int linear, const int implicit,
                                                                    const int curved) {
-    const REAL g = f->g, m = f->m, lf = f->lf, lr = f->lr, L = f->L, h = f->h, floor_speed = f->floor_speed;
+    const REAL g = f->g, m = f->m, lf = f->lf, lr = f->lr, L = f->L, h = f->h;
     const REAL delta = b->delta[l] + NAME(clip)(b->target[l] - b->delta[l], -f->turn, f->turn);
-    const REAL vx0 = b->vx[l], vy0 = b->vy[l], r0 = b->r[l], tau = b->tau[l], mu = b->mu[l];
+    const REAL vx0 = b->vx[l], r0 = b->r[l], tau = b->tau[l], mu = b->mu[l];
     const REAL grip = mu * g, speed_x = fabs(vx0);
     REAL demand = NAME(drive)(b, l, f, motor); /* not within the grip: each wheel's circle caps its share */
     const REAL stop_rate = fmin(speed_x / h, b->brake[l]);
     const int braking = tau == K(0);
     demand = braking ? -NAME(sign)(vx0) * stop_rate : demand;
-    const REAL sn = sin(delta), cs = sqrt(K(1) - sn * sn); /* as lane_step's */
-    const REAL front_y = vy0 + lf * r0;
-    const REAL long_f = vx0 * cs + front_y * sn, lat_f = front_y * cs - vx0 * sn;
-    const REAL alpha_f = atan(-lat_f / fmax(fabs(long_f), floor_speed));
-    const REAL alpha_r = atan(-(vy0 - lr * r0) / fmax(speed_x, floor_speed));
+    REAL sn, cs, alpha_f, alpha_r;
+    NAME(slip_angles)(b, l, f, delta, &sn, &cs, &alpha_f, &alpha_r);
     REAL unit_f, unit_r; /* each axle's lateral force per newton of load, pure slip */
     if (linear) {
         unit_f = NAME(clip)(b->k_f[l] * alpha_f, -mu, mu);
@@ -160,7 +173,7 @@ static inline __attribute__((always_inline)) void NAME(lane_step)(NAME(block) *b
                                                                   const NAME(figures) *f, const int motor,
                                                                   const int linear, const int implicit,
                                                                   const int curved, const int law) {
-    const REAL g = f->g, m = f->m, lf = f->lf, lr = f->lr, L = f->L, h = f->h, floor_speed = f->floor_speed;
+    const REAL g = f->g, m = f->m, lf = f->lf, lr = f->lr, L = f->L, h = f->h;
     const int combined = law == 1;
     if (law == 2) {
         NAME(wheel_step)(b, l, f, motor, linear, implicit, curved);
@@ -168,20 +181,15 @@ static inline __attribute__((always_inline)) void NAME(lane_step)(NAME(block) *b
     }
     {
         const REAL delta = b->delta[l] + NAME(clip)(b->target[l] - b->delta[l], -f->turn, f->turn);
-        const REAL vx0 = b->vx[l], vy0 = b->vy[l], r0 = b->r[l], tau = b->tau[l], mu = b->mu[l];
+        const REAL vx0 = b->vx[l], tau = b->tau[l], mu = b->mu[l];
         const REAL grip = mu * g, speed_x = fabs(vx0);
         REAL a = NAME(drive)(b, l, f, motor);
         const REAL stop_rate = fmin(speed_x / h, b->brake[l]); /* brakes to rest, not past it */
         a = NAME(clip)(tau == K(0) ? -NAME(sign)(vx0) * stop_rate : a, -grip, grip);
         const REAL load_f = fmax(m * (g * lr - a * f->hcg) / L, K(0));
         const REAL load_r = fmax(m * (g * lf + a * f->hcg) / L, K(0));
-        /* cos from sin (|delta| is within the lock, below pi/2): GCC would fuse a sin and cos into a
-         * sincos, which does not vectorise; tan as their ratio */
-        const REAL sn = sin(delta), cs = sqrt(K(1) - sn * sn);
-        const REAL front_y = vy0 + lf * r0;
-        const REAL long_f = vx0 * cs + front_y * sn, lat_f = front_y * cs - vx0 * sn;
-        const REAL alpha_f = atan(-lat_f / fmax(fabs(long_f), floor_speed));
-        const REAL alpha_r = atan(-(vy0 - lr * r0) / fmax(speed_x, floor_speed));
+        REAL sn, cs, alpha_f, alpha_r;
+        NAME(slip_angles)(b, l, f, delta, &sn, &cs, &alpha_f, &alpha_r);
         const REAL cap_f = mu * load_f, cap_r = mu * load_r;
         REAL f_f, f_r;
         if (linear) {
