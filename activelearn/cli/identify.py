@@ -106,7 +106,7 @@ def _print_dynamic(logs, spec, other_car: list[str], dt: float, wheel_forces: bo
     prior, under = None, f"under {spec.name}'s vehicle file (scale 1 ± its width)"
     if other_car:
         others = control_rate_logs([read_log_file(path) for path in log_files(other_car)])
-        prior = scales_of_another_car(others, car, dt)
+        prior = scales_of_another_car(others, car, dt, loss)
         under = f"under the scales of {len(others)} log(s) of another car ± the file's widths"
     found = identify_scales(logs, car, dt, prior=prior, loss=loss)
     steps = sum(len(u) for u, _ in logs)

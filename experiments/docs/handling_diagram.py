@@ -55,8 +55,8 @@ def config_for(car: str) -> Path:
 def steady_turns(car: str, points: int, model_path: Path | None = None) -> list[dict]:
     """Steady turns of the car's truth at its test throttles over a steering grid, and the dynamic core's
     (the file's; a trained model's identified core and corrected model, each at its own speed)."""
-    spec = load_vehicle(car)
-    throttles = [u for u in load_config(config_for(car)).test.throttles if u > 0]
+    spec, cfg = load_vehicle(car), load_config(config_for(car))
+    throttles = [u for u in cfg.test.throttles if u > 0]
     lock = spec.steering.limit.value
     steerings = lock * np.geomspace(0.01, 1.0, points)
     top = spec.max_speed
@@ -70,7 +70,7 @@ def steady_turns(car: str, points: int, model_path: Path | None = None) -> list[
     commands = np.array([[m.throttle, m.steering] for m in maneuvers])
     controls = np.repeat(commands[:, None, :], round(seconds * RATE), axis=1)  # (M, T, 2)
     # the file's core under the slip law the car's dynamics config runs (`[model] wheel_forces`)
-    file_core = replace(DynamicCar.of(spec), wheel_forces=load_config(config_for(car)).model.wheel_forces)
+    file_core = replace(DynamicCar.of(spec), wheel_forces=cfg.model.wheel_forces)
     models = {"file core": _steady(rate_runs(file_core, controls, np.zeros((len(maneuvers), 4)),
                                              1.0 / RATE, implicit=True))}  # fmt: skip
     if model_path is not None:

@@ -100,12 +100,14 @@ def identify_scales(
 
 
 def scales_of_another_car(
-    others: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float
+    others: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, loss: str = "squares"
 ) -> Identified:
     """The prior this car's logs are identified under where `others` are another car's logs of the same
     file (a grid of the nominal simulator for a twin or a real car): the scales they give alone
-    (`identify_scales`, once per set of logs), their covariance widened by the scales' widths."""
-    return widened(others_estimate(others, identify_scales, car=car, dt=dt), dynamic_bounds().width)
+    (`identify_scales` by `loss`, as this car's own, once per set of logs), their covariance widened by
+    the scales' widths."""
+    estimate = others_estimate(others, identify_scales, car=car, dt=dt, loss=loss)
+    return widened(estimate, dynamic_bounds().width)
 
 
 def before_a_stop(log: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -276,13 +278,13 @@ class DynamicPhysicsModel(PhysicsModel):
         own = [before_a_stop(log) for log, other in zip(logs, flags, strict=True) if not other]
         others = [log for log, other in zip(logs, flags, strict=True) if other]
         dt = 1.0 / self.car.log_rate_hz
-        prior = scales_of_another_car(others, self.dynamic_car, dt) if others else self.core_prior
+        loss = self.config.identification_loss
+        prior = scales_of_another_car(others, self.dynamic_car, dt, loss) if others else self.core_prior
         if not own:
             if prior is not None:
                 self.set_identified(prior)
             return
         search_from = self.theta.double().numpy() if warm else None
-        loss = self.config.identification_loss
         found = identify_scales(own, self.dynamic_car, dt, search_from, prior, loss)
         self.set_identified(found)
         if self.discrepancy is not None:
