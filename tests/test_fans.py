@@ -14,6 +14,8 @@ import pytest
 
 from activelearn.config import load_config
 from activelearn.loop.campaign import Campaign
+from activelearn.loop.evaluation import MIN_TRIM_MANEUVERS, applied_fan_scale, calibrated_maneuvers
+from activelearn.loop.state import CampaignState
 
 DYNAMICS = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "dynamics.toml"
 
@@ -38,3 +40,28 @@ def test_the_physics_kinds_calibrated_fans_hold_85_to_99_percent_of_true_positio
     held = [r["rollout_coverage_95"] for r in rounds[1:]]
     assert all(0.85 <= share <= 0.99 for share in held), held
     assert all(r["fan_scale"] > 1.0 for r in rounds[1:]), [r["fan_scale"] for r in rounds]  # calibrated
+
+
+def _state(needs: list[float], batches: list[int]) -> CampaignState:
+    """A campaign after len(needs) rounds: batch sizes `batches` (the first the initial design), round
+    j's need measured on batch j + 1."""
+    picks = iter(range(sum(batches)))
+    state = CampaignState("hash", "uniform", 0, batches=[[next(picks) for _ in range(b)] for b in batches])
+    counts = [sum(batches[: j + 1]) for j in range(len(needs))]
+    state.rounds = [{"n_maneuvers": n, "prequential_fan_scale": need} for n, need in zip(counts, needs)]
+    return state
+
+
+def test_a_fan_is_narrowed_only_once_enough_maneuvers_measured_the_need_and_widened_at_once():
+    """Two easy signals ask a fan 5x narrower: not yet (the model's own fans). A need to widen is applied
+    from the first batch. Once MIN_TRIM_MANEUVERS maneuvers were measured, the geometric mean of every
+    need is applied, narrowing too; a round whose need could not be measured counts no maneuvers."""
+    assert MIN_TRIM_MANEUVERS == 6
+    first = _state([0.2], [4, 2])
+    assert calibrated_maneuvers(first) == 2 and applied_fan_scale(first) == 1.0
+    assert applied_fan_scale(_state([3.0], [4, 2])) == pytest.approx(3.0)
+    three = _state([0.2, 0.5, 0.4], [4, 2, 2, 2])
+    assert calibrated_maneuvers(three) == 6
+    assert applied_fan_scale(three) == pytest.approx((0.2 * 0.5 * 0.4) ** (1 / 3))
+    skipped = _state([0.2, float("nan"), 0.4], [4, 2, 2, 2])
+    assert calibrated_maneuvers(skipped) == 4 and applied_fan_scale(skipped) == 1.0

@@ -388,12 +388,14 @@ class DesignConfig(_Section):
     )
     # Uncalibrated fans held 0.12-0.49 of the true positions (physics kind, dynamics.toml), calibrated
     # 0.90-0.99 from round 1 on (10 seeds, experiments/results/physics.txt). Round 0 has nothing to
-    # calibrate on. The safety fan ignores it ([safety] fan_scale is its margin).
+    # calibrate on. The safety fan ignores it ([safety] fan_scale is its margin). A first need from 2 easy
+    # signals narrowed the full-size car's fans to 0.66 of the true positions, so narrowing waits for 6
+    # maneuvers (`loop.evaluation.MIN_TRIM_MANEUVERS`, experiments/results/fan_trim.txt).
     fan_calibration: Literal["none", "prequential"] = Field(
         "prequential",
         description="`prequential`: widen or narrow each round's free-run fans by the geometric mean of "
         "the widenings every earlier model needed to hold 95 % of the true positions of the maneuvers "
-        "collected after it; `none`: the model's own",
+        "collected after it (narrowing only once 6 maneuvers were measured); `none`: the model's own",
     )
     setup_seconds: NonNegative = Field(
         0.0,

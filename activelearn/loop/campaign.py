@@ -42,7 +42,7 @@ from activelearn.loop.acquisition import Pool, Strategy, greedy_maximin, make_st
 from activelearn.loop.admission import Admission, Admitted
 from activelearn.loop.budget import Budget, total_rounds
 from activelearn.loop.collection import TestSet, cache_root, car_cache, truth_rows
-from activelearn.loop.evaluation import Evaluation, applied_scale
+from activelearn.loop.evaluation import Evaluation, applied_fan_scale, applied_scale
 from activelearn.loop.fitting import Fitting
 from activelearn.loop.history import CandidateTruth, History, Withheld
 from activelearn.loop.oracles import Oracle, make_oracle
@@ -69,7 +69,6 @@ from activelearn.names import (
     FAN_SCALE,
     N_MANEUVERS,
     POOL_EPISTEMIC_STD_MAX,
-    PREQUENTIAL_FAN_SCALE,
     ROLLOUT_METRICS,
     ROUND,
     TEST_RMSE,
@@ -462,7 +461,7 @@ class Campaign:
         model = self.fitting.fit(samples, round_index, scale, previous=previous)
         fans: dict[str, float] = {}
         if self.cfg.design.fan_calibration == "prequential":
-            fans[FAN_SCALE] = applied_scale(state, PREQUENTIAL_FAN_SCALE, recent=None)
+            fans[FAN_SCALE] = applied_fan_scale(state)
             with torch.no_grad():
                 model.fan_scale.fill_(fans[FAN_SCALE])
         x, _, _ = self.fitting.training_data(samples)

@@ -28,6 +28,7 @@ from activelearn.names import (
     COVERAGE_95,
     EPISTEMIC_STD_MAX,
     EPISTEMIC_STD_MEAN,
+    N_MANEUVERS,
     PREQUENTIAL_FAN_SCALE,
     PREQUENTIAL_POINTS,
     PREQUENTIAL_SCALE,
@@ -76,6 +77,28 @@ def applied_scale(state: CampaignState, key: str = PREQUENTIAL_SCALE, recent: in
     scales = [r[key] for r in state.rounds if np.isfinite(r.get(key, np.nan))]
     scales = scales if recent is None else scales[-recent:]
     return float(np.exp(np.mean(np.log(scales)))) if scales else 1.0
+
+
+# A fan is narrowed (a scale below 1) only once the needs come from this many maneuvers. A first need
+# from 2 easy signals trimmed the full-size car's fans 2-10x (0.66 of the true positions after 6
+# signals; at the model's own scale 0.86); widening is never held back (docs/results/models.md).
+MIN_TRIM_MANEUVERS = 6
+
+
+def calibrated_maneuvers(state: CampaignState, key: str = PREQUENTIAL_FAN_SCALE) -> int:
+    """How many maneuvers the needs under `key` so far were measured on: round j's need on the batch
+    collected after it (the next round's maneuvers less its own; the last, those taken since)."""
+    counts = [r[N_MANEUVERS] for r in state.rounds] + [len(state.taken)]
+    return sum(
+        counts[j + 1] - counts[j] for j, r in enumerate(state.rounds) if np.isfinite(r.get(key, np.nan))
+    )
+
+
+def applied_fan_scale(state: CampaignState) -> float:
+    """The next model's fan scale: the geometric mean of every need so far (`applied_scale`), but not
+    below 1 until `MIN_TRIM_MANEUVERS` maneuvers have been measured (the model's own fans until then)."""
+    scale = applied_scale(state, PREQUENTIAL_FAN_SCALE, recent=None)
+    return scale if scale >= 1.0 or calibrated_maneuvers(state) >= MIN_TRIM_MANEUVERS else 1.0
 
 
 class Evaluation:
