@@ -186,3 +186,13 @@ def test_the_fast_cars_twin_and_warm_configs_repeat_its_cold_start():
     design = warm_twin.design.model_copy(update={"prior": prior})
     assert warm_twin.model_copy(update={"name": warm.name, "design": design, "oracle": warm.oracle}) == warm
     assert warm_twin.oracle == twin.oracle
+
+
+def test_the_full_size_cars_twin_config_repeats_its_cold_start():
+    """dynamics_bmw320i_twin.toml is dynamics_bmw320i.toml but for the oracle: the same twin as the 1:10
+    car's (less grip, a weaker motor), so issue 57's comparisons run on both truths of both cars."""
+    configs = SMOKE.parent
+    nominal, twin = (load_config(configs / f"dynamics_bmw320i{s}.toml") for s in ("", "_twin"))
+    assert twin.oracle.kind == "twin" and twin.oracle.overrides == {"tire_friction": 0.8, "motor_gain": 0.9}
+    assert nominal.oracle.kind == "simulator"
+    assert twin.model_copy(update={"name": nominal.name, "oracle": nominal.oracle}) == nominal

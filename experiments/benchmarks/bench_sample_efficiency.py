@@ -42,8 +42,8 @@ LOOKAHEAD = "oracle_lookahead"
 COLD_START = (
     "uniform", "random", "max_epistemic", "integrated_variance", "auto", "bald", "igs", "lcmd", "switch",
 )  # fmt: skip
-# At the handling limit (issue 57, the 1:10 car on the dynamic core): space filled in the model's own terms
-# (regressor_maximin; with uniform's design gap, joint_maximin), the epistemic rule and auto against uniform.
+# At the handling limit (issue 57, the 1:10 and the full-size car on the dynamic core): space filled in the
+# model's own terms (regressor_maximin; with uniform's design gap, joint_maximin), the epistemic rule, auto.
 HANDLING_LIMIT = ("uniform", "regressor_maximin", "joint_maximin", "max_epistemic", "auto")
 # What each pool compares (uniform is the control everywhere; grid and random for reference).
 POOLS: dict[str, tuple[str, ...]] = {
@@ -59,6 +59,8 @@ POOLS: dict[str, tuple[str, ...]] = {
     "dynamics_f1tenth": HANDLING_LIMIT,
     "dynamics_f1tenth_twin": HANDLING_LIMIT,
     "dynamics_f1tenth_warm": HANDLING_LIMIT,
+    "dynamics_bmw320i": HANDLING_LIMIT,
+    "dynamics_bmw320i_twin": HANDLING_LIMIT,
 }
 
 
