@@ -17,8 +17,8 @@ import simulator
 from activelearn.config import RANKING_METRICS, DataConfig, ModelConfig, TrainingConfig, load_config
 from activelearn.loop.campaign import Campaign, CampaignState
 from activelearn.loop.collection import arrays, data_lags, feature_columns, training_rows, training_windows
-from activelearn.loop.fitting import load_model_copy
 from activelearn.loop.evaluation import MIN_TRIM_MANEUVERS
+from activelearn.loop.fitting import load_model_copy
 from activelearn.numerics.diagnostics import ROLLOUT_METRICS, free_run_metrics, free_runs
 from activelearn.numerics.lags import Lags, model_lags
 from activelearn.numerics.models import build_model, load_model, save_model

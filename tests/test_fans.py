@@ -48,7 +48,8 @@ def _state(needs: list[float], batches: list[int]) -> CampaignState:
     picks = iter(range(sum(batches)))
     state = CampaignState("hash", "uniform", 0, batches=[[next(picks) for _ in range(b)] for b in batches])
     counts = [sum(batches[: j + 1]) for j in range(len(needs))]
-    state.rounds = [{"n_maneuvers": n, "prequential_fan_scale": need} for n, need in zip(counts, needs)]
+    pairs = zip(counts, needs, strict=True)
+    state.rounds = [{"n_maneuvers": n, "prequential_fan_scale": need} for n, need in pairs]
     return state
 
 
