@@ -81,7 +81,8 @@ def applied_scale(state: CampaignState, key: str = PREQUENTIAL_SCALE, recent: in
 
 # A fan is narrowed (a scale below 1) only once the needs come from this many maneuvers. A first need
 # from 2 easy signals trimmed the full-size car's fans 2-10x (0.66 of the true positions after 6
-# signals; at the model's own scale 0.86); widening is never held back (docs/results/models.md).
+# signals; at the model's own scale 0.86); widening is never held back (docs/results/vehicles.md,
+# "The first rounds' fans").
 MIN_TRIM_MANEUVERS = 6
 
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from activelearn.config import load_config
 from activelearn.loop.campaign import Campaign
-from activelearn.loop.evaluation import Evaluation
+from activelearn.loop.evaluation import MIN_TRIM_MANEUVERS, Evaluation
 from activelearn.numerics.diagnostics import fan_widening_needed, free_runs
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -54,7 +54,7 @@ def _shrunk_narrowing(n0: int) -> Rule:
 
 def _held(needs: list[float], maneuvers: list[int]) -> float:
     mean = _mean(needs, maneuvers)
-    return max(mean, 1.0) if sum(maneuvers) < 6 else mean
+    return max(mean, 1.0) if sum(maneuvers) < MIN_TRIM_MANEUVERS else mean
 
 
 RULES: dict[str, Rule] = {
