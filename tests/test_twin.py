@@ -169,14 +169,16 @@ def test_the_twins_dynamics_config_is_dynamics_toml_answered_by_sim_to_reals_twi
     assert twin.model_copy(update={"name": nominal.name, "oracle": nominal.oracle}) == nominal
 
 
-def test_the_fast_cars_twin_and_warm_configs_repeat_its_cold_start():
-    """dynamics_f1tenth_twin.toml, dynamics_f1tenth_warm.toml and dynamics_f1tenth_warm_twin.toml (issue
-    57's settings) are dynamics_f1tenth.toml but for the oracle (the twin: less grip, a weaker motor)
-    and/or the design (a low-lateral-acceleration grid already driven, 12 new signals; on the twin that
-    grid is another car's, `same_car = false`)."""
+@pytest.mark.parametrize("car", ["f1tenth", "bmw320i"])
+def test_the_fast_cars_twin_and_warm_configs_repeat_its_cold_start(car):
+    """dynamics_<car>_twin.toml, dynamics_<car>_warm.toml and dynamics_<car>_warm_twin.toml (issue 57's
+    settings, the 1:10 and the full-size car) are dynamics_<car>.toml but for the oracle (the twin: less
+    grip, a weaker motor) and/or the design (a low-lateral-acceleration grid already driven, 12 new
+    signals; on the twin that grid is another car's, `same_car = false`)."""
     configs = SMOKE.parent
-    cold, twin, warm, warm_twin = (load_config(configs / f"dynamics_f1tenth{s}.toml")
+    cold, twin, warm, warm_twin = (load_config(configs / f"dynamics_{car}{s}.toml")
                                    for s in ("", "_twin", "_warm", "_warm_twin"))  # fmt: skip
+    assert cold.oracle.kind == "simulator"
     assert twin.oracle.kind == "twin" and twin.oracle.overrides == {"tire_friction": 0.8, "motor_gain": 0.9}
     assert twin.model_copy(update={"name": cold.name, "oracle": cold.oracle}) == cold
     assert warm.design.prior is not None and warm.design.prior.grid is not None and warm.design.initial == 0
@@ -186,13 +188,3 @@ def test_the_fast_cars_twin_and_warm_configs_repeat_its_cold_start():
     design = warm_twin.design.model_copy(update={"prior": prior})
     assert warm_twin.model_copy(update={"name": warm.name, "design": design, "oracle": warm.oracle}) == warm
     assert warm_twin.oracle == twin.oracle
-
-
-def test_the_full_size_cars_twin_config_repeats_its_cold_start():
-    """dynamics_bmw320i_twin.toml is dynamics_bmw320i.toml but for the oracle: the same twin as the 1:10
-    car's (less grip, a weaker motor), so issue 57's comparisons run on both truths of both cars."""
-    configs = SMOKE.parent
-    nominal, twin = (load_config(configs / f"dynamics_bmw320i{s}.toml") for s in ("", "_twin"))
-    assert twin.oracle.kind == "twin" and twin.oracle.overrides == {"tire_friction": 0.8, "motor_gain": 0.9}
-    assert nominal.oracle.kind == "simulator"
-    assert twin.model_copy(update={"name": nominal.name, "oracle": nominal.oracle}) == nominal

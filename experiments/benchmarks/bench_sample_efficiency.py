@@ -61,6 +61,8 @@ POOLS: dict[str, tuple[str, ...]] = {
     "dynamics_f1tenth_warm": HANDLING_LIMIT,
     "dynamics_bmw320i": HANDLING_LIMIT,
     "dynamics_bmw320i_twin": HANDLING_LIMIT,
+    "dynamics_bmw320i_warm": HANDLING_LIMIT,
+    "dynamics_bmw320i_warm_twin": HANDLING_LIMIT,
 }
 
 

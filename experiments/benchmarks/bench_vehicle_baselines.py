@@ -140,21 +140,33 @@ def bands_of(test: Any, cfg: CampaignConfig, twin: bool) -> list[str]:
     return out
 
 
-def trained_by_band(cfg: CampaignConfig, directory: Path, variant: str, twin: bool) -> pd.DataFrame:
-    """The last round's model of every seed under `directory`: its 30-s error on each test maneuver
-    (the mean path of 32 draws, as the campaign measures it), with the maneuver's band."""
+def trained_by_band(
+    cfg: CampaignConfig,
+    directory: Path,
+    variant: str,
+    twin: bool,
+    strategy: str = "uniform",
+    correction_weight: float | None = None,
+) -> pd.DataFrame:
+    """The last round's model of every seed of `strategy` under `directory`: its 30-s error on each test
+    maneuver (the mean path of 32 draws, as the campaign measures it), with the maneuver's band.
+    `correction_weight`: the share of its correction's mean each model keeps instead of its gate's."""
     test = Campaign(cfg, directory / "probe").evaluation.test_set
     bands = bands_of(test, cfg, twin)
     rows = []
-    for path in sorted(directory.glob("uniform/seed*/model.pt")):
-        rollout = model_free_runs(load_model(path), list(test.logs), rate_hz=cfg.simulation.rate_hz)
+    for path in sorted(directory.glob(f"{strategy}/seed*/model.pt"), key=lambda p: int(p.parent.name[4:])):
+        model = load_model(path)
+        if correction_weight is not None:
+            model.set_correction_weight(correction_weight)
+        rollout = model_free_runs(model, list(test.logs), rate_hz=cfg.simulation.rate_hz)
         mean_x, mean_y = rollout.mean_path()
         for i, truth in enumerate(test.truth_logs):
             n = int(rollout.lengths[i])
             k = min(round(30.0 / rollout.dt), n - 1)
             tx, ty, _ = relative_pose({c: truth[c].to_numpy(np.float64) for c in ("posX", "posY", "yaw")}, n)
             error = float(np.hypot(mean_x[i, k] - tx[k], mean_y[i, k] - ty[k]))
-            rows.append({"variant": variant, "band": bands[i], "error": np.nan_to_num(error, nan=np.inf)})
+            rows.append({"variant": variant, "seed": int(path.parent.name[4:]), "maneuver": i,
+                         "band": bands[i], "error": np.nan_to_num(error, nan=np.inf)})  # fmt: skip
     return pd.DataFrame(rows)
 
 
