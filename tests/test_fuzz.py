@@ -105,6 +105,13 @@ def _examples(factor: float) -> int:
     return max(1, int(settings.default.max_examples * factor))
 
 
+def test_every_shipped_config_is_named_after_its_file():
+    """A config's name places its outputs (`runs/<name>/...`) and names its MLflow runs: two files with one
+    name would write into each other's comparison directory."""
+    assert {path.stem: tomllib.loads(path.read_text())["name"] for path in CONFIGS} == {
+        path.stem: path.stem for path in CONFIGS}
+
+
 def test_the_schema_walk_sees_every_section():
     """The fuzzer reaches nested sections (and so will reach sections added later)."""
     for path in [("pool", "throttles"), ("simulation", "noise", "speed"), ("tuning", "space", "lr"),
