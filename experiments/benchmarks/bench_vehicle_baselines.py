@@ -48,6 +48,7 @@ from quick import shrink
 
 from activelearn.config import CampaignConfig, load_config
 from activelearn.loop.campaign import Campaign
+from activelearn.loop.evaluation import FAN_SAMPLES
 from activelearn.names import IDENTIFIED_PREFIX, ROLLOUT_COVERAGE_95, ROLLOUT_POS_ERR_30S
 from activelearn.numerics.diagnostics import free_runs as model_free_runs
 from activelearn.numerics.models import build_model, load_model
@@ -149,24 +150,27 @@ def trained_by_band(
     correction_weight: float | None = None,
 ) -> pd.DataFrame:
     """The last round's model of every seed of `strategy` under `directory`: its 30-s error on each test
-    maneuver (the mean path of 32 draws, as the campaign measures it), with the maneuver's band.
+    maneuver (the mean path of the config's `[test] rollout_samples` draws, as the campaign measures it),
+    with the maneuver's band.
     `correction_weight`: the share of its correction's mean each model keeps instead of its gate's."""
     test = Campaign(cfg, directory / "probe").evaluation.test_set
     bands = bands_of(test, cfg, twin)
     rows = []
-    for path in sorted(directory.glob(f"{strategy}/seed*/model.pt"), key=lambda p: int(p.parent.name[4:])):
+    for seed, path in sorted((int(p.parent.name.removeprefix("seed")), p)
+                             for p in directory.glob(f"{strategy}/seed*/model.pt")):  # fmt: skip
         model = load_model(path)
         if correction_weight is not None:
             model.set_correction_weight(correction_weight)
-        rollout = model_free_runs(model, list(test.logs), rate_hz=cfg.simulation.rate_hz)
+        rollout = model_free_runs(model, list(test.logs), rate_hz=cfg.simulation.rate_hz,
+                                  n_samples=cfg.test.rollout_samples or FAN_SAMPLES)  # fmt: skip
         mean_x, mean_y = rollout.mean_path()
         for i, truth in enumerate(test.truth_logs):
             n = int(rollout.lengths[i])
             k = min(round(30.0 / rollout.dt), n - 1)
             tx, ty, _ = relative_pose({c: truth[c].to_numpy(np.float64) for c in ("posX", "posY", "yaw")}, n)
             error = float(np.hypot(mean_x[i, k] - tx[k], mean_y[i, k] - ty[k]))
-            rows.append({"variant": variant, "seed": int(path.parent.name[4:]), "maneuver": i,
-                         "band": bands[i], "error": np.nan_to_num(error, nan=np.inf)})  # fmt: skip
+            rows.append({"variant": variant, "seed": seed, "maneuver": i, "band": bands[i],
+                         "error": np.nan_to_num(error, nan=np.inf)})  # fmt: skip
     return pd.DataFrame(rows)
 
 
