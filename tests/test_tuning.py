@@ -479,8 +479,9 @@ HEARTBEAT_SPACE = TINY_SPACE.replace(
     "[tuning]\n", f"[tuning]\nheartbeat_interval = {HEARTBEATS.heartbeat_interval}\n"
     f"grace_period = {HEARTBEATS.grace_period}\n", 1,
 )  # fmt: skip
-# Trials of a few seconds (many epochs, no pruning), so a worker can be caught in the middle of one.
-SLOW_SPACE = HEARTBEAT_SPACE.replace("epochs = { low = 4, high = 8 }", "epochs = { low = 120, high = 150 }")
+# Trials of a few seconds (80-100 epochs, no pruning: 1.4-3.9 s each, two workers on an idle 2-core machine;
+# the kill lands within 0.1 s of the trial being seen), so a worker can be caught in the middle of one.
+SLOW_SPACE = HEARTBEAT_SPACE.replace("epochs = { low = 4, high = 8 }", "epochs = { low = 80, high = 100 }")
 
 
 def _running_trial(storage: str, name: str, deadline: float) -> dict:

@@ -122,10 +122,14 @@ def main() -> None:
 
     if args.study_trials > 0:
         out = Path(args.out)
-        study_cfg = skidpad({"tracking": {"uri": f"sqlite:///{out}/mlflow.db"}})
+        overrides = {"tracking": {"uri": f"sqlite:///{out}/mlflow.db"}}
+        if args.quick:  # the default space but for its epochs (up to 200: most of the quick run)
+            overrides["tuning"] = {"space": {"epochs": args.epochs}}
+        study_cfg = skidpad(overrides)
+        quick = f" but {args.epochs} epochs" if args.quick else ""
         name = f"skidpad-{time.strftime('%Y%m%d-%H%M%S')}"
         print(f"real study {name!r}: {args.study_trials} trials, {args.study_workers} workers, "
-              f"timeout {args.study_timeout:g} s, default search space ({load()})")  # fmt: skip
+              f"timeout {args.study_timeout:g} s, default search space{quick} ({load()})")  # fmt: skip
         result = tune(
             study_cfg,
             n_trials=args.study_trials,

@@ -31,7 +31,8 @@ Usage: python experiments/benchmarks/bench_vehicle_baselines.py [--cars f1tenth,
        [--first-seed 0] [--workers 2] [--out DIR] [--variants physics,...] [--twin] [--quick]
 `--twin`: the campaigns answered by the car's twin (`TWIN`), with the identified friction and motor
 scales of the kinds that identify them (`identified_*` round metrics).
-`--quick` (what the test runs): one seed at quick.py's sizes, every variant.
+`--quick` (what the test runs): one seed at quick.py's sizes, every variant, the first car of `--cars`
+only (the cars share every code path; their files are checked by tests/test_vehicles.py).
 """
 
 from __future__ import annotations
@@ -239,7 +240,7 @@ def main() -> None:
     parser.add_argument("--variants", default=",".join(VARIANTS), help="a subset of " + ", ".join(VARIANTS))
     parser.add_argument("--no-data-only", action="store_true", help="only the file models' rows by band")
     parser.add_argument("--twin", action="store_true", help=f"campaigns answered by the car's twin {TWIN}")
-    parser.add_argument("--quick", action="store_true", help="one seed at quick sizes: checks it runs")
+    parser.add_argument("--quick", action="store_true", help="one seed, the first car, quick sizes")
     args = parser.parse_args()
     cars = [c for c in args.cars.split(",") if c]
     if not cars or set(cars) - set(CARS):
@@ -248,7 +249,7 @@ def main() -> None:
     if not variants or set(variants) - set(VARIANTS):
         parser.error(f"--variants: a subset of {', '.join(VARIANTS)}")
     if args.quick:
-        args.seeds = 1
+        args.seeds, cars = 1, cars[:1]
     if args.seeds < 1 or args.workers < 1:
         parser.error("--seeds and --workers: at least 1")
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
