@@ -9,39 +9,48 @@ prints per test maneuver the share of steps whose true position lies in the fans
 error of the mean path against the fan's half-width there, and the steady rates at the end (the last
 second: truth and the model's mean), then the shares by kind and direction of travel. `--parameter-
 uncertainty by_log` draws the identified core's scales per draw (the knob session 38 tried).
+`--reverse-understeer 1.01,1.02` asks what the same model would do with the kinematic core's understeer
+scaled by each factor in reverse only (throttle < 0; the free runs in torch, `backend="reference"`, the
+first factor 1 as a check): a what-if with the factor chosen on the test set, not an identified model.
 
 Usage: python experiments/investigations/first_fans.py [--config dynamics] [--seed 0] [--signals N]
-       [--parameter-uncertainty by_log] [--out runs/first_fans]   (a minute or two)
+       [--parameter-uncertainty by_log] [--reverse-understeer K,...] [--out runs/first_fans]
 """
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import torch
 
 from activelearn.config import load_config
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.evaluation import Evaluation
 from activelearn.names import SPEED, YAW_RATE
 from activelearn.numerics.diagnostics import TRUTH_COLUMNS, fan_widening_needed, free_runs, relative_pose
+from activelearn.numerics.models import physics
+from activelearn.numerics.models.single_track import PARAMETER_NAMES
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 LAST_SECOND = 30  # steps at 30 Hz
+UNDERSTEER = PARAMETER_NAMES.index("understeer")
 
 
 def last_round(config: str, seed: int, out: Path, signals: int | None, parameter_uncertainty: str | None):
     """Run the config up to `signals` signals (its first round: None); return the last round's logged
-    metrics, the test set and the last model's free runs at fan scale 1."""
+    metrics, the test set, the last model and its free runs at fan scale 1."""
     seen: dict = {}
     original = Evaluation.evaluate
 
     def evaluate(self: Evaluation, model, *, rollouts: bool = True) -> dict[str, float]:
         metrics = original(self, model, rollouts=rollouts)
         if rollouts:
-            seen["test"] = self.test_set
+            seen["test"], seen["model"] = self.test_set, model
             seen["rollout"] = free_runs(
                 model, self.test_set.logs, rate_hz=self.cfg.simulation.rate_hz,
                 n_samples=self.cfg.test.rollout_samples, seed=0, fan_scale=1.0,
@@ -60,7 +69,37 @@ def last_round(config: str, seed: int, out: Path, signals: int | None, parameter
         state = Campaign(cfg, directory).run(figures=False, log_model=False).state
     finally:
         Evaluation.evaluate = original
-    return state.rounds[-1], seen["test"], seen["rollout"]
+    return state.rounds[-1], seen["test"], seen["model"], seen["rollout"]
+
+
+@contextmanager
+def reverse_understeer(factor: float) -> Iterator[None]:
+    """The physics kind's torch step with the core's understeer times `factor` where the throttle is < 0."""
+    step = physics.single_track_step
+
+    def scaled(throttle, steering, v, w, theta, *args, **kwargs):
+        scale = torch.where(torch.as_tensor(throttle) < 0, factor, 1.0)
+        theta = theta.expand(*torch.broadcast_shapes(theta.shape[:-1], scale.shape), theta.shape[-1]).clone()
+        theta[..., UNDERSTEER] = theta[..., UNDERSTEER] * scale
+        return step(throttle, steering, v, w, theta, *args, **kwargs)
+
+    physics.single_track_step = scaled
+    try:
+        yield
+    finally:
+        physics.single_track_step = step
+
+
+def what_if(model, test, samples: int, factors: list[float]) -> None:
+    """The test set's mean 30-s error and fans (scale 1) with each reverse understeer factor."""
+    print("\nwhat-if, the core's understeer scaled in reverse only (torch free runs, the same model, draws):")
+    for factor in factors:
+        with reverse_understeer(factor):
+            rollout = free_runs(model, test.logs, rate_hz=30.0, n_samples=samples, seed=0, fan_scale=1.0,
+                                backend="reference")  # fmt: skip
+        frame = by_maneuver(test, rollout)
+        print(f"  x{factor:.3f}: 30-s error {frame['30-s error m'].mean():.4f} m, "
+              f"fans {np.mean(fan_widening_needed(rollout, test.truth_logs, None) <= 1.0):.3f}")
 
 
 def by_maneuver(test, rollout) -> pd.DataFrame:
@@ -97,10 +136,13 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--signals", type=int, default=None, help="run on to this many (default: round 0)")
     parser.add_argument("--parameter-uncertainty", choices=("none", "by_log"), default=None)
+    parser.add_argument("--reverse-understeer", default="", help="factors for the what-if, e.g. 1.01,1.02")
     parser.add_argument("--out", type=Path, default=Path("runs/first_fans"))
     args = parser.parse_args()
+    factors = [1.0, *(float(f) for f in args.reverse_understeer.split(",") if f)]
     uncertainty = args.parameter_uncertainty
-    logged, test, rollout = last_round(args.config, args.seed, args.out.resolve(), args.signals, uncertainty)
+    out = args.out.resolve()
+    logged, test, model, rollout = last_round(args.config, args.seed, out, args.signals, uncertainty)
     frame = by_maneuver(test, rollout)
     pd.set_option("display.width", 200)
     print(f"== {args.config}, seed {args.seed}, round {logged['round']} ({logged['n_maneuvers']} signals), "
@@ -111,6 +153,8 @@ def main() -> None:
     frame["travel"] = np.where(frame["throttle"] < 0, "reverse", "forward")
     print("\nshare of true positions in the fans, by kind and direction of travel:")
     print(frame.pivot_table(index="kind", columns="travel", values="in fans").round(3).to_string())
+    if len(factors) > 1:
+        what_if(model, test, len(rollout.x), factors)
 
 
 if __name__ == "__main__":
