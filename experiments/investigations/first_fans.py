@@ -32,30 +32,24 @@ from activelearn.config import load_config
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.evaluation import Evaluation
 from activelearn.names import SPEED, YAW_RATE
-from activelearn.numerics.diagnostics import TRUTH_COLUMNS, fan_widening_needed, free_runs, relative_pose
+from activelearn.numerics.diagnostics import TRUTH_COLUMNS, free_runs, track_metrics
 from activelearn.numerics.models import physics
 from activelearn.numerics.models.single_track import PARAMETER_NAMES
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
-LAST_SECOND = 30  # steps at 30 Hz
 UNDERSTEER = PARAMETER_NAMES.index("understeer")
 
 
 def last_round(config: str, seed: int, out: Path, signals: int | None, parameter_uncertainty: str | None):
     """Run the config up to `signals` signals (its first round: None); return the last round's logged
-    metrics, the test set, the last model and its free runs at fan scale 1."""
+    metrics, the last model, the test set and the campaign's config."""
     seen: dict = {}
     original = Evaluation.evaluate
 
     def evaluate(self: Evaluation, model, *, rollouts: bool = True) -> dict[str, float]:
-        metrics = original(self, model, rollouts=rollouts)
-        if rollouts:
-            seen["test"], seen["model"] = self.test_set, model
-            seen["rollout"] = free_runs(
-                model, self.test_set.logs, rate_hz=self.cfg.simulation.rate_hz,
-                n_samples=self.cfg.test.rollout_samples, seed=0, fan_scale=1.0,
-            )  # fmt: skip
-        return metrics
+        if rollouts:  # a round's logged evaluation: the last round's once the campaign ends
+            seen["model"], seen["test"] = model, self.test_set
+        return original(self, model, rollouts=rollouts)
 
     cfg = load_config(CONFIGS / f"{config}.toml")
     overrides = {"seed": seed, "strategy": "uniform", "tracking": {"enabled": False}, "output_dir": str(out),
@@ -69,7 +63,7 @@ def last_round(config: str, seed: int, out: Path, signals: int | None, parameter
         state = Campaign(cfg, directory).run(figures=False, log_model=False).state
     finally:
         Evaluation.evaluate = original
-    return state.rounds[-1], seen["test"], seen["model"], seen["rollout"]
+    return state.rounds[-1], seen["model"], seen["test"], cfg
 
 
 @contextmanager
@@ -90,38 +84,40 @@ def reverse_understeer(factor: float) -> Iterator[None]:
         physics.single_track_step = step
 
 
-def what_if(model, test, samples: int, factors: list[float]) -> None:
+def test_free_runs(model, test, cfg, backend: str = "auto"):
+    """The model's free runs of the test set at fan scale 1, as the campaign's evaluation draws them."""
+    return free_runs(model, test.logs, rate_hz=cfg.simulation.rate_hz, n_samples=cfg.test.rollout_samples,
+                     seed=0, fan_scale=1.0, backend=backend)  # fmt: skip
+
+
+def what_if(model, test, cfg, factors: list[float]) -> None:
     """The test set's mean 30-s error and fans (scale 1) with each reverse understeer factor."""
     print("\nwhat-if, the core's understeer scaled in reverse only (torch free runs, the same model, draws):")
     for factor in factors:
         with reverse_understeer(factor):
-            rollout = free_runs(model, test.logs, rate_hz=30.0, n_samples=samples, seed=0, fan_scale=1.0,
-                                backend="reference")  # fmt: skip
+            rollout = test_free_runs(model, test, cfg, backend="reference")
         frame = by_maneuver(test, rollout)
-        print(f"  x{factor:.3f}: 30-s error {frame['30-s error m'].mean():.4f} m, "
-              f"fans {np.mean(fan_widening_needed(rollout, test.truth_logs, None) <= 1.0):.3f}")
+        fans = np.average(frame["in fans"], weights=rollout.lengths)  # over every step, as campaigns log it
+        print(f"  x{factor:.3f}: 30-s error {frame['30-s error m'].mean():.4f} m, fans {fans:.3f}")
 
 
 def by_maneuver(test, rollout) -> pd.DataFrame:
-    """One row per test maneuver: its fans' share, the 30-s error against the fan, the end's rates."""
-    needs = fan_widening_needed(rollout, test.truth_logs, None)
-    starts = np.concatenate([[0], np.cumsum(rollout.lengths)])
-    mean_x, mean_y = rollout.mean_path()
-    band_x, band_y = (np.quantile(getattr(rollout, a), (0.025, 0.975), axis=0) for a in ("x", "y"))
+    """One row per test maneuver (`track_metrics`): its fans' share of the true positions, the 30-s error
+    against the fan's half-width there, and the last second's rates, truth and the model's mean."""
     rows = []
+    last_second = round(1.0 / rollout.dt)
     for i, table in enumerate(test.truth_logs):
         n = int(rollout.lengths[i])
-        tx, ty, _ = relative_pose({c: table[c].to_numpy(dtype=np.float64) for c in TRUTH_COLUMNS}, n)
-        last = n - 1
-        width_x, width_y = band_x[1, i, last] - band_x[0, i, last], band_y[1, i, last] - band_y[0, i, last]
-        half = 0.5 * np.hypot(width_x, width_y)
-        end = slice(n - LAST_SECOND, n)
+        metrics = track_metrics(rollout, i, {c: table[c].to_numpy(dtype=np.float64) for c in TRUTH_COLUMNS})
+        marks = metrics.position_error
+        band_x, band_y = (rollout.quantiles(a, i)[[0, -1], n - 1] for a in ("x", "y"))
+        end = slice(n - last_second, n)
         rows.append({
             "kind": table["maneuver"].iloc[0], "throttle": float(table["op_throttle"].iloc[0]),
             "steering": float(table["op_steering"].iloc[0]), "direction": table["direction"].iloc[0],
-            "in fans": float(np.mean(needs[starts[i]:starts[i + 1]] <= 1.0)),
-            "30-s error m": float(np.hypot(tx[-1] - mean_x[i, n - 1], ty[-1] - mean_y[i, n - 1])),
-            "fan half-width m": float(half),
+            "in fans": metrics.coverage_position,
+            "30-s error m": marks.get(30.0, marks[max(marks)]),  # a shorter log: at its end, as campaigns
+            "fan half-width m": 0.5 * float(np.hypot(np.diff(band_x)[0], np.diff(band_y)[0])),
             "speed": float(table[SPEED].iloc[end].mean()),
             "model speed": float(rollout.mean_rates[i, end, 0].mean()),
             "yaw rate": float(table[YAW_RATE].iloc[end].mean()),
@@ -142,8 +138,8 @@ def main() -> None:
     factors = [1.0, *(float(f) for f in args.reverse_understeer.split(",") if f)]
     uncertainty = args.parameter_uncertainty
     out = args.out.resolve()
-    logged, test, model, rollout = last_round(args.config, args.seed, out, args.signals, uncertainty)
-    frame = by_maneuver(test, rollout)
+    logged, model, test, cfg = last_round(args.config, args.seed, out, args.signals, uncertainty)
+    frame = by_maneuver(test, test_free_runs(model, test, cfg))
     pd.set_option("display.width", 200)
     print(f"== {args.config}, seed {args.seed}, round {logged['round']} ({logged['n_maneuvers']} signals), "
           f"parameter_uncertainty {uncertainty or 'as shipped'}: "
@@ -154,7 +150,7 @@ def main() -> None:
     print("\nshare of true positions in the fans, by kind and direction of travel:")
     print(frame.pivot_table(index="kind", columns="travel", values="in fans").round(3).to_string())
     if len(factors) > 1:
-        what_if(model, test, len(rollout.x), factors)
+        what_if(model, test, cfg, factors)
 
 
 if __name__ == "__main__":
