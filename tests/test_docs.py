@@ -183,3 +183,16 @@ def test_every_image_a_page_shows_is_a_file_of_the_site(page: Path) -> None:
         target = Path(os.path.normpath(page.parent / image.split("#")[0]))
         assert target.is_relative_to(DOCS), f"{image}: outside docs/"
         assert target.is_file(), f"{image}: no such file"
+
+
+@pytest.mark.parametrize("page", _pages(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_nested_list_is_indented_four_spaces(page: Path) -> None:
+    """Python-Markdown (mkdocs) nests a list item only at 4 spaces per level: one at 2 renders flat,
+    as a sibling of the item it belongs to (40 items did, session 38). Fenced code is not prose."""
+    fenced, flat = False, []
+    for number, line in enumerate(page.read_text().splitlines(), start=1):
+        if line.lstrip().startswith("```"):
+            fenced = not fenced
+        elif not fenced and re.match(r"(  |      )([-*]|\d+\.) ", line):
+            flat.append(f"{number}: {line.strip()[:60]}")
+    assert not flat, "list items indented 2 (or 6) spaces, which render flat:\n" + "\n".join(flat)
