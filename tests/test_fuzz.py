@@ -45,6 +45,13 @@ from simulator.errors import SimulatorError
 CONFIGS = sorted((Path(__file__).resolve().parents[1] / "experiments" / "configs").glob("*.toml"))
 SMOKE = CONFIGS[[p.stem for p in CONFIGS].index("smoke")]
 
+
+@pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.stem)
+def test_every_shipped_config_loads(path: Path) -> None:
+    """Each of experiments/configs passes the checks a run starts with (safe_track_twin.toml failed the
+    live stop's braking check, added after it, unnoticed for a session)."""
+    assert load_config(path).name == path.stem
+
 # ----------------------------------------------------------------------------------------- the schema
 
 
