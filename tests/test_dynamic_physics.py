@@ -241,10 +241,11 @@ def test_the_discrepancy_is_the_cores_misfit_of_its_logs_and_widens_the_fan_not_
     """`discrepancy = "identification"`: the core's rms misfit of its own logs (small where the logs are
     a core's own runs, larger where they hold what no scale explains) sets an OU error on each draw's
     rates, so the pose fan widens about the mean path the core without it runs."""
-    from activelearn.numerics.models.dynamic_physics import discrepancy_paths, identification_misfit
+    from activelearn.numerics.models.discrepancy import discrepancy_paths
+    from activelearn.numerics.models.dynamic_physics import identification_misfit
 
     with pytest.raises(ValidationError, match="discrepancy"):
-        ModelConfig(kind="physics", discrepancy="identification")  # the kinematic core has none
+        ModelConfig(kind="ensemble", discrepancy="identification")  # a black box has no core
     with pytest.raises(ValidationError, match="combined_slip"):
         ModelConfig(kind="physics", combined_slip=True)  # nor combined slip
     with pytest.raises(ValidationError, match="wheel_forces"):

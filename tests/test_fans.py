@@ -1,9 +1,10 @@
 """The physics kind's 95 % free-run fans hold 85-99 % of the true positions (the README's claim).
 
 A small campaign of the shipped `dynamics.toml` (the physics kind with its gated, mirror-symmetric
-correction and the prequential fan calibration), on a fixed seed: every round after the first (the
-first has nothing to calibrate on yet) must hold 85-99 % of its test maneuvers' true positions in its
-fans. Fans too narrow (an uncalibrated or overconfident model) or too wide (a scale run away) fail it.
+correction, the core's misfit carried in the fans and the prequential fan calibration), on a fixed seed:
+every round, the first too (nothing to calibrate on yet: its fans are the model's own), must hold 85-99 %
+of its test maneuvers' true positions in its fans. Fans too narrow (an uncalibrated or overconfident
+model) or too wide (a scale run away) fail it.
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ from activelearn.loop.state import CampaignState
 
 DYNAMICS = Path(__file__).resolve().parents[1] / "experiments" / "configs" / "dynamics.toml"
 
-# Measured on seed 0 (2026-11-28): rounds 1-3 0.988, 0.989, 0.989 (round 0, uncalibrated: 0.707).
+# Measured on seed 0: rounds 0-3 0.978, 0.972, 0.971, 0.961 (2026-11-30, with the discrepancy; before it
+# round 0 held 0.707, rounds 1-3 0.988, 0.989, 0.989).
 SMALL = {
     "seed": 0,
     "strategy": "uniform",
@@ -37,7 +39,7 @@ def test_the_physics_kinds_calibrated_fans_hold_85_to_99_percent_of_true_positio
     assert cfg.model.kind == "physics" and cfg.design.fan_calibration == "prequential"
     rounds = Campaign(cfg, tmp_path / "c").run(figures=False, log_model=False).state.rounds
     assert len(rounds) == 4
-    held = [r["rollout_coverage_95"] for r in rounds[1:]]
+    held = [r["rollout_coverage_95"] for r in rounds]
     assert all(0.85 <= share <= 0.99 for share in held), held
     assert all(r["fan_scale"] > 1.0 for r in rounds[1:]), [r["fan_scale"] for r in rounds]  # calibrated
 

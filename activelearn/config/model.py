@@ -128,13 +128,13 @@ class ModelConfig(_Section):
     # 1:10 car's fans held a quarter of the true positions. The discrepancy is that misfit, carried.
     discrepancy: Literal["none", "identification", "cross_validated"] = Field(
         "none",
-        description="core = 'dynamic': 'identification' widens the free-run fans by the core's model "
-        "discrepancy: each draw's speed and yaw rate take a random error (an Ornstein-Uhlenbeck process "
-        "from zero, its size the identified core's rms misfit of its own logs, each draw's size drawn "
-        "from that estimate's uncertainty over the n logs it was measured on (√(n / χ²(n)) times it: "
-        "Student-t fans), its correlation time the identification's restart horizon) that moves the "
-        "pose fan about the core's mean path, not the path; 'cross_validated' takes the misfit out of "
-        "sample (4 folds of the logs, each at the scales identified without it)",
+        description="kind = 'physics' (either core): 'identification' widens the free-run fans by the "
+        "core's model discrepancy: each draw's speed and yaw rate take a random error (an "
+        "Ornstein-Uhlenbeck process from zero, its size the identified core's rms misfit of its own "
+        "logs, each draw's size drawn from that estimate's uncertainty over the n logs it was measured "
+        "on (√(n / χ²(n)) times it: Student-t fans), its correlation time the misfit's restart horizon, "
+        "3 s) that moves the pose fan about the core's mean path, not the path; 'cross_validated' takes "
+        "the misfit out of sample (4 folds of the logs, each at the parameters identified without it)",
     )
     # A live stop brakes at the grip limit with the steering held: the truth keeps no lateral grip, a core
     # without combined slip all of it (experiments/results/bench_safety.txt, session 34).
@@ -229,11 +229,11 @@ class ModelConfig(_Section):
                 raise ValueError(f"{name}: the dynamic core's (core = 'dynamic'), not core {self.core!r}")
         if self.combined_slip and self.wheel_forces:
             raise ValueError("wheel_forces: each wheel's own circle replaces combined_slip's axles; set one")
-        if self.discrepancy != "none" and self.core != "dynamic":
-            raise ValueError(
-                f"discrepancy: {self.discrepancy!r} is the dynamic core's (core = 'dynamic'), not "
-                f"kind = {self.kind!r} with core = {self.core!r}"
-            )
+        if self.discrepancy != "none" and self.kind != "physics":
+            raise ValueError(f"discrepancy: {self.discrepancy!r} is the physics kind's, not {self.kind!r}'s")
+        if self.discrepancy != "none" and self.correction_inputs != "control":
+            raise ValueError("discrepancy: its fans are free runs computed whole, which needs "
+                             f"correction_inputs = 'control', not {self.correction_inputs!r}")  # fmt: skip
         return self
 
     @field_validator("arch")

@@ -20,8 +20,8 @@ mostly forgets its start, and the correction trained on rows sees nearly the ste
 
 With `discrepancy` the identification also measures the core's rms misfit of its logs (`"identification"`:
 in sample; `"cross_validated"`: each of 4 folds at the scales identified without it), and each free-run
-draw's rates carry an Ornstein-Uhlenbeck error of that size (`discrepancy_paths`): the pose fan widens by
-what no scale explains, about the core's own mean path.
+draw's rates carry an Ornstein-Uhlenbeck error of that size (`discrepancy.discrepancy_paths`): the pose
+fan widens by what no scale explains, about the core's own mean path (the kinematic core does the same).
 
 A step is written once as pure functions (`corrected_step`, `free_run_step`) that `compile_steps` has
 torch.compile fuse (`compiled_step`): eagerly each is a few hundred small operations. Free runs take the
@@ -38,14 +38,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
-from scipy.signal import lfilter
 from torch import Tensor
 
 from activelearn.config import ModelConfig
 from activelearn.names import IDENTIFIED_PREFIX
 from activelearn.numerics import native
-from activelearn.numerics.counter_noise import step_noise
 from activelearn.numerics.lags import Lags
+from activelearn.numerics.models.discrepancy import CORRELATION_TIME, widened_pose
 from activelearn.numerics.models.dynamic_fit import (
     cross_validated_misfit,
     identify_dynamic,
@@ -76,12 +75,12 @@ from activelearn.numerics.models.single_track import (
 from activelearn.numerics.pose import integrate_pose
 from activelearn.numerics.training_data import TrainingData
 
-IDENTIFY_HORIZON = 3.0  # s: free runs restart from the logged rates (a spinning car's 30 s are chaotic)
+# s: free runs restart from the logged rates (a spinning car's 30 s are chaotic); the misfit's restarts too,
+# so it is the discrepancy's correlation time
+IDENTIFY_HORIZON = CORRELATION_TIME
 IDENTIFY_EVERY = 3  # log steps between the compared points of an identification's free runs
 # how the model identifies its scales and measures their misfit: the restarts, spacing and step above
 IDENTIFICATION = {"every": IDENTIFY_EVERY, "horizon": IDENTIFY_HORIZON, "implicit": True}
-DISCREPANCY_KEY_BIT = 1 << 63  # the discrepancy's noise keys: the draws' (below 2^62) with it set
-DISCREPANCY_SIZE_STREAM = 56  # the draws' discrepancy sizes' random stream, beside the free run's seed
 FALLBACK_NOISE = 0.01  # `parameter_information`'s rate errors without a measured misfit: share of the limits
 
 
@@ -134,29 +133,6 @@ def identification_misfit(
     if cross_validated:
         return cross_validated_misfit(logs, car, dt, theta, loss=loss, **IDENTIFICATION)
     return misfit(logs, car, dt, theta, **IDENTIFICATION)
-
-
-def discrepancy_paths(
-    size: np.ndarray, keys: list[int], n_maneuvers: int, n_steps: int, dt: float
-) -> tuple[Tensor, Tensor]:
-    """Each draw's model discrepancy of (v, r) along a free run, (S, M, T) each, S = len(keys): an
-    Ornstein-Uhlenbeck process from zero (a run starts at the recorded rates, as the identification's
-    restarts do), its stationary size `size` ((2,), or (S, 2) a draw), its correlation time
-    `IDENTIFY_HORIZON`. Its normals are `counter_noise`'s under each draw's noise key with
-    `DISCREPANCY_KEY_BIT` set, a stream of their own that dynamic_rollout.c draws alike."""
-    keep = math.exp(-dt / IDENTIFY_HORIZON)
-    draws = [np.stack(step_noise(key | DISCREPANCY_KEY_BIT, n_maneuvers, n_steps)) for key in keys]
-    shocks = np.stack(draws, axis=1).astype(np.float64)  # (2, S, M, T)
-    shocks[..., 0] = 0.0
-    paths = lfilter([math.sqrt(1.0 - keep**2)], [1.0, -keep], shocks, axis=-1)
-    paths *= np.broadcast_to(np.asarray(size, np.float64), (len(keys), 2)).T[:, :, None, None]
-    return torch.as_tensor(paths[0], dtype=torch.float32), torch.as_tensor(paths[1], dtype=torch.float32)
-
-
-def _unknown_discrepancy_logs(module, state_dict, prefix, *args) -> None:
-    """Load hook: a state dict saved before `discrepancy_logs` existed takes its misfit as known (0)."""
-    if module.discrepancy_logs is not None:
-        state_dict.setdefault(prefix + "discrepancy_logs", torch.zeros(()))
 
 
 @dataclass(frozen=True)
@@ -251,11 +227,6 @@ class DynamicPhysicsModel(PhysicsModel):
             float(self.car.nominal[names.index("yaw_lag")]),
         )
         self.compiled = False  # whether the model's steps run compiled (`compile_steps`)
-        # the core's misfit of its logs (v, r) that `discrepancy` widens the fans by (None: "none"), and
-        # the number of logs it was measured on (0: unknown, a file saved before it; `discrepancy_sizes`)
-        self.register_buffer("discrepancy", torch.zeros(2) if config.discrepancy != "none" else None)
-        self.register_buffer("discrepancy_logs", torch.zeros(()) if config.discrepancy != "none" else None)
-        self.register_load_state_dict_pre_hook(_unknown_discrepancy_logs)
         # the correction's bounds on this car, fixed with it: built once, not per step
         self.limits = CorrectionLimits(
             bound=config.residual_bound, max_speed=self.car.max_speed, max_yaw_rate=self.car.max_yaw_rate,
@@ -465,37 +436,8 @@ class DynamicPhysicsModel(PhysicsModel):
             yaw0 = torch.as_tensor(yaw0, dtype=states.dtype)[:, None]
             pose = integrate_pose(states[:, 0], states[:, 1], dt, yaw0, lever_arm=arm, lateral=slip)
             if self._carries_discrepancy:
-                pose = self._with_discrepancy(pose, states, (dt, yaw0, arm, slip), draws)
+                keys, seed = draws
+                sizes = self.discrepancy_sizes(len(keys), seed)
+                pose = widened_pose(pose, (states[:, 0], states[:, 1]), (dt, yaw0, arm, slip), sizes, keys)
             paths = tuple(part.numpy() for part in pose)
         return paths
-
-    @property
-    def _carries_discrepancy(self) -> bool:
-        """Whether the free runs' fans carry a measured model discrepancy."""
-        return self.discrepancy is not None and bool(self.discrepancy.any())
-
-    def discrepancy_sizes(self, n_samples: int, seed: int) -> np.ndarray:
-        """(S, 2) each draw's discrepancy size (v, r): the measured misfit ŝ times √(n / X), X ~ χ²(n), n the
-        logs it was measured on (each a cluster). That is the posterior of an rms size measured on n
-        clusters under a Jeffreys prior, so the fan is the Student-t marginal over the size, not the
-        Gaussian at ŝ: after 4 logs one draw in 4.5 is half again as large. n unknown (0): ŝ for every
-        draw."""
-        size = np.broadcast_to(self.discrepancy.double().numpy(), (n_samples, 2))
-        n = float(self.discrepancy_logs)
-        if n <= 0.0:
-            return size.copy()
-        chi2 = np.random.default_rng((seed, DISCREPANCY_SIZE_STREAM)).chisquare(n, n_samples)
-        return size * np.sqrt(n / chi2)[:, None]
-
-    def _with_discrepancy(
-        self, pose, states: Tensor, frame, draws: tuple[list[int], int]
-    ) -> tuple[Tensor, ...]:
-        """The pose fan (x, y, ψ) of draws whose rates carry the model discrepancy (`discrepancy_paths`),
-        moved onto the core's mean path `pose`: the discrepancy widens the fan, not the path."""
-        dt, yaw0, arm, slip = frame
-        keys, seed = draws
-        sizes = self.discrepancy_sizes(len(keys), seed)
-        dv, dw = discrepancy_paths(sizes, keys, *states.shape[2:], dt)
-        wide = integrate_pose(states[:, 0] + dv, states[:, 1] + dw, dt, yaw0, lever_arm=arm, lateral=slip)
-        pairs = zip(wide, pose, strict=True)
-        return tuple(part - part.mean(dim=0) + path.mean(dim=0) for part, path in pairs)

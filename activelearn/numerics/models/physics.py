@@ -7,7 +7,10 @@ parameters are identified before every fit: by the free runs of the training log
 gives them (what campaigns do), else from one-step rows, MAP with the datasheet as the prior, so a
 parameter the data do not touch (say the reverse gain, trained forward only) stays at the datasheet's
 value. With `parameter_uncertainty = "by_log"` each posterior draw has its own parameters, drawn from
-their cluster-robust covariance (`parameter_draws`).
+their cluster-robust covariance (`parameter_draws`). With `discrepancy` the identification also measures
+the core's misfit of its logs (`single_track.misfit_of_logs`) and the free runs' pose fans carry it
+(`activelearn.numerics.models.discrepancy`), about the mean path: computed in NumPy from the kernel's
+rates, not in the kernel.
 
 The Bayesian part (a deep ensemble or hybrid PBNN of `config.correction`, on the same inputs)
 learns only what the physics misses, every output squashed into a physical range:
@@ -36,6 +39,7 @@ from activelearn.names import CORRECTION_WEIGHT
 from activelearn.numerics import buffers, counter_noise, native
 from activelearn.numerics.lags import N_CONTROLS, N_RATES, Lags, model_lags
 from activelearn.numerics.models.base import Model, column_scalers, draw_spread
+from activelearn.numerics.models.discrepancy import CORRELATION_TIME, discrepancy_sizes, widened_pose
 from activelearn.numerics.models.networks import NETWORK_CLASSES
 from activelearn.numerics.models.single_track import (
     LAG_FACTOR,
@@ -50,10 +54,13 @@ from activelearn.numerics.models.single_track import (
     identify,
     identify_from_logs,
     identify_on_another_car,
+    misfit_of_logs,
+    others_estimate,
     single_track_step,
     split_inputs,
     widened,
 )
+from activelearn.numerics.pose import integrate_pose
 from activelearn.numerics.training_data import TrainingData
 
 N_CORRECTIONS = 4  # steady-state residuals (v, ω) and lag factors (v, ω)
@@ -130,6 +137,11 @@ class PhysicsModel(Model):
         # before it existed load with 1 (the whole correction).
         self.register_buffer("correction_weight", torch.ones(()))
         self.register_load_state_dict_pre_hook(_default_correction_weight)
+        # the core's misfit of its logs (v, r) that `discrepancy` widens the fans by (None: "none"), and
+        # the number of logs it was measured on (0: unknown, a file saved before it; `discrepancy_sizes`)
+        self.register_buffer("discrepancy", torch.zeros(2) if config.discrepancy != "none" else None)
+        self.register_buffer("discrepancy_logs", torch.zeros(()) if config.discrepancy != "none" else None)
+        self.register_load_state_dict_pre_hook(_unknown_discrepancy_logs)
         # False: the bare single track (the correction's outputs held at zero), for comparisons
         self.corrected = True
         self._shrink_last_layer()
@@ -153,19 +165,25 @@ class PhysicsModel(Model):
         if not logs and self.core_prior is not None:
             self.set_identified(self.core_prior)  # no log of this car yet: the other car's core stands
             return
+        own, prior = list(logs or []), self.core_prior
         if logs and of_another_car is not None and any(of_another_car):
             flags = list(of_another_car)
-            found = identify_on_another_car(
-                [log for log, other in zip(logs, flags, strict=True) if not other],
-                [log for log, other in zip(logs, flags, strict=True) if other],
-                search_from=search_from,
-                car=self.car,
-            )
+            own = [log for log, other in zip(logs, flags, strict=True) if not other]
+            others = [log for log, other in zip(logs, flags, strict=True) if other]
+            found = identify_on_another_car(own, others, search_from=search_from, car=self.car)
+            if self.discrepancy is not None:  # the prior `own` was identified under (its estimate cached)
+                prior = widened(others_estimate(others, car=self.car), self.car.width)
         elif logs:
             found = identify_from_logs(logs, search_from=search_from, car=self.car, prior=self.core_prior)
         else:
             found = identify(np.asarray(data.x), np.asarray(data.y), self.dt, self.rate_at, self.car)
         self.set_identified(found)
+        if self.discrepancy is not None and own:
+            cross = self.config.discrepancy == "cross_validated"
+            misfit = misfit_of_logs(own, found.values, horizon=CORRELATION_TIME, cross_validated=cross,
+                                    prior=prior, car=self.car)  # fmt: skip
+            self.discrepancy.copy_(torch.as_tensor(misfit, dtype=torch.float32))
+            self.discrepancy_logs.fill_(float(sum(len(u) > 1 for u, _ in own)))
 
     @torch.no_grad()
     def set_identified(self, found: Identified) -> None:
@@ -215,6 +233,17 @@ class PhysicsModel(Model):
     def round_metrics(self) -> dict[str, float]:
         """The share of its correction's mean the model keeps (`correction_weight`)."""
         return {CORRECTION_WEIGHT: float(self.correction_weight)}
+
+    @property
+    def _carries_discrepancy(self) -> bool:
+        """Whether the free runs' fans carry a measured model discrepancy (`[model] discrepancy`)."""
+        return self.discrepancy is not None and bool(self.discrepancy.any())
+
+    def discrepancy_sizes(self, n_samples: int, seed: int) -> np.ndarray:
+        """(S, 2) each draw's discrepancy size (v, r), drawn from the measured misfit's posterior
+        (`discrepancy.discrepancy_sizes`)."""
+        misfit = self.discrepancy.double().numpy()
+        return discrepancy_sizes(misfit, float(self.discrepancy_logs), n_samples, seed)
 
     @property
     def has_parameter_spread(self) -> bool:
@@ -287,12 +316,12 @@ class PhysicsModel(Model):
         n_maneuvers, n_steps, _ = controls.shape
         # The kernel reads one parameter set: draws with their own parameters step in torch.
         if correction.kernel is not None and not self.has_parameter_spread:
-            # the kernel applies the gated correction and the pose
+            # the kernel applies the gated correction and the pose (without the model discrepancy)
             # Reused memory (`buffers`): first-touch page faults of the fans cost a third of a run.
             rates = buffers.empty((n_samples, 2, n_maneuvers, n_steps))
             moments = tuple(buffers.empty((n_maneuvers, n_steps, 2)) for _ in range(3))
             paths = native_pose = None
-            if pose is not None:
+            if pose is not None and not self._carries_discrepancy:
                 dt, yaw0, arm = pose
                 paths = tuple(buffers.empty((n_samples, n_maneuvers, n_steps)) for _ in range(3))
                 native_pose = (dt, arm, np.ascontiguousarray(yaw0, dtype=np.float32), paths)
@@ -308,12 +337,28 @@ class PhysicsModel(Model):
                 pose=native_pose,
                 threads=torch.get_num_threads(),
             )
-            return torch.from_numpy(rates), tuple(torch.from_numpy(m) for m in moments), paths
-        rates = torch.empty((n_samples, 2, n_maneuvers, n_steps))
-        moments = tuple(torch.empty((n_maneuvers, n_steps, 2)) for _ in range(3))
-        theta = self.parameter_draws(n_samples, seed)[:, None]  # (S, 1, 7) against (S, M)
-        self._torch_free_runs(correction, controls, start, keys, rate_lag, spread, rates, moments, theta)
-        return rates, moments, None
+            rates, moments = torch.from_numpy(rates), tuple(torch.from_numpy(m) for m in moments)
+        else:
+            rates = torch.empty((n_samples, 2, n_maneuvers, n_steps))
+            moments = tuple(torch.empty((n_maneuvers, n_steps, 2)) for _ in range(3))
+            theta = self.parameter_draws(n_samples, seed)[:, None]  # (S, 1, 7) against (S, M)
+            self._torch_free_runs(correction, controls, start, keys, rate_lag, spread, rates, moments, theta)
+            paths = None
+        if pose is not None and self._carries_discrepancy:
+            paths = self._discrepancy_pose(rates, pose, keys, seed)
+        return rates, moments, paths
+
+    def _discrepancy_pose(
+        self, rates: Tensor, pose: tuple[float, np.ndarray, float], keys: list[int], seed: int
+    ) -> tuple[np.ndarray, ...]:
+        """Each draw's pose (x, y, ψ) from its sampled rates (S, 2, M, T), the fan widened by the model
+        discrepancy about their mean path (`discrepancy.widened_pose`)."""
+        dt, yaw0, arm = pose
+        v, w = rates[:, 0], rates[:, 1]
+        yaw0 = torch.as_tensor(np.asarray(yaw0, np.float32))[:, None]
+        plain = integrate_pose(v, w, dt, yaw0, lever_arm=arm)
+        sizes = self.discrepancy_sizes(len(keys), seed)
+        return tuple(part.numpy() for part in widened_pose(plain, (v, w), (dt, yaw0, arm, None), sizes, keys))
 
     def _free_run_setup(self, n_samples: int, seed: int, controls: np.ndarray, lags: Lags, backend: str):
         """What every free run of a control-only correction starts from: its S draws of `seed`, their
@@ -518,6 +563,12 @@ def _symmetrise(z: Tensor, z_var: Tensor | None, dim: int) -> tuple[Tensor, Tens
     if z_var is not None:
         z_var = 0.5 * (z_var.narrow(axis, 0, half) + z_var.narrow(axis, half, half))
     return z, z_var
+
+
+def _unknown_discrepancy_logs(module, state_dict, prefix, *args) -> None:
+    """Load hook: a state dict saved before `discrepancy_logs` existed takes its misfit as known (0)."""
+    if module.discrepancy_logs is not None:
+        state_dict.setdefault(prefix + "discrepancy_logs", torch.zeros(()))
 
 
 def _default_correction_weight(module, state_dict, prefix, *args) -> None:

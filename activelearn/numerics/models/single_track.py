@@ -313,6 +313,51 @@ def identify_from_logs(
     return _map_fit(errors_of, rates[valid].std(axis=0), np.nonzero(keep)[0], prior, search_from, car)
 
 
+def misfit_of_logs(
+    logs: list[tuple[np.ndarray, np.ndarray]],
+    theta: np.ndarray,
+    *,
+    horizon: float,
+    cross_validated: bool = False,
+    prior: Identified | None = None,
+    car: CarPrior | None = None,
+    folds: int = 4,
+) -> np.ndarray:
+    """(2,) the rms rate errors (v m/s, ω rad/s) of the single track's free runs of `logs` at `theta`,
+    restarted from the logged rates every `horizon` s: what the identified core still misses of them (the
+    sensors' noise included); zeros without logs. `cross_validated`: out of sample, the logs in
+    min(`folds`, logs) folds (in their order), each at the parameters identified on the others (under
+    `prior`, searched from `theta`); one log: in sample."""
+    car = car or NIGEL
+    logs = [(np.asarray(u, np.float64), np.asarray(y, np.float64)) for u, y in logs if len(u) > 1]
+    if not logs:
+        return np.zeros(2)
+    if not cross_validated or len(logs) < 2:
+        squares, count = _squared_misfit(logs, theta, horizon, car)
+        return np.sqrt(squares / count)
+    squares, count = np.zeros(2), 0
+    for held in np.array_split(np.arange(len(logs)), min(folds, len(logs))):
+        out = set(held.tolist())
+        rest = [log for i, log in enumerate(logs) if i not in out]
+        fitted = identify_from_logs(rest, prior=prior, search_from=theta, car=car).values
+        fold_squares, fold_count = _squared_misfit([logs[i] for i in sorted(out)], fitted, horizon, car)
+        squares, count = squares + fold_squares, count + fold_count
+    return np.sqrt(squares / count)
+
+
+def _squared_misfit(
+    logs: list[tuple[np.ndarray, np.ndarray]], theta: np.ndarray, horizon: float, car: CarPrior
+) -> tuple[np.ndarray, int]:
+    """The summed squared rate errors (2,) of `misfit_of_logs`' restarted free runs, and their count."""
+    steps = max(2, round(horizon * car.log_rate_hz))
+    pieces = [(u[k : k + steps + 1], y[k : k + steps + 1])
+              for u, y in logs for k in range(0, len(u) - 1, steps)]  # fmt: skip
+    controls, rates, valid, _ = stacked_logs([piece for piece in pieces if len(piece[0]) > 1])
+    valid[:, 0] = False  # a run's first step is its logged start
+    errors = run_single_track(controls, rates[:, 0], theta, 1.0 / car.log_rate_hz, car)[0] - rates
+    return (errors[valid] ** 2).sum(axis=0), int(valid.sum())
+
+
 def stacked_logs(
     logs: list[tuple[np.ndarray, np.ndarray]], every: int = 1
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -541,7 +541,7 @@ def dynamic_free_runs(
     `controls` (M, T, 2) the control each step reads; `start` = ((v_x, r), (v_y, δ_w)), each (S, 2, M).
     `pose` = (dt, lever arm, headings (M,), the model discrepancy's (each draw's sizes of v and r (S, 2),
     correlation time) or None) asks for each draw's pose as well: the kernel draws the discrepancy's
-    normals from each draw's key with its top bit set (`dynamic_physics.discrepancy_paths`' stream).
+    normals from each draw's key with its top bit set (`discrepancy.discrepancy_paths`' stream).
     Returns the rates with the sensors' noise (S, 2, M, T), the moments (centre, aleatoric, epistemic),
     each (M, T, 2), and with `pose` (x, y, yaw), each (S, M, T); float32.
     """
