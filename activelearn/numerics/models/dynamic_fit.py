@@ -17,7 +17,14 @@ from activelearn.numerics.models.dynamic_track import (
     rate_runs,
     scaled,
 )
-from activelearn.numerics.models.single_track import Identified, _map_fit, stacked_logs
+from activelearn.numerics.models.single_track import (
+    Identified,
+    _map_fit,
+    cross_validated_rms,
+    rms_of,
+    stacked_logs,
+    usable_logs,
+)
 
 
 def _restart_errors(
@@ -50,10 +57,6 @@ def _restart_errors(
     return errors_of, clusters, rates[valid].std(axis=0)
 
 
-def _usable(logs: list[tuple[np.ndarray, np.ndarray]]) -> list[tuple[np.ndarray, np.ndarray]]:
-    return [(np.asarray(u, np.float64), np.asarray(y, np.float64)) for u, y in logs if len(u) > 1]
-
-
 def identify_dynamic(
     logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, every: int = 3,
     horizon: float | None = None, search_from: np.ndarray | None = None, implicit: bool = False,
@@ -69,7 +72,7 @@ def identify_dynamic(
     `implicit`: free runs by the step with implicit tyre damping (the physics kind's); `prior`: the
     Gaussian prior instead of the file's (another car's estimate, `single_track.widened`); `loss`:
     `single_track._map_fit`'s ("cauchy": rows no parameter set fits weigh less)."""
-    logs = _usable(logs)
+    logs = usable_logs(logs)
     bounds = dynamic_bounds()
     prior = prior or bounds.prior
     if not logs:
@@ -96,11 +99,10 @@ def misfit(
     """(2,) the rms rate errors (v m/s, r rad/s) of `identify_dynamic`'s free runs at scales `theta`:
     what the core, so identified, still misses of its own logs (the sensors' noise included); zeros
     without logs."""
-    logs = _usable(logs)
+    logs = usable_logs(logs)
     if not logs:
         return np.zeros(2)
-    squares, count = _squared_misfit(logs, car, dt, theta, every, horizon, implicit)
-    return np.sqrt(squares / count)
+    return rms_of(*_squared_misfit(logs, car, dt, theta, every, horizon, implicit))
 
 
 def cross_validated_misfit(
@@ -111,18 +113,17 @@ def cross_validated_misfit(
     errors at the scales identified on the others (by `loss`, searched from `theta`, the fit on all). A
     core fitted to a few logs misses maneuvers unlike them by more than its own (after a 1:10 cold
     start's 4 signals: 0.12 m/s against 0.028). One log: the in-sample misfit."""
-    logs = _usable(logs)
-    if len(logs) < 2:
-        return misfit(logs, car, dt, theta, every, horizon, implicit)
-    squares, count = np.zeros(2), 0
-    for held in np.array_split(np.arange(len(logs)), min(folds, len(logs))):
-        rest = [log for i, log in enumerate(logs) if i not in held]
-        found = identify_dynamic(rest, car, dt, every, horizon, theta, implicit, loss=loss)
-        fold_squares, fold_count = _squared_misfit(
-            [logs[i] for i in held], car, dt, found.values, every, horizon, implicit
-        )
-        squares, count = squares + fold_squares, count + fold_count
-    return np.sqrt(squares / count)
+    logs = usable_logs(logs)
+    if not logs:
+        return np.zeros(2)
+
+    def squared(some: list[tuple[np.ndarray, np.ndarray]], at: np.ndarray) -> tuple[np.ndarray, int]:
+        return _squared_misfit(some, car, dt, at, every, horizon, implicit)
+
+    def refit(rest: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+        return identify_dynamic(rest, car, dt, every, horizon, theta, implicit, loss=loss).values
+
+    return cross_validated_rms(logs, theta, refit, squared, folds)
 
 
 def log_information(
@@ -141,7 +142,7 @@ def log_information(
     if not logs:
         return info
     bounds = dynamic_bounds()
-    errors_of, clusters, _ = _restart_errors(_usable(logs), car, dt, every, horizon, implicit)
+    errors_of, clusters, _ = _restart_errors(usable_logs(logs), car, dt, every, horizon, implicit)
     theta = np.clip(np.asarray(theta, np.float64), bounds.low, bounds.high)
     h = step * bounds.width
     h = np.where(theta + h > bounds.high, -h, h)

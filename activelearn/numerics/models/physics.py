@@ -49,13 +49,13 @@ from activelearn.numerics.models.single_track import (
     THROTTLE_LIMIT,
     CarPrior,
     Identified,
+    another_cars_prior,
     car_prior,
     cholesky_factor,
     identify,
     identify_from_logs,
     identify_on_another_car,
     misfit_of_logs,
-    others_estimate,
     single_track_step,
     split_inputs,
     widened,
@@ -171,8 +171,8 @@ class PhysicsModel(Model):
             own = [log for log, other in zip(logs, flags, strict=True) if not other]
             others = [log for log, other in zip(logs, flags, strict=True) if other]
             found = identify_on_another_car(own, others, search_from=search_from, car=self.car)
-            if self.discrepancy is not None:  # the prior `own` was identified under (its estimate cached)
-                prior = widened(others_estimate(others, car=self.car), self.car.width)
+            if self.discrepancy is not None:  # the prior `own` was identified under (cached)
+                prior = another_cars_prior(others, car=self.car)
         elif logs:
             found = identify_from_logs(logs, search_from=search_from, car=self.car, prior=self.core_prior)
         else:

@@ -301,7 +301,7 @@ def identify_from_logs(
     car = car or NIGEL
     dt = 1.0 / car.log_rate_hz if dt is None else dt
     prior = prior or car.prior
-    logs = [(np.asarray(u, np.float64), np.asarray(y, np.float64)) for u, y in logs if len(u) > 1]
+    logs = usable_logs(logs)
     if not logs:
         return Identified(prior.values.copy(), prior.covariance.copy())
     controls, rates, valid, keep = stacked_logs(logs, every)
@@ -329,20 +329,50 @@ def misfit_of_logs(
     min(`folds`, logs) folds (in their order), each at the parameters identified on the others (under
     `prior`, searched from `theta`); one log: in sample."""
     car = car or NIGEL
-    logs = [(np.asarray(u, np.float64), np.asarray(y, np.float64)) for u, y in logs if len(u) > 1]
+    logs = usable_logs(logs)
     if not logs:
         return np.zeros(2)
-    if not cross_validated or len(logs) < 2:
-        squares, count = _squared_misfit(logs, theta, horizon, car)
-        return np.sqrt(squares / count)
+
+    def squared(some: list[tuple[np.ndarray, np.ndarray]], at: np.ndarray) -> tuple[np.ndarray, int]:
+        return _squared_misfit(some, at, horizon, car)
+
+    if not cross_validated:
+        return rms_of(*squared(logs, theta))
+
+    def refit(rest: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+        return identify_from_logs(rest, prior=prior, search_from=theta, car=car).values
+
+    return cross_validated_rms(logs, theta, refit, squared, folds)
+
+
+def usable_logs(logs: list[tuple[np.ndarray, np.ndarray]]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The logs (controls (T, 2), rates (T, 2)) of at least two steps, as float64 arrays."""
+    return [(np.asarray(u, np.float64), np.asarray(y, np.float64)) for u, y in logs if len(u) > 1]
+
+
+def rms_of(squares: np.ndarray, count: int) -> np.ndarray:
+    """The root mean of summed squared errors over their count."""
+    return np.sqrt(squares / count)
+
+
+def cross_validated_rms(
+    logs: list[tuple[np.ndarray, np.ndarray]],
+    theta: np.ndarray,
+    refit: Callable[[list[tuple[np.ndarray, np.ndarray]]], np.ndarray],
+    squared: Callable[[list[tuple[np.ndarray, np.ndarray]], np.ndarray], tuple[np.ndarray, int]],
+    folds: int = 4,
+) -> np.ndarray:
+    """(2,) a core's rms rate misfit out of sample: the logs in min(`folds`, logs) folds (in their order),
+    each fold's summed squared errors (`squared(fold, parameters)`) at the parameters `refit` finds on
+    the other logs. One log: in sample, at `theta`. Both cores' `discrepancy = "cross_validated"`."""
+    if len(logs) < 2:
+        return rms_of(*squared(logs, theta))
     squares, count = np.zeros(2), 0
     for held in np.array_split(np.arange(len(logs)), min(folds, len(logs))):
-        out = set(held.tolist())
-        rest = [log for i, log in enumerate(logs) if i not in out]
-        fitted = identify_from_logs(rest, prior=prior, search_from=theta, car=car).values
-        fold_squares, fold_count = _squared_misfit([logs[i] for i in sorted(out)], fitted, horizon, car)
+        rest = [log for i, log in enumerate(logs) if i not in held]
+        fold_squares, fold_count = squared([logs[i] for i in held], refit(rest))
         squares, count = squares + fold_squares, count + fold_count
-    return np.sqrt(squares / count)
+    return rms_of(squares, count)
 
 
 def _squared_misfit(
@@ -392,11 +422,16 @@ def identify_on_another_car(
     reverse gain after forward logs, 0.71): conservative, and what `safe_track_twin.toml` was measured
     with; capping it at the datasheet's width is not measured. `search_from`: where the search for this
     car's parameters begins (the other car's is always searched from the datasheet)."""
-    found = others_estimate(others, **kwargs)
     if not any(len(u) > 1 for u, _ in logs):
-        return found
-    prior = widened(found, (kwargs.get("car") or NIGEL).width)
+        return others_estimate(others, **kwargs)
+    prior = another_cars_prior(others, **kwargs)
     return identify_from_logs(logs, prior=prior, search_from=search_from, **kwargs)
+
+
+def another_cars_prior(others: list[tuple[np.ndarray, np.ndarray]], **kwargs) -> Identified:
+    """The prior this car's logs are identified under where `others` are another car's logs: their
+    estimate (`others_estimate`, cached) widened by the datasheet's widths (`widened`)."""
+    return widened(others_estimate(others, **kwargs), (kwargs.get("car") or NIGEL).width)
 
 
 _OTHERS: dict[str, Identified] = {}  # the other car's estimate by its logs' digest (a few kept)
