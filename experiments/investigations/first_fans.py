@@ -7,8 +7,8 @@ free-runs the model on the test set at fan scale 1 (as the campaign logs round 0
 their calibrated scale), and prints per test maneuver the share of steps whose true position lies in
 the fans, the 30-s position error of the mean path against the fan's half-width there, and the steady
 rates at the end (the last second: truth and the model's mean), then the shares by kind and direction
-of travel. `--parameter-
-uncertainty by_log` draws the identified core's scales per draw (the knob session 38 tried).
+of travel. `--parameter-uncertainty by_log` draws the identified core's scales per draw (the knob
+session 38 tried).
 `--reverse-understeer 1.01,1.02` asks what the same model would do with the kinematic core's understeer
 scaled by each factor in reverse only (throttle < 0; the free runs in torch, `backend="reference"`, the
 first factor 1 as a check): a what-if with the factor chosen on the test set, not an identified model.
