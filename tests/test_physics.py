@@ -127,11 +127,34 @@ def test_free_runs_of_many_parameter_sets_are_the_step_by_steps_to_the_last_bit(
     controls[:, ::17, 0] = 0.0
     sets = st.NOMINAL * rng.uniform(0.8, 1.2, (5, 7))
     start = rng.normal(0.0, 0.1, (7, 2))
-    runs = st.run_single_track(controls, start, sets, 1 / 30)
+    runs = st.run_single_track(controls, start, sets, 1 / 30, backend="reference")
     v, w = (np.broadcast_to(start[:, j], (5, 7)) for j in range(2))
     for k in range(1, 300):
         v, w = st.single_track_step(controls[:, k, 0], controls[:, k, 1], v, w, sets[:, None], 1 / 30)
         assert np.array_equal(runs[:, :, k, 0], v) and np.array_equal(runs[:, :, k, 1], w)
+
+
+@pytest.mark.usefixtures("c_kernels")
+@pytest.mark.parametrize("vehicle", ["nigel", "f1tenth", "bmw320i"])
+def test_the_compiled_free_runs_are_numpys_to_float64_rounding(vehicle: str):
+    """The identification's free runs by physics_rollout.c's kernel (`backend="native"`, what "auto" takes)
+    are the NumPy loop's to float64 rounding on every car: braking at throttle 0, a throttle beyond the
+    table, both directions, the yaw cap."""
+    car = st.car_prior(vehicle)
+    rng = np.random.default_rng(4)
+    held = rng.uniform([-1.2, -1.5 * car.steering_limit], [1.2, 1.5 * car.steering_limit], (6, 10, 2))
+    controls = np.repeat(held, 40, axis=1)  # each control held 1.2 s: steady turns reach the yaw cap
+    controls[:, ::13, 0] = 0.0
+    sets = car.nominal * rng.uniform(0.7, 1.3, (4, 7))
+    start = rng.normal(0.0, [0.3 * car.max_speed, 0.3 * car.max_yaw_rate], (6, 2))
+    compiled, numpy = (st.run_single_track(controls, start, sets, 0.03, car, backend=backend)
+                       for backend in ("native", "reference"))  # fmt: skip
+    assert compiled.shape == (4, 6, 400, 2)
+    assert np.allclose(compiled, numpy, rtol=1e-12, atol=1e-12 * np.abs(numpy).max())
+    capped = np.abs(numpy[..., 1]).max()
+    assert capped == pytest.approx(car.yaw_cap) and not np.array_equal(compiled, np.zeros_like(compiled))
+    with pytest.raises(InputError, match="backend"):
+        st.run_single_track(controls, start, sets, 0.03, car, backend="fast")
 
 
 def test_a_search_from_the_last_solution_lands_where_the_datasheets_does_in_fewer_runs():

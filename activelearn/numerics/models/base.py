@@ -13,6 +13,7 @@ from torch import Tensor, nn
 
 from activelearn.config import ModelConfig
 from activelearn.errors import InputError
+from activelearn.numerics import native
 from activelearn.numerics.lags import N_CONTROLS, Lags, model_lags
 from activelearn.numerics.native import NetworkKernel
 from activelearn.numerics.threads import even_blocks, intra_op_threads
@@ -26,6 +27,18 @@ CHUNK_ROWS = 4096
 # activelearn/numerics/native/network.c), "reference" (torch) or "auto" (native where a C compiler
 # built it). Both compute the same numbers up to float rounding.
 BACKENDS = ("auto", "native", "reference")
+
+
+def kernels_for(backend: str):
+    """The compiled C kernels (activelearn/numerics/native) a `backend` runs on: None for `"reference"`, or
+    for `"auto"` where they do not build; `"native"` where they do not build, and an unknown name, are
+    errors naming the field."""
+    if backend not in BACKENDS:
+        raise InputError("backend", backend, f"must be one of {', '.join(BACKENDS)}")
+    lib = None if backend == "reference" else native.library()
+    if backend == "native" and lib is None:
+        raise InputError("backend", backend, "the compiled kernel could not be built on this machine")
+    return lib
 
 
 @dataclass(frozen=True)

@@ -44,6 +44,7 @@ from activelearn.config import ModelConfig
 from activelearn.names import IDENTIFIED_PREFIX
 from activelearn.numerics import native
 from activelearn.numerics.lags import Lags
+from activelearn.numerics.models.base import kernels_for
 from activelearn.numerics.models.discrepancy import CORRELATION_TIME, widened_pose
 from activelearn.numerics.models.dynamic_fit import (
     cross_validated_misfit,
@@ -56,7 +57,6 @@ from activelearn.numerics.models.dynamic_track import (
     DynamicCar,
     dynamic_bounds,
     dynamic_step,
-    kernels_for,
     native_car,
     native_sets,
     quasi_static_lateral,

@@ -44,9 +44,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from activelearn.errors import InputError
 from activelearn.numerics import native
-from activelearn.numerics.models.base import BACKENDS
+from activelearn.numerics.models.base import kernels_for
 from activelearn.numerics.models.single_track import Identified, PhysicalParameter
 from simulator.vehicles import GRAVITY, VehicleSpec
 
@@ -513,18 +512,6 @@ def native_sets(car: DynamicCar, batch: tuple[int, ...]) -> np.ndarray:
     the lanes' `batch`."""
     figures = [np.broadcast_to(f, batch) for f in _set_figures(car)]
     return np.stack(figures, axis=-1).reshape(-1, len(NATIVE_SET))
-
-
-def kernels_for(backend: str):
-    """The compiled kernels (dynamic_rollout.c's) a `backend` runs on: None for `"reference"`, or for
-    `"auto"` where they do not build; `"native"` where they do not build, and an unknown name, are
-    errors naming the field."""
-    if backend not in BACKENDS:
-        raise InputError("backend", backend, f"must be one of {', '.join(BACKENDS)}")
-    lib = None if backend == "reference" else native.library()
-    if backend == "native" and lib is None:
-        raise InputError("backend", backend, "the compiled kernel could not be built on this machine")
-    return lib
 
 
 def _native_rate_runs(

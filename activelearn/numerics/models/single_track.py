@@ -29,6 +29,8 @@ import torch
 from scipy.optimize import least_squares
 from torch import Tensor
 
+from activelearn.numerics import native
+from activelearn.numerics.models.base import kernels_for
 from simulator.vehicles import GRAVITY, VehicleSpec, load_vehicle
 
 LAG_FACTOR = 3.0  # the correction scales each lag within [1/3, 3]
@@ -259,17 +261,24 @@ def identify(
 
 
 def run_single_track(
-    controls: np.ndarray, start: np.ndarray, theta: np.ndarray, dt: float, car: CarPrior | None = None
-) -> np.ndarray:
+    controls: np.ndarray, start: np.ndarray, theta: np.ndarray, dt: float, car: CarPrior | None = None,
+    backend: str = "auto",
+) -> np.ndarray:  # fmt: skip
     """Free runs of the bare single track (`single_track_step`, no correction): controls (M, T, 2), start
-    rates (M, 2), parameter sets (P, 7) → rates (P, M, T, 2), the first step being `start`. NumPy,
-    every parameter set at once."""
+    rates (M, 2), parameter sets (P, 7) → rates (P, M, T, 2), the first step being `start`. `backend`:
+    the compiled kernel (`"native"`, physics_rollout.c's `al_kinematic_rate_runs`: an identification's
+    runs are too small for NumPy's per-call cost), this NumPy loop over every parameter set at once
+    (`"reference"`), or the kernel where it builds (`"auto"`). Both agree to float64 rounding."""
+    car = car or NIGEL
+    lib = kernels_for(backend)
+    if lib is not None:
+        figures = np.array([car.wheelbase, car.yaw_cap, *car.speed_table])
+        return native.kinematic_rate_runs(lib, figures, np.atleast_2d(theta), controls, start, dt)
     sets = np.atleast_2d(theta)[:, None]  # (P, 1, 7) against (M,)
     n_runs, n_steps = controls.shape[:2]
     out = np.empty((len(sets), n_runs, n_steps, 2))
     v, w = (np.broadcast_to(start[:, j], (len(sets), n_runs)) for j in range(2))
     out[:, :, 0, 0], out[:, :, 0, 1] = v, w
-    car = car or NIGEL
     table = _table_speed(controls[:, :, 0], car)  # (M, T): elementwise, the same numbers as step by step
     for k in range(1, n_steps):
         u = controls[:, k]

@@ -130,6 +130,8 @@ SIGNATURES = {
         + [ctypes.c_int64],
         ctypes.c_int,
     ),
+    "al_kinematic_car_count": ([], ctypes.c_int),
+    "al_kinematic_rate_runs": ([_ptr, _ptr, *[ctypes.c_int64] * 3, _ptr, _ptr, ctypes.c_double, _ptr], None),
     "al_dynamic_car_count": ([], ctypes.c_int),
     "al_dynamic_set_count": ([], ctypes.c_int),
     "al_dynamic_wheel_passes": ([], ctypes.c_int),
@@ -474,6 +476,23 @@ def physics_rollout(
     )
     if status != 0:
         raise MemoryError("al_physics_rollout could not allocate its scratch memory")
+
+
+def kinematic_rate_runs(
+    lib: ctypes.CDLL, car: np.ndarray, sets: np.ndarray, controls: np.ndarray, start: np.ndarray, dt: float
+) -> np.ndarray:
+    """Rates (P, M, T, 2) of the kinematic single track's bare free runs (`al_kinematic_rate_runs`): each
+    parameter set of `sets` (P, 7) on each run of `controls` (M, T, 2) from `start` (M, 2); `car` holds
+    physics_rollout.c's K_COUNT figures. All float64 (copied where they are not)."""
+    car, sets, controls, start = (np.ascontiguousarray(a, np.float64) for a in (car, sets, controls, start))
+    (n_sets, width), (n_runs, n_steps, _) = sets.shape, controls.shape
+    if len(car) != lib.al_kinematic_car_count() or width != 7 or start.shape != (n_runs, 2):
+        raise ValueError("car, sets (P, 7) and start (M, 2) do not match physics_rollout.c's layout")
+    rates = np.empty((n_sets, n_runs, n_steps, 2))
+    if n_sets and n_runs and n_steps:
+        lib.al_kinematic_rate_runs(_address(car), _address(sets), n_sets, n_runs, n_steps, _address(controls),
+                                   _address(start), float(dt), _address(rates))  # fmt: skip
+    return rates
 
 
 def dynamic_rate_runs(

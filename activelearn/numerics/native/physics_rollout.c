@@ -410,3 +410,52 @@ int al_physics_rollout(const al_network *net, const float *p, int64_t n_maneuver
     al_job job = {physics_scratch_new, physics_free, physics_maneuver, &context, n_maneuvers, 0, 0};
     return al_run_parallel(&job, n_threads);
 }
+
+/* ----- the kinematic core's bare free runs, in double, for its identification ----------------------
+ * The twin of single_track.run_single_track's NumPy loop (`single_track_step` without a correction): an
+ * identification runs it a few hundred times a fit on arrays (parameter sets x logs) too small for
+ * NumPy's per-call cost to pay. `car` holds K_COUNT figures (the enum); parameter set p of `sets`
+ * (n_sets x 7, single_track.PARAMETERS' order, as P_SPEED_GAIN... above) steps run m of `controls`
+ * (n_runs, n_steps, 2) from start (n_runs, 2), each step reading its own control. Writes rates
+ * (n_sets, n_runs, n_steps, 2), the first step the start's. */
+enum { K_WHEELBASE, K_YAW_CAP, K_TABLE, K_COUNT = K_TABLE + N_TABLE };
+
+int al_kinematic_car_count(void) { return K_COUNT; }
+
+void al_kinematic_rate_runs(const double *car, const double *sets, int64_t n_sets, int64_t n_runs,
+                            int64_t n_steps, const double *controls, const double *start, double dt,
+                            double *rates) {
+    const double *table = car + K_TABLE, cap = car[K_YAW_CAP];
+    for (int64_t p = 0; p < n_sets; ++p) {
+        const double *q = sets + 7 * p;
+        const double gain_f = q[0], gain_r = q[1], scrub = q[3], turn = car[K_WHEELBASE] * q[4], brake = q[6] * dt;
+        const double a_v = exp(-dt / q[2]), a_w = exp(-dt / q[5]);
+        for (int64_t m = 0; m < n_runs; ++m) {
+            const double *u = controls + 2 * n_steps * m;
+            double *out = rates + 2 * n_steps * (p * n_runs + m);
+            double v = start[2 * m], w = start[2 * m + 1];
+            out[0] = v;
+            out[1] = w;
+            for (int64_t k = 1; k < n_steps; ++k) {
+                const double tau = u[2 * k], tan_d = tan(u[2 * k + 1]);
+                if (tau == 0.0) { /* brakes */
+                    const double fall = fabs(v) < brake ? fabs(v) : brake;
+                    v = v > 0.0 ? v - fall : (v < 0.0 ? v + fall : v);
+                } else {
+                    double x = fabs(tau) > 1.0 ? 10.0 : 10.0 * fabs(tau); /* the throttle limit is 1 */
+                    double i = floor(x);
+                    if (i > 9.0) i = 9.0;
+                    const int j = (int)i;
+                    const double speed = table[j] + (x - i) * (table[j + 1] - table[j]);
+                    const double v_ss = (tau > 0.0 ? gain_f : -gain_r) * speed / (1.0 + scrub * tan_d * tan_d);
+                    v = v_ss + (v - v_ss) * a_v;
+                }
+                double w_ss = v * tan_d / turn;
+                w_ss = w_ss > cap ? cap : (w_ss < -cap ? -cap : w_ss);
+                w = w_ss + (w - w_ss) * a_w;
+                out[2 * k] = v;
+                out[2 * k + 1] = w;
+            }
+        }
+    }
+}
