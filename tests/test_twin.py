@@ -182,7 +182,7 @@ def test_the_fast_cars_twin_and_warm_configs_repeat_its_cold_start(car):
     assert twin.oracle.kind == "twin" and twin.oracle.overrides == {"tire_friction": 0.8, "motor_gain": 0.9}
     assert twin.model_copy(update={"name": cold.name, "oracle": cold.oracle}) == cold
     assert warm.design.prior is not None and warm.design.prior.grid is not None and warm.design.initial == 0
-    # the full-size car's warm starts keep the correction's gate shut (session 40's rule); the 1:10 car's as cold
+    # the full-size car's warm starts keep the correction's gate shut (session 40); the 1:10 car's as cold
     gate = cold.model.correction_gate_min_held_out
     assert warm.model.correction_gate_min_held_out == {"bmw320i": 100}.get(car, gate)
     as_cold = warm.model.model_copy(update={"correction_gate_min_held_out": gate})
