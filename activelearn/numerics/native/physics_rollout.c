@@ -422,6 +422,17 @@ enum { K_WHEELBASE, K_YAW_CAP, K_TABLE, K_COUNT = K_TABLE + N_TABLE };
 
 int al_kinematic_car_count(void) { return K_COUNT; }
 
+/* `table_speed` in double, the table (N_TABLE speeds) given and the throttle limit 1 (single_track's). */
+static double table_speed_double(const double *table, double throttle) {
+    double x = fabs(throttle);
+    if (x > 1.0) x = 1.0;
+    x *= 10.0;
+    double i = floor(x);
+    if (i > 9.0) i = 9.0;
+    const int k = (int)i;
+    return table[k] + (x - i) * (table[k + 1] - table[k]);
+}
+
 void al_kinematic_rate_runs(const double *car, const double *sets, int64_t n_sets, int64_t n_runs,
                             int64_t n_steps, const double *controls, const double *start, double dt,
                             double *rates) {
@@ -442,11 +453,7 @@ void al_kinematic_rate_runs(const double *car, const double *sets, int64_t n_set
                     const double fall = fabs(v) < brake ? fabs(v) : brake;
                     v = v > 0.0 ? v - fall : (v < 0.0 ? v + fall : v);
                 } else {
-                    double x = fabs(tau) > 1.0 ? 10.0 : 10.0 * fabs(tau); /* the throttle limit is 1 */
-                    double i = floor(x);
-                    if (i > 9.0) i = 9.0;
-                    const int j = (int)i;
-                    const double speed = table[j] + (x - i) * (table[j + 1] - table[j]);
+                    const double speed = table_speed_double(table, tau);
                     const double v_ss = (tau > 0.0 ? gain_f : -gain_r) * speed / (1.0 + scrub * tan_d * tan_d);
                     v = v_ss + (v - v_ss) * a_v;
                 }
