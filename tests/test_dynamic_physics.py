@@ -53,6 +53,8 @@ def test_the_core_is_chosen_in_the_config_and_checked_there():
         ModelConfig(kind="ensemble", core="dynamic")
     with pytest.raises(ValidationError, match="correction_inputs"):
         _config(correction_inputs="history")
+    with pytest.raises(ValidationError, match="tyre_damping"):
+        ModelConfig(kind="physics", tyre_damping="tangent")
 
 
 def test_implicit_tyre_damping_keeps_the_explicit_steps_steady_turns_in_a_few_substeps():
@@ -101,7 +103,8 @@ def test_free_runs_carry_the_lateral_speed_as_the_cores_own_runs_do():
 
 
 @pytest.mark.parametrize(("vehicle", "slip"), [("f1tenth", "axle"), ("nigel", "axle"), ("bmw320i", "axle"),
-                                               ("f1tenth", "combined"), ("bmw320i", "wheels")])
+                                               ("f1tenth", "combined"), ("bmw320i", "wheels"),
+                                               ("bmw320i", "wheels, tangent"), ("nigel", "axle, tangent")])
 def test_the_compiled_free_runs_are_torchs(vehicle: str, slip: str, c_kernels):
     """dynamic_rollout.c's free runs against the torch loop: each draw its own scales, the correction
     widened about the draws' mean (epistemic scale 3), the sensors' noise, the model discrepancy in the
@@ -110,7 +113,8 @@ def test_the_compiled_free_runs_are_torchs(vehicle: str, slip: str, c_kernels):
     controls are), so float rounding is 1e-4 of a quantity's scale, or in a chaotic run (the 1:10 car
     spinning at throttle 0.8) twice what the reference itself moves when its controls move by 1e-7."""
     model = _untrained(vehicle, parameter_uncertainty="by_log", discrepancy="identification",
-                       combined_slip=slip == "combined", wheel_forces=slip == "wheels")
+                       combined_slip=slip == "combined", wheel_forces=slip.startswith("wheels"),
+                       tyre_damping="tangent" if slip.endswith("tangent") else "linear")
     model.theta_scale.copy_(0.1 * torch.eye(5))
     model.epistemic_scale.fill_(3.0)
     model.discrepancy.copy_(torch.tensor([0.05, 0.02]))

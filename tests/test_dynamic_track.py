@@ -121,6 +121,29 @@ def test_with_the_wheels_forces_the_full_size_core_turns_and_spins_with_the_trut
     assert len(spins[True]) and abs(spins[True][0] - spins_from) < 1.0 and not len(spins[False]), spins
 
 
+@pytest.mark.parametrize("name", ["nigel", "f1tenth", "bmw320i"])
+def test_the_tangent_damping_is_the_tyres_slope_and_zero_past_the_peak(name):
+    """`tyre_damping = "tangent"`: each axle's damping slope is ∂(F_y / F_z)/∂α of its pure-slip force
+    (the central difference of `_lateral_force`, to 1e-5 of the cornering stiffness), the stiffness at
+    α = 0, and 0 past the peak (the magic formula's, or the linear tyre's cap)."""
+    from activelearn.numerics.models.dynamic_track import _damping_slopes, _lateral_force
+
+    car = dataclasses.replace(DynamicCar.of(load_vehicle(name)), tangent_damping=True)
+    static = car.mass * GRAVITY * car.lr / car.wheelbase
+    k = car.stiffness_front / static
+    alpha = np.linspace(-0.4, 0.4, 801)
+    alpha = alpha[np.abs(np.abs(k * alpha) - car.friction) > 1e-3]  # off the linear tyre's kink
+    slope = _damping_slopes(car, alpha, alpha)[0]
+    step = 1e-6
+    force = [_lateral_force(car, alpha + d, static, static, car.stiffness_front) / static for d in (step, -step)]
+    np.testing.assert_allclose(slope, np.maximum((force[0] - force[1]) / (2 * step), 0.0), atol=1e-5 * k)
+    assert _damping_slopes(car, np.zeros(1), np.zeros(1))[0][0] == pytest.approx(k)
+    peak = abs(alpha[np.argmax(force[0])])  # the end of the range where the force never falls (C <= 1)
+    past = np.abs(alpha) > peak + 0.01
+    assert np.all(slope[past] == 0.0) and np.all(slope[np.abs(alpha) < min(peak, 0.4) - 0.01] > 0.0)
+    assert _damping_slopes(dataclasses.replace(car, tangent_damping=False), alpha, alpha) is None
+
+
 def twin_logs(
     car: DynamicCar, implicit: bool = False, scales: tuple[float, ...] = (0.8, 1.0, 1.0, 0.9, 1.0)
 ) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -147,15 +170,17 @@ def test_identification_recovers_a_twins_grip_and_motor_from_its_own_logs():
 
 
 @pytest.mark.parametrize("slip", ["axle", "combined", "wheels"])
-@pytest.mark.parametrize("implicit", [True, False])
+@pytest.mark.parametrize("step", ["implicit", "explicit", "tangent"])
 @pytest.mark.parametrize("name", ["nigel", "f1tenth", "bmw320i"])
-def test_the_compiled_rate_runs_are_numpys(name, implicit, slip, c_kernels):
+def test_the_compiled_rate_runs_are_numpys(name, step, slip, c_kernels):
     """dynamic_rollout.c against the NumPy loop: random controls with braking steps, starts forward and
     reversing, one car and a batch of scaled ones (the identification's shapes), under each slip law
-    (the rear drive's share of its axle's circle, combined slip, the wheels' forces), equal to rounding."""
+    (the rear drive's share of its axle's circle, combined slip, the wheels' forces) and each step
+    (explicit, implicit, implicit with the tangent damping), equal to rounding."""
     rng = np.random.default_rng(7)
     car = dataclasses.replace(DynamicCar.of(load_vehicle(name)), combined_slip=slip == "combined",
-                              wheel_forces=slip == "wheels")  # fmt: skip
+                              wheel_forces=slip == "wheels", tangent_damping=step == "tangent")  # fmt: skip
+    implicit = step != "explicit"
     n_runs, n_steps = 21, 46  # lanes not a multiple of the kernel's block of 8
     shape = (n_runs, n_steps)
     controls = np.stack([rng.uniform(-1, 1, shape), rng.uniform(-0.5, 0.5, shape)], -1)

@@ -156,6 +156,15 @@ class ModelConfig(_Section):
         "forces, and the kinematic blend weighed by the speed over ground; false: an axle's circle "
         "(`combined_slip`)",
     )
+    # At the 0.1-s step's 25-ms substeps the linear damping holds a saturated tyre back: the full-size
+    # twin's core at its own figures ends 30 m off above 0.6 μg, 4.5 m with the tangent
+    # (experiments/investigations/limit_core_numerics.py).
+    tyre_damping: Literal["linear", "tangent"] = Field(
+        "linear",
+        description="core = 'dynamic': the implicit step's exponential damping of the lateral speed and "
+        "yaw rate at the tyres' linear cornering stiffness ('linear'), or at each axle's local slope "
+        "∂F_y/∂α at its slip angle, 0 past the peak ('tangent': a saturated tyre damps nothing)",
+    )
     # A spinning car's logs hold rows that no scale fits to the second (a spin a little early or late):
     # by squares they pulled the full-size car's scales to their bounds (docs/results/vehicles.md).
     identification_loss: Literal["squares", "cauchy"] = Field(
@@ -223,7 +232,8 @@ class ModelConfig(_Section):
                 "an input window does not hold)"
             )
         dynamic_only = {"combined_slip": self.combined_slip, "wheel_forces": self.wheel_forces,
-                        "identification_loss": self.identification_loss != "squares"}  # fmt: skip
+                        "identification_loss": self.identification_loss != "squares",
+                        "tyre_damping": self.tyre_damping != "linear"}  # fmt: skip
         for name, set_here in dynamic_only.items():
             if set_here and self.core != "dynamic":
                 raise ValueError(f"{name}: the dynamic core's (core = 'dynamic'), not core {self.core!r}")

@@ -211,7 +211,8 @@ class DynamicPhysicsModel(PhysicsModel):
     def __init__(self, config: ModelConfig, *, generator: torch.Generator | None = None) -> None:
         super().__init__(config, generator=generator)  # the config checked correction_inputs (`core`)
         self.dynamic_car = replace(
-            DynamicCar.of(self.car.spec), combined_slip=config.combined_slip, wheel_forces=config.wheel_forces
+            DynamicCar.of(self.car.spec), combined_slip=config.combined_slip,
+            wheel_forces=config.wheel_forces, tangent_damping=config.tyre_damping == "tangent",
         )
         self.substeps = self.dynamic_car.implicit_substeps(self.dt)
         bounds = dynamic_bounds()

@@ -31,6 +31,10 @@ State (v_x, v_y, r, δ_w) at the CG: forward and lateral speed, yaw rate, the fr
   it (v_b 0.59 m/s, top speed 0.27), the 1:10 car's (0.90 m/s) and the full-size car's (2.5 m/s) do not.
 - Explicit substeps within each log step, as many as keep the lateral and yaw modes stable at the slip
   floor (each substep at most their time constant m v / (C_f + C_r), I_z v / (l_f² C_f + l_r² C_r)).
+  The physics kind's implicit step instead damps v_y and r exponentially at the tyres' linear stiffness
+  C_f, C_r, or with `tangent_damping` (`[model] tyre_damping = "tangent"`) at each axle's local slope
+  ∂F_y/∂α at its slip angle, 0 past the peak: a saturated tyre damps nothing, and the step follows a spin
+  at the limit (`experiments/investigations/limit_core_numerics.py`).
 """
 
 from __future__ import annotations
@@ -101,6 +105,9 @@ class DynamicCar:
     # of unequal wheel forces; the kinematic blend weighed by the speed over ground
     wheel_forces: bool = False
     track: float = 0.0  # m, the wheels' lateral spacing (the file's mean track)
+    # the implicit step's tyre damping at each axle's local slope ∂F_y/∂α, not its cornering stiffness
+    # (`[model] tyre_damping = "tangent"`)
+    tangent_damping: bool = False
 
     @classmethod
     def of(cls, spec: VehicleSpec, tire_friction: float = 1.0, motor_gain: float = 1.0) -> DynamicCar:
@@ -261,6 +268,7 @@ def dynamic_step(
         load_r = _maximum(m * (g * car.lf + a * car.cg_height) / L, 0.0)
         cos, sin = xp.cos(delta), xp.sin(delta)
         alpha_f, alpha_r = _slip_angles(car, vx, vy, r, (cos, sin))
+        slopes = _damping_slopes(car, alpha_f, alpha_r) if implicit else None
         f_f = _lateral_force(car, alpha_f, load_f, static_f, car.stiffness_front)
         f_r = _lateral_force(car, alpha_r, load_r, static_r, car.stiffness_rear)
         if car.combined_slip:  # the longitudinal force's share of each axle's friction circle; at a
@@ -281,7 +289,7 @@ def dynamic_step(
         dvy = (f_f * cos + f_r) / m
         dr = (car.lf * f_f * cos - car.lr * f_r) / car.yaw_inertia
         rates = (dvx, dvy, dr)
-        vx, vy, r = _advance(car, (vx, vy, r), rates, (load_f, load_r), delta, h, implicit, ground=False)
+        vx, vy, r = _advance(car, (vx, vy, r), rates, (load_f, load_r), delta, h, implicit, False, slopes)
     parts = xp.broadcast_arrays(vx, vy, r, delta) if xp is np else torch.broadcast_tensors(vx, vy, r, delta)
     return xp.stack(parts, axis=-1) if xp is np else torch.stack(parts, dim=-1)  # δ_w: no parameter axis
 
@@ -302,7 +310,8 @@ def _wheel_substep(car: DynamicCar, state: tuple, throttle, h: float, implicit: 
         car, _demand(car, throttle, vx, h), throttle == 0.0, unit, vx * r, (cos, sin)
     )
     dr = (car.lf * (y_f * cos + x_f * sin) - car.lr * y_r + moment) / car.yaw_inertia
-    return _advance(car, (vx, vy, r), (ax, ay, dr), (load_f, load_r), delta, h, implicit, ground=True)
+    slopes = _damping_slopes(car, alpha_f, alpha_r) if implicit else None
+    return _advance(car, (vx, vy, r), (ax, ay, dr), (load_f, load_r), delta, h, implicit, True, slopes)
 
 
 def _slip_angles(car: DynamicCar, vx, vy, r, turn: tuple) -> tuple:
@@ -317,11 +326,36 @@ def _slip_angles(car: DynamicCar, vx, vy, r, turn: tuple) -> tuple:
     return alpha_f, xp.arctan(-(vy - car.lr * r) / _maximum(xp.abs(vx), floor))
 
 
+def _damping_slopes(car: DynamicCar, alpha_f, alpha_r) -> tuple | None:
+    """Each axle's ∂(F_y / F_z)/∂α at its slip angle for the implicit step's damping (N/rad per newton
+    of load, at least 0): the linear tyre's stiffness within its cap, the magic formula's
+    k cos(C atan φ) φ' / (1 + φ²) (k = B C μ, the slope at α = 0); None without `tangent_damping`."""
+    if not car.tangent_damping:
+        return None
+    xp = _namespace(alpha_f)
+    m, L = car.mass, car.wheelbase
+    out = []
+    for alpha, static, stiffness in ((alpha_f, m * GRAVITY * car.lr / L, car.stiffness_front),
+                                     (alpha_r, m * GRAVITY * car.lf / L, car.stiffness_rear)):  # fmt: skip
+        k = stiffness / static
+        if car.shape is None:
+            out.append(_where(xp.abs(k * alpha) < car.friction, k * xp.ones_like(alpha), 0.0))
+            continue
+        x = k / (car.shape * car.friction) * alpha
+        phi, dphi = x, 1.0
+        if car.curvature:
+            phi = x - car.curvature * (x - xp.arctan(x))
+            dphi = 1.0 - car.curvature + car.curvature / (1.0 + x * x)
+        out.append(_maximum(k * xp.cos(car.shape * xp.arctan(phi)) / (1.0 + phi * phi) * dphi, 0.0))
+    return tuple(out)
+
+
 def _advance(car: DynamicCar, state: tuple, rates: tuple, loads: tuple, delta, h: float, implicit: bool,
-             ground: bool) -> tuple:  # fmt: skip
+             ground: bool, slopes: tuple | None = None) -> tuple:  # fmt: skip
     """(v_x, v_y, r) after `h` s of their rates of change (the forces over m and I_z, without the body
     frame's turn) at the axles' `loads`, then blended into the kinematic state below the blend speed,
-    weighed by |v_x| or, with `ground`, by the speed over ground."""
+    weighed by |v_x| or, with `ground`, by the speed over ground. `slopes`: the axles' damping slopes
+    per newton of load (`_damping_slopes`), else their cornering stiffness."""
     (vx, vy, r), (dvx, dvy, dr), (load_f, load_r) = state, rates, loads
     xp = _namespace(vx)
     m, L, blend = car.mass, car.wheelbase, car.blend_speed
@@ -331,10 +365,17 @@ def _advance(car: DynamicCar, state: tuple, rates: tuple, loads: tuple, delta, h
         # frame's turn of the velocity semi-implicit, v_x from the new v_y (an explicit turn adds
         # speed in a spin, √(1 + (r h)²) a substep). The steady states are the explicit step's.
         speed = _maximum(xp.abs(vx), 0.5 * blend)
-        c_f, c_r = car.stiffness_front * load_f / static_f, car.stiffness_rear * load_r / static_r
-        vy = vy + h * (dvy - vx * r) * _relaxed(h * (c_f + c_r) / (m * speed))
+        if slopes is None:
+            c_f, c_r = car.stiffness_front * load_f / static_f, car.stiffness_rear * load_r / static_r
+            x_lat = h * (c_f + c_r) / (m * speed)
+            x_yaw = h * (car.lf**2 * c_f + car.lr**2 * c_r) / (car.yaw_inertia * speed)
+        else:  # a saturated tyre damps nothing: the share floored where (1 − e^−x) / x is 0 / 0
+            c_f, c_r = slopes[0] * load_f, slopes[1] * load_r
+            x_lat = _maximum(h * (c_f + c_r) / (m * speed), TINY)
+            x_yaw = _maximum(h * (car.lf**2 * c_f + car.lr**2 * c_r) / (car.yaw_inertia * speed), TINY)
+        vy = vy + h * (dvy - vx * r) * _relaxed(x_lat)
         vx = vx + h * (dvx + vy * r)
-        r = r + h * dr * _relaxed(h * (car.lf**2 * c_f + car.lr**2 * c_r) / (car.yaw_inertia * speed))
+        r = r + h * dr * _relaxed(x_yaw)
     else:
         vx, vy, r = vx + h * (dvx + vy * r), vy + h * (dvy - vx * r), r + h * dr
     speed = xp.sqrt(vx * vx + vy * vy) if ground else xp.abs(vx)
@@ -499,7 +540,7 @@ def native_car(car: DynamicCar) -> np.ndarray:
         GRAVITY, car.mass, car.lf, car.lr, car.cg_height, car.shape or 0.0, car.curvature,
         car.steering_limit, car.steering_rate, car.rear_drive_share, float(motor),
         car.power_limit_speed or 0.0, car.speed_time_constant, car.blend_speed, float(car.combined_slip),
-        ROOM_FLOOR, float(car.wheel_forces), car.track,
+        ROOM_FLOOR, float(car.wheel_forces), car.track, float(car.tangent_damping),
     ])  # fmt: skip
 
 

@@ -45,6 +45,7 @@ enum {
     C_ROOM_FLOOR,    /* with it, the share of a circle a lateral force keeps at a grip-limited stop */
     C_WHEEL_FORCES,  /* 1: the forces of four wheels, each in its own circle (overrides C_COMBINED_SLIP) */
     C_TRACK,         /* m, with them: the wheels' lateral spacing */
+    C_TANGENT_DAMPING, /* 1: the implicit step damps at the tyres' local slope (0 past the peak) */
     C_COUNT
 };
 

@@ -35,6 +35,7 @@ typedef struct {
 typedef struct {
     REAL g, m, lf, lr, hcg, L, shape, curvature, blend, floor_speed, share, h, turn;
     REAL vsw, lag, tiny, room_floor, half_track;
+    REAL phi_peak; /* |phi| where the magic formula peaks, C atan phi = pi / 2 (C <= 1: never, a large number) */
 } NAME(figures);
 
 /* Lane l's drive: the motor law on v_x (`motor`) or the lag to the speed table's speed, m/s². */
@@ -70,22 +71,52 @@ static inline __attribute__((always_inline)) REAL NAME(magic)(REAL b_alpha, cons
     return sin(f->shape * atan(b_alpha));
 }
 
+/* Lane l's axle's damping slope per newton of load at slip angle alpha (dynamic_track._damping_slopes): the
+ * linear tyre's stiffness k within its cap, the magic formula's k cos(C atan phi) phi' / (1 + phi^2) (b: its
+ * B), 0 past the peak. The cosine from `s`, the formula's sine at alpha: a cos beside that sin would fuse into
+ * a sincos, which does not vectorise (3.8x the free runs' time). */
+static inline __attribute__((always_inline)) REAL NAME(damping_slope)(REAL k, REAL b, REAL alpha, REAL s, REAL mu,
+                                                                      const NAME(figures) *f, const int linear,
+                                                                      const int curved) {
+    if (linear) return fabs(k * alpha) < mu ? k : K(0);
+    const REAL x = b * alpha;
+    REAL phi = x, dphi = K(1);
+    if (curved) phi = x - f->curvature * (x - atan(x)), dphi = K(1) - f->curvature + f->curvature / (K(1) + x * x);
+    const REAL cosine = fabs(phi) < f->phi_peak ? sqrt(fmax(K(1) - s * s, K(0))) : K(0);
+    return k * cosine / (K(1) + phi * phi) * dphi;
+}
+
+/* Lane l's axles' damping slopes per newton of load: `damping_slope`'s with `tangent`, else their
+ * cornering stiffness (s_f, s_r: the magic formula's sines at alpha_f, alpha_r). */
+static inline __attribute__((always_inline)) void NAME(dampings)(const NAME(block) *b, const int l,
+                                                                 const NAME(figures) *f, const REAL alpha_f,
+                                                                 const REAL alpha_r, const REAL s_f,
+                                                                 const REAL s_r, const int linear,
+                                                                 const int curved, const int tangent,
+                                                                 REAL *slope_f, REAL *slope_r) {
+    const REAL mu = b->mu[l];
+    *slope_f = tangent ? NAME(damping_slope)(b->k_f[l], b->b_f[l], alpha_f, s_f, mu, f, linear, curved) : b->k_f[l];
+    *slope_r = tangent ? NAME(damping_slope)(b->k_r[l], b->b_r[l], alpha_r, s_r, mu, f, linear, curved) : b->k_r[l];
+}
+
 /* The end of lane l's substep: the state moved by its rates of change dvx, dvy, dr (the forces over m and
  * I_z, without the body frame's turn), explicitly or with the tyres' damping exponential and the turn
  * semi-implicit (dynamic_step(implicit=True)), then blended into the kinematic state below the blend
- * speed, weighed by |v_x| or, with `ground`, the speed over ground; the wheels' angle set to `delta`. */
+ * speed, weighed by |v_x| or, with `ground`, the speed over ground; the wheels' angle set to `delta`.
+ * `slope_f`, `slope_r`: the axles' damping per newton of load (their stiffness k, or `damping_slope`'s). */
 static inline __attribute__((always_inline)) void NAME(advance)(NAME(block) *b, const int l,
                                                                 const NAME(figures) *f, const int implicit,
                                                                 const int ground, const REAL dvx,
                                                                 const REAL dvy, const REAL dr,
                                                                 const REAL load_f, const REAL load_r,
+                                                                const REAL slope_f, const REAL slope_r,
                                                                 const REAL delta, const REAL sn, const REAL cs) {
     const REAL m = f->m, lf = f->lf, lr = f->lr, h = f->h;
     const REAL vx0 = b->vx[l], vy0 = b->vy[l], r0 = b->r[l];
     REAL vx, vy, r;
     if (implicit) {
         const REAL speed = fmax(fabs(vx0), f->floor_speed);
-        const REAL c_f = b->k_f[l] * load_f, c_r = b->k_r[l] * load_r;
+        const REAL c_f = slope_f * load_f, c_r = slope_r * load_r;
         const REAL x_lat = fmax(h * (c_f + c_r) / (m * speed), f->tiny);
         const REAL x_yaw = fmax(h * (lf * lf * c_f + lr * lr * c_r) * b->inv_inertia[l] / speed, f->tiny);
         vy = vy0 + h * (dvy - vx0 * r0) * (-expm1(-x_lat) / x_lat);
@@ -131,13 +162,14 @@ static inline __attribute__((always_inline)) void NAME(wheel_step)(NAME(block) *
     demand = braking ? -NAME(sign)(vx0) * stop_rate : demand;
     REAL sn, cs, alpha_f, alpha_r;
     NAME(slip_angles)(b, l, f, delta, &sn, &cs, &alpha_f, &alpha_r);
-    REAL unit_f, unit_r; /* each axle's lateral force per newton of load, pure slip */
+    REAL unit_f, unit_r, s_f = K(0), s_r = K(0); /* each axle's lateral force per newton of load, pure
+                                                   * slip; the magic formula's sine */
     if (linear) {
         unit_f = NAME(clip)(b->k_f[l] * alpha_f, -mu, mu);
         unit_r = NAME(clip)(b->k_r[l] * alpha_r, -mu, mu);
     } else {
-        unit_f = mu * NAME(magic)(b->b_f[l] * alpha_f, f, curved);
-        unit_r = mu * NAME(magic)(b->b_r[l] * alpha_r, f, curved);
+        s_f = NAME(magic)(b->b_f[l] * alpha_f, f, curved), s_r = NAME(magic)(b->b_r[l] * alpha_r, f, curved);
+        unit_f = mu * s_f, unit_r = mu * s_r;
     }
     const REAL drive_f = m * demand * K(0.5) * (K(1) - f->share), drive_r = m * demand * K(0.5) * f->share;
     REAL ax = NAME(clip)(demand, -grip, grip), ay = vx0 * r0, load_f = K(0), load_r = K(0);
@@ -161,7 +193,9 @@ static inline __attribute__((always_inline)) void NAME(wheel_step)(NAME(block) *
     const REAL x_f = x_fl + x_fr, y_f = y_fl + y_fr, y_r = y_rl + y_rr;
     const REAL moment = f->half_track * ((x_fr - x_fl) * cs + (x_rr - x_rl) + (y_fl - y_fr) * sn);
     const REAL dr = (lf * (y_f * cs + x_f * sn) - lr * y_r + moment) * b->inv_inertia[l];
-    NAME(advance)(b, l, f, implicit, 1, ax, ay, dr, load_f, load_r, delta, sn, cs);
+    REAL slope_f, slope_r;
+    NAME(dampings)(b, l, f, alpha_f, alpha_r, s_f, s_r, linear, curved, implicit == 2, &slope_f, &slope_r);
+    NAME(advance)(b, l, f, implicit, 1, ax, ay, dr, load_f, load_r, slope_f, slope_r, delta, sn, cs);
 }
 
 /* One substep of lane l of a block. `motor`, `linear`, `implicit`, `curved` (the magic formula's
@@ -191,13 +225,13 @@ static inline __attribute__((always_inline)) void NAME(lane_step)(NAME(block) *b
         REAL sn, cs, alpha_f, alpha_r;
         NAME(slip_angles)(b, l, f, delta, &sn, &cs, &alpha_f, &alpha_r);
         const REAL cap_f = mu * load_f, cap_r = mu * load_r;
-        REAL f_f, f_r;
+        REAL f_f, f_r, s_f = K(0), s_r = K(0);
         if (linear) {
             f_f = NAME(clip)(b->k_f[l] * load_f * alpha_f, -cap_f, cap_f);
             f_r = NAME(clip)(b->k_r[l] * load_r * alpha_r, -cap_r, cap_r);
         } else {
-            f_f = cap_f * NAME(magic)(b->b_f[l] * alpha_f, f, curved);
-            f_r = cap_r * NAME(magic)(b->b_r[l] * alpha_r, f, curved);
+            s_f = NAME(magic)(b->b_f[l] * alpha_f, f, curved), s_r = NAME(magic)(b->b_r[l] * alpha_r, f, curved);
+            f_f = cap_f * s_f, f_r = cap_r * s_r;
         }
         REAL room;
         if (combined) { /* the longitudinal force's share of each axle's friction circle, the brake's by
@@ -217,7 +251,9 @@ static inline __attribute__((always_inline)) void NAME(lane_step)(NAME(block) *b
         f_r = NAME(clip)(f_r, -room, room);
         const REAL dvx = a - f_f * sn / m, dvy = (f_f * cs + f_r) / m;
         const REAL dr = (lf * f_f * cs - lr * f_r) * b->inv_inertia[l];
-        NAME(advance)(b, l, f, implicit, 0, dvx, dvy, dr, load_f, load_r, delta, sn, cs);
+        REAL slope_f, slope_r;
+        NAME(dampings)(b, l, f, alpha_f, alpha_r, s_f, s_r, linear, curved, implicit == 2, &slope_f, &slope_r);
+        NAME(advance)(b, l, f, implicit, 0, dvx, dvy, dr, load_f, load_r, slope_f, slope_r, delta, sn, cs);
     }
 }
 
@@ -251,11 +287,13 @@ static inline __attribute__((always_inline)) void NAME(substep_pair)(NAME(block)
         else                                                                                                \
             for (int64_t i = 0; i < n; ++i) NAME(substep)(b, f, MOTOR, LINEAR, IMPLICIT, CURVED, LAW);         \
     }
-/* six variants of a drive law and a slip law: tyre x step x curvature (a linear tyre has none) */
+/* nine variants of a drive law and a slip law: tyre x step (explicit, implicit, implicit at the tangent
+ * slope) x curvature (a linear tyre has none) */
 #define NAME_SUBSTEPS_OF(MOTOR, LAW)                                                                      \
     NAME_SUBSTEPS(MOTOR, 0, 0, 0, LAW) NAME_SUBSTEPS(MOTOR, 0, 0, 1, LAW)                                 \
     NAME_SUBSTEPS(MOTOR, 0, 1, 0, LAW) NAME_SUBSTEPS(MOTOR, 0, 1, 1, LAW)                                 \
-    NAME_SUBSTEPS(MOTOR, 1, 0, 0, LAW) NAME_SUBSTEPS(MOTOR, 1, 1, 0, LAW)
+    NAME_SUBSTEPS(MOTOR, 0, 2, 0, LAW) NAME_SUBSTEPS(MOTOR, 0, 2, 1, LAW)                                 \
+    NAME_SUBSTEPS(MOTOR, 1, 0, 0, LAW) NAME_SUBSTEPS(MOTOR, 1, 1, 0, LAW) NAME_SUBSTEPS(MOTOR, 1, 2, 0, LAW)
 NAME_SUBSTEPS_OF(0, 0)
 NAME_SUBSTEPS_OF(1, 0)
 NAME_SUBSTEPS_OF(0, 1)
@@ -267,25 +305,27 @@ NAME_SUBSTEPS_OF(1, 2)
 
 typedef void (*NAME(substep_run))(NAME(block) *, NAME(block) *, const NAME(figures) *, int64_t);
 
-/* The variant for the car's drive, tyre and slip law and the step's kind (a linear tyre has no curvature). */
+/* The variants by [law][motor][linear][step][curved] (a linear tyre's curved entry is its plain one). */
+#define NAME_BY_CURVE(M, LI, I, LAW) {NAME(substeps_##M##LI##I##0##LAW), NAME(substeps_##M##LI##I##1##LAW)}
+#define NAME_BY_CURVE_LINEAR(M, I, LAW) {NAME(substeps_##M##1##I##0##LAW), NAME(substeps_##M##1##I##0##LAW)}
+#define NAME_BY_STEP(M, LAW)                                                                               \
+    {{NAME_BY_CURVE(M, 0, 0, LAW), NAME_BY_CURVE(M, 0, 1, LAW), NAME_BY_CURVE(M, 0, 2, LAW)},              \
+     {NAME_BY_CURVE_LINEAR(M, 0, LAW), NAME_BY_CURVE_LINEAR(M, 1, LAW), NAME_BY_CURVE_LINEAR(M, 2, LAW)}}
+#define NAME_BY_MOTOR(LAW) {NAME_BY_STEP(0, LAW), NAME_BY_STEP(1, LAW)}
+
+/* The variant for the car's drive, tyre and slip law and the step's kind: explicit, implicit, or implicit
+ * damping at the tyres' local slope (`implicit` and the car's C_TANGENT_DAMPING). */
 static NAME(substep_run) NAME(substeps_for)(const double *k, int64_t implicit) {
-    static const NAME(substep_run) variants[48] = {
-        NAME(substeps_00000), NAME(substeps_00010), NAME(substeps_00100), NAME(substeps_00110),
-        NAME(substeps_01000), NAME(substeps_01000), NAME(substeps_01100), NAME(substeps_01100),
-        NAME(substeps_10000), NAME(substeps_10010), NAME(substeps_10100), NAME(substeps_10110),
-        NAME(substeps_11000), NAME(substeps_11000), NAME(substeps_11100), NAME(substeps_11100),
-        NAME(substeps_00001), NAME(substeps_00011), NAME(substeps_00101), NAME(substeps_00111),
-        NAME(substeps_01001), NAME(substeps_01001), NAME(substeps_01101), NAME(substeps_01101),
-        NAME(substeps_10001), NAME(substeps_10011), NAME(substeps_10101), NAME(substeps_10111),
-        NAME(substeps_11001), NAME(substeps_11001), NAME(substeps_11101), NAME(substeps_11101),
-        NAME(substeps_00002), NAME(substeps_00012), NAME(substeps_00102), NAME(substeps_00112),
-        NAME(substeps_01002), NAME(substeps_01002), NAME(substeps_01102), NAME(substeps_01102),
-        NAME(substeps_10002), NAME(substeps_10012), NAME(substeps_10102), NAME(substeps_10112),
-        NAME(substeps_11002), NAME(substeps_11002), NAME(substeps_11102), NAME(substeps_11102)};
+    static const NAME(substep_run) variants[3][2][2][3][2] = {NAME_BY_MOTOR(0), NAME_BY_MOTOR(1), NAME_BY_MOTOR(2)};
     const int linear = k[C_SHAPE] == 0.0, curved = k[C_CURVATURE] != 0.0;
     const int law = k[C_WHEEL_FORCES] != 0.0 ? 2 : k[C_COMBINED_SLIP] != 0.0;
-    return variants[16 * law + 8 * (k[C_MOTOR] != 0.0) + 4 * linear + 2 * (implicit != 0) + curved];
+    const int step = implicit == 0 ? 0 : (k[C_TANGENT_DAMPING] != 0.0 ? 2 : 1);
+    return variants[law][k[C_MOTOR] != 0.0][linear][step][curved];
 }
+#undef NAME_BY_MOTOR
+#undef NAME_BY_STEP
+#undef NAME_BY_CURVE_LINEAR
+#undef NAME_BY_CURVE
 
 /* The car's shared figures as a substep reads them, for steps of dt in `substeps` substeps. */
 static NAME(figures) NAME(figures_of)(const double *k, double dt, int64_t substeps) {
@@ -298,6 +338,7 @@ static NAME(figures) NAME(figures_of)(const double *k, double dt, int64_t subste
     f.vsw = (REAL)k[C_POWER_LIMIT_SPEED], f.lag = (REAL)k[C_SPEED_TIME_CONSTANT];
     f.room_floor = (REAL)k[C_ROOM_FLOOR], f.half_track = (REAL)(0.5 * k[C_TRACK]);
     f.tiny = sizeof(REAL) == sizeof(float) ? (REAL)1e-30 : (REAL)1e-300; /* (1 - e^-x) / x at x = 0 */
+    f.phi_peak = k[C_SHAPE] > 1.0 ? (REAL)tan(M_PI / (2.0 * k[C_SHAPE])) : (REAL)1e30;
     return f;
 }
 
