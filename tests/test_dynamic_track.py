@@ -135,7 +135,8 @@ def test_the_tangent_damping_is_the_tyres_slope_and_zero_past_the_peak(name):
     alpha = alpha[np.abs(np.abs(k * alpha) - car.friction) > 1e-3]  # off the linear tyre's kink
     slope = _damping_slopes(car, alpha, alpha)[0]
     step = 1e-6
-    force = [_lateral_force(car, alpha + d, static, static, car.stiffness_front) / static for d in (step, -step)]
+    force = [_lateral_force(car, alpha + d, static, static, car.stiffness_front) / static
+             for d in (step, -step)]  # fmt: skip
     np.testing.assert_allclose(slope, np.maximum((force[0] - force[1]) / (2 * step), 0.0), atol=1e-5 * k)
     assert _damping_slopes(car, np.zeros(1), np.zeros(1))[0][0] == pytest.approx(k)
     peak = abs(alpha[np.argmax(force[0])])  # the end of the range where the force never falls (C <= 1)
