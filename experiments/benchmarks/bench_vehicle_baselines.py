@@ -181,12 +181,8 @@ def test_errors(test: Any, cfg: CampaignConfig, models: dict[str, Any]) -> dict[
     (held past its end) from its first recorded state (lateral speed 0: the logs do not hold it),
     against the truth's path relative to its start pose."""
     spec, rate = cfg.vehicle.spec, cfg.simulation.rate_hz
-    dt, n = 1.0 / rate, max(len(log) for log in test.logs)
-    controls, start = np.zeros((len(test.logs), n, 2)), np.zeros((len(test.logs), 4))
-    for i, log in enumerate(test.logs):
-        u = log[["throttle", "steering"]].to_numpy(np.float64)
-        controls[i, : len(u)], controls[i, len(u) :] = u, u[-1]
-        start[i] = [log["speed"].iloc[0], 0.0, log["angZ"].iloc[0], log["steering"].iloc[0]]
+    controls, start = log_controls(test)
+    dt, n = 1.0 / rate, controls.shape[1]
     k = min(round(30.0 * rate), n - 1)
     columns = ("posX", "posY", "yaw")
     truth = np.array([relative_pose({c: t[c].to_numpy(np.float64) for c in columns}, k + 1)[:2]
@@ -202,6 +198,18 @@ def test_errors(test: Any, cfg: CampaignConfig, models: dict[str, Any]) -> dict[
         error = np.hypot(path[:, 0] - truth[:, 0], path[:, 1] - truth[:, 1])
         out[name] = np.nan_to_num(error, nan=np.inf)
     return out
+
+
+def log_controls(test: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The test logs' commands (M, T, 2), each held past its end to the longest, and the free runs' start
+    states (M, 4) = (v_x, v_y, r, δ_w) from each log's first recorded row (v_y 0: the logs do not hold it)."""
+    n = max(len(log) for log in test.logs)
+    controls, start = np.zeros((len(test.logs), n, 2)), np.zeros((len(test.logs), 4))
+    for i, log in enumerate(test.logs):
+        u = log[["throttle", "steering"]].to_numpy(np.float64)
+        controls[i, : len(u)], controls[i, len(u) :] = u, u[-1]
+        start[i] = [log["speed"].iloc[0], 0.0, log["angZ"].iloc[0], log["steering"].iloc[0]]
+    return controls, start
 
 
 test_errors.__test__ = False  # type: ignore[attr-defined]  # not a pytest test

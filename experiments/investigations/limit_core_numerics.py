@@ -42,11 +42,10 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
-from bench_vehicle_baselines import BANDS, TWIN, bands_of, config_of, twin_of
-from limit_sensitivity import truth_paths
+from bench_vehicle_baselines import BANDS, TWIN, bands_of, log_controls
+from limit_sensitivity import car_test_set, truth_paths
 
 import activelearn.numerics.models.dynamic_track as track
-from activelearn.loop.campaign import Campaign
 from activelearn.numerics.models.dynamic_track import DynamicCar, dynamic_step
 from simulator.tyre_car import TyreCar
 from simulator.vehicles import GRAVITY
@@ -174,19 +173,12 @@ def main() -> None:
     parser.add_argument("--sweep", action="store_true", help="the tangent damping's sweep (see above)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        cfg = config_of(args.car, "dynamic physics", Path(tmp), quick=False)
-        cfg = twin_of(cfg) if args.twin else cfg
-        test = Campaign(cfg, Path(tmp) / "truth").evaluation.test_set
+        cfg, test = car_test_set(args.car, args.twin, Path(tmp))
     rate = cfg.simulation.rate_hz
     bands = np.array(bands_of(test, cfg, args.twin))
     steps = [round(h * rate) for h in HORIZONS]
     truth = truth_paths(test, steps)
-    n = max(len(log) for log in test.logs)
-    controls, start = np.zeros((len(test.logs), n, 2)), np.zeros((len(test.logs), 4))
-    for i, log in enumerate(test.logs):
-        u = log[["throttle", "steering"]].to_numpy(np.float64)
-        controls[i, : len(u)], controls[i, len(u):] = u, u[-1]
-        start[i] = [log["speed"].iloc[0], 0.0, log["angZ"].iloc[0], log["steering"].iloc[0]]
+    controls, start = log_controls(test)
     figures = {"tire_friction": TWIN["tire_friction"], "motor_gain": TWIN["motor_gain"]} if args.twin else {}
     core = DynamicCar.of(cfg.vehicle.spec, **figures)
     core = dataclasses.replace(core, wheel_forces=cfg.model.wheel_forces)

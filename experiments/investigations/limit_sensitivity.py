@@ -25,13 +25,14 @@ import dataclasses
 import sys
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
-from bench_vehicle_baselines import BANDS, TWIN, bands_of, config_of, trained_by_band, twin_of
+from bench_vehicle_baselines import BANDS, TWIN, bands_of, config_of, log_controls, trained_by_band, twin_of
 
 from activelearn.config import CampaignConfig
 from activelearn.loop.campaign import Campaign
@@ -67,23 +68,24 @@ def file_core_paths(test, cfg: CampaignConfig, steps: list[int]) -> np.ndarray:
     """(M, H, 2) the dynamic single track's free runs at the file's values (the config's slip law) from
     each test log's first recorded state, as `bench_vehicle_baselines.test_errors` runs them."""
     rate = cfg.simulation.rate_hz
-    n = max(len(log) for log in test.logs)
-    controls, start = np.zeros((len(test.logs), n, 2)), np.zeros((len(test.logs), 4))
-    for i, log in enumerate(test.logs):
-        u = log[["throttle", "steering"]].to_numpy(np.float64)
-        controls[i, : len(u)], controls[i, len(u):] = u, u[-1]
-        start[i] = [log["speed"].iloc[0], 0.0, log["angZ"].iloc[0], log["steering"].iloc[0]]
+    controls, start = log_controls(test)
+    n = controls.shape[1]
     car = dataclasses.replace(DynamicCar.of(cfg.vehicle.spec), wheel_forces=cfg.model.wheel_forces)
     path = free_runs(car, controls, start, 1.0 / rate)[..., 4:6]
     return path[:, [min(k, n - 1) for k in steps]]
 
 
-def study(car: str, twin: bool, horizons: list[float], runs: Path | None, work: Path) -> pd.DataFrame:
+def car_test_set(car: str, twin: bool, work: Path) -> tuple[CampaignConfig, Any]:
+    """The car's cold-start dynamics config on the dynamic core (answered by its twin with `twin`) and
+    its test set, simulated under `work`."""
     cfg = config_of(car, "dynamic physics", work, quick=False)
     cfg = twin_of(cfg) if twin else cfg
-    rate = cfg.simulation.rate_hz
-    steps = [round(h * rate) for h in horizons]
-    test = Campaign(cfg, work / "truth").evaluation.test_set
+    return cfg, Campaign(cfg, work / "truth").evaluation.test_set
+
+
+def study(car: str, twin: bool, horizons: list[float], runs: Path | None, work: Path) -> pd.DataFrame:
+    cfg, test = car_test_set(car, twin, work)
+    steps = [round(h * cfg.simulation.rate_hz) for h in horizons]
     bands = bands_of(test, cfg, twin)
     truth = truth_paths(test, steps)
     rows = []
