@@ -81,8 +81,8 @@ def _scaled_family_ranges(families: list[Any], given: Any, ratio: float, time: f
     if not isinstance(given, dict):
         return given
     out = {family: dict(values) if isinstance(values, dict) else values for family, values in given.items()}
-    for family in families:
-        if family not in FAMILIES or not isinstance(out.get(family, {}), dict):
+    for family in families:  # a family that is not a known name is [pool] validation's to report
+        if not isinstance(family, str) or family not in FAMILIES or not isinstance(out.get(family, {}), dict):
             continue
         spec = FAMILIES[family]
         for p in spec.continuous:
