@@ -15,8 +15,8 @@ on the car's test set, by band and horizon (mean distance to the truth's path, m
     the full-size car, where a spinning car is pulled onto its wheels' heading), and both;
   * the core at the physics kind's step (0.1 s, the controls as it samples them): as shipped (4
     substeps of the implicit step, whose tyre damping uses the linear cornering stiffness), with both
-    fixes, with 16 substeps, with the damping from the tyres' local slope (`tangent`: zero past the
-    peak, a what-if patched in here), and with the explicit step (converged).
+    fixes, with 16 substeps, with the damping from the tyres' local slope (`[model] tyre_damping =
+    "tangent"`: zero past the peak), and with the explicit step (converged).
 
 Module constants are set for a row and restored; nothing here changes the library.
 
@@ -66,39 +66,6 @@ def constants(**values: object) -> Iterator[None]:
     finally:
         for name, value in old.items():
             setattr(track, name, value)
-
-
-@contextlib.contextmanager
-def tangent_damping() -> Iterator[None]:
-    """The implicit step's tyre damping from each axle's local slope dF_y/dα at its slip angle (0 past
-    the peak, where the step is explicit), not its linear cornering stiffness: `_advance` wrapped."""
-    original = track._advance
-
-    def advance(car, state, rates, loads, delta, h, implicit, ground):
-        vx, vy, r = state
-        alpha_f, alpha_r = track._slip_angles(car, vx, vy, r, (np.cos(delta), np.sin(delta)))
-        m, L = car.mass, car.wheelbase
-        static = (m * GRAVITY * car.lr / L, m * GRAVITY * car.lf / L)
-        axles = zip((alpha_f, alpha_r), static, (car.stiffness_front, car.stiffness_rear), strict=True)
-        slopes = [_slope(car, alpha, load, stiffness) * load + 1e-9 for alpha, load, stiffness in axles]
-        local = dataclasses.replace(car, stiffness_front=slopes[0], stiffness_rear=slopes[1])
-        return original(local, state, rates, loads, delta, h, implicit, ground)
-
-    track._advance = advance
-    try:
-        yield
-    finally:
-        track._advance = original
-
-
-def _slope(car: DynamicCar, alpha: np.ndarray, static: float, stiffness: float) -> np.ndarray:
-    """d(F_y / F_z)/dα of the simplified magic formula at α, at least 0."""
-    b = stiffness / static / (car.shape * car.friction)
-    x = b * alpha
-    phi = x - car.curvature * (x - np.arctan(x))
-    dphi = b * (1.0 - car.curvature + car.curvature / (1.0 + x * x))
-    slope = car.friction * np.cos(car.shape * np.arctan(phi)) * car.shape / (1.0 + phi**2) * dphi
-    return np.maximum(slope, 0.0)
 
 
 def core_paths(car: DynamicCar, controls: np.ndarray, start: np.ndarray, h: float, substeps: int | None,
@@ -194,10 +161,11 @@ def main() -> None:
         print(f"  {label}: {error[:, -1].mean():.2f} m after 30 s", flush=True)
 
     model_step, sampled = MODEL_STRIDE / rate, controls[:, ::MODEL_STRIDE]
+    tangent = dataclasses.replace(core, tangent_damping=True)
     if args.sweep:
         for passes, share, substeps in itertools.product((3, 5, 8), (0.5, 0.25, 0.1), (4, 8)):
-            with constants(WHEEL_PASSES=passes, BLEND_SHARE=share), tangent_damping():
-                paths = core_paths(core, sampled, start, model_step, substeps, True)
+            with constants(WHEEL_PASSES=passes, BLEND_SHARE=share):
+                paths = core_paths(tangent, sampled, start, model_step, substeps, True)
             add(f"tangent, passes {passes}, blend {share}, {substeps} substeps", paths, MODEL_STRIDE)
         frame = pd.DataFrame(rows)
         last = frame[frame["horizon"] == 30.0]
@@ -223,8 +191,9 @@ def main() -> None:
         ("passes 8 + blend 0.1, 16 substeps, tangent damping", FIXED, 16, "tangent"),
         ("passes 8 + blend 0.1, explicit (converged)", FIXED, None, "explicit"),
     ):
-        with constants(**values), (tangent_damping() if kind == "tangent" else contextlib.nullcontext()):
-            paths = core_paths(core, sampled, start, model_step, substeps, kind != "explicit")
+        with constants(**values):
+            paths = core_paths(tangent if kind == "tangent" else core, sampled, start, model_step, substeps,
+                               kind != "explicit")  # fmt: skip
         add(f"core at 0.1 s, {label}", paths, MODEL_STRIDE)
     frame = pd.DataFrame(rows)
     table = frame.pivot_table(index=["horizon", "variant"], columns="band", values="error", sort=False)

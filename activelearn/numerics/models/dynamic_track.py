@@ -237,11 +237,16 @@ def _lateral_force(car: DynamicCar, alpha, load, static: float, stiffness):
     cap = car.friction * load
     if car.shape is None:
         return _clip(stiffness * load / static * alpha, -cap, cap)
-    b = stiffness / static / (car.shape * car.friction)
-    x = b * alpha
-    if car.curvature:
-        x = x - car.curvature * (x - xp.arctan(x))
-    return cap * xp.sin(car.shape * xp.arctan(x))
+    return cap * xp.sin(car.shape * xp.arctan(_magic_argument(car, alpha, static, stiffness)[1]))
+
+
+def _magic_argument(car: DynamicCar, alpha, static: float, stiffness) -> tuple:
+    """The simplified magic formula's B α and its argument φ = B α − E (B α − atan B α) at slip angle α
+    (B C μ = the cornering stiffness per unit static load)."""
+    x = stiffness / static / (car.shape * car.friction) * alpha
+    if not car.curvature:
+        return x, x
+    return x, x - car.curvature * (x - _namespace(alpha).arctan(x))
 
 
 def dynamic_step(
@@ -341,11 +346,8 @@ def _damping_slopes(car: DynamicCar, alpha_f, alpha_r) -> tuple | None:
         if car.shape is None:
             out.append(_where(xp.abs(k * alpha) < car.friction, k * xp.ones_like(alpha), 0.0))
             continue
-        x = k / (car.shape * car.friction) * alpha
-        phi, dphi = x, 1.0
-        if car.curvature:
-            phi = x - car.curvature * (x - xp.arctan(x))
-            dphi = 1.0 - car.curvature + car.curvature / (1.0 + x * x)
+        x, phi = _magic_argument(car, alpha, static, stiffness)
+        dphi = 1.0 - car.curvature + car.curvature / (1.0 + x * x) if car.curvature else 1.0
         out.append(_maximum(k * xp.cos(car.shape * xp.arctan(phi)) / (1.0 + phi * phi) * dphi, 0.0))
     return tuple(out)
 
