@@ -8,18 +8,21 @@ their calibrated scale), and prints per test maneuver the share of steps whose t
 the fans, the 30-s position error of the mean path against the fan's half-width there, and the steady
 rates at the end (the last second: truth and the model's mean), then the shares by kind and direction
 of travel. `--parameter-uncertainty by_log` draws the identified core's scales per draw (the knob
-session 38 tried).
+session 38 tried); `--set section.key=value,...` changes any other field first (values in TOML), e.g.
+`--set model.correction_inputs="control",model.discrepancy="cross_validated"`.
 `--reverse-understeer 1.01,1.02` asks what the same model would do with the kinematic core's understeer
 scaled by each factor in reverse only (throttle < 0; the free runs in torch, `backend="reference"`, the
 first factor 1 as a check): a what-if with the factor chosen on the test set, not an identified model.
 
 Usage: python experiments/investigations/first_fans.py [--config dynamics] [--seed 0] [--signals N]
-       [--parameter-uncertainty by_log] [--reverse-understeer K,...] [--out runs/first_fans]
+       [--parameter-uncertainty by_log] [--set SECTION.KEY=VALUE,...] [--reverse-understeer K,...]
+       [--out runs/first_fans]
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -27,6 +30,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+from bench_campaign import overrides_of
 
 from activelearn.config import load_config
 from activelearn.loop.campaign import Campaign
@@ -40,30 +47,35 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 UNDERSTEER = PARAMETER_NAMES.index("understeer")
 
 
-def last_round(config: str, seed: int, out: Path, signals: int | None, parameter_uncertainty: str | None):
-    """Run the config up to `signals` signals (its first round: None); return the last round's logged
-    metrics, the last model, the test set and the campaign's config."""
+def last_round(config: str, seed: int, out: Path, signals: int | None, parameter_uncertainty: str | None,
+               settings: str = ""):
+    """Run the config (with `settings`, as `--set` reads them) up to `signals` signals (its first round:
+    None); return the last round's logged metrics, the last model, the test set and the campaign's config."""
     seen: dict = {}
     original = Evaluation.evaluate
 
     def evaluate(self: Evaluation, model, *, rollouts: bool = True) -> dict[str, float]:
-        if rollouts:  # a round's logged evaluation: the last round's once the campaign ends
-            seen["model"], seen["test"] = model, self.test_set
+        if rollouts and (signals or "model" not in seen):  # a round's logged evaluation: the last
+            seen["model"], seen["test"] = model, self.test_set  # round's, or with no `signals` the first
         return original(self, model, rollouts=rollouts)
 
-    cfg = load_config(CONFIGS / f"{config}.toml")
-    overrides = {"seed": seed, "strategy": "uniform", "tracking": {"enabled": False}, "output_dir": str(out),
-                 "design": {"max_maneuvers": signals or cfg.design.initial}}  # fmt: skip
+    _, changes = overrides_of(f"set:{settings}")
+    cfg = load_config(CONFIGS / f"{config}.toml", overrides=changes)
+    # A warm start's first round has no signal (`initial = 0`): it runs on to one and reads round 0.
+    design = {**changes.get("design", {}), "max_maneuvers": signals or max(1, cfg.design.initial)}
+    overrides = {**changes, "seed": seed, "strategy": "uniform", "tracking": {"enabled": False},
+                 "output_dir": str(out), "design": design}  # fmt: skip
     if parameter_uncertainty is not None:
-        overrides["model"] = {"parameter_uncertainty": parameter_uncertainty}
+        overrides["model"] = {**changes.get("model", {}), "parameter_uncertainty": parameter_uncertainty}
     cfg = load_config(CONFIGS / f"{config}.toml", overrides=overrides)
     Evaluation.evaluate = evaluate
     try:
-        directory = out / config / (parameter_uncertainty or "shipped") / f"seed{seed}-{signals or 0}"
+        arm = "-".join(filter(None, (parameter_uncertainty, settings.replace('"', "")))) or "shipped"
+        directory = out / config / arm.replace("/", "_") / f"seed{seed}-{signals or 0}"
         state = Campaign(cfg, directory).run(figures=False, log_model=False).state
     finally:
         Evaluation.evaluate = original
-    return state.rounds[-1], seen["model"], seen["test"], cfg
+    return state.rounds[-1 if signals else 0], seen["model"], seen["test"], cfg
 
 
 @contextmanager
@@ -132,17 +144,18 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--signals", type=int, default=None, help="run on to this many (default: round 0)")
     parser.add_argument("--parameter-uncertainty", choices=("none", "by_log"), default=None)
+    parser.add_argument("--set", default="", metavar="SECTION.KEY=VALUE,...", help="config changes (TOML)")
     parser.add_argument("--reverse-understeer", default="", help="factors for the what-if, e.g. 1.01,1.02")
     parser.add_argument("--out", type=Path, default=Path("runs/first_fans"))
     args = parser.parse_args()
     factors = [1.0, *(float(f) for f in args.reverse_understeer.split(",") if f)]
     uncertainty = args.parameter_uncertainty
     out = args.out.resolve()
-    logged, model, test, cfg = last_round(args.config, args.seed, out, args.signals, uncertainty)
+    logged, model, test, cfg = last_round(args.config, args.seed, out, args.signals, uncertainty, args.set)
     frame = by_maneuver(test, test_free_runs(model, test, cfg))
     pd.set_option("display.width", 200)
     print(f"== {args.config}, seed {args.seed}, round {logged['round']} ({logged['n_maneuvers']} signals), "
-          f"parameter_uncertainty {uncertainty or 'as shipped'}: "
+          f"parameter_uncertainty {uncertainty or 'as shipped'}{', ' + args.set if args.set else ''}: "
           f"logged fans {logged['rollout_coverage_95']:.3f} (these: scale 1), "
           f"30-s error {logged['rollout_pos_err_30s']:.4f} m")  # fmt: skip
     print(frame.to_string(float_format=lambda x: f"{x:.4f}"))
