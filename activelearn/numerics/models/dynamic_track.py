@@ -145,6 +145,12 @@ class DynamicCar:
         return self.lf + self.lr
 
     @property
+    def static_loads(self) -> tuple[float, float]:
+        """The front and rear axles' loads at rest, N (m g l_r / L, m g l_f / L)."""
+        m, L = self.mass, self.wheelbase
+        return m * GRAVITY * self.lr / L, m * GRAVITY * self.lf / L
+
+    @property
     def blend_speed(self) -> float:
         """Below it the state is pulled to the kinematic one (½ √(g L))."""
         return BLEND_SHARE * math.sqrt(GRAVITY * self.wheelbase)
@@ -261,7 +267,7 @@ def dynamic_step(
         state = state.astype(np.float64)
     vx, vy, r, delta = state[..., 0], state[..., 1], state[..., 2], state[..., 3]
     m, L, g = car.mass, car.wheelbase, GRAVITY
-    static_f, static_r = m * g * car.lr / L, m * g * car.lf / L
+    static_f, static_r = car.static_loads
     target = _clip(steering, -car.steering_limit, car.steering_limit)
     for _ in range(n):
         delta = delta + _clip(target - delta, -car.steering_rate * h, car.steering_rate * h)
@@ -305,8 +311,7 @@ def _wheel_substep(car: DynamicCar, state: tuple, throttle, h: float, implicit: 
     at a low forward speed keeps spinning."""
     vx, vy, r, delta = state
     xp = _namespace(vx)
-    m, L = car.mass, car.wheelbase
-    static_f, static_r = m * GRAVITY * car.lr / L, m * GRAVITY * car.lf / L
+    static_f, static_r = car.static_loads
     cos, sin = xp.cos(delta), xp.sin(delta)
     alpha_f, alpha_r = _slip_angles(car, vx, vy, r, (cos, sin))
     unit = (_lateral_force(car, alpha_f, static_f, static_f, car.stiffness_front) / static_f,
@@ -338,10 +343,9 @@ def _damping_slopes(car: DynamicCar, alpha_f, alpha_r) -> tuple | None:
     if not car.tangent_damping:
         return None
     xp = _namespace(alpha_f)
-    m, L = car.mass, car.wheelbase
     out = []
-    for alpha, static, stiffness in ((alpha_f, m * GRAVITY * car.lr / L, car.stiffness_front),
-                                     (alpha_r, m * GRAVITY * car.lf / L, car.stiffness_rear)):  # fmt: skip
+    for alpha, static, stiffness in zip((alpha_f, alpha_r), car.static_loads,
+                                        (car.stiffness_front, car.stiffness_rear), strict=True):
         k = stiffness / static
         if car.shape is None:
             out.append(_where(xp.abs(k * alpha) < car.friction, k * xp.ones_like(alpha), 0.0))
@@ -361,7 +365,7 @@ def _advance(car: DynamicCar, state: tuple, rates: tuple, loads: tuple, delta, h
     (vx, vy, r), (dvx, dvy, dr), (load_f, load_r) = state, rates, loads
     xp = _namespace(vx)
     m, L, blend = car.mass, car.wheelbase, car.blend_speed
-    static_f, static_r = m * GRAVITY * car.lr / L, m * GRAVITY * car.lf / L
+    static_f, static_r = car.static_loads
     if implicit:
         # The tyres' damping of v_y and r exponential (stable at any substep), and the body
         # frame's turn of the velocity semi-implicit, v_x from the new v_y (an explicit turn adds
@@ -439,7 +443,7 @@ def quasi_static_lateral(car: DynamicCar, vx, r):
     grip's linear reach μ F_zr / C_r; v_y = l_r r − |v_x| tan α_r (blended to the kinematic l_r r at
     low speed, as the step is)."""
     xp = _namespace(vx)
-    load_r = car.mass * GRAVITY * car.lf / car.wheelbase
+    load_r = car.static_loads[1]
     reach = car.friction * load_r / car.stiffness_rear
     alpha = _clip(car.mass * vx * r * car.lf / car.wheelbase / car.stiffness_rear, -reach, reach)
     speed = _maximum(xp.abs(vx), 0.5 * car.blend_speed)
