@@ -4,6 +4,7 @@ identification, against the dynamic core's own NumPy runs."""
 from __future__ import annotations
 
 import copy
+import math
 
 import numpy as np
 import pytest
@@ -20,7 +21,7 @@ from activelearn.numerics.models.single_track import Identified, widened
 from activelearn.numerics.multistep import window_loss, windows_from_logs
 from activelearn.numerics.surrogate import simulate
 from activelearn.numerics.training_data import TrainingData
-from simulator.vehicles import load_vehicle
+from simulator.vehicles import GRAVITY, load_vehicle
 from tests.test_dynamic_track import twin_logs
 
 DT = 1.0 / 30.0
@@ -55,6 +56,18 @@ def test_the_core_is_chosen_in_the_config_and_checked_there():
         _config(correction_inputs="history")
     with pytest.raises(ValidationError, match="tyre_damping"):
         ModelConfig(kind="physics", tyre_damping="tangent")
+    with pytest.raises(ValidationError, match="blend_share"):
+        ModelConfig(kind="physics", blend_share=0.25)
+    with pytest.raises(ValidationError, match="wheel_passes"):
+        _config(wheel_passes=5)  # the axles' core has no wheels to pass over
+    with pytest.raises(ValidationError, match="wheel_passes"):
+        _config(wheel_forces=True, wheel_passes=4)  # no kernel variant of it
+    with pytest.raises(ValidationError, match="blend_share"):
+        _config(blend_share=0.0)
+    model = build_model(_config("bmw320i", wheel_forces=True, wheel_passes=5, blend_share=0.25), seed=0)
+    car = model.dynamic_car
+    assert (car.wheel_passes, car.blend_share) == (5, 0.25)
+    assert car.blend_speed == pytest.approx(0.25 * math.sqrt(GRAVITY * car.wheelbase))
 
 
 def test_implicit_tyre_damping_keeps_the_explicit_steps_steady_turns_in_a_few_substeps():
@@ -104,7 +117,8 @@ def test_free_runs_carry_the_lateral_speed_as_the_cores_own_runs_do():
 
 @pytest.mark.parametrize(("vehicle", "slip"), [("f1tenth", "axle"), ("nigel", "axle"), ("bmw320i", "axle"),
                                                ("f1tenth", "combined"), ("bmw320i", "wheels"),
-                                               ("bmw320i", "wheels, tangent"), ("nigel", "axle, tangent")])
+                                               ("bmw320i", "wheels, tangent"), ("nigel", "axle, tangent"),
+                                               ("bmw320i", "wheels, tangent, 5 passes, blend 0.25")])
 def test_the_compiled_free_runs_are_torchs(vehicle: str, slip: str, c_kernels):
     """dynamic_rollout.c's free runs against the torch loop: each draw its own scales, the correction
     widened about the draws' mean (epistemic scale 3), the sensors' noise, the model discrepancy in the
@@ -114,7 +128,8 @@ def test_the_compiled_free_runs_are_torchs(vehicle: str, slip: str, c_kernels):
     spinning at throttle 0.8) twice what the reference itself moves when its controls move by 1e-7."""
     model = _untrained(vehicle, parameter_uncertainty="by_log", discrepancy="identification",
                        combined_slip=slip == "combined", wheel_forces=slip.startswith("wheels"),
-                       tyre_damping="tangent" if slip.endswith("tangent") else "linear")
+                       tyre_damping="tangent" if "tangent" in slip else "linear",
+                       **({"wheel_passes": 5, "blend_share": 0.25} if slip.endswith("0.25") else {}))
     model.theta_scale.copy_(0.1 * torch.eye(5))
     model.epistemic_scale.fill_(3.0)
     model.discrepancy.copy_(torch.tensor([0.05, 0.02]))

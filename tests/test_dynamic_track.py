@@ -84,13 +84,23 @@ def test_with_combined_slip_the_core_follows_a_braking_turn():
         assert misses[True][0] < 0.5 * misses[False][0]  # speed
 
 
-def test_the_kernels_wheel_passes_are_the_numpy_steps(c_kernels):
-    """The kernel's fixed-point passes of the wheels' loads are a compile-time constant (the pass loop
-    unrolls, the lane loop vectorises): the same number as the NumPy step's."""
-    from activelearn.numerics import native
-    from activelearn.numerics.models.dynamic_track import WHEEL_PASSES
+def test_the_kernels_wheel_passes_are_the_configs(c_kernels):
+    """The kernel's fixed-point passes of the wheels' loads are compile-time constants (the pass loop
+    unrolls, the lane loop vectorises), a variant each: those `[model] wheel_passes` offers, the shipped
+    count first; a count it has no variant of is a clear error, not a silent other step."""
+    from typing import get_args
 
-    assert native.library().al_dynamic_wheel_passes() == WHEEL_PASSES
+    from activelearn.config import ModelConfig
+    from activelearn.numerics import native
+    from activelearn.numerics.models.dynamic_track import WHEEL_PASS_CHOICES, WHEEL_PASSES
+
+    lib = native.library()
+    found = tuple(lib.al_dynamic_wheel_pass_choice(i) for i in range(len(WHEEL_PASS_CHOICES) + 1))
+    assert found == (*WHEEL_PASS_CHOICES, 0) and WHEEL_PASS_CHOICES[0] == WHEEL_PASSES
+    assert get_args(ModelConfig.model_fields["wheel_passes"].annotation) == WHEEL_PASS_CHOICES
+    car = dataclasses.replace(DynamicCar.of(load_vehicle("bmw320i")), wheel_forces=True, wheel_passes=4)
+    with pytest.raises(ValueError, match="wheel passes"):
+        rate_runs(car, np.zeros((1, 3, 2)), np.zeros((1, 4)), DT, True, backend="native")
 
 
 def test_with_the_wheels_forces_the_full_size_core_turns_and_spins_with_the_truth():
@@ -170,17 +180,20 @@ def test_identification_recovers_a_twins_grip_and_motor_from_its_own_logs():
     assert friction == pytest.approx(0.8, abs=0.04) and motor == pytest.approx(0.9, abs=0.02)
 
 
-@pytest.mark.parametrize("slip", ["axle", "combined", "wheels"])
+@pytest.mark.parametrize("slip", ["axle", "combined", "wheels", "wheels, 5 passes, blend 0.25"])
 @pytest.mark.parametrize("step", ["implicit", "explicit", "tangent"])
 @pytest.mark.parametrize("name", ["nigel", "f1tenth", "bmw320i"])
 def test_the_compiled_rate_runs_are_numpys(name, step, slip, c_kernels):
     """dynamic_rollout.c against the NumPy loop: random controls with braking steps, starts forward and
     reversing, one car and a batch of scaled ones (the identification's shapes), under each slip law
-    (the rear drive's share of its axle's circle, combined slip, the wheels' forces) and each step
-    (explicit, implicit, implicit with the tangent damping), equal to rounding."""
+    (the rear drive's share of its axle's circle, combined slip, the wheels' forces with 3 or 5 passes
+    of their loads) and each step (explicit, implicit, implicit with the tangent damping), and another
+    blend speed, equal to rounding."""
     rng = np.random.default_rng(7)
+    other = slip.endswith("0.25")
     car = dataclasses.replace(DynamicCar.of(load_vehicle(name)), combined_slip=slip == "combined",
-                              wheel_forces=slip == "wheels", tangent_damping=step == "tangent")  # fmt: skip
+                              wheel_forces=slip.startswith("wheels"), tangent_damping=step == "tangent",
+                              wheel_passes=5 if other else 3, blend_share=0.25 if other else 0.5)  # fmt: skip
     implicit = step != "explicit"
     n_runs, n_steps = 21, 46  # lanes not a multiple of the kernel's block of 8
     shape = (n_runs, n_steps)

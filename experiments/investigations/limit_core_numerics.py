@@ -10,7 +10,7 @@ on the car's test set, by band and horizon (mean distance to the truth's path, m
                      accelerations) on a planar rigid body, explicit, 10 substeps a log step: how far
                      the truth's MuJoCo chassis (roll, pitch, soft contacts) is from a planar model;
   * the core at the log's rate (1/30 s, explicit substeps at its slip floor), as shipped, then with the
-    wheels' loads converged (`WHEEL_PASSES` 8, shipped 3: the passes start from the demand within the
+    wheels' loads converged (`wheel_passes` 8, shipped 3: the passes start from the demand within the
     grip and v_x r, far from a spin's), with the kinematic blend at 0.1 √(g L) (shipped 0.5: 2.5 m/s on
     the full-size car, where a spinning car is pulled onto its wheels' heading), and both;
   * the core at the physics kind's step (0.1 s, the controls as it samples them): as shipped (4
@@ -18,23 +18,25 @@ on the car's test set, by band and horizon (mean distance to the truth's path, m
     fixes, with 16 substeps, with the damping from the tyres' local slope (`[model] tyre_damping =
     "tangent"`: zero past the peak), and with the explicit step (converged).
 
-Module constants are set for a row and restored; nothing here changes the library.
+Each row's passes and blend are the core's own figures (`DynamicCar.wheel_passes`, `blend_share`: the
+`[model]` keys of those names); NumPy runs any number of passes, the C kernel 3 or 5.
 
 `--sweep`: instead, at the physics kind's step, the tangent damping under each combination of the wheels'
 passes (3, 5, 8), the blend (0.5, 0.25, 0.1 √(g L)) and 4 or 8 substeps (30-s error by band).
+`--held-out`: the test set's kinds at other operating points (`HELD_OUT`, the full-size car's), to check
+on maneuvers the sweep did not choose on.
 
 Usage: python experiments/investigations/limit_core_numerics.py [--car bmw320i] [--twin] [--sweep]
+       [--held-out]
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
 import itertools
 import sys
 import tempfile
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -45,27 +47,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from bench_vehicle_baselines import BANDS, TWIN, bands_of, log_controls
 from limit_sensitivity import car_test_set, truth_paths
 
-import activelearn.numerics.models.dynamic_track as track
 from activelearn.numerics.models.dynamic_track import DynamicCar, dynamic_step
 from simulator.tyre_car import TyreCar
 from simulator.vehicles import GRAVITY
 
 HORIZONS = (5.0, 10.0, 30.0)
 MODEL_STRIDE = 3  # the physics kind's step in log steps (history_step: 0.1 s at 30 Hz)
-FIXED = {"WHEEL_PASSES": 8, "BLEND_SHARE": 0.1}
-
-
-@contextlib.contextmanager
-def constants(**values: object) -> Iterator[None]:
-    """dynamic_track's module constants set for a block (read at call time), then restored."""
-    old = {name: getattr(track, name) for name in values}
-    for name, value in values.items():
-        setattr(track, name, value)
-    try:
-        yield
-    finally:
-        for name, value in old.items():
-            setattr(track, name, value)
+FIXED = {"wheel_passes": 8, "blend_share": 0.1}
+# `--held-out`: the full-size test set's kinds and directions at throttles and steerings between and beyond
+# its own (-0.3, 0.2, 0.4, 0.6 x 0.01, 0.03, 0.08 rad)
+HELD_OUT = {"bmw320i": {"throttles": [-0.2, 0.3, 0.5, 0.7], "steerings": [0.02, 0.05, 0.1]}}
 
 
 def core_paths(car: DynamicCar, controls: np.ndarray, start: np.ndarray, h: float, substeps: int | None,
@@ -138,9 +129,13 @@ def main() -> None:
     parser.add_argument("--car", default="bmw320i")
     parser.add_argument("--twin", action="store_true", help=f"the twin's truth ({TWIN}) and its figures")
     parser.add_argument("--sweep", action="store_true", help="the tangent damping's sweep (see above)")
+    parser.add_argument("--held-out", action="store_true", help="the test set at other operating points")
     args = parser.parse_args()
+    if args.held_out and args.car not in HELD_OUT:
+        parser.error(f"--held-out: operating points are given for {', '.join(HELD_OUT)}, not {args.car}")
     with tempfile.TemporaryDirectory() as tmp:
-        cfg, test = car_test_set(args.car, args.twin, Path(tmp))
+        points = HELD_OUT[args.car] if args.held_out else None
+        cfg, test = car_test_set(args.car, args.twin, Path(tmp), points)
     rate = cfg.simulation.rate_hz
     bands = np.array(bands_of(test, cfg, args.twin))
     steps = [round(h * rate) for h in HORIZONS]
@@ -164,8 +159,8 @@ def main() -> None:
     tangent = dataclasses.replace(core, tangent_damping=True)
     if args.sweep:
         for passes, share, substeps in itertools.product((3, 5, 8), (0.5, 0.25, 0.1), (4, 8)):
-            with constants(WHEEL_PASSES=passes, BLEND_SHARE=share):
-                paths = core_paths(tangent, sampled, start, model_step, substeps, True)
+            varied = dataclasses.replace(tangent, wheel_passes=passes, blend_share=share)
+            paths = core_paths(varied, sampled, start, model_step, substeps, True)
             add(f"tangent, passes {passes}, blend {share}, {substeps} substeps", paths, MODEL_STRIDE)
         frame = pd.DataFrame(rows)
         last = frame[frame["horizon"] == 30.0]
@@ -177,11 +172,11 @@ def main() -> None:
     replica = replica_paths(TyreCar(cfg.vehicle.spec, overrides), controls, rate)
     add("planar replica of the truth's tyre step", replica)
     log_step = 1.0 / rate
-    variants = (("", {}), (", passes 8", {"WHEEL_PASSES": 8}), (", blend 0.1", {"BLEND_SHARE": 0.1}),
+    variants = (("", {}), (", passes 8", {"wheel_passes": 8}), (", blend 0.1", {"blend_share": 0.1}),
                 (", passes 8 + blend 0.1", FIXED))  # fmt: skip
     for label, values in variants:
-        with constants(**values):
-            add(f"core at 1/30 s, explicit{label}", core_paths(core, controls, start, log_step, None, False))
+        varied = dataclasses.replace(core, **values)
+        add(f"core at 1/30 s, explicit{label}", core_paths(varied, controls, start, log_step, None, False))
     implicit = core.implicit_substeps(model_step)
     for label, values, substeps, kind in (
         (f"as shipped ({implicit} implicit substeps)", {}, implicit, "implicit"),
@@ -191,9 +186,8 @@ def main() -> None:
         ("passes 8 + blend 0.1, 16 substeps, tangent damping", FIXED, 16, "tangent"),
         ("passes 8 + blend 0.1, explicit (converged)", FIXED, None, "explicit"),
     ):
-        with constants(**values):
-            paths = core_paths(tangent if kind == "tangent" else core, sampled, start, model_step, substeps,
-                               kind != "explicit")  # fmt: skip
+        varied = dataclasses.replace(tangent if kind == "tangent" else core, **values)
+        paths = core_paths(varied, sampled, start, model_step, substeps, kind != "explicit")
         add(f"core at 0.1 s, {label}", paths, MODEL_STRIDE)
     frame = pd.DataFrame(rows)
     table = frame.pivot_table(index=["horizon", "variant"], columns="band", values="error", sort=False)

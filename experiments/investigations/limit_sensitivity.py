@@ -75,10 +75,16 @@ def file_core_paths(test, cfg: CampaignConfig, steps: list[int]) -> np.ndarray:
     return path[:, [min(k, n - 1) for k in steps]]
 
 
-def car_test_set(car: str, twin: bool, work: Path) -> tuple[CampaignConfig, Any]:
+def car_test_set(
+    car: str, twin: bool, work: Path, test: dict[str, Any] | None = None
+) -> tuple[CampaignConfig, Any]:
     """The car's cold-start dynamics config on the dynamic core (answered by its twin with `twin`) and
-    its test set, simulated under `work`."""
+    its test set, simulated under `work` (`test`: `[test]` keys changed, e.g. other operating points)."""
     cfg = config_of(car, "dynamic physics", work, quick=False)
+    if test:
+        data = cfg.model_dump(mode="json")
+        data["test"] = {**data["test"], **test}
+        cfg = CampaignConfig.model_validate(data)
     cfg = twin_of(cfg) if twin else cfg
     return cfg, Campaign(cfg, work / "truth").evaluation.test_set
 

@@ -213,6 +213,7 @@ class DynamicPhysicsModel(PhysicsModel):
         self.dynamic_car = replace(
             DynamicCar.of(self.car.spec), combined_slip=config.combined_slip,
             wheel_forces=config.wheel_forces, tangent_damping=config.tyre_damping == "tangent",
+            wheel_passes=config.wheel_passes, blend_share=config.blend_share,
         )
         self.substeps = self.dynamic_car.implicit_substeps(self.dt)
         bounds = dynamic_bounds()

@@ -21,14 +21,15 @@ State (v_x, v_y, r, δ_w) at the CG: forward and lateral speed, yaw rate, the fr
   equal contacts, t the track); it asks for its share of m a (the drive's, halved left and right, or the
   brake's by load) and for its axle's pure-slip F_y per newton times its load; where the two exceed μ F_z
   both are scaled back onto the circle, their direction kept (Kamm's circle). a_x, a_y are the sums of
-  those forces over m, the loads taken from them in `WHEEL_PASSES` fixed-point passes; the yaw moment
+  those forces over m, the loads taken from them in `wheel_passes` fixed-point passes; the yaw moment
   adds t/2 times the wheels' unequal forces (F_x right − left, and the front F_y's turn with δ_w). The
   blend below weighs the speed over ground √(v_x² + v_y²), so a car sliding sideways keeps spinning.
 - v̇_x = a − F_yf sin δ_w / m + v_y r,  v̇_y = (F_yf cos δ_w + F_yr) / m − v_x r,
   ṙ = (l_f F_yf cos δ_w − l_r F_yr) / I_z.
-- Below the blend speed v_b = ½ √(g L) the state is pulled to the kinematic one (r = v_x tan δ_w / L,
-  v_y = l_r r) with weight 1 − w, w = ½ (1 + tanh((|v_x| − v_b) / (v_b / 4))): Nigel's whole range sits in
-  it (v_b 0.59 m/s, top speed 0.27), the 1:10 car's (0.90 m/s) and the full-size car's (2.5 m/s) do not.
+- Below the blend speed v_b = ½ √(g L) (`blend_share` √(g L)) the state is pulled to the kinematic one
+  (r = v_x tan δ_w / L, v_y = l_r r) with weight 1 − w, w = ½ (1 + tanh((|v_x| − v_b) / (v_b / 4))): Nigel's
+  whole range sits in it (v_b 0.59 m/s, top speed 0.27), the 1:10 car's (0.90 m/s) and the full-size car's
+  (2.5 m/s) do not.
 - Explicit substeps within each log step, as many as keep the lateral and yaw modes stable at the slip
   floor (each substep at most their time constant m v / (C_f + C_r), I_z v / (l_f² C_f + l_r² C_r)).
   The physics kind's implicit step instead damps v_y and r exponentially at the tyres' linear stiffness
@@ -63,9 +64,11 @@ IMPLICIT_SUBSTEP = 0.025
 # `combined_slip`: the share of an axle's friction circle its lateral force keeps at a grip-limited stop
 ROOM_FLOOR = 1e-3
 # `wheel_forces`: fixed-point passes of the wheels' loads on the accelerations their forces give (from the
-# demand and v_x r: one pass lets the full-size car's near-limit turns ring, 2-3 follow the truth's), and
-# the least resultant a friction circle divides by
+# demand and v_x r: one pass lets the full-size car's near-limit turns ring, 2-3 follow the truth's; a spin
+# needs 5, `[model] wheel_passes`), each count a variant of the C kernel; and the least resultant a friction
+# circle divides by
 WHEEL_PASSES = 3
+WHEEL_PASS_CHOICES = (3, 5)
 TINY = 1e-30
 
 
@@ -108,6 +111,8 @@ class DynamicCar:
     # the implicit step's tyre damping at each axle's local slope ∂F_y/∂α, not its cornering stiffness
     # (`[model] tyre_damping = "tangent"`)
     tangent_damping: bool = False
+    wheel_passes: int = WHEEL_PASSES  # with `wheel_forces`, the loads' passes (`[model] wheel_passes`)
+    blend_share: float = BLEND_SHARE  # the kinematic blend's speed over √(g L) (`[model] blend_share`)
 
     @classmethod
     def of(cls, spec: VehicleSpec, tire_friction: float = 1.0, motor_gain: float = 1.0) -> DynamicCar:
@@ -152,8 +157,8 @@ class DynamicCar:
 
     @property
     def blend_speed(self) -> float:
-        """Below it the state is pulled to the kinematic one (½ √(g L))."""
-        return BLEND_SHARE * math.sqrt(GRAVITY * self.wheelbase)
+        """Below it the state is pulled to the kinematic one (`blend_share` × √(g L), ½ by default)."""
+        return self.blend_share * math.sqrt(GRAVITY * self.wheelbase)
 
     def implicit_substeps(self, dt: float) -> int:
         """Substeps per `dt` of the step with exponential tyre damping (`dynamic_step(implicit=True)`):
@@ -401,7 +406,7 @@ def _wheel_forces(car: DynamicCar, demand, braking, unit: tuple, lateral, turn: 
     under throttle, the brake's by load at throttle 0) and for its axle's lateral force per newton of
     load (`unit`, pure slip) times its load; where the two exceed μ F_z both are scaled back onto the
     circle, their direction kept (Kamm's circle, as the truth's tyres). The loads follow the
-    accelerations those forces give: `WHEEL_PASSES` fixed-point passes from the demand within μ g and
+    accelerations those forces give: `car.wheel_passes` fixed-point passes from the demand within μ g and
     the state's v_x r (`lateral`). `turn` = (cos δ_w, sin δ_w)."""
     xp = _namespace(demand)
     m, L, g, height, half = car.mass, car.wheelbase, GRAVITY, car.cg_height, 0.5 * car.track
@@ -409,7 +414,7 @@ def _wheel_forces(car: DynamicCar, demand, braking, unit: tuple, lateral, turn: 
     grip = car.friction * g
     ax, ay = _clip(demand, -grip, grip), lateral
     drive = (m * demand * 0.5 * (1.0 - car.rear_drive_share), m * demand * 0.5 * car.rear_drive_share)
-    for _ in range(WHEEL_PASSES):
+    for _ in range(car.wheel_passes):
         load_f = _maximum(m * (g * car.lr - ax * height) / L, 0.0)
         load_r = _maximum(m * (g * car.lf + ax * height) / L, 0.0)
         shift = m * ay * height / (4.0 * half)  # to the wheels on the outside of the turn
@@ -546,7 +551,7 @@ def native_car(car: DynamicCar) -> np.ndarray:
         GRAVITY, car.mass, car.lf, car.lr, car.cg_height, car.shape or 0.0, car.curvature,
         car.steering_limit, car.steering_rate, car.rear_drive_share, float(motor),
         car.power_limit_speed or 0.0, car.speed_time_constant, car.blend_speed, float(car.combined_slip),
-        ROOM_FLOOR, float(car.wheel_forces), car.track, float(car.tangent_damping),
+        ROOM_FLOOR, float(car.wheel_passes if car.wheel_forces else 0), car.track, float(car.tangent_damping),
     ])  # fmt: skip
 
 

@@ -134,7 +134,7 @@ SIGNATURES = {
     "al_kinematic_rate_runs": ([_ptr, _ptr, *[ctypes.c_int64] * 3, _ptr, _ptr, ctypes.c_double, _ptr], None),
     "al_dynamic_car_count": ([], ctypes.c_int),
     "al_dynamic_set_count": ([], ctypes.c_int),
-    "al_dynamic_wheel_passes": ([], ctypes.c_int),
+    "al_dynamic_wheel_pass_choice": ([ctypes.c_int], ctypes.c_int),
     "al_dynamic_rate_runs": (
         [_ptr] * 4 + [ctypes.c_int64] * 4 + [_ptr] * 2 + [ctypes.c_double] + [ctypes.c_int64] * 2
         + [_ptr, ctypes.c_int64],
@@ -530,8 +530,7 @@ def dynamic_rate_runs(
         _address(controls), _address(start), float(dt), int(substeps), int(implicit), _address(rates),
         int(threads),
     )  # fmt: skip
-    if status != 0:
-        raise MemoryError("al_dynamic_rate_runs could not start its work")
+    _check_dynamic_status("al_dynamic_rate_runs", status, "could not start its work")
     return rates
 
 
@@ -613,6 +612,14 @@ def dynamic_free_runs(
         float(pose_dt), float(arm), float(correlation_time), *(_address(a) for a in pose_arrays),
         int(threads),
     )  # fmt: skip
-    if status != 0:
-        raise MemoryError("al_dynamic_free_runs could not allocate its scratch memory")
+    _check_dynamic_status("al_dynamic_free_runs", status, "could not allocate its scratch memory")
     return (rates, *moments, *poses)
+
+
+def _check_dynamic_status(name: str, status: int, failure: str) -> None:
+    """A dynamic kernel's status: -2, the car's wheel passes (its C_WHEEL_FORCES) have no variant in
+    the kernel (dynamic_track.WHEEL_PASS_CHOICES); another non-zero, `failure` (memory or threads)."""
+    if status == -2:
+        raise ValueError(f"{name}: the car's wheel passes have no kernel variant (C_WHEEL_FORCES)")
+    if status != 0:
+        raise MemoryError(f"{name} {failure}")

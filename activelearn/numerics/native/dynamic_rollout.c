@@ -43,15 +43,18 @@ enum {
     C_BLEND_SPEED,
     C_COMBINED_SLIP, /* 1: both axles' friction circles share the longitudinal force; 0: the rear drive's */
     C_ROOM_FLOOR,    /* with it, the share of a circle a lateral force keeps at a grip-limited stop */
-    C_WHEEL_FORCES,  /* 1: the forces of four wheels, each in its own circle (overrides C_COMBINED_SLIP) */
+    C_WHEEL_FORCES,  /* n > 0: the forces of four wheels, each in its own circle, n passes of their loads
+                      * (one of WHEEL_PASS_CHOICES; overrides C_COMBINED_SLIP); 0: the axles' */
     C_TRACK,         /* m, with them: the wheels' lateral spacing */
     C_TANGENT_DAMPING, /* 1: the implicit step damps at the tyres' local slope (0 past the peak) */
     C_COUNT
 };
 
-/* The wheels' forces' fixed-point passes of their loads (dynamic_track.py's WHEEL_PASSES). */
-#define WHEEL_PASSES 3
-int al_dynamic_wheel_passes(void) { return WHEEL_PASSES; }
+/* The wheels' forces' fixed-point passes of their loads that the kernel has a variant of
+ * (dynamic_track.py's WHEEL_PASS_CHOICES; C_WHEEL_FORCES holds the car's count, 0 without the wheels). */
+#define WHEEL_PASS_COUNT 2
+static const int WHEEL_PASS_CHOICES[WHEEL_PASS_COUNT] = {3, 5};
+int al_dynamic_wheel_pass_choice(int i) { return i >= 0 && i < WHEEL_PASS_COUNT ? WHEEL_PASS_CHOICES[i] : 0; }
 
 /* Each lane's figures (dynamic_track.py's NATIVE_SET, same order): what the identified scales move. */
 enum {
@@ -158,14 +161,15 @@ static void dynamic_chunk(void *context, void *scratch, int64_t chunk) {
 /* Rates (v_x, r) of n_lanes free runs on up to n_threads threads. Lane b is parameter set b's figures
  * (sets, n_lanes x S_COUNT) on run b % n_runs of controls (n_runs, n_steps, 2), from start (n_lanes, 4)
  * = (v_x, v_y, r, delta_w); `car` holds C_COUNT shared figures, grid and speed the speed table's
- * n_table points. Writes rates (n_lanes, n_steps, 2), the first step the start's. Returns 0, or -1 if a
- * thread failed. */
+ * n_table points. Writes rates (n_lanes, n_steps, 2), the first step the start's. Returns 0, -1 if a
+ * thread failed, or -2 if the car's wheel passes have no variant. */
 int al_dynamic_rate_runs(const double *car, const double *sets, const double *grid, const double *speed,
                          int64_t n_table, int64_t n_lanes, int64_t n_runs, int64_t n_steps, const double *controls,
                          const double *start, double dt, int64_t substeps, int64_t implicit, double *rates,
                          int64_t n_threads) {
     if (n_lanes <= 0 || n_steps <= 0) return 0;
     if (n_runs <= 0 || substeps < 1 || n_table < 2) return -1;
+    if (!substeps_for_d(car, implicit)) return -2; /* no variant of the car's wheel passes */
     dynamic_context context = {car,      sets,     grid, speed, n_table, n_lanes, n_runs, n_steps, substeps,
                                implicit, controls, start, dt,    rates};
     const int64_t per_chunk = LANES_D * BLOCKS_PER_CHUNK;
@@ -491,7 +495,7 @@ static void free_run_maneuver(void *context, void *scratch, int64_t m) {
  * NULL, also each draw's pose x, y, yaw (S, M, T) integrated at pose_dt from the headings yaw0 (M,), the
  * point `arm` ahead of the rear axle, its rates carrying the model discrepancy where `discrepancy`
  * (S, 2: each draw's sizes of v and r) is not NULL, an OU process of `correlation_time` s
- * (`maneuver_pose`). Returns 0, or -1 when out of memory. */
+ * (`maneuver_pose`). Returns 0, -1 when out of memory, or -2 if the car's wheel passes have no variant. */
 int al_dynamic_free_runs(const double *car, const double *sets, const double *grid, const double *speed,
                          int64_t n_table, const double *limits, int64_t n_samples, int64_t n_maneuvers,
                          int64_t n_steps, int64_t n_rows, double dt, int64_t substeps, int64_t rate_lag,
@@ -502,6 +506,7 @@ int al_dynamic_free_runs(const double *car, const double *sets, const double *gr
                          float *x, float *y, float *yaw, int64_t n_threads) {
     if (n_maneuvers <= 0 || n_steps <= 0) return 0;
     if (n_samples <= 0 || rate_lag < 1 || substeps < 1 || n_table < 2) return -1;
+    if (!substeps_for_f(car, 1)) return -2; /* no variant of the car's wheel passes */
     free_run_context context = {
         {car, sets, grid, speed, n_table, n_samples, n_maneuvers, n_steps, substeps, 1, NULL, NULL, dt, NULL},
         limits, n_samples, n_rows, rate_lag, widen, spread, controls, index, z, noise_std, start, start_hidden,

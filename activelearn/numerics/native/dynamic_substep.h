@@ -145,13 +145,13 @@ static inline __attribute__((always_inline)) void NAME(circle)(REAL f_long, REAL
 
 /* One substep of lane l under the forces of four wheels (dynamic_track._wheel_substep and
  * _wheel_forces): each wheel's load with the longitudinal and the lateral transfer (a rigid body on four
- * equal contacts), its own friction circle, the yaw moment of unequal wheel forces; WHEEL_PASSES
- * passes of the loads on the accelerations the forces give; the kinematic blend by the speed over
- * ground. The same constants as `lane_step`. */
+ * equal contacts), its own friction circle, the yaw moment of unequal wheel forces; `passes` fixed-point
+ * passes of the loads on the accelerations the forces give (a constant at each call: the pass loop
+ * unrolls); the kinematic blend by the speed over ground. The same constants as `lane_step`. */
 static inline __attribute__((always_inline)) void NAME(wheel_step)(NAME(block) *b, const int l,
                                                                    const NAME(figures) *f, const int motor,
                                                                    const int linear, const int implicit,
-                                                                   const int curved) {
+                                                                   const int curved, const int passes) {
     const REAL g = f->g, m = f->m, lf = f->lf, lr = f->lr, L = f->L, h = f->h;
     const REAL delta = b->delta[l] + NAME(clip)(b->target[l] - b->delta[l], -f->turn, f->turn);
     const REAL vx0 = b->vx[l], r0 = b->r[l], tau = b->tau[l], mu = b->mu[l];
@@ -175,7 +175,7 @@ static inline __attribute__((always_inline)) void NAME(wheel_step)(NAME(block) *
     REAL ax = NAME(clip)(demand, -grip, grip), ay = vx0 * r0, load_f = K(0), load_r = K(0);
     REAL x_fl = K(0), x_fr = K(0), x_rl = K(0), x_rr = K(0), y_fl = K(0), y_fr = K(0), y_rl = K(0), y_rr = K(0);
 #pragma GCC unroll 8 /* whole: the lane loop vectorises only around straight code */
-    for (int pass = 0; pass < WHEEL_PASSES; ++pass) {
+    for (int pass = 0; pass < passes; ++pass) {
         load_f = fmax(m * (g * lr - ax * f->hcg) / L, K(0));
         load_r = fmax(m * (g * lf + ax * f->hcg) / L, K(0));
         const REAL shift = m * ay * f->hcg / (K(4) * f->half_track); /* to the outside of the turn */
@@ -200,7 +200,8 @@ static inline __attribute__((always_inline)) void NAME(wheel_step)(NAME(block) *
 
 /* One substep of lane l of a block. `motor`, `linear`, `implicit`, `curved` (the magic formula's
  * curvature E is not 0: two more atan a substep) and `law` (the slip law: 0 the rear drive's share of
- * its axle's circle, 1 combined slip, 2 the wheels' forces, `wheel_step`) are constants at each call
+ * its axle's circle, 1 combined slip, 2 and up the wheels' forces, `wheel_step`, with
+ * WHEEL_PASS_CHOICES[law - 2] passes of their loads) are constants at each call
  * (always inlined), so each variant's lane loop (`substep`, `substep_pair`) has no branch and vectorises
  * with libmvec. */
 static inline __attribute__((always_inline)) void NAME(lane_step)(NAME(block) *b, const int l,
@@ -209,8 +210,8 @@ static inline __attribute__((always_inline)) void NAME(lane_step)(NAME(block) *b
                                                                   const int curved, const int law) {
     const REAL g = f->g, m = f->m, lf = f->lf, lr = f->lr, L = f->L, h = f->h;
     const int combined = law == 1;
-    if (law == 2) {
-        NAME(wheel_step)(b, l, f, motor, linear, implicit, curved);
+    if (law >= 2) {
+        NAME(wheel_step)(b, l, f, motor, linear, implicit, curved, WHEEL_PASS_CHOICES[law - 2]);
         return;
     }
     {
@@ -300,6 +301,8 @@ NAME_SUBSTEPS_OF(0, 1)
 NAME_SUBSTEPS_OF(1, 1)
 NAME_SUBSTEPS_OF(0, 2)
 NAME_SUBSTEPS_OF(1, 2)
+NAME_SUBSTEPS_OF(0, 3)
+NAME_SUBSTEPS_OF(1, 3)
 #undef NAME_SUBSTEPS_OF
 #undef NAME_SUBSTEPS
 
@@ -314,11 +317,19 @@ typedef void (*NAME(substep_run))(NAME(block) *, NAME(block) *, const NAME(figur
 #define NAME_BY_MOTOR(LAW) {NAME_BY_STEP(0, LAW), NAME_BY_STEP(1, LAW)}
 
 /* The variant for the car's drive, tyre and slip law and the step's kind: explicit, implicit, or implicit
- * damping at the tyres' local slope (`implicit` and the car's C_TANGENT_DAMPING). */
+ * damping at the tyres' local slope (`implicit` and the car's C_TANGENT_DAMPING); NULL where the car's
+ * C_WHEEL_FORCES asks for passes the kernel has no variant of. */
 static NAME(substep_run) NAME(substeps_for)(const double *k, int64_t implicit) {
-    static const NAME(substep_run) variants[3][2][2][3][2] = {NAME_BY_MOTOR(0), NAME_BY_MOTOR(1), NAME_BY_MOTOR(2)};
+    static const NAME(substep_run) variants[2 + WHEEL_PASS_COUNT][2][2][3][2] = {
+        NAME_BY_MOTOR(0), NAME_BY_MOTOR(1), NAME_BY_MOTOR(2), NAME_BY_MOTOR(3)};
     const int linear = k[C_SHAPE] == 0.0, curved = k[C_CURVATURE] != 0.0;
-    const int law = k[C_WHEEL_FORCES] != 0.0 ? 2 : k[C_COMBINED_SLIP] != 0.0;
+    int law = k[C_COMBINED_SLIP] != 0.0;
+    if (k[C_WHEEL_FORCES] != 0.0) {
+        law = -1;
+        for (int i = 0; i < WHEEL_PASS_COUNT; ++i)
+            if (k[C_WHEEL_FORCES] == (double)WHEEL_PASS_CHOICES[i]) law = 2 + i;
+        if (law < 0) return NULL;
+    }
     const int step = implicit == 0 ? 0 : (k[C_TANGENT_DAMPING] != 0.0 ? 2 : 1);
     return variants[law][k[C_MOTOR] != 0.0][linear][step][curved];
 }
