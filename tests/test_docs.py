@@ -196,3 +196,44 @@ def test_every_nested_list_is_indented_four_spaces(page: Path) -> None:
         elif not fenced and re.match(r"(  |      )([-*]|\d+\.) ", line):
             flat.append(f"{number}: {line.strip()[:60]}")
     assert not flat, "list items indented 2 (or 6) spaces, which render flat:\n" + "\n".join(flat)
+
+
+def _render(text: str) -> str:
+    """The page's HTML as mkdocs renders it (Python-Markdown with mkdocs.yml's extensions), code removed."""
+    markdown = pytest.importorskip("markdown")
+    yaml = pytest.importorskip("yaml")
+    extensions, configs = [], {}
+    for entry in yaml.safe_load((ROOT / "mkdocs.yml").read_text())["markdown_extensions"]:
+        name, options = next(iter(entry.items())) if isinstance(entry, dict) else (entry, {})
+        extensions.append(name)
+        configs[name] = options or {}
+    html = markdown.markdown(text, extensions=extensions, extension_configs=configs)
+    return re.sub(r"<pre>.*?</pre>|<code>.*?</code>", "", html, flags=re.S)
+
+
+def _raw_markup(html: str) -> list[str]:
+    """Lines of rendered paragraphs that start as a list item or are a table row: markup shown as text."""
+    raw = []
+    for paragraph in re.findall(r"<p>(.*?)</p>", html, flags=re.S):
+        for line in paragraph.splitlines():
+            line = line.strip()
+            if re.match(r"([-*+]|\d+\.) ", line) or re.fullmatch(r"\|.*\|", line):
+                raw.append(line[:70])
+    return raw
+
+
+def test_raw_markup_detection_finds_what_python_markdown_shows_as_text() -> None:
+    broken = "- item\n\n  | a | b |\n  |---|---|\n  | 1 | 2 |\n\n  after the table.\n- next item\n"
+    mended = "- item\n\n    | a | b |\n    |---|---|\n    | 1 | 2 |\n\n    after the table.\n\n- next item\n"
+    assert _raw_markup(_render(broken)) == ["- next item"]
+    assert _raw_markup(_render(mended)) == []
+    assert _raw_markup(_render("The guards:\n- one\n- two\n")) == ["- one", "- two"]
+
+
+@pytest.mark.parametrize("page", _pages(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_list_item_or_table_row_renders_as_text(page: Path) -> None:
+    """Python-Markdown ends a list at a block indented less than 4 spaces under its item, and reads an item
+    right after a paragraph (no blank line between) as that paragraph's text: the bullets then show as
+    raw '- ' (48 did on the results pages, session 43). A table row shown as text fails too."""
+    raw = _raw_markup(_render(page.read_text()))
+    assert not raw, "list items or table rows shown as text:\n" + "\n".join(raw)
