@@ -7,12 +7,15 @@ and every project path the pages name exists.
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import os
 import re
 from pathlib import Path
 
+import markdown
 import pytest
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
@@ -198,15 +201,20 @@ def test_every_nested_list_is_indented_four_spaces(page: Path) -> None:
     assert not flat, "list items indented 2 (or 6) spaces, which render flat:\n" + "\n".join(flat)
 
 
-def _render(text: str) -> str:
-    """The page's HTML as mkdocs renders it (Python-Markdown with mkdocs.yml's extensions), code removed."""
-    markdown = pytest.importorskip("markdown")
-    yaml = pytest.importorskip("yaml")
+@functools.cache
+def _markdown_extensions() -> tuple[list[str], dict[str, dict]]:
+    """mkdocs.yml's markdown extensions and their options, read once for every page."""
     extensions, configs = [], {}
     for entry in yaml.safe_load((ROOT / "mkdocs.yml").read_text())["markdown_extensions"]:
         name, options = next(iter(entry.items())) if isinstance(entry, dict) else (entry, {})
         extensions.append(name)
         configs[name] = options or {}
+    return extensions, configs
+
+
+def _render(text: str) -> str:
+    """The page's HTML as mkdocs renders it (Python-Markdown with mkdocs.yml's extensions), code removed."""
+    extensions, configs = _markdown_extensions()
     html = markdown.markdown(text, extensions=extensions, extension_configs=configs)
     return re.sub(r"<pre>.*?</pre>|<code>.*?</code>", "", html, flags=re.S)
 
@@ -234,6 +242,6 @@ def test_raw_markup_detection_finds_what_python_markdown_shows_as_text() -> None
 def test_no_list_item_or_table_row_renders_as_text(page: Path) -> None:
     """Python-Markdown ends a list at a block indented less than 4 spaces under its item, and reads an item
     right after a paragraph (no blank line between) as that paragraph's text: the bullets then show as
-    raw '- ' (48 did on the results pages, session 43). A table row shown as text fails too."""
+    raw '- ' (58 lines on five pages did, session 44). A table row shown as text fails too."""
     raw = _raw_markup(_render(page.read_text()))
     assert not raw, "list items or table rows shown as text:\n" + "\n".join(raw)
