@@ -136,6 +136,23 @@ def test_maximin_spreads_more_than_random(cfg):
     assert min_gap(maximin) > np.max(random_gaps) * 0.99
 
 
+def test_an_empty_maximin_design_starts_at_the_centre_or_where_the_seed_draws(cfg):
+    """`centre` gives every seed one design up to the mirror; `random` a design of its own per seed, the
+    same again for the same seed, and still spread by maximin after its first pick."""
+    pool = _pool(cfg)
+    centre = pool.features.mean(axis=0)
+    nearest = np.linalg.norm(pool.features - centre, axis=1)
+    firsts = {greedy_maximin(pool, 4, np.random.default_rng(s))[0] for s in range(10)}
+    assert all(nearest[i] <= nearest.min() + 1e-9 for i in firsts)
+    random_starts = [greedy_maximin(pool, 4, np.random.default_rng(s), start="random") for s in range(10)]
+    assert len({tuple(d) for d in random_starts}) >= 5
+    assert any(nearest[d[0]] > nearest.min() + 1e-6 for d in random_starts)
+    assert greedy_maximin(pool, 4, np.random.default_rng(3), start="random") == random_starts[3]
+    first, second = random_starts[0][:2]
+    gaps = pool.distances(np.arange(len(pool.maneuvers)), np.array([first]))[:, 0]
+    assert gaps[second] >= np.delete(gaps, first).max() - 1e-9
+
+
 def test_quasi_random_designs_continue_across_rounds(cfg, model):
     first = make_strategy("sobol").select(model, _pool(cfg), 3, np.random.default_rng(0))
     second = make_strategy("sobol").select(model, _pool(cfg, taken=first), 3, np.random.default_rng(1))

@@ -82,6 +82,25 @@ def proposed(tmp_path, capsys):
     return tmp_path, directory
 
 
+def test_the_initial_design_is_one_for_every_seed_unless_it_starts_where_the_seed_draws(tmp_path, capsys):
+    """`[design] initial_start`: "centre" (the default) starts every seed's initial design at the candidate
+    nearest the pool's centre (only ties after it differ: on a Sobol pool one design up to the mirror);
+    "random" starts each where its seed draws."""
+    designs = {}
+    for start in ("centre", "random"):
+        config = tmp_path / f"{start}.toml"
+        config.write_text(CONFIG.replace("[design]\n", f'[design]\ninitial_start = "{start}"\n')
+                          + "[tracking]\nenabled = false\n")  # fmt: skip
+        for seed in range(6):
+            directory = tmp_path / f"{start}{seed}"
+            assert main(["campaign", "propose", str(config), "--out", str(directory), "--seed", str(seed)]) == 0
+            rows = pd.read_csv(directory / "proposals" / "round-000.csv").drop(columns="direction")
+            designs.setdefault(start, set()).add(tuple(map(tuple, rows.sort_values(list(rows.columns)).values)))
+    capsys.readouterr()
+    assert set.intersection(*map(set, designs["centre"])) == {("straight", 0.6, 0.0, 12.0)}
+    assert not set.intersection(*map(set, designs["random"])) and len(designs["random"]) >= 4
+
+
 @pytest.mark.slow
 def test_propose_drive_ingest_propose_round_trip(proposed, capsys):
     tmp_path, directory = proposed

@@ -193,6 +193,7 @@ def test_ctrl_c_marks_the_run_killed_and_leaves_a_resumable_directory(tmp_path):
         ({"pool": {"throttles": [0.5, 1.5]}}, "pool.throttles.1"),
         ({"design": {"initial": 0}}, "design.initial"),
         ({"design": {"per_round": "two"}}, "design.per_round"),
+        ({"design": {"initial_start": "edge"}}, "design.initial_start"),
         ({"training": {"lr": -1.0}}, "training.lr"),
         ({"model": {"kind": "gp"}}, "model.kind"),
         ({"acquisition": {"batchsize": 3}}, "acquisition.batchsize"),

@@ -362,6 +362,14 @@ class DesignConfig(_Section):
         description="Maneuvers of the strategy-independent initial design (greedy maximin); 0 only with a "
         "prior, whose model then chooses from the first round on",
     )
+    # "centre" gives every seed the same initial design, up to the mirror (greedy maximin is deterministic
+    # but for ties, and the pool is one Sobol draw), so a comparison's spread holds no design luck
+    initial_start: Literal["centre", "random"] = Field(
+        "centre",
+        description="Where the initial greedy-maximin design of an empty design starts: `centre`, the "
+        "candidate nearest the pool's centre (one design for every seed, up to the mirror); `random`, a "
+        "candidate drawn by the seed (a design of its own per seed)",
+    )
     per_round: Count = Field(2, description="Maneuvers each round collects after the initial design")
     max_maneuvers: Count | None = Field(
         24,

@@ -450,7 +450,8 @@ class Campaign:
                 state.finished, state.stop_reason = True, "nothing_admissible"
                 self._checkpoint(state, None, None)
                 return
-            initial = greedy_maximin(pool, k, derived_rng(self.cfg.seed, Stream.INITIAL))
+            initial = greedy_maximin(pool, k, derived_rng(self.cfg.seed, Stream.INITIAL),
+                                     start=self.cfg.design.initial_start)
             self._set_pending(state, initial, admitted)
             self._checkpoint(state, None, None)
             return

@@ -7,7 +7,7 @@ every campaign's initial design (`greedy_maximin`).
 from __future__ import annotations
 
 import warnings
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from scipy.stats import qmc
@@ -33,10 +33,14 @@ class RandomStrategy(Strategy):
         return [int(i) for i in rng.choice(check_k(pool, k), size=k, replace=False)]
 
 
-def greedy_maximin(pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
+def greedy_maximin(
+    pool: Pool, k: int, rng: np.random.Generator, start: Literal["centre", "random"] = "centre"
+) -> list[int]:
     """Greedy maximin: repeatedly add the candidate farthest from everything taken, known or chosen.
 
-    Prior maneuvers (a warm start) count as taken, so the design fills the unknown part first.
+    Prior maneuvers (a warm start) count as taken, so the design fills the unknown part first. An empty
+    design starts at the candidate nearest the pool's centre (`start` "centre") or at one drawn by `rng`
+    ("random": each seed its own design).
     """
     available = list(check_k(pool, k))
     everyone = np.arange(len(pool.maneuvers))
@@ -45,6 +49,8 @@ def greedy_maximin(pool: Pool, k: int, rng: np.random.Generator) -> list[int]:
     for _ in range(k):
         if np.isfinite(design_gap).any():
             gaps = design_gap[available]
+        elif start == "random":  # empty design: every candidate ties, the draw below picks
+            gaps = np.zeros(len(available))
         else:  # empty design: start from the candidate nearest the centre of the pool
             centre = pool.features.mean(axis=0)
             gaps = -np.linalg.norm(pool.features[available] - centre, axis=1)
