@@ -93,9 +93,11 @@ def test_the_initial_design_is_one_for_every_seed_unless_it_starts_where_the_see
                           + "[tracking]\nenabled = false\n")  # fmt: skip
         for seed in range(6):
             directory = tmp_path / f"{start}{seed}"
-            assert main(["campaign", "propose", str(config), "--out", str(directory), "--seed", str(seed)]) == 0
+            args = ["campaign", "propose", str(config), "--out", str(directory), "--seed", str(seed)]
+            assert main(args) == 0
             rows = pd.read_csv(directory / "proposals" / "round-000.csv").drop(columns="direction")
-            designs.setdefault(start, set()).add(tuple(map(tuple, rows.sort_values(list(rows.columns)).values)))
+            rows = rows.sort_values(list(rows.columns))
+            designs.setdefault(start, set()).add(tuple(map(tuple, rows.values)))
     capsys.readouterr()
     assert set.intersection(*map(set, designs["centre"])) == {("straight", 0.6, 0.0, 12.0)}
     assert not set.intersection(*map(set, designs["random"])) and len(designs["random"]) >= 4
