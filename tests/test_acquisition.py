@@ -137,8 +137,9 @@ def test_maximin_spreads_more_than_random(cfg):
 
 
 def test_an_empty_maximin_design_starts_at_the_centre_or_where_the_seed_draws(cfg):
-    """`centre` gives every seed one design up to the mirror; `random` a design of its own per seed, the
-    same again for the same seed, and still spread by maximin after its first pick."""
+    """`centre` starts every seed at the candidate nearest the pool's centre (only later ties differ);
+    `random` starts each seed where it draws, the same again for the same seed, and still spreads by
+    maximin after its first pick."""
     pool = _pool(cfg)
     centre = pool.features.mean(axis=0)
     nearest = np.linalg.norm(pool.features - centre, axis=1)
