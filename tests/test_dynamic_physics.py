@@ -16,7 +16,13 @@ from activelearn.errors import InputError
 from activelearn.numerics.lags import model_lags
 from activelearn.numerics.models import build_model, load_model, physics, save_model
 from activelearn.numerics.models.dynamic_physics import DynamicPhysicsModel, identify_scales
-from activelearn.numerics.models.dynamic_track import DynamicCar, dynamic_bounds, dynamic_step
+from activelearn.numerics.models.dynamic_track import (
+    DynamicCar,
+    dynamic_bounds,
+    dynamic_step,
+    rate_runs,
+    scaled,
+)
 from activelearn.numerics.models.single_track import Identified, widened
 from activelearn.numerics.multistep import window_loss, windows_from_logs
 from activelearn.numerics.surrogate import simulate
@@ -183,6 +189,62 @@ def test_it_identifies_a_twins_grip_and_motor_and_saves_them(tmp_path):
     save_model(model, tmp_path / "model.pt")
     loaded = load_model(tmp_path / "model.pt")
     assert isinstance(loaded, DynamicPhysicsModel) and loaded.physical_parameters() == found
+
+
+def _two_basins(sets: np.ndarray) -> np.ndarray:
+    """(P, 2, 2) errors whose squares are 0 at x = 1 (the prior's centre) and about 0.02 near x = 2.5,
+    a hump of 0.37 between: the second basin holds a search started in it."""
+    x = sets[:, 0]
+    rows = np.stack([(x - 1.0) * (x - 2.5), 0.3 * (x - 1.0)], axis=-1)  # (P, 2)
+    return np.stack([rows, rows], axis=-1)
+
+
+def test_a_search_also_from_the_priors_centre_leaves_a_basin_the_last_rounds_start_is_in():
+    """`_map_fit`'s `also_from_prior` (`[model] identification_starts = "last_and_prior"`): a search from
+    a start in the shallower basin stays there; searched from the prior's centre too, the lower objective
+    wins. Without a start of its own the search is the prior centre's either way."""
+    from types import SimpleNamespace
+
+    from activelearn.numerics.models.single_track import _map_fit
+
+    prior = Identified(np.array([1.0]), np.array([[100.0]]))  # centre 1, wide: the data decide
+    car = SimpleNamespace(low=np.array([0.0]), high=np.array([4.0]), width=np.array([1.0]), prior=prior)
+    spread, clusters = np.ones(2), np.arange(2)
+    stuck = _map_fit(_two_basins, spread, clusters, search_from=np.array([2.4]), car=car)
+    assert stuck.values[0] == pytest.approx(2.5, abs=0.1)
+    found = _map_fit(_two_basins, spread, clusters, search_from=np.array([2.4]), car=car,
+                     also_from_prior=True)
+    assert found.values[0] == pytest.approx(1.0, abs=1e-3)
+    alone = _map_fit(_two_basins, spread, clusters, car=car, also_from_prior=True)
+    np.testing.assert_array_equal(alone.values, _map_fit(_two_basins, spread, clusters, car=car).values)
+
+
+def test_a_warm_identification_from_an_astray_round_finds_the_twin_when_it_also_searches_from_the_file():
+    """`identification_starts = "last_and_prior"`: three 12-s logs of the full-size core with the twin's
+    grip (0.8) and motor (0.9), steered in sines at 0.4-0.6 throttle, identified warm from where an
+    astray twin campaign's last round ended (stiffness 2.3-2.5, yaw inertia 2.7): from there alone the
+    search stays (yaw inertia at its bound 3); searching from the file too, it finds the twin. The
+    dynamic core's option only."""
+    with pytest.raises(ValidationError, match="identification_starts"):
+        ModelConfig(kind="physics", identification_starts="last_and_prior")
+    knobs = {"wheel_forces": True, "wheel_passes": 5, "blend_share": 0.25, "tyre_damping": "tangent",
+             "identification_loss": "cauchy"}  # fmt: skip
+    car = _untrained("bmw320i", **knobs).dynamic_car
+    t = np.arange(round(12.0 / DT)) * DT
+    controls = np.zeros((3, len(t), 2))
+    controls[:, :, 0] = [[0.5], [0.6], [0.4]]
+    controls[:, :, 1] = np.array([[0.05], [0.12], [0.08]]) * np.sin(np.array([[0.8], [1.2], [2.0]]) * t)
+    twin = scaled(car, np.array([[0.8, 1.0, 1.0, 0.9, 1.0]]))
+    rates = rate_runs(twin, controls, np.zeros((3, 4)), DT, True)[0]
+    logs = [(controls[i], rates[i]) for i in range(3)]
+    found = {}
+    for starts in ("last", "last_and_prior"):
+        model = _untrained("bmw320i", identification_starts=starts, **knobs)
+        model.theta.copy_(torch.tensor([0.78, 2.34, 2.45, 0.89, 2.7]))
+        model.identify(TrainingData(x=np.zeros((0, 16)), y=np.zeros((0, 2)), logs=logs), warm=True)
+        found[starts] = model.theta.double().numpy()
+    assert found["last"][4] > 2.5 and found["last"][1] > 2.0  # stayed in the astray basin
+    np.testing.assert_allclose(found["last_and_prior"], [0.8, 1.0, 1.0, 0.9, 1.0], atol=0.03)
 
 
 def _identify(model: DynamicPhysicsModel, logs, of_another_car=None) -> None:

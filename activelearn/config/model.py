@@ -190,6 +190,15 @@ class ModelConfig(_Section):
         "'cauchy', each error weighing 1 / (1 + (e / (0.3 × the rate's rms error))²), so that the few "
         "rows no parameter set fits (a spin a little off the truth's) do not pull the rest",
     )
+    # Warm training searches from the last round's scales; on the full-size car's twin that search stayed
+    # where earlier logs had put it (yaw inertia 2.7-3.0) while the prior's centre led to a lower objective
+    # and a third of the 30-s error (docs/results/vehicles.md, session 46).
+    identification_starts: Literal["last", "last_and_prior"] = Field(
+        "last",
+        description="core = 'dynamic' with warm training ([training] reinit = false): where the "
+        "identification searches: from the last round's scales ('last'), or from them and from the prior's "
+        "centre, keeping the lower MAP objective ('last_and_prior': the search costs twice as much)",
+    )
     residual_bound: Annotated[float, Field(ge=0.0, le=0.5)] = Field(
         0.05,
         description="kind = 'physics': largest learnt change of a steady rate, as a share of its limit "
@@ -250,6 +259,7 @@ class ModelConfig(_Section):
             )
         dynamic_only = {"combined_slip": self.combined_slip, "wheel_forces": self.wheel_forces,
                         "identification_loss": self.identification_loss != "squares",
+                        "identification_starts": self.identification_starts != "last",
                         "tyre_damping": self.tyre_damping != "linear",
                         "blend_share": self.blend_share != 0.5}  # fmt: skip
         for name, set_here in dynamic_only.items():

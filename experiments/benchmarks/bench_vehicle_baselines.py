@@ -162,17 +162,24 @@ def trained_by_band(
         model = load_model(path)
         if correction_weight is not None:
             model.set_correction_weight(correction_weight)
-        rollout = model_free_runs(model, list(test.logs), rate_hz=cfg.simulation.rate_hz,
-                                  n_samples=cfg.test.rollout_samples or FAN_SAMPLES)  # fmt: skip
-        mean_x, mean_y = rollout.mean_path()
-        for i, truth in enumerate(test.truth_logs):
-            n = int(rollout.lengths[i])
-            k = min(round(30.0 / rollout.dt), n - 1)
-            tx, ty, _ = relative_pose({c: truth[c].to_numpy(np.float64) for c in ("posX", "posY", "yaw")}, n)
-            error = float(np.hypot(mean_x[i, k] - tx[k], mean_y[i, k] - ty[k]))
-            rows.append({"variant": variant, "seed": seed, "maneuver": i, "band": bands[i],
-                         "error": np.nan_to_num(error, nan=np.inf)})  # fmt: skip
+        for i, error in enumerate(mean_path_errors(model, cfg, test)):
+            rows.append({"variant": variant, "seed": seed, "maneuver": i, "band": bands[i], "error": error})
     return pd.DataFrame(rows)
+
+
+def mean_path_errors(model: Any, cfg: CampaignConfig, test: Any) -> np.ndarray:
+    """A trained model's 30-s error on each test maneuver (inf where a run blows up): the mean path of the
+    config's `[test] rollout_samples` draws against the truth's, as the campaign measures it."""
+    rollout = model_free_runs(model, list(test.logs), rate_hz=cfg.simulation.rate_hz,
+                              n_samples=cfg.test.rollout_samples or FAN_SAMPLES)  # fmt: skip
+    mean_x, mean_y = rollout.mean_path()
+    errors = []
+    for i, truth in enumerate(test.truth_logs):
+        n = int(rollout.lengths[i])
+        k = min(round(30.0 / rollout.dt), n - 1)
+        tx, ty, _ = relative_pose({c: truth[c].to_numpy(np.float64) for c in ("posX", "posY", "yaw")}, n)
+        errors.append(float(np.hypot(mean_x[i, k] - tx[k], mean_y[i, k] - ty[k])))
+    return np.nan_to_num(np.array(errors), nan=np.inf)
 
 
 def test_errors(test: Any, cfg: CampaignConfig, models: dict[str, Any]) -> dict[str, np.ndarray]:

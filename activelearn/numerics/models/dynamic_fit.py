@@ -60,7 +60,7 @@ def _restart_errors(
 def identify_dynamic(
     logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, every: int = 3,
     horizon: float | None = None, search_from: np.ndarray | None = None, implicit: bool = False,
-    prior: Identified | None = None, loss: str = "squares",
+    prior: Identified | None = None, loss: str = "squares", also_from_prior: bool = False,
 ) -> Identified:
     """Output-error MAP of the five `DYNAMIC_PARAMETERS` (scales of the file's figures, the file as the
     prior) from logs, (controls (T, 2), rates (T, 2) = speed, yaw rate), as the kinematic core's
@@ -71,14 +71,15 @@ def identify_dynamic(
     parameters; a few seconds are not). `search_from`: where the search begins (default the file);
     `implicit`: free runs by the step with implicit tyre damping (the physics kind's); `prior`: the
     Gaussian prior instead of the file's (another car's estimate, `single_track.widened`); `loss`:
-    `single_track._map_fit`'s ("cauchy": rows no parameter set fits weigh less)."""
+    `single_track._map_fit`'s ("cauchy": rows no parameter set fits weigh less); `also_from_prior`: with
+    `search_from`, the search also starts from the prior's centre, the lower objective kept (`_map_fit`)."""
     logs = usable_logs(logs)
     bounds = dynamic_bounds()
     prior = prior or bounds.prior
     if not logs:
         return Identified(prior.values.copy(), prior.covariance.copy())
     errors_of, clusters, spread = _restart_errors(logs, car, dt, every, horizon, implicit)
-    return _map_fit(errors_of, spread, clusters, prior, search_from, bounds, loss)
+    return _map_fit(errors_of, spread, clusters, prior, search_from, bounds, loss, also_from_prior)
 
 
 def _squared_misfit(

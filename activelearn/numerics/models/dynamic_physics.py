@@ -91,11 +91,14 @@ def identify_scales(
     search_from: np.ndarray | None = None,
     prior: Identified | None = None,
     loss: str = "squares",
+    also_from_prior: bool = False,
 ) -> Identified:
     """The five scales from logs as the model identifies them (`identify_dynamic`: free runs of the step it
     takes, restarted every `IDENTIFY_HORIZON` s, compared every `IDENTIFY_EVERY` log steps), under `prior`
-    (default the file's), by `loss` (`[model] identification_loss`)."""
-    return identify_dynamic(logs, car, dt, search_from=search_from, prior=prior, loss=loss, **IDENTIFICATION)
+    (default the file's), by `loss` (`[model] identification_loss`); `also_from_prior`: a search from
+    `search_from` also searches from the prior's centre (`[model] identification_starts`)."""
+    return identify_dynamic(logs, car, dt, search_from=search_from, prior=prior, loss=loss,
+                            also_from_prior=also_from_prior, **IDENTIFICATION)  # fmt: skip
 
 
 def scales_of_another_car(
@@ -258,7 +261,8 @@ class DynamicPhysicsModel(PhysicsModel):
                 self.set_identified(prior)
             return
         search_from = self.theta.double().numpy() if warm else None
-        found = identify_scales(own, self.dynamic_car, dt, search_from, prior, loss)
+        also_from_prior = self.config.identification_starts == "last_and_prior"
+        found = identify_scales(own, self.dynamic_car, dt, search_from, prior, loss, also_from_prior)
         self.set_identified(found)
         if self.discrepancy is not None:
             cross = self.config.discrepancy == "cross_validated"

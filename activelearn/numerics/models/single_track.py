@@ -488,6 +488,7 @@ def _map_fit(
     search_from: np.ndarray | None = None,
     car: CarPrior | None = None,
     loss: str = "squares",
+    also_from_prior: bool = False,
 ) -> Identified:
     """MAP parameters under a Gaussian prior (default the car's; independent parameters, its
     covariance's diagonal): Gaussian errors of unknown size per rate, found in two passes (the first,
@@ -497,12 +498,18 @@ def _map_fit(
     from `search_from` (default the prior's centre), the second from the first's solution.
     `loss = "cauchy"`: each error row weighs 1 / (1 + (e / (`CAUCHY_SCALE` × the rate's rms error))²)
     (scipy's Cauchy loss), so the few rows no parameter set fits (a spin a second off the truth's) do not
-    pull the rest; the covariance is then the sandwich of that weighted fit at its weights."""
+    pull the rest; the covariance is then the sandwich of that weighted fit at its weights.
+    `also_from_prior`: where `search_from` is given, each pass also searches from the prior's centre (the
+    second from both first solutions) and keeps the lower objective: a search from the last round's
+    solution can stay in a basin its new logs have left (docs/results/vehicles.md, session 46)."""
     car = car or NIGEL
     low, high, scale = car.low, car.high, car.width
     prior = prior or car.prior
     centre, width = prior.values, np.maximum(prior.stderr, 1e-9)
     x0 = np.clip(centre if search_from is None else search_from, low + 1e-9, high - 1e-9)
+    starts = [x0]
+    if also_from_prior and search_from is not None:
+        starts.append(np.clip(centre, low + 1e-9, high - 1e-9))
     noise = np.maximum(spread, 1e-3)
     for prior_weight in (1.0 / PRIOR_ROWS, 1.0):
 
@@ -522,9 +529,10 @@ def _map_fit(
             return ((res[1:] - res[0]) / step[:, None]).T
 
         robust = {} if loss == "squares" else {"loss": loss, "f_scale": CAUCHY_SCALE}
-        sol = least_squares(fun, x0, jac=jac, bounds=(low, high), x_scale=scale, method="trf", max_nfev=100,
-                            **robust)  # fmt: skip
-        x0 = sol.x
+        found = [least_squares(fun, x, jac=jac, bounds=(low, high), x_scale=scale, method="trf",
+                               max_nfev=100, **robust) for x in starts]  # fmt: skip
+        sol = min(found, key=lambda candidate: candidate.cost)  # the first of equals: the last round's
+        starts = [candidate.x for candidate in found]
         err = errors_of(sol.x[None])[0]
         noise = np.maximum(np.sqrt(np.mean(err**2, axis=0)), 1e-6 * np.maximum(spread, 1e-3))
     if loss == "squares":
