@@ -190,9 +190,10 @@ class ModelConfig(_Section):
         "'cauchy', each error weighing 1 / (1 + (e / (0.3 × the rate's rms error))²), so that the few "
         "rows no parameter set fits (a spin a little off the truth's) do not pull the rest",
     )
-    # Warm training searches from the last round's scales; on the full-size car's twin that search stayed
-    # where earlier logs had put it (yaw inertia 2.7-3.0) while the prior's centre led to a lower objective
-    # and a third of the 30-s error (docs/results/vehicles.md, session 46).
+    # Warm training searches from the last round's scales; on 2 of 30 designs of the full-size twin that
+    # search stayed where earlier logs had put it (yaw inertia 2.7-3.0) while the prior's centre led to a
+    # lower objective and a third of the 30-s error. Not shipped: on 40 fresh designs it changed nothing
+    # (docs/results/vehicles.md, session 46).
     identification_starts: Literal["last", "last_and_prior"] = Field(
         "last",
         description="core = 'dynamic' with warm training ([training] reinit = false): where the "
