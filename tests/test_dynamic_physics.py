@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -23,7 +24,7 @@ from activelearn.numerics.models.dynamic_track import (
     rate_runs,
     scaled,
 )
-from activelearn.numerics.models.single_track import Identified, widened
+from activelearn.numerics.models.single_track import Identified, _map_fit, widened
 from activelearn.numerics.multistep import window_loss, windows_from_logs
 from activelearn.numerics.surrogate import simulate
 from activelearn.numerics.training_data import TrainingData
@@ -203,10 +204,6 @@ def test_a_search_also_from_the_priors_centre_leaves_a_basin_the_last_rounds_sta
     """`_map_fit`'s `also_from_prior` (`[model] identification_starts = "last_and_prior"`): a search from
     a start in the shallower basin stays there; searched from the prior's centre too, the lower objective
     wins. Without a start of its own the search is the prior centre's either way."""
-    from types import SimpleNamespace
-
-    from activelearn.numerics.models.single_track import _map_fit
-
     prior = Identified(np.array([1.0]), np.array([[100.0]]))  # centre 1, wide: the data decide
     car = SimpleNamespace(low=np.array([0.0]), high=np.array([4.0]), width=np.array([1.0]), prior=prior)
     spread, clusters = np.ones(2), np.arange(2)

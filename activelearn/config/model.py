@@ -198,7 +198,7 @@ class ModelConfig(_Section):
         "last",
         description="core = 'dynamic' with warm training ([training] reinit = false): where the "
         "identification searches: from the last round's scales ('last'), or from them and from the prior's "
-        "centre, keeping the lower MAP objective ('last_and_prior': the search costs twice as much)",
+        "centre, keeping the lower MAP objective ('last_and_prior': the search takes 1.5-2.4 times as long)",
     )
     residual_bound: Annotated[float, Field(ge=0.0, le=0.5)] = Field(
         0.05,

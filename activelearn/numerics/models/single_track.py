@@ -506,10 +506,8 @@ def _map_fit(
     low, high, scale = car.low, car.high, car.width
     prior = prior or car.prior
     centre, width = prior.values, np.maximum(prior.stderr, 1e-9)
-    x0 = np.clip(centre if search_from is None else search_from, low + 1e-9, high - 1e-9)
-    starts = [x0]
-    if also_from_prior and search_from is not None:
-        starts.append(np.clip(centre, low + 1e-9, high - 1e-9))
+    firsts = [centre] if search_from is None else [search_from, centre] if also_from_prior else [search_from]
+    starts = [np.clip(x, low + 1e-9, high - 1e-9) for x in firsts]
     noise = np.maximum(spread, 1e-3)
     for prior_weight in (1.0 / PRIOR_ROWS, 1.0):
 
