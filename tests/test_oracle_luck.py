@@ -19,7 +19,7 @@ def test_a_replayed_design_is_its_campaign_under_its_own_seed_and_keeps_its_pick
     """Under the campaign's own seed the replay is the campaign, to the bit; under another seed it drives
     the same batches (the initial design's too, which that seed would draw otherwise): only luck differs."""
     overrides = {
-        "training": {"epochs": 25},
+        "training": {"epochs": 10},
         "design": {"initial": 3, "per_round": 2, "max_maneuvers": 5, "initial_start": "random"},
     }
     cfg = load_config(ROOT / "experiments" / "configs" / "smoke.toml", overrides={"seed": 3, **overrides})
