@@ -76,13 +76,14 @@ def _run_job(
     return result.state.rounds
 
 
-def _first_reach(budget: np.ndarray, rmse: np.ndarray, target: float) -> float:
+def first_reach(budget: np.ndarray, rmse: np.ndarray, target: float) -> float:
     """The smallest budget at which the curve is at or below `target` (NaN if never)."""
     hit = np.flatnonzero(rmse <= target)
     return float(budget[hit[0]]) if len(hit) else math.nan
 
 
-def _sem(values: np.ndarray) -> float:
+def standard_error(values: np.ndarray) -> float:
+    """The standard error of the mean (0 for a single value)."""
     return float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) > 1 else 0.0
 
 
@@ -107,9 +108,9 @@ def _summary(curves: pd.DataFrame, reference: str, metric: str = TEST_RMSE) -> p
             ranked = run[metric].to_numpy(float)
             aucs.append(_area(n, rmse))
             metric_aucs.append(_area(n, ranked))
-            reach.append(_first_reach(n, ranked, target))
+            reach.append(first_reach(n, ranked, target))
             if has_seconds:
-                reach_s.append(_first_reach(run[TRACK_SECONDS].to_numpy(float), ranked, target))
+                reach_s.append(first_reach(run[TRACK_SECONDS].to_numpy(float), ranked, target))
         reach_arr = np.array(reach)
         reached = reach_arr[~np.isnan(reach_arr)]
         seconds = np.array(reach_s)
@@ -118,7 +119,7 @@ def _summary(curves: pd.DataFrame, reference: str, metric: str = TEST_RMSE) -> p
             "strategy": strategy,
             "seeds": len(finals),
             "final_rmse": float(finals[TEST_RMSE].mean()),
-            "final_rmse_sem": _sem(finals[TEST_RMSE].to_numpy()),
+            "final_rmse_sem": standard_error(finals[TEST_RMSE].to_numpy()),
             "final_rmse_v": float(finals[TEST_RMSE_V].mean()),
             "final_rmse_w": float(finals[TEST_RMSE_W].mean()),
             "final_nll": float(finals[TEST_NLL].mean()),
@@ -128,7 +129,7 @@ def _summary(curves: pd.DataFrame, reference: str, metric: str = TEST_RMSE) -> p
                 if metric == TEST_RMSE
                 else {
                     "final_metric": float(finals[metric].mean()),
-                    "final_metric_sem": _sem(finals[metric].to_numpy()),
+                    "final_metric_sem": standard_error(finals[metric].to_numpy()),
                     "metric_auc": float(np.mean(metric_aucs)),
                 }
             ),
@@ -433,7 +434,7 @@ def band_series(curves: pd.DataFrame, metrics: Sequence[str]) -> list[tuple[int,
             column = column[np.isfinite(column)]
             if not len(column):
                 continue
-            mean, sem = float(column.mean()), _sem(column)
+            mean, sem = float(column.mean()), standard_error(column)
             values.update({f"{strategy}/{metric}_mean": mean, f"{strategy}/{metric}_lo": mean - sem,
                            f"{strategy}/{metric}_hi": mean + sem})  # fmt: skip
     return sorted(rows.items())

@@ -35,6 +35,7 @@ from activelearn.loop.history import NO_HISTORY, History
 from activelearn.loop.state import CONFIG_FILE, CampaignState
 from activelearn.loop.strategy import Pool, Strategy
 from activelearn.names import N_MANEUVERS
+from activelearn.studies.compare import first_reach, standard_error
 
 
 class ReplayStrategy(Strategy):
@@ -152,20 +153,18 @@ def report(
     for other in strategies[1:]:
         apparent = np.array([originals[reference, k].iloc[-1] - originals[other, k].iloc[-1] for k in seeds])
         honest = np.array([means[reference, k].iloc[-1] - means[other, k].iloc[-1] for k in seeds])
-        sem = honest.std(ddof=1) / np.sqrt(len(honest)) if len(honest) > 1 else 0.0
         print(f"\n{reference} - {other} at the last round, by seed {seeds}:")
         print(f"  apparent (the original campaigns): {np.round(apparent, 2)}, mean {apparent.mean():.2f}")
         print(f"  honest (each design's replays' mean): {np.round(honest, 2)}, mean {honest.mean():.2f}"
-              f" +- {sem:.2f} (s.e.m. over designs)")  # fmt: skip
+              f" +- {standard_error(honest):.2f} (s.e.m. over designs)")  # fmt: skip
         if apparent.mean() > 0:
             print(f"  honest / apparent: {honest.mean() / apparent.mean():.2f}")
         for k in seeds:
             final = means[reference, k].iloc[-1]
-            curve_k = means[other, k]
-            reach = curve_k.index[curve_k.to_numpy() <= final]
-            own = means[reference, k].index[means[reference, k].to_numpy() <= final]
+            reach, own = (first_reach(means[s, k].index.to_numpy(), means[s, k].to_numpy(), final)
+                          for s in (other, reference))  # fmt: skip
             print(f"  reach, seed {k}: at or below {reference}'s replayed final ({final:.2f}) after "
-                  f"{int(reach[0]) if len(reach) else None} maneuvers ({reference} itself: {int(own[0])})")
+                  f"{reach:.0f} maneuvers ({reference} itself: {own:.0f})")
 
 
 if __name__ == "__main__":
