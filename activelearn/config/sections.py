@@ -467,6 +467,14 @@ class AcquisitionConfig(_Section):
         description="Score information per second of track time: score / (duration + "
         "design.setup_seconds)",
     )
+    fisher_criterion: Literal["determinant", "prediction"] = Field(
+        "determinant",
+        description="`fisher`: what a batch maximises. `determinant`: log det of the identified scales' "
+        "information, starting from their prior's precision and the collected candidates' (greedy "
+        "D-optimal: every scale alike). `prediction`: how much it lowers trace(mean information of the "
+        "pool's candidates x the scales' covariance), starting from the identification's own covariance, "
+        "every log so far included (greedy I-optimal: the scales the envelope's free runs follow)",
+    )
     switch_after: Annotated[int, Field(ge=0, strict=True)] = Field(
         10,
         description="`switch`: maneuvers collected, the initial design included, that `switch_first` picks "

@@ -394,6 +394,11 @@ class Model(nn.Module, ABC):
         None for a kind that identifies none this way (the `fisher` strategy then refuses it)."""
         return None
 
+    def identified_covariance(self) -> np.ndarray | None:
+        """(P, P) the identified physical parameters' covariance as the identification left it, every log
+        so far included; None where the model keeps none (a network, or no `parameter_uncertainty`)."""
+        return None
+
     def is_variational(self) -> bool:
         """Whether the training loss adds the KL divergence (`kl`) of variational layers."""
         return False

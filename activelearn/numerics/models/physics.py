@@ -250,6 +250,14 @@ class PhysicsModel(Model):
         """Whether the draws have parameters of their own (`parameter_uncertainty`, once identified)."""
         return bool(self.theta_scale.any())
 
+    def identified_covariance(self) -> np.ndarray | None:
+        """The identification's covariance (`parameter_uncertainty = "by_log"`: kept as its Cholesky
+        factor), None where the draws have no parameter spread."""
+        if not self.has_parameter_spread:
+            return None
+        factor = self.theta_scale.double().numpy()
+        return factor @ factor.T
+
     def parameter_draws(self, n_samples: int, seed: int) -> Tensor:
         """(S, 7) physical parameters of S posterior draws: `theta` plus its covariance's spread (the
         same normals for one seed), inside the parameters' physical ranges; `theta` itself S times
