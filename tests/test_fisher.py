@@ -30,18 +30,28 @@ def setting():
     return model, pool
 
 
+def _by_hand(info, total, open_, k, loss):
+    """k greedy picks of `open_`, each the lowest `loss` of `total` plus its information, written out."""
+    picks = []
+    for _ in range(k):
+        best = min(open_, key=lambda i: loss(total + info[i]))
+        picks.append(best)
+        open_ = [i for i in open_ if i != best]
+        total = total + info[best]
+    return picks
+
+
 def test_fisher_picks_by_greedy_d_optimality_what_the_model_says_each_candidate_tells(setting):
     model, pool = setting
     picks = make_strategy("fisher").select(model, pool, 3, np.random.default_rng(0))
     info, total = model.parameter_information([maneuver_controls(m, LOG_RATE_HZ) for m in pool.maneuvers],
                                               LOG_RATE_HZ)  # fmt: skip
     total = total + info[0] + info[7]
-    expected, open_ = [], [i for i in range(len(pool.maneuvers)) if i not in (0, 7)]
-    for _ in range(3):  # by hand: the largest log det of the information with the candidate added
-        best = max(open_, key=lambda i: np.linalg.slogdet(total + info[i])[1])
-        expected.append(best)
-        open_.remove(best)
-        total = total + info[best]
+    open_ = [i for i in range(len(pool.maneuvers)) if i not in (0, 7)]
+    # by hand: the largest log det of the information with the candidate added
+    expected = _by_hand(info, total, open_, 3, lambda m: -np.linalg.slogdet(m)[1])
+    total = total + sum(info[i] for i in expected)
+    open_ = [i for i in open_ if i not in expected]
     assert picks == expected
     # the picks tell more than the candidates left: each raised log det by more than the median one would
     gains = [np.linalg.slogdet(total - info[p] + info[i])[1] for p in picks[-1:] for i in open_]
@@ -68,16 +78,6 @@ def test_a_config_without_the_dynamic_core_refuses_it():
         CampaignConfig.model_validate(switched)
     data = load_config(CONFIG).model_dump(mode="json")
     assert CampaignConfig.model_validate({**data, "strategy": "fisher"}).strategy == "fisher"
-
-
-def _by_hand(info, total, open_, k, loss):
-    picks = []
-    for _ in range(k):
-        best = min(open_, key=lambda i: loss(total + info[i]))
-        picks.append(best)
-        open_ = [i for i in open_ if i != best]
-        total = total + info[best]
-    return picks
 
 
 def test_the_prediction_criterion_starts_from_the_identifications_own_covariance(setting):
