@@ -46,8 +46,9 @@ demo-limit: setup
 # The documentation is part of the test: a broken link or a page missing from mkdocs.yml's nav fails it.
 # Three pytest-xdist workers, a test file each at a time (a file's fixtures are built once): much of the
 # suite waits on servers and subprocesses, so a third worker pays even on 2 cores (measured: 11.4 min
-# with three, 11.5 with four). The files go in the order tests/conftest.py gives them (the longest
-# first; xdist would otherwise sort them by test count).
+# with three, 11.5 with four; 13-15 min on 2026-12-03's slower host with every cache cold, as CI
+# starts). The files go in the order tests/conftest.py gives them (the longest first; xdist would
+# otherwise sort them by test count).
 PYTEST := $(BIN)/python -m pytest -q -n 3 --dist loadfile --no-loadscope-reorder
 # mkdocs without --quiet: it hides the warnings that --strict counts (a broken anchor then passed)
 test: setup

@@ -5,6 +5,8 @@ from __future__ import annotations
 import ctypes
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -119,20 +121,42 @@ def test_counter_noise_is_standard_normal_and_independent():
     np.testing.assert_array_equal(short_v, zv[:, :700])
 
 
-def test_kernel_builds_once_into_the_cache(tmp_path, monkeypatch, c_kernels):
-    monkeypatch.setattr(native, "CACHE_DIR", tmp_path)
-    native.library.cache_clear()
-    try:
-        assert native.library() is not None
-        built = list(tmp_path.glob("*.so"))
-        assert len(built) == 1
-        stamp = built[0].stat().st_mtime_ns
-        native.library.cache_clear()
-        assert native.library() is not None
-        assert built[0].stat().st_mtime_ns == stamp  # reused, not rebuilt
-        assert not list(tmp_path.glob("tmp*"))  # no temporary left behind
-    finally:
-        native.library.cache_clear()
+@pytest.fixture
+def small_build(tmp_path, monkeypatch, c_kernels) -> tuple[str, Path]:
+    """The build on one small source (network.c: under a second; all four: ~40 s of CPU), its cache in
+    `tmp_path`, its compiler the machine's behind a wrapper that logs each command: (compiler, log)."""
+    log = tmp_path / "commands.log"
+    wrapper = tmp_path / "cc-logged"
+    wrapper.write_text(f'#!/bin/sh\necho "$*" >> "{log}"\nsleep 0.3\nexec {native._compiler()} "$@"\n')
+    wrapper.chmod(0o755)
+    sources = Path(native.__file__).parent
+    monkeypatch.setattr(native, "CACHE_DIR", tmp_path / "cache")
+    monkeypatch.setattr(native, "SOURCES", (sources / "network.c",))
+    monkeypatch.setattr(native, "HEADERS", (sources / "network.h",))
+    return str(wrapper), log
+
+
+def _compiles(log: Path) -> int:
+    return sum(" -c " in line for line in log.read_text().splitlines())
+
+
+def test_kernel_builds_once_into_the_cache(small_build):
+    compiler, log = small_build
+    built = native._build(compiler)
+    assert built.parent == native.CACHE_DIR and list(native.CACHE_DIR.glob("*.so")) == [built]
+    stamp = built.stat().st_mtime_ns
+    assert native._build(compiler) == built
+    assert built.stat().st_mtime_ns == stamp and _compiles(log) == 1  # reused, not rebuilt
+    assert not list(native.CACHE_DIR.glob("tmp*"))  # no temporary left behind
+
+
+def test_concurrent_builders_compile_once(small_build):
+    """Processes starting together on a fresh machine (a comparison's workers, a suite's) wait for one
+    build instead of each compiling the kernel."""
+    compiler, log = small_build
+    with ThreadPoolExecutor(4) as pool:  # each takes the lock through its own open file, as a process does
+        built = set(pool.map(lambda _: native._build(compiler), range(4)))
+    assert len(built) == 1 and _compiles(log) == 1
 
 
 def test_a_failing_compiler_warns_and_falls_back(tmp_path, monkeypatch, untrained_model, c_kernels):

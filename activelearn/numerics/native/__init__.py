@@ -18,7 +18,9 @@ All start their own threads (`threads` arguments), which take chunks of work fro
 
 They are compiled once per machine (sources, flags, compiler and CPU features form the cache key) into
 `CACHE_DIR` (`~/.cache/activelearn/native`; a temporary directory if that is not writable), and
-written atomically so concurrent processes can race to build it safely.
+written atomically. One process builds while the others wait on a lock beside it, then load its
+library: the build costs ~40 s of CPU (`dynamic_rollout.c` nearly all of it), and a campaign's workers
+or a test suite's all starting on a fresh machine once each built it at the same time.
 
 Without a working C compiler `library()` returns None once with a warning, and callers take their
 NumPy/torch path, which computes the same numbers (up to float rounding) but runs slower;
@@ -27,7 +29,9 @@ NumPy/torch path, which computes the same numbers (up to float rounding) but run
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
+import fcntl
 import functools
 import hashlib
 import os
@@ -36,6 +40,7 @@ import shutil
 import subprocess
 import tempfile
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -204,6 +209,25 @@ def _build(compiler: str) -> Path:
         target = CACHE_DIR / name
     except OSError:  # a read-only home: build for this process only
         target = Path(tempfile.mkdtemp(prefix="activelearn-native-")) / name
+    with _building(target):
+        if target.exists():  # another process built it while this one waited
+            return target
+        return _compile_into(compiler, target)
+
+
+@contextlib.contextmanager
+def _building(target: Path) -> Iterator[None]:
+    """Held while `target` is built: an exclusive lock on a file beside it, released on exit or death."""
+    with open(target.with_suffix(".lock"), "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+def _compile_into(compiler: str, target: Path) -> Path:
+    """Compile `SOURCES` and link them into `target`, written atomically."""
     errors = []
     with tempfile.TemporaryDirectory(prefix="activelearn-native-build-") as build:
         objects = [str(Path(build) / f"{source.stem}.o") for source in SOURCES]
@@ -216,7 +240,7 @@ def _build(compiler: str) -> Path:
             os.close(fd)
             error = _run_compiler([compiler, *LINK_FLAGS, "-o", tmp, *objects, *link])
             if error is None:
-                os.replace(tmp, target)  # atomic: a concurrent builder's identical file may win, harmlessly
+                os.replace(tmp, target)  # atomic: a reader never finds half a library
                 return target
             os.unlink(tmp)
             errors.append(error)
