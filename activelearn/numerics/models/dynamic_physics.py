@@ -338,7 +338,7 @@ class DynamicPhysicsModel(PhysicsModel):
         if torch.is_grad_enabled():
             # A window's first step sees data only, its later ones predicted rates: the same tensors' grad
             # flags on every step (controls detached, the state tracked) let the compiled step compile
-            # once, not twice (measured: 76 s cold down to ~40). Numbers and gradients are unchanged.
+            # once, not twice (a cold compile: 68-76 s before, 60-62 s). Numbers and gradients are unchanged.
             tau, delta = tau.detach(), delta.detach()
             if not state.requires_grad:
                 state = state.detach().requires_grad_()

@@ -18,9 +18,9 @@ All start their own threads (`threads` arguments), which take chunks of work fro
 
 They are compiled once per machine (sources, flags, compiler and CPU features form the cache key) into
 `CACHE_DIR` (`~/.cache/activelearn/native`; a temporary directory if that is not writable), and
-written atomically. One process builds while the others wait on a lock beside it, then load its
-library: the build costs ~40 s of CPU (`dynamic_rollout.c` nearly all of it), and a campaign's workers
-or a test suite's all starting on a fresh machine once each built it at the same time.
+written atomically. The build costs ~40 s of CPU (`dynamic_rollout.c` nearly all of it), so one
+process builds while the others (a comparison's workers on a fresh machine) wait on a lock beside it,
+then load its library.
 
 Without a working C compiler `library()` returns None once with a warning, and callers take their
 NumPy/torch path, which computes the same numbers (up to float rounding) but runs slower;
@@ -29,7 +29,6 @@ NumPy/torch path, which computes the same numbers (up to float rounding) but run
 
 from __future__ import annotations
 
-import contextlib
 import ctypes
 import fcntl
 import functools
@@ -40,7 +39,6 @@ import shutil
 import subprocess
 import tempfile
 import warnings
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -209,21 +207,11 @@ def _build(compiler: str) -> Path:
         target = CACHE_DIR / name
     except OSError:  # a read-only home: build for this process only
         target = Path(tempfile.mkdtemp(prefix="activelearn-native-")) / name
-    with _building(target):
+    with open(target.with_suffix(".lock"), "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # one builder; released when the file closes or the process dies
         if target.exists():  # another process built it while this one waited
             return target
         return _compile_into(compiler, target)
-
-
-@contextlib.contextmanager
-def _building(target: Path) -> Iterator[None]:
-    """Held while `target` is built: an exclusive lock on a file beside it, released on exit or death."""
-    with open(target.with_suffix(".lock"), "a") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(lock, fcntl.LOCK_UN)
 
 
 def _compile_into(compiler: str, target: Path) -> Path:
