@@ -30,13 +30,17 @@ def build_vehicle(
 def truth_text(vehicle: VehicleSpec | str | Path = "nigel") -> str:
     """Everything that decides what the car's simulator computes, as text (the cache's key).
 
-    A 'mujoco-contacts' car: its filled MJCF. A 'mujoco-tyres' car: its figures and the tyre model's code.
+    A 'mujoco-contacts' car: its filled MJCF. A 'mujoco-tyres' car: its figures, the tyre model's code and
+    which path steps it (the compiled step and the NumPy one differ in the last bits).
     """
     spec = load_vehicle(vehicle)
     if spec.truth.engine == "mujoco-contacts":
         return model_xml(spec)
-    from simulator import tyre_car
+    from simulator import tyre_car, tyre_kernel
 
     # the stopping deceleration is a safety check's figure, not the simulator's: left out of the key
     figures = spec.model_dump_json(exclude={"limits": {"stopping_deceleration"}})
-    return figures + Path(tyre_car.__file__).read_text()
+    code = Path(tyre_car.__file__).read_text()
+    if tyre_kernel.library() is not None:
+        code += tyre_kernel.SOURCE.read_text() + " ".join(tyre_kernel.FLAGS[:-1])
+    return figures + code

@@ -40,9 +40,11 @@ What and why:
   angle and the four lagged loads are the activations of zero-gain integrator actuators; the front
   steering hinges (the Ackermann angles) and the rear spin hinges (the encoders: rolled distance over
   the radius) are set kinematically every step on wheel bodies of 1e-4 of the car's mass each.
-- Stepping: `rollout` steps a batch of runs one physics step at a time through `mujoco.rollout` (the tyre
-  forces as `xfrc_applied` on the chassis), computing every run's and wheel's forces at once with
-  numpy; every solver step starts cold, so a run's result does not depend on its batch.
+- Stepping: `rollout` steps each run whole in C (`simulator.tyre_kernel`: the tyre forces as
+  `xfrc_applied` on the chassis, then `mj_step`, a thread per MjData, 5-20x the NumPy path); the NumPy
+  path (`tyre_forces`, every run's and wheel's forces at once, then one `mujoco.rollout` call a physics
+  step) is the reference it is tested against, and what runs without a C compiler. Every solver step
+  starts cold, so a run's result does not depend on its batch.
 Twin overrides: tire_friction scales μ at the file's cornering stiffness (a slippery floor: the peak
 drops, the linear range stays, as Pacejka's λ_μ); mass the chassis (a payload at the CG, inertia
 unchanged); yaw_inertia the whole car's; motor_gain a_max and both top speeds together (a weaker motor
@@ -60,6 +62,7 @@ import mujoco
 import mujoco.rollout
 import numpy as np
 
+from simulator import tyre_kernel
 from simulator.twin import TWIN_PARAMETERS, check_overrides
 from simulator.vehicle import Vehicle
 from simulator.vehicles.spec import MujocoTyres, VehicleFileError, VehicleSpec, load_vehicle
@@ -105,7 +108,10 @@ class TyreCar(Vehicle):
 
     `controls(throttle, steering)` gives (..., nu) rows (throttle, commanded bicycle angle after the
     twin's steering gain and offset, zeros); `rollout` steps a batch with them as `collect` needs.
+    `backend`: "compiled" (the C loop, the NumPy path where it cannot be built) or "reference" (NumPy).
     """
+
+    backend: str = "compiled"
 
     def __init__(self, spec: VehicleSpec | str | Path, overrides: Mapping[str, float] | None = None) -> None:
         self.spec = load_vehicle(spec)
@@ -270,6 +276,11 @@ class TyreCar(Vehicle):
         self._centres = self.wheel_centres()
         self._half_track = 0.5 * self.track
 
+    @functools.cached_property
+    def kernel_figures(self) -> tyre_kernel._Car:
+        """What the compiled step reads (`simulator.tyre_kernel`), built once per car."""
+        return tyre_kernel.car_figures(self)
+
     # ---- commands -----------------------------------------------------------------------------------
     def controls(self, throttle: np.ndarray | float, steering: np.ndarray | float) -> np.ndarray:
         """Control rows (..., nu): throttle in [-1, 1] and the commanded bicycle angle (rad, + = left)."""
@@ -402,9 +413,15 @@ class TyreCar(Vehicle):
         each step's state (nb, nstep, nstate) and sensor data (nb, nstep, nsensordata): what
         `mujoco.rollout` gives for a car without tyre forces, with the tyre forces applied every step.
 
-        Each step is one `mujoco.rollout` call of the batch, in `roller`'s threads (two chunks) for a
-        large batch, on the calling thread for a small one; every run's result is the same either way.
+        Compiled (`simulator.tyre_kernel`): every run stepped whole in C, a thread per MjData of `datas`.
+        The NumPy path (no C compiler, or `backend = "reference"`): each step one `mujoco.rollout` call of
+        the batch, in `roller`'s threads (two chunks) for a large batch, on the calling thread for a small
+        one. Either way a run's result does not depend on its batch.
         """
+        lib = tyre_kernel.library() if self.backend == "compiled" else None
+        if lib is not None:
+            tyre_kernel.rollout(lib, self, datas, initial_state, control, nstep, state, sensordata)
+            return
         m = self.model
         nb = len(initial_state)
         current = np.array(initial_state, dtype=float)

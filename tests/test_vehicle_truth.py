@@ -1,8 +1,8 @@
 """The truth simulators of the tyre-model cars (`simulator.tyre_car`): built from their vehicle files, they
 drive as the files say (the motor law, the brake, the linear single track's range, saturation near μ g),
 stay stable over the control box, log the AutoDRIVE columns like Nigel, resume bit for bit from any
-logged state and take the twin's overrides. Real MuJoCo, small sizes (the measurements at full size are
-experiments/benchmarks/bench_vehicles.py's)."""
+logged state and take the twin's overrides; the compiled stepping loop follows the NumPy reference. Real
+MuJoCo, small sizes (the measurements at full size are experiments/benchmarks/bench_vehicles.py's)."""
 
 from __future__ import annotations
 
@@ -16,8 +16,18 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from simulator import COLUMNS, Maneuver, Replay, StopRule, Vehicle, ackermann_angles, collect
-from simulator.build import build_vehicle
+from simulator import (
+    COLUMNS,
+    Maneuver,
+    Replay,
+    StopRule,
+    Vehicle,
+    ackermann_angles,
+    cbuild,
+    collect,
+    tyre_kernel,
+)
+from simulator.build import build_vehicle, truth_text
 from simulator.twin import _yaw_inertia
 from simulator.tyre_car import TyreCar
 from simulator.vehicles.spec import GRAVITY, VEHICLE_DIR, VehicleFileError, load_vehicle
@@ -213,6 +223,50 @@ def test_the_state_carries_everything_a_step_needs(cars: dict) -> None:
     left, right = ackermann_angles(delta, car.wheelbase, car.track)
     assert np.allclose(whole[:, car._steer_qpos[0]], left)
     assert np.allclose(whole[:, car._steer_qpos[1]], right)
+
+
+@pytest.mark.parametrize("name", CARS)
+def test_the_compiled_step_follows_the_numpy_reference(name: str, cars: dict) -> None:
+    """The C loop and the NumPy path through mujoco.rollout compute the same equations: the logs of runs
+    through the tyres' limit, the brake and reverse agree to rounding (libm's atan, sin, tan against
+    NumPy's), in a batch stepped by two threads."""
+    compiled = cars[name]
+    assert tyre_kernel.library() is not None  # the suite's machines have a C compiler
+    reference = build_vehicle(name)
+    reference.backend = "reference"
+    maneuvers = [saturating_turn(compiled), Maneuver("fishhook", 1.0, compiled.steering_limit, "cw", 2.0),
+                 Maneuver("slalom", -0.5, 0.5 * compiled.steering_limit, "ccw", 2.0), brake_replay(1.0)]
+    maneuvers[0] = Maneuver("skidpad", maneuvers[0].throttle, maneuvers[0].steering, "ccw", 2.0)
+    fast = collect(maneuvers, vehicle=compiled, noise=None, threads=2).drop(columns="timestamp")
+    slow = collect(maneuvers, vehicle=reference, noise=None, threads=2).drop(columns="timestamp")
+    numbers = fast.select_dtypes("number").columns
+    assert (fast.angZ.abs() > 0.5).any() and (fast.speed < -0.5).any()  # they turned hard and reversed
+    np.testing.assert_allclose(fast[numbers].to_numpy(), slow[numbers].to_numpy(), rtol=1e-9, atol=1e-9)
+    pd.testing.assert_frame_equal(fast.drop(columns=numbers), slow.drop(columns=numbers))
+
+
+def test_without_a_compiler_the_cars_take_the_numpy_path_and_the_cache_key_says_so(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, cars: dict
+) -> None:
+    car = cars["f1tenth"]
+    maneuver = Maneuver("skidpad", 0.5, 0.3, "ccw", 1.0)
+    compiled_key = truth_text("f1tenth")
+    compiled = collect([maneuver], vehicle=car, noise=None)
+    monkeypatch.setattr(cbuild, "CACHE_DIR", tmp_path)
+    monkeypatch.setattr(cbuild, "COMPILERS", ("false",))  # on every machine, and fails every compile
+    tyre_kernel.library.cache_clear()
+    try:
+        with pytest.warns(RuntimeWarning, match="tyre step unavailable"):
+            assert tyre_kernel.library() is None
+        fallback = collect([maneuver], vehicle=car, noise=None)
+        assert truth_text("f1tenth") != compiled_key  # a cache never mixes the two paths' last bits
+    finally:
+        monkeypatch.undo()
+        tyre_kernel.library.cache_clear()
+    assert truth_text("f1tenth") == compiled_key
+    numbers = compiled.select_dtypes("number").columns.drop("timestamp")
+    np.testing.assert_allclose(fallback[numbers].to_numpy(), compiled[numbers].to_numpy(), rtol=1e-9,
+                               atol=1e-9)  # fmt: skip
 
 
 def test_the_tyre_forces_are_a_scalar_reference_computed_on_mujocos_kinematics(cars: dict) -> None:

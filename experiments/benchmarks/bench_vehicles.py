@@ -28,6 +28,10 @@ Prints per car, then one summary row per car:
    largest speed of the braked runs (stands still), simulated seconds per wall second.
 7. A pool of 100 maneuvers of 20 s (every kind, throttle and steering drawn over the box, seed 0):
    its collection's wall time and simulated seconds per wall second.
+8. The tyre cars' stepping (`simulator.tyre_kernel`): 16 of the pool's maneuvers (10 s each) collected
+   by the compiled loop and by the NumPy reference side by side, as one batch and one maneuver at a time
+   (how a campaign collects its picks): wall times, their ratio, and the largest difference of the
+   logged positions between the two.
 Nigel cannot reach 0.3 μg (0.01 g at most): its rows say so ("-"); its step steer is to 0.6 of its
 steering limit.
 """
@@ -83,6 +87,7 @@ class Row:
     box_rate: float = math.nan
     pool_wall: float = math.nan
     pool_rate: float = math.nan
+    step_ratio: dict[str, float] = field(default_factory=dict)
 
 
 def grip(car: Vehicle) -> float:
@@ -380,8 +385,8 @@ def control_box(car: Vehicle, row: Row, quick: bool, threads: int) -> None:
           f" {row.box_rate:.1f} simulated s per wall s")
 
 
-def pool(car: Vehicle, row: Row, quick: bool, threads: int) -> None:
-    n, duration = (10, 5.0) if quick else (100, 20.0)
+def pool_maneuvers(car: Vehicle, n: int, duration: float) -> list[Maneuver]:
+    """n maneuvers of every kind, throttle and steering drawn over the control box (seed 0)."""
     rng = np.random.default_rng(0)
     maneuvers = []
     for _ in range(n):
@@ -389,10 +394,43 @@ def pool(car: Vehicle, row: Row, quick: bool, threads: int) -> None:
         throttle = float(np.round(rng.uniform(-1.0, 1.0), 3)) or 0.5
         steering = float(np.round(rng.uniform(0.0, car.steering_limit), 4))
         maneuvers.append(Maneuver(kind, throttle, steering, str(rng.choice(["ccw", "cw"])), duration))
+    return maneuvers
+
+
+def pool(car: Vehicle, row: Row, quick: bool, threads: int) -> None:
+    n, duration = (10, 5.0) if quick else (100, 20.0)
+    maneuvers = pool_maneuvers(car, n, duration)
     _, wall, diverged = run(car, maneuvers, threads)
     row.pool_wall, row.pool_rate = wall, n * duration / wall
     print(f"\n  pool: {n} maneuvers x {duration:g} s collected in {wall:.2f} s: {row.pool_rate:.1f}"
           f" simulated s per wall s ({diverged} diverged)")
+
+
+def stepping(car: Vehicle, row: Row, quick: bool, threads: int) -> None:
+    """A tyre car's compiled stepping loop against its NumPy reference, side by side (section 8)."""
+    if not hasattr(car, "backend"):
+        return
+    n, duration = (4, 2.0) if quick else (16, 10.0)
+    maneuvers = pool_maneuvers(car, n, duration)
+    print(f"\n  stepping, {n} pool maneuvers x {duration:g} s, {threads} threads (compiled against NumPy):")
+    chosen = car.backend
+    try:
+        for label, batches in (("one batch", [maneuvers]), ("one at a time", [[m] for m in maneuvers])):
+            walls, logs = {}, {}
+            for backend in ("reference", "compiled"):
+                car.backend = backend
+                start = time.perf_counter()
+                tables = [run(car, batch, threads)[0] for batch in batches]
+                walls[backend] = time.perf_counter() - start
+                logs[backend] = pd.concat(tables)
+            a, b = logs["reference"], logs["compiled"]
+            gap = float(np.hypot(*(a[c].to_numpy() - b[c].to_numpy() for c in ("posX", "posY"))).max())
+            row.step_ratio[label] = ratio = walls["reference"] / walls["compiled"]
+            rate = n * duration / walls["compiled"]
+            print(f"    {label:>13}: NumPy {walls['reference']:.2f} s, compiled {walls['compiled']:.2f} s"
+                  f" (x{ratio:.1f}; {rate:.0f} simulated s per wall s); largest position gap {gap:.1e} m")
+    finally:
+        car.backend = chosen
 
 
 def summary(rows: list[Row]) -> None:
@@ -400,7 +438,7 @@ def summary(rows: list[Row]) -> None:
     head = (f"{'car':>8} {'truth':>16} {'top file':>8} {'top sim':>8} {'map err':>7} {'brake exp':>9}"
             f" {'brake sim':>9} {'gain err':>8} {'ay max':>6} {'ay lock':>7} {'t90':>6} {'oversh':>6}"
             f" {'kin 0.3':>7} {'kin 0.6':>7} {'kin 0.8':>7} {'pos 30 s (m)':>22} {'box div':>7}"
-            f" {'box s/s':>7} {'pool s':>7} {'pool s/s':>8}")  # fmt: skip
+            f" {'box s/s':>7} {'pool s':>7} {'pool s/s':>8} {'C x batch/one':>13}")  # fmt: skip
     print(head)
 
     def pct(x: float) -> str:
@@ -413,7 +451,8 @@ def summary(rows: list[Row]) -> None:
               f" {brake:>9} {r.brake_sim:9.3f} {pct(r.gain_error):>8} {r.ay_max:6.3f} {r.ay_lock:7.3f}"
               f" {r.response:6.3f} {pct(r.overshoot):>6} {pct(r.kinematic.get(0.3, math.nan)):>7}"
               f" {pct(r.kinematic.get(0.6, math.nan)):>7} {pct(r.kinematic.get(0.8, math.nan)):>7} {pos:>22}"
-              f" {r.diverged:>7} {r.box_rate:7.1f} {r.pool_wall:7.2f} {r.pool_rate:8.1f}")
+              f" {r.diverged:>7} {r.box_rate:7.1f} {r.pool_wall:7.2f} {r.pool_rate:8.1f}"
+              f" {' / '.join(f'{v:.1f}' for v in r.step_ratio.values()) or '-':>13}")
     print("\nchecks:")
     for r in rows:
         verdict = []
@@ -455,6 +494,7 @@ def main() -> None:
         step_steer(car, row, args.quick, args.threads)
         control_box(car, row, args.quick, args.threads)
         pool(car, row, args.quick, args.threads)
+        stepping(car, row, args.quick, args.threads)
         rows.append(row)
     summary(rows)
 

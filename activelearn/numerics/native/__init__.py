@@ -16,11 +16,11 @@ Four fused loops that no library provides:
     (`dynamic_free_runs`); its substep is `dynamic_substep.h`, a template included once per precision.
 All start their own threads (`threads` arguments), which take chunks of work from a shared counter.
 
-They are compiled once per machine (sources, flags, compiler and CPU features form the cache key) into
-`CACHE_DIR` (`~/.cache/activelearn/native`; a temporary directory if that is not writable), and
-written atomically. The build costs ~40 s of CPU (`dynamic_rollout.c` nearly all of it), so one
-process builds while the others (a comparison's workers on a fresh machine) wait on a lock beside it,
-then load its library.
+They are compiled once per machine by `simulator.cbuild` (sources, flags, compiler and CPU features form
+the cache key) into `CACHE_DIR` (`~/.cache/activelearn/native`; a temporary directory if that is not
+writable), and written atomically. The build costs ~40 s of CPU (`dynamic_rollout.c` nearly all of
+it), so one process builds while the others (a comparison's workers on a fresh machine) wait on a lock
+beside it, then load its library.
 
 Without a working C compiler `library()` returns None once with a warning, and callers take their
 NumPy/torch path, which computes the same numbers (up to float rounding) but runs slower;
@@ -30,18 +30,14 @@ NumPy/torch path, which computes the same numbers (up to float rounding) but run
 from __future__ import annotations
 
 import ctypes
-import fcntl
 import functools
-import hashlib
-import os
-import platform
-import shutil
 import subprocess
-import tempfile
 import warnings
 from pathlib import Path
 
 import numpy as np
+
+from simulator import cbuild
 
 SOURCES = tuple(
     Path(__file__).with_name(name)
@@ -57,9 +53,8 @@ FLAGS = ("-O3", "-ffast-math", "-march=native", "-fPIC", "-pthread")
 # numpy's and torch's subnormal numbers would then read as 0 in every computation after it.
 LINK_FLAGS = ("-shared", "-pthread")
 LINK_OPTIONS = (("-lmvec", "-lm"), ("-lm",))  # libmvec is glibc's; elsewhere the scalar libm serves
-COMPILE_TIMEOUT_S = 120
-COMPILERS = ("cc", "gcc", "clang")  # the first found on PATH builds the kernels
-CACHE_DIR = Path.home() / ".cache" / "activelearn" / "native"
+COMPILERS = cbuild.COMPILERS  # the first found on PATH builds the kernels
+CACHE_DIR = cbuild.CACHE_DIR
 
 # Array arguments travel as plain addresses (c_void_p): `array.ctypes.data` costs half of
 # `data_as(POINTER(c_float))`, and a predict call passes a dozen of them.
@@ -167,27 +162,7 @@ ACTIVATION_CODES = {None: 0, "relu": 1, "tanh": 2, "sigmoid": 3, "elu": 4, "selu
 
 
 def _compiler() -> str:
-    for name in COMPILERS:
-        if shutil.which(name):
-            return name
-    raise OSError(f"no C compiler found (looked for {', '.join(COMPILERS)})")
-
-
-def _cpu_features() -> str:
-    try:
-        with open("/proc/cpuinfo") as info:
-            return next((line for line in info if line.startswith(("flags", "Features"))), "")
-    except OSError:
-        return platform.processor()
-
-
-def _run_compiler(command: list[str]) -> str | None:
-    """Run one compiler command: None on success, else the last line of its complaint."""
-    done = subprocess.run(command, capture_output=True, text=True, timeout=COMPILE_TIMEOUT_S, check=False)
-    if done.returncode == 0:
-        return None
-    message = done.stderr.strip()
-    return message.splitlines()[-1] if message else f"exit status {done.returncode}"
+    return cbuild.find_compiler(COMPILERS)
 
 
 def _build(compiler: str) -> Path:
@@ -195,44 +170,8 @@ def _build(compiler: str) -> Path:
 
     Sources are compiled to objects with `FLAGS`, then linked with `LINK_FLAGS` (see there why apart).
     """
-    version = subprocess.run([compiler, "--version"], capture_output=True, text=True, check=False).stdout
-    sources = [path.read_text() for path in (*SOURCES, *HEADERS)]
-    identity = [*sources, " ".join(FLAGS), " ".join(LINK_FLAGS), version, platform.machine(), _cpu_features()]
-    key = hashlib.sha256("\0".join(identity).encode()).hexdigest()[:16]
-    name = f"kernels-{key}.so"
-    if (CACHE_DIR / name).exists():
-        return CACHE_DIR / name
-    try:
-        CACHE_DIR.mkdir(parents=True, exist_ok=True)
-        target = CACHE_DIR / name
-    except OSError:  # a read-only home: build for this process only
-        target = Path(tempfile.mkdtemp(prefix="activelearn-native-")) / name
-    with open(target.with_suffix(".lock"), "a") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)  # one builder; released when the file closes or the process dies
-        if target.exists():  # another process built it while this one waited
-            return target
-        return _compile_into(compiler, target)
-
-
-def _compile_into(compiler: str, target: Path) -> Path:
-    """Compile `SOURCES` and link them into `target`, written atomically."""
-    errors = []
-    with tempfile.TemporaryDirectory(prefix="activelearn-native-build-") as build:
-        objects = [str(Path(build) / f"{source.stem}.o") for source in SOURCES]
-        for source, obj in zip(SOURCES, objects, strict=True):
-            error = _run_compiler([compiler, *FLAGS, "-c", str(source), "-o", obj])
-            if error is not None:
-                raise OSError(f"{compiler} failed: {error}")
-        for link in LINK_OPTIONS:
-            fd, tmp = tempfile.mkstemp(suffix=".so", dir=target.parent)
-            os.close(fd)
-            error = _run_compiler([compiler, *LINK_FLAGS, "-o", tmp, *objects, *link])
-            if error is None:
-                os.replace(tmp, target)  # atomic: a reader never finds half a library
-                return target
-            os.unlink(tmp)
-            errors.append(error)
-    raise OSError(f"{compiler} failed: {' | '.join(errors)}")
+    recipe = cbuild.Recipe("kernels", SOURCES, HEADERS, FLAGS, LINK_FLAGS, LINK_OPTIONS)
+    return cbuild.build(recipe, compiler, CACHE_DIR)
 
 
 @functools.cache
