@@ -9,6 +9,7 @@ starting together on a fresh machine), then load its library; the library is wri
 
 from __future__ import annotations
 
+import ctypes
 import fcntl
 import hashlib
 import os
@@ -16,7 +17,8 @@ import platform
 import shutil
 import subprocess
 import tempfile
-from collections.abc import Sequence
+import warnings
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -111,4 +113,16 @@ def _compile_into(recipe: Recipe, compiler: str, target: Path) -> Path:
     raise OSError(f"{compiler} failed: {' | '.join(errors)}")
 
 
-__all__ = ["CACHE_DIR", "COMPILERS", "Recipe", "build", "cpu_features", "find_compiler", "run_compiler"]
+def load(build_library: Callable[[], Path], unavailable: str) -> ctypes.CDLL | None:
+    """The library `build_library()` returns, loaded; None with one RuntimeWarning, `unavailable` and
+    the error, where it cannot be built or loaded (the caller then takes its slower path)."""
+    try:
+        return ctypes.CDLL(str(build_library()))
+    except (OSError, subprocess.SubprocessError) as error:
+        warnings.warn(f"{unavailable} ({error})", RuntimeWarning, stacklevel=3)
+        return None
+
+
+__all__ = [
+    "CACHE_DIR", "COMPILERS", "Recipe", "build", "cpu_features", "find_compiler", "load", "run_compiler",
+]  # fmt: skip

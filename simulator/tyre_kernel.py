@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import ctypes
 import functools
-import subprocess
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -59,18 +58,15 @@ def _mujoco_library() -> Path:
 @functools.cache
 def library() -> ctypes.CDLL | None:
     """The compiled tyre step, or None (warned once) where it cannot be built."""
-    try:
+    def build() -> Path:
         lib_mujoco = _mujoco_library()
-        link = ("-shared", "-pthread")
         option = (str(lib_mujoco), f"-Wl,-rpath,{lib_mujoco.parent}", "-lm")
+        link = ("-shared", "-pthread")
         recipe = cbuild.Recipe("tyre-step", (SOURCE,), (), FLAGS, link, (option,), (mujoco.__version__,))
-        lib = ctypes.CDLL(str(cbuild.build(recipe, cbuild.find_compiler())))
-    except (OSError, subprocess.SubprocessError) as error:
-        warnings.warn(
-            f"simulator: compiled tyre step unavailable ({error}); the tyre cars take the slower NumPy path",
-            RuntimeWarning,
-            stacklevel=2,
-        )
+        return cbuild.build(recipe, cbuild.find_compiler())
+
+    lib = cbuild.load(build, "simulator: compiled tyre step unavailable; the tyre cars take the NumPy path")
+    if lib is None:
         return None
     lib.al_tyre_car_size.restype = _i64
     if lib.al_tyre_car_size() != ctypes.sizeof(_Car):

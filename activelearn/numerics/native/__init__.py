@@ -31,8 +31,6 @@ from __future__ import annotations
 
 import ctypes
 import functools
-import subprocess
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -177,14 +175,9 @@ def _build(compiler: str) -> Path:
 @functools.cache
 def library() -> ctypes.CDLL | None:
     """The compiled kernels, or None (warned once) where they cannot be built."""
-    try:
-        lib = ctypes.CDLL(str(_build(_compiler())))
-    except (OSError, subprocess.SubprocessError) as error:
-        warnings.warn(
-            f"activelearn: compiled kernel unavailable ({error}); using the slower NumPy/torch path",
-            RuntimeWarning,
-            stacklevel=2,
-        )
+    unavailable = "activelearn: compiled kernel unavailable; using the slower NumPy/torch path"
+    lib = cbuild.load(lambda: _build(_compiler()), unavailable)
+    if lib is None:
         return None
     for name, (argtypes, restype) in SIGNATURES.items():
         function = getattr(lib, name)
