@@ -42,5 +42,5 @@ def truth_text(vehicle: VehicleSpec | str | Path = "nigel") -> str:
     figures = spec.model_dump_json(exclude={"limits": {"stopping_deceleration"}})
     code = Path(tyre_car.__file__).read_text()
     if tyre_kernel.library() is not None:
-        code += tyre_kernel.SOURCE.read_text() + " ".join(tyre_kernel.FLAGS[:-1])
+        code += tyre_kernel.SOURCE.read_text() + " ".join(tyre_kernel.NUMERIC_FLAGS)
     return figures + code

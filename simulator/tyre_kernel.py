@@ -24,8 +24,10 @@ from simulator import cbuild
 
 SOURCE = Path(__file__).with_name("tyre_step.c")
 _MUJOCO_DIR = Path(mujoco.__file__).parent
-# Portable and reproducible: no -march=native, no -ffast-math, no fused multiply-adds.
-FLAGS = ("-O2", "-fPIC", "-pthread", "-ffp-contract=off", f"-I{_MUJOCO_DIR / 'include'}")
+# Portable and reproducible: no -march=native, no -ffast-math, no fused multiply-adds (what decides the
+# numbers, in the simulation cache's key); then where the MuJoCo headers are on this machine.
+NUMERIC_FLAGS = ("-O2", "-fPIC", "-pthread", "-ffp-contract=off")
+FLAGS = (*NUMERIC_FLAGS, f"-I{_MUJOCO_DIR / 'include'}")
 
 _i64, _f64, _ptr = ctypes.c_int64, ctypes.c_double, ctypes.c_void_p
 
@@ -123,4 +125,4 @@ def rollout(
                       RuntimeWarning, stacklevel=2)  # fmt: skip
 
 
-__all__ = ["SOURCE", "car_figures", "library", "rollout"]
+__all__ = ["FLAGS", "NUMERIC_FLAGS", "SOURCE", "car_figures", "library", "rollout"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 import subprocess
@@ -170,6 +171,26 @@ def c_kernels():
     if lib is None:
         skip_or_fail("no working C compiler (cc, gcc or clang): the compiled kernels cannot be built")
     return lib
+
+
+@pytest.fixture
+def failing_compiler(monkeypatch: pytest.MonkeyPatch, tmp_path: Path):
+    """`within(owner, library)`: a context in which `library()` is built by a compiler that fails every
+    compile (`false`, on every machine) into an empty cache, `owner` being the module whose `CACHE_DIR`
+    and `COMPILERS` it reads; the real ones and a fresh `library()` after."""
+
+    @contextlib.contextmanager
+    def within(owner, library):
+        monkeypatch.setattr(owner, "CACHE_DIR", tmp_path / "failing-build")
+        monkeypatch.setattr(owner, "COMPILERS", ("false",))
+        library.cache_clear()
+        try:
+            yield
+        finally:
+            monkeypatch.undo()
+            library.cache_clear()
+
+    return within
 
 
 def flat_weights(model):

@@ -159,20 +159,14 @@ def test_concurrent_builders_compile_once(small_build):
     assert len(built) == 1 and _compiles(log) == 1
 
 
-def test_a_failing_compiler_warns_and_falls_back(tmp_path, monkeypatch, untrained_model, c_kernels):
-    monkeypatch.setattr(native, "CACHE_DIR", tmp_path)
-    monkeypatch.setattr(native, "COMPILERS", ("false",))  # on every machine, and fails every compile
-    native.library.cache_clear()
-    try:
+def test_a_failing_compiler_warns_and_falls_back(untrained_model, c_kernels, failing_compiler):
+    with failing_compiler(native, native.library):
         with pytest.warns(RuntimeWarning, match="kernel unavailable"):
             assert native.library() is None
         controls = [np.tile([0.5, 0.2], (40, 1))]
         fallback = simulate(untrained_model, controls, rate_hz=30.0, n_samples=3, seed=1)  # backend "auto"
         with pytest.raises(InputError, match="backend"):
             simulate(untrained_model, controls, rate_hz=30.0, n_samples=3, seed=1, backend="native")
-    finally:
-        monkeypatch.undo()
-        native.library.cache_clear()
     compiled = simulate(untrained_model, controls, rate_hz=30.0, n_samples=3, seed=1, backend="native")
     np.testing.assert_allclose(fallback.x, compiled.x, atol=1e-5)
 

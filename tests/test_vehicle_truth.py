@@ -246,23 +246,17 @@ def test_the_compiled_step_follows_the_numpy_reference(name: str, cars: dict) ->
 
 
 def test_without_a_compiler_the_cars_take_the_numpy_path_and_the_cache_key_says_so(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, cars: dict
+    cars: dict, failing_compiler
 ) -> None:
     car = cars["f1tenth"]
     maneuver = Maneuver("skidpad", 0.5, 0.3, "ccw", 1.0)
     compiled_key = truth_text("f1tenth")
     compiled = collect([maneuver], vehicle=car, noise=None)
-    monkeypatch.setattr(cbuild, "CACHE_DIR", tmp_path)
-    monkeypatch.setattr(cbuild, "COMPILERS", ("false",))  # on every machine, and fails every compile
-    tyre_kernel.library.cache_clear()
-    try:
+    with failing_compiler(cbuild, tyre_kernel.library):
         with pytest.warns(RuntimeWarning, match="tyre step unavailable"):
             assert tyre_kernel.library() is None
         fallback = collect([maneuver], vehicle=car, noise=None)
         assert truth_text("f1tenth") != compiled_key  # a cache never mixes the two paths' last bits
-    finally:
-        monkeypatch.undo()
-        tyre_kernel.library.cache_clear()
     assert truth_text("f1tenth") == compiled_key
     numbers = compiled.select_dtypes("number").columns.drop("timestamp")
     np.testing.assert_allclose(fallback[numbers].to_numpy(), compiled[numbers].to_numpy(), rtol=1e-9,
