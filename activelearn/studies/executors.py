@@ -8,12 +8,13 @@ from its last checkpoint in the shared output directory, so a lost worker costs 
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from multiprocessing import get_context
 from typing import Any
 
 from activelearn.errors import InputError
+from activelearn.studies.processes import with_environment, worker_context
 
 EXECUTORS = ("process", "ray")
 # Ray retries a task whose worker died this many times (the campaign resumes each time).
@@ -47,8 +48,8 @@ def run_jobs(
 ) -> Iterator[tuple[Any, Any]]:
     """Run `job(*args)` for every (key, args) of `jobs`; yield (key, result) as each finishes.
 
-    "process": `workers` spawned processes (1: in this process). "ray": one task per job on the
-    cluster at `ray_address` ("auto", "HOST:PORT", or None/"local" for an in-process cluster of
+    "process": `workers` local processes (`studies.processes`; 1: in this process). "ray": one task per
+    job on the cluster at `ray_address` ("auto", "HOST:PORT", or None/"local" for an in-process cluster of
     `workers` CPUs), one CPU each; `on_start` gets {"event": "dashboard", "url": ...} when the
     cluster has a dashboard.
     """
@@ -58,8 +59,9 @@ def run_jobs(
         for key, args in jobs:
             yield key, job(*args)
     else:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-            futures = {pool.submit(job, *args): key for key, args in jobs}
+        with ProcessPoolExecutor(max_workers=workers, mp_context=worker_context()) as pool:
+            environment = dict(os.environ)
+            futures = {pool.submit(with_environment, environment, job, *args): key for key, args in jobs}
             for future in as_completed(futures):
                 yield futures[future], future.result()
 

@@ -86,7 +86,7 @@ def tune(
     """Run (or continue) an Optuna study over the config's search space and add `n_trials` trials.
 
     Everything is checked before anything is created: arguments, data files, then the storage
-    (connect timeout), then simulated data. `workers` > 1 runs that many spawned processes sharing
+    (connect timeout), then simulated data. `workers` > 1 runs that many worker processes sharing
     the trials; `timeout` (s) stops starting new trials. `enqueue` lists params (Optuna names) to try first.
     The best params go to `out` (default `<output_dir>/tuning/<study>/best.toml`) with the figures.
     """

@@ -16,7 +16,6 @@ import contextlib
 import dataclasses
 import datetime
 import math
-import multiprocessing
 import os
 import queue as queue_module
 import signal
@@ -36,6 +35,7 @@ from activelearn.config import CampaignConfig, TuningConfig
 from activelearn.numerics.models import build_model
 from activelearn.numerics.training import fit
 from activelearn.numerics.training_data import TrainingData
+from activelearn.studies.processes import with_environment, worker_context
 from activelearn.studies.tuning.data import Progress, Split
 from activelearn.studies.tuning.space import make_pruner, make_sampler, sample_params, trial_configs
 from activelearn.studies.tuning.storage import (
@@ -73,13 +73,13 @@ def close_lost_run(tracker: Any, run_token: str, trial: FrozenTrial) -> None:
 
 @dataclass(frozen=True)
 class Job:
-    """Everything a worker process needs (pickled to spawned processes)."""
+    """Everything a worker process needs (pickled to the worker processes)."""
 
     study_name: str
     storage_url: str
     cfg: CampaignConfig
     tuning: TuningConfig
-    # The data travel in a file to spawned workers (`split_file`): the pickled job stays small, so
+    # The data travel in a file to the worker processes (`split_file`): the pickled job stays small, so
     # starting a worker never blocks on a pipe the worker is not reading yet (or never will).
     split: Split | None
     objectives: tuple[str, ...]
@@ -296,7 +296,7 @@ class Tickets:
 
 
 def _worker_main(job: Job, slot: int, tickets: Tickets, events: Any) -> None:
-    """Entry point of a spawned worker process."""
+    """Entry point of a worker process (`studies.processes`)."""
     import torch
 
     torch.set_num_threads(1)  # one busy process per core: intra-op threads would only fight
@@ -328,7 +328,7 @@ class Supervision:
 def run_processes(
     job: Job, workers: int, n_trials: int, progress: Progress, on_lost: Callable[[FrozenTrial], None]
 ) -> Supervision:
-    """Run `workers` spawned processes sharing `n_trials` tickets; replace workers that die."""
+    """Run `workers` worker processes sharing `n_trials` tickets; replace workers that die."""
     assert job.split is not None
     with tempfile.TemporaryDirectory(prefix="activelearn-tune-") as tmp:
         split_file = Path(tmp) / "split.npz"
@@ -360,7 +360,7 @@ def _supervise(
     A worker that dies holding a trial is replaced (at most `workers` times in all, so a trial that
     kills every worker it meets cannot loop forever); its trial is failed and queued again.
     """
-    ctx = multiprocessing.get_context("spawn")
+    ctx = worker_context()
     max_restarts = workers
     tickets = Tickets(ctx, n_trials, workers + max_restarts)
     events = ctx.Queue()
@@ -370,7 +370,8 @@ def _supervise(
     study: optuna.Study | None = None
 
     def start(slot: int) -> None:
-        procs[slot] = ctx.Process(target=_worker_main, args=(job, slot, tickets, events), name=f"tune-{slot}")
+        args = (dict(os.environ), _worker_main, job, slot, tickets, events)
+        procs[slot] = ctx.Process(target=with_environment, args=args, name=f"tune-{slot}")
         procs[slot].start()
 
     for slot in range(workers):

@@ -1,0 +1,40 @@
+"""Local worker processes that start with the heavy imports already done.
+
+Comparisons and tuning studies run their campaigns and trials in fresh processes (never forked from
+the parent: its torch may already hold OpenMP threads). A spawned process imports torch, pandas,
+scipy, MuJoCo and the loop again, and its first optimizer imports `torch._dynamo`: about 6 CPU-s
+before its first job. Here the workers come from a fork server that did those imports once
+(`multiprocessing`'s "forkserver", preloaded), so each worker starts as a fresh, single-threaded copy
+of it. A worker gets the parent's current working directory and `sys.path` from multiprocessing, and
+its current environment from `with_environment` (the fork server's own was fixed when it started).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from collections.abc import Callable, Mapping
+from multiprocessing.context import BaseContext
+from typing import Any
+
+# What a worker imports before its first job: a comparison's campaign and a study's trial (torch,
+# pandas, scipy, MuJoCo, the loop), MLflow and matplotlib (tracking, figures), and the part of torch
+# that an optimizer imports on first use.
+PRELOAD = (
+    "activelearn.studies.compare", "activelearn.studies.tuning.workers", "activelearn.studies.tracking",
+    "activelearn.plots", "torch._dynamo",
+)  # fmt: skip
+
+
+def worker_context() -> BaseContext:
+    """The multiprocessing context of every local worker: a fork server with PRELOAD imported."""
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(list(PRELOAD))
+    return context
+
+
+def with_environment(environment: Mapping[str, str], target: Callable[..., Any], *args: Any) -> Any:
+    """Run `target(*args)` under `environment` (the parent's `os.environ` when the job was handed out)."""
+    os.environ.clear()
+    os.environ.update(environment)
+    return target(*args)

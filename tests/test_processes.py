@@ -1,0 +1,40 @@
+"""Local worker processes (activelearn.studies.processes): fresh processes from a preloaded fork server
+that still see what the parent sees when a job is handed out (environment, working directory)."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import pytest
+
+from activelearn.studies.executors import run_jobs
+from activelearn.studies.processes import PRELOAD
+
+
+def _what_a_worker_sees(name: str) -> tuple[int, str | None, str, bool]:
+    return os.getpid(), os.environ.get(name), os.getcwd(), all(module in sys.modules for module in PRELOAD)
+
+
+def test_a_worker_sees_the_environment_and_directory_of_when_its_job_was_handed_out(tmp_path, monkeypatch):
+    name = "ACTIVELEARN_TEST_WORKER_ENV"
+    monkeypatch.setenv(name, "first")
+    first = dict(run_jobs(_what_a_worker_sees, [(k, (name,)) for k in range(2)], workers=2))
+    assert {seen[1] for seen in first.values()} == {"first"}
+    assert all(seen[0] != os.getpid() for seen in first.values())  # not this process
+    assert all(seen[3] for seen in first.values())  # the heavy imports came with the process
+    # The fork server started with the first call and kept that call's environment and directory: a
+    # later change here must still reach the next call's workers, as with freshly spawned processes.
+    monkeypatch.setenv(name, "second")
+    monkeypatch.chdir(tmp_path)
+    second = dict(run_jobs(_what_a_worker_sees, [(k, (name,)) for k in range(2)], workers=2))
+    assert {seen[1:3] for seen in second.values()} == {("second", str(tmp_path))}
+    monkeypatch.delenv(name)
+    third = dict(run_jobs(_what_a_worker_sees, [(k, (name,)) for k in range(2)], workers=2))
+    assert {seen[1] for seen in third.values()} == {None}
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_jobs_error_reaches_the_caller(workers):
+    with pytest.raises(ValueError, match="invalid literal"):
+        dict(run_jobs(int, [(0, ("1",)), (1, ("x",))], workers=workers))
