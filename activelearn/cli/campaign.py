@@ -143,7 +143,6 @@ def _campaign_tracker(cfg, args):
 def _campaign_propose(args: argparse.Namespace) -> int:
 
     from activelearn.errors import InputError
-    from activelearn.loop.campaign import Campaign, CampaignInterrupted
 
     cfg = load_campaign_config(args, **_strategy_seed(args))
     plot = Path(args.plot) if args.plot else None
@@ -151,6 +150,8 @@ def _campaign_propose(args: argparse.Namespace) -> int:
         raise InputError("--plot", args.plot, f"must end in {', '.join(PLOT_SUFFIXES)}")
     if plot is not None and cfg.safety is None:
         raise InputError("--plot", args.plot, "draws the [safety] arena: the config has no [safety] section")
+    from activelearn.loop.campaign import Campaign, CampaignInterrupted  # torch: after the input is checked
+
     directory = _campaign_directory(args, cfg)
     campaign = Campaign(cfg, directory, tracker=_campaign_tracker(cfg, args), progress=common.notice)
     campaign.lock_wait = args.wait
@@ -242,9 +243,9 @@ def _campaign_run(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from activelearn.loop.campaign import Campaign, CampaignInterrupted, total_rounds
-
     cfg = load_campaign_config(args, **_strategy_seed(args))
+    from activelearn.loop.campaign import Campaign, CampaignInterrupted, total_rounds  # after the config
+
     directory = _campaign_directory(args, cfg)
     tracker = _campaign_tracker(cfg, args)
     campaign = Campaign(cfg, directory, tracker=tracker)

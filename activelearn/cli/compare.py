@@ -55,7 +55,6 @@ def _compare(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from activelearn.errors import InputError
-    from activelearn.studies.compare import compare
 
     strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
     if args.seeds < 1:
@@ -67,6 +66,8 @@ def _compare(args: argparse.Namespace) -> int:
     if args.resume and not (directory / "compare.json").is_file():
         raise InputError("--resume", str(directory),
                          "holds no comparison to resume (no compare.json): check --out, or drop --resume")
+    from activelearn.studies.compare import compare  # torch and the loop: after the input is checked
+
     n_jobs = len(strategies) * args.seeds
     bars: dict[str, tqdm] = {}
 

@@ -39,7 +39,6 @@ def _load_any_model(spec: str, tracking_uri: str):
     from pathlib import Path
 
     from activelearn.errors import InputError
-    from activelearn.numerics.models import load_model
 
     path = Path(spec)
     if path.is_dir():
@@ -48,6 +47,8 @@ def _load_any_model(spec: str, tracking_uri: str):
                                               "once a round is fitted: after `campaign run` or an ingest)")
         path = path / "model.pt"
     if path.is_file():
+        from activelearn.numerics.models import load_model  # torch: once there is a file to read
+
         try:
             return load_model(path)
         except Exception as exc:  # a foreign or truncated file: say which

@@ -290,14 +290,14 @@ class ModelConfig(_Section):
     @classmethod
     def _check_positive(cls, value: float, info) -> float:
         if not value > 0:
-            raise ValueError(f"{info.field_name} must be > 0, got {value!r}")
+            raise ValueError("must be > 0")
         return value
 
     @field_validator("kl_samples", "n_inputs", "n_outputs", "history_step", "hidden_size")
     @classmethod
     def _check_count(cls, value: int, info) -> int:
         if value < 1:
-            raise ValueError(f"{info.field_name} must be >= 1, got {value!r}")
+            raise ValueError("must be >= 1")
         return value
 
     @field_validator("ensemble_size")
@@ -416,14 +416,14 @@ class TrainingConfig(_Section):
     @classmethod
     def _check_non_negative(cls, value: float, info) -> float:
         if not value >= 0:
-            raise ValueError(f"{info.field_name} must be >= 0, got {value!r}")
+            raise ValueError("must be >= 0")
         return value
 
     @field_validator("epochs", "batch_size", "n_eval_samples")
     @classmethod
     def _check_count(cls, value: int, info) -> int:
         if value < 1:
-            raise ValueError(f"{info.field_name} must be >= 1, got {value!r}")
+            raise ValueError("must be >= 1")
         return value
 
     @field_validator("warm_epochs")
