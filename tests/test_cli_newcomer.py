@@ -524,3 +524,13 @@ def test_bad_input_is_refused_before_torch_is_imported(tmp_path):
     fields = [error.split(":")[1].strip() for error in errors]
     assert fields == ["training.epochs"] * 3 + ["--resume", "--model"], errors
     assert not (tmp_path / "out").exists()
+
+
+def test_ctrl_c_outside_a_campaign_is_one_line_and_exit_130(tmp_path, monkeypatch, capsys):
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("activelearn.config.load_config", interrupted)  # Ctrl-C while the config loads
+    assert run(["compare", str(SMOKE), "--no-tracking", "--out", str(tmp_path / "out")]) == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "interrupted" in err[0], err

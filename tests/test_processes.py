@@ -4,10 +4,12 @@ that still see what the parent sees when a job is handed out (environment, worki
 from __future__ import annotations
 
 import os
+import signal
 import sys
 
 import pytest
 
+from activelearn.studies import processes
 from activelearn.studies.executors import run_jobs
 from activelearn.studies.processes import PRELOAD
 
@@ -38,3 +40,14 @@ def test_a_worker_sees_the_environment_and_directory_of_when_its_job_was_handed_
 def test_a_jobs_error_reaches_the_caller(workers):
     with pytest.raises(ValueError, match="invalid literal"):
         dict(run_jobs(int, [(0, ("1",)), (1, ("x",))], workers=workers))
+
+
+def test_the_fork_server_ignores_ctrl_c_while_it_imports_and_its_workers_do_not(tmp_path, monkeypatch):
+    module = tmp_path / "interrupts_on_import.py"
+    module.write_text("import os, signal\nos.kill(os.getpid(), signal.SIGINT)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(processes, "PRELOAD", ("interrupts_on_import",))
+    before = signal.getsignal(signal.SIGINT)
+    processes.preload_quietly()  # a Ctrl-C mid-import: no KeyboardInterrupt, no traceback
+    assert "interrupts_on_import" in sys.modules
+    assert signal.getsignal(signal.SIGINT) is before  # what the workers inherit: Ctrl-C stops them

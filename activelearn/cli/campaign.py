@@ -9,6 +9,7 @@ from typing import Any
 
 from activelearn.cli import common
 from activelearn.cli.common import (
+    EXIT_INTERRUPTED,
     PLOT_SUFFIXES,
     Parser,
     add_config_options,
@@ -159,7 +160,7 @@ def _campaign_propose(args: argparse.Namespace) -> int:
         proposals = campaign.propose(resume=args.resume)
     except CampaignInterrupted as exc:
         print(red(f"interrupted: {exc}"), file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     from activelearn.loop.state import CampaignState
 
     if not proposals:
@@ -213,7 +214,7 @@ def _campaign_ingest(args: argparse.Namespace) -> int:
         report = ingest(campaign, args.logs, resume=args.resume)
     except CampaignInterrupted as exc:
         print(red(f"interrupted: {exc}"), file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     for log, name in report.matched.items():
         print(f"{log} -> {name}")
     if report.missing:
@@ -266,7 +267,7 @@ def _campaign_run(args: argparse.Namespace) -> int:
     except CampaignInterrupted as exc:
         bar.close()
         print(red(f"interrupted: {exc}"), file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     bar.close()
     history = result.history
     columns = round_columns(cfg, history)

@@ -10,6 +10,7 @@ from pathlib import Path
 
 EXIT_USAGE = 2
 EXIT_STOPPED = 75  # EX_TEMPFAIL: a campaign stopped for a cause outside it; --resume continues it
+EXIT_INTERRUPTED = 130  # Ctrl-C, as a shell reports a process ended by SIGINT
 
 Handler = Callable[[argparse.Namespace], int]
 

@@ -6,7 +6,14 @@ import argparse
 import sys
 from pathlib import Path
 
-from activelearn.cli.common import add_config_options, load_campaign_config, output_path, red, ui_hint
+from activelearn.cli.common import (
+    EXIT_INTERRUPTED,
+    add_config_options,
+    load_campaign_config,
+    output_path,
+    red,
+    ui_hint,
+)
 from activelearn.names import STRATEGY_NAMES, TEST_RMSE
 
 # The comparison table's columns as printed.
@@ -91,7 +98,7 @@ def _compare(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print(red("interrupted: finished rounds are checkpointed; rerun the same command with --resume"),
               file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     finally:
         for bar in bars.values():
             bar.close()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from activelearn.cli.common import output_path, red, ui_hint, yellow
+from activelearn.cli.common import EXIT_INTERRUPTED, output_path, red, ui_hint, yellow
 
 # --- tune -----------------------------------------------------------------------------------------
 
@@ -133,7 +133,7 @@ def _tune(args: argparse.Namespace) -> int:
                       progress=progress)  # fmt: skip
     except TuningInterrupted as exc:
         print(red(f"interrupted: {exc}"), file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     finally:
         for bar in bars.values():
             bar.close()

@@ -7,15 +7,21 @@ before its first job. Here the workers come from a fork server that did those im
 (`multiprocessing`'s "forkserver", preloaded), so each worker starts as a fresh, single-threaded copy
 of it. A worker gets the parent's current working directory and `sys.path` from multiprocessing, and
 its current environment from `with_environment` (the fork server's own was fixed when it started).
+The server ignores Ctrl-C while it imports (`preload_quietly`): it has nothing to stop, and its
+traceback would only bury the command's one line; its workers stop on Ctrl-C as spawned ones do.
 """
 
 from __future__ import annotations
 
+import importlib
 import multiprocessing
 import os
+import signal
 from collections.abc import Callable, Mapping
 from multiprocessing.context import BaseContext
 from typing import Any
+
+QUIET_PRELOAD = "activelearn.studies.preload"  # what the fork server imports: it runs preload_quietly
 
 # What a worker imports before its first job: a comparison's campaign and a study's trial (torch,
 # pandas, scipy, MuJoCo, the loop), MLflow and matplotlib (tracking, figures), and the part of torch
@@ -29,8 +35,19 @@ PRELOAD = (
 def worker_context() -> BaseContext:
     """The multiprocessing context of every local worker: a fork server with PRELOAD imported."""
     context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload(list(PRELOAD))
+    context.set_forkserver_preload([QUIET_PRELOAD])
     return context
+
+
+def preload_quietly() -> None:
+    """Import PRELOAD with Ctrl-C ignored, then restore Python's own handler (the fork server's
+    workers inherit the handler it finds after its preload)."""
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        for module in PRELOAD:
+            importlib.import_module(module)
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def with_environment(environment: Mapping[str, str], target: Callable[..., Any], *args: Any) -> Any:
