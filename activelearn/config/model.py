@@ -288,14 +288,14 @@ class ModelConfig(_Section):
 
     @field_validator("prior_scale", "posterior_init_std", "min_std")
     @classmethod
-    def _check_positive(cls, value: float, info) -> float:
+    def _check_positive(cls, value: float) -> float:
         if not value > 0:
             raise ValueError("must be > 0")
         return value
 
     @field_validator("kl_samples", "n_inputs", "n_outputs", "history_step", "hidden_size")
     @classmethod
-    def _check_count(cls, value: int, info) -> int:
+    def _check_count(cls, value: int) -> int:
         if value < 1:
             raise ValueError("must be >= 1")
         return value
@@ -414,14 +414,14 @@ class TrainingConfig(_Section):
 
     @field_validator("momentum", "weight_decay", "kl_weight")
     @classmethod
-    def _check_non_negative(cls, value: float, info) -> float:
+    def _check_non_negative(cls, value: float) -> float:
         if not value >= 0:
             raise ValueError("must be >= 0")
         return value
 
     @field_validator("epochs", "batch_size", "n_eval_samples")
     @classmethod
-    def _check_count(cls, value: int, info) -> int:
+    def _check_count(cls, value: int) -> int:
         if value < 1:
             raise ValueError("must be >= 1")
         return value
