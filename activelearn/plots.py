@@ -65,11 +65,46 @@ def strategy_colour(strategy: str, fallback: str = "#a0a0a0") -> str:
     return STRATEGY_COLOURS.get(strategy, fallback)
 
 
-def new_figure(width: float, height: float) -> Figure:
-    """An empty figure of `width` x `height` inches, laid out by matplotlib, drawn off-screen."""
-    fig = Figure(figsize=(width, height), layout="constrained")
+def new_figure(width: float, height: float, *, layout: str | None = "constrained") -> Figure:
+    """An empty figure of `width` x `height` inches, drawn off-screen; laid out by matplotlib unless
+    `layout` is None (the caller places its axes, as the round figure does: see `_InchGrid`)."""
+    fig = Figure(figsize=(width, height), layout=layout)
     FigureCanvasAgg(fig)  # render off-screen whatever the global matplotlib backend is
     return fig
+
+
+class _InchGrid:
+    """Places axes and legends on a figure in inches from its lower left corner.
+
+    The round figure is drawn every round of every campaign; matplotlib's constrained layout laid it
+    out by drawing it once more before saving, about a third of its cost. Its panels' margins are fixed
+    instead (wide enough for the labels' and ticks' text at its font sizes), and the one part whose size
+    varies, a legend below a panel, is measured before the panel's axes are placed above it."""
+
+    def __init__(self, fig: Figure) -> None:
+        self.fig = fig
+        self.width, self.height = fig.get_size_inches()
+
+    def axes(self, left: float, bottom: float, width: float, height: float) -> Any:
+        return self.fig.add_axes((left / self.width, bottom / self.height, width / self.width,
+                                  height / self.height))  # fmt: skip
+
+    def legend_below(self, centre: float, width: float, ncols: int, **kwargs: Any) -> float:
+        """A frameless legend centred at `centre` inches along the figure's bottom edge, in at most
+        `ncols` columns and fewer where they would be wider than `width` inches; its height in inches
+        (0 without handles): what the panel above it must leave free."""
+        if not kwargs.get("handles"):
+            return 0.0
+        renderer = self.fig.canvas.get_renderer()
+        for columns in range(max(ncols, 1), 0, -1):
+            anchor = (centre / self.width, 0.0)
+            legend = self.fig.legend(loc="lower center", bbox_to_anchor=anchor, frameon=False,
+                                     borderaxespad=0.2, ncols=columns, **kwargs)  # fmt: skip
+            box = legend.get_window_extent(renderer)
+            if box.width / self.fig.dpi <= width or columns == 1:
+                return float(box.height) / self.fig.dpi
+            legend.remove()
+        raise AssertionError("unreachable: one column is always kept")
 
 
 def save_figure(fig: Figure, path: str | Path, *, dpi: int) -> Path:
@@ -164,23 +199,15 @@ def epistemic_map(
     `plans` = (names, control signals (T, 2), their predicted rollout) of the chosen maneuvers adds,
     beside the map, the throttle and steering each one applies and the path the model predicts.
     """
-    fig = new_figure(6.4 if plans is None else 15.0, 5.2)
-    panel: Any = fig
+    fig = new_figure(_MAP_WIDTH if plans is None else _MAP_WIDTH + _PLANS_WIDTH, _MAP_HEIGHT, layout=None)
+    grid = _InchGrid(fig)
     if plans is not None:
-        panel, right = fig.subfigures(1, 2, width_ratios=(1.2, 1.6))
-        _plans(right, *plans)
-    ax = panel.add_subplot()
-    mesh = ax.pcolormesh(steerings, throttles, std, shading="nearest", cmap="viridis")
-    panel.colorbar(mesh, ax=ax, label="epistemic std (standardised, mean of v and ω)")
+        _plans(grid, *plans)
     styles = (
         (prior, {"facecolor": "0.6", "edgecolor": "0.3", "s": 20}),
         (taken, {"facecolor": "white", "edgecolor": "black", "s": 36}),
         (picks, {"facecolor": "red", "edgecolor": "black", "s": 90}),
     )
-    for group, style in styles:
-        for kind in sorted({m.kind for m in group}):
-            pts = np.array([(_signed_steering(m), m.throttle) for m in group if m.kind == kind])
-            ax.scatter(pts[:, 0], pts[:, 1], marker=_KIND_MARKERS.get(kind, _OTHER_MARKER), **style)
     # Fill says what a marker is (only the groups drawn), shape which kind of maneuver it is. With one
     # kind the group's key is that kind's marker; with several, a swatch of the fill (a marker would
     # read as one of the kinds) and one outline per kind.
@@ -205,24 +232,48 @@ def epistemic_map(
                    markerfacecolor="none", markeredgecolor="black", label=f"shape: {kind}")
             for kind in kinds
         ]  # fmt: skip
+    # an empty map (nothing collected or chosen yet) has nothing to explain
+    below = grid.legend_below(_MAP_WIDTH / 2, _MAP_WIDTH, 4, handles=handles, fontsize=9)
+    left, right, top, bottom = 0.75, 1.35, 0.35, 0.55 + below  # the colorbar and its label on the right
+    ax = grid.axes(left, bottom, _MAP_WIDTH - left - right, _MAP_HEIGHT - top - bottom)
+    mesh = ax.pcolormesh(steerings, throttles, std, shading="nearest", cmap="viridis")
+    fig.colorbar(mesh, cax=grid.axes(_MAP_WIDTH - right + 0.15, bottom, 0.17, _MAP_HEIGHT - top - bottom),
+                 label="epistemic std (standardised, mean of v and ω)")  # fmt: skip
+    for group, style in styles:
+        for kind in sorted({m.kind for m in group}):
+            pts = np.array([(_signed_steering(m), m.throttle) for m in group if m.kind == kind])
+            ax.scatter(pts[:, 0], pts[:, 1], marker=_KIND_MARKERS.get(kind, _OTHER_MARKER), **style)
     ax.set_xlabel("signed steering (rad, + = left, ccw)")
     ax.set_ylabel("throttle")
     ax.set_title(title)
-    if handles:  # an empty map (nothing collected or chosen yet) has nothing to explain
-        panel.legend(handles=handles, loc="outside lower center", ncols=min(4, len(handles)), fontsize=9,
-                     frameon=False)  # fmt: skip
     return fig
 
 
-def _plans(panel: Any, names: Sequence[str], controls: Sequence[np.ndarray], rollout: Any) -> None:
-    """The chosen maneuvers' control signals (throttle, steering over time) and predicted paths with fans."""
-    axes = panel.subplot_mosaic([["throttle", "path"], ["steering", "path"]])
-    ax_t, ax_s, ax_p = axes["throttle"], axes["steering"], axes["path"]
+# The round figure's size in inches: the map panel (with its colorbar) and, right of it, the chosen
+# signals' panel.
+_MAP_WIDTH, _PLANS_WIDTH, _MAP_HEIGHT = 6.4, 8.6, 5.2
+
+
+def _plans(grid: _InchGrid, names: Sequence[str], controls: Sequence[np.ndarray], rollout: Any) -> None:
+    """The chosen maneuvers' control signals (throttle, steering over time) and predicted paths with fans,
+    right of the map: two stacked axes of signals, the paths beside them, the signals' names below."""
+    labels = [name if len(name) <= 40 else name[:38] + "…" for name in names]
+    colours = [f"C{(k + 1) % 10}" for k in range(len(names))]
+    handles = [Line2D([], [], color=c, lw=1.2, label=label) for c, label in zip(colours, labels, strict=True)]
+    below = grid.legend_below(_MAP_WIDTH + _PLANS_WIDTH / 2, _PLANS_WIDTH, 1 if len(handles) <= 4 else 2,
+                              handles=handles, fontsize=8)
+    left, gap, right, top, bottom, between = 0.75, 0.8, 0.15, 0.35, 0.5 + below, 0.5
+    width = (_PLANS_WIDTH - left - gap - right) / 2
+    height = _MAP_HEIGHT - top - bottom
+    x0 = _MAP_WIDTH + left
+    ax_s = grid.axes(x0, bottom, width, (height - between) / 2)
+    ax_t = grid.axes(x0, bottom + (height + between) / 2, width, (height - between) / 2)
+    ax_p = grid.axes(x0 + width + gap, bottom, width, height)
     ax_s.sharex(ax_t)
-    for k, (name, u) in enumerate(zip(names, controls, strict=True)):
-        colour = f"C{(k + 1) % 10}"
+    for k, u in enumerate(controls):
+        colour = colours[k]
         t = np.arange(len(u)) * rollout.dt
-        ax_t.plot(t, u[:, 0], color=colour, lw=1.2, label=name if len(name) <= 40 else name[:38] + "…")
+        ax_t.plot(t, u[:, 0], color=colour, lw=1.2)
         ax_s.plot(t, u[:, 1], color=colour, lw=1.2)
         n = int(rollout.lengths[k])
         for s in range(rollout.x.shape[0]):
@@ -242,8 +293,6 @@ def _plans(panel: Any, names: Sequence[str], controls: Sequence[np.ndarray], rol
         ax.grid(alpha=0.3)
         ax.tick_params(labelsize=8)
     ax_t.set_title("chosen control signals", fontsize=10)
-    panel.legend(*ax_t.get_legend_handles_labels(), loc="outside lower center", ncols=1, fontsize=8,
-                 frameon=False)  # fmt: skip
 
 
 def comparison_figure(

@@ -407,7 +407,7 @@ def test_round_figure_shows_the_chosen_signals_and_their_predicted_paths(tmp_pat
     fig = epistemic_map(grid, grid - 0.6, np.ones((3, 3)), taken=[], picks=picks[1:], plans=plans)
     titles = {ax.get_title() for ax in fig.axes}
     assert {"chosen control signals", "predicted paths (mean, fan)"} <= titles
-    labels = [t.get_text() for sub in fig.subfigs for legend in sub.legends for t in legend.get_texts()]
+    labels = [t.get_text() for legend in fig.legends for t in legend.get_texts()]
     assert picks[0].name in labels and picks[1].name in labels  # one colour per chosen signal
     signals = next(ax for ax in fig.axes if ax.get_title() == "chosen control signals")
     np.testing.assert_array_equal(signals.lines[0].get_ydata(), controls[0][:, 0])
@@ -416,6 +416,43 @@ def test_round_figure_shows_the_chosen_signals_and_their_predicted_paths(tmp_pat
     fig.savefig(tmp_path / "round.png", dpi=60)
     assert (tmp_path / "round.png").stat().st_size > 0
     assert len(epistemic_map(grid, grid - 0.6, np.ones((3, 3)), taken=[], picks=[]).axes) == 2  # map only
+
+
+@pytest.mark.parametrize("n_picks", [1, 8])
+def test_the_round_figures_text_stays_inside_it_and_off_the_other_panels(n_picks: int) -> None:
+    """The round figure is laid out by hand (no constrained layout): its labels, ticks, titles and
+    legends must fit, also with a batch of 8 long names, a fast car's paths (hundreds of metres) and
+    every family's shape in the map's legend."""
+    import dataclasses
+
+    from activelearn.config import ModelConfig
+    from activelearn.numerics.models import build_model
+    from activelearn.numerics.surrogate import simulate
+    from activelearn.plots import epistemic_map
+    from simulator import FamilyManeuver, nominal_controls
+    from simulator.families import FAMILIES
+
+    picks = [FamilyManeuver("chirp", {"throttle": 0.6, "amplitude": 0.3, "f0": 0.05 + 0.01 * k, "f1": 0.5},
+                            "ccw", 6.0) for k in range(n_picks)]  # fmt: skip
+    controls = [nominal_controls(m) for m in picks]
+    rollout = simulate(build_model(ModelConfig()), controls, rate_hz=30.0, n_samples=4)
+    rollout = dataclasses.replace(rollout, x=rollout.x * -400.0, y=rollout.y * 400.0)  # −1000 m and more
+    taken = [FamilyManeuver(name, {p.name: p.pool[0] for p in family.parameters}, "cw", 10.0)
+             for name, family in FAMILIES.items()]  # fmt: skip
+    steerings = np.linspace(-0.52, 0.52, 5)
+    plans = ([m.name * 2 for m in picks], controls, rollout)
+    fig = epistemic_map(np.linspace(-1.0, 1.0, 5), steerings, np.full((5, 5), 1e-3), taken=taken, picks=picks,
+                        title="integrated_variance, seed 12, round 16", plans=plans)  # fmt: skip
+    renderer = fig.canvas.get_renderer()
+    page = fig.bbox
+    boxes = [ax.get_tightbbox(renderer) for ax in fig.axes]
+    boxes += [legend.get_window_extent(renderer) for legend in fig.legends]
+    for box in boxes:
+        inside = page.x0 <= box.x0 and box.x1 <= page.x1 and page.y0 <= box.y0 and box.y1 <= page.y1
+        assert inside, (box, page)
+    for i, a in enumerate(boxes):
+        for b in boxes[i + 1 :]:
+            assert not a.overlaps(b), (a, b)
 
 
 @pytest.mark.parametrize(("seeds", "says"), [(1, "1 seed (no band)"), (3, "mean ± 1 s.e. over 3 seeds")])
