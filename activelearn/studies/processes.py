@@ -8,17 +8,22 @@ before its first job. Here the workers come from a fork server that did those im
 of it. A worker gets the parent's current working directory and `sys.path` from multiprocessing, and
 its current environment from `with_environment` (the fork server's own was fixed when it started).
 The server ignores Ctrl-C while it imports (`preload_quietly`): it has nothing to stop, and its
-traceback would only bury the command's one line; its workers stop on Ctrl-C as spawned ones do.
+traceback would only bury the command's one line; its workers stop on Ctrl-C as spawned ones do. A
+worker forked just as a Ctrl-C ends the command finds the command's semaphores already removed when it
+unpickles its pool's queues; it exits without a traceback (`quiet_orphans`), as its job never started.
 """
 
 from __future__ import annotations
 
 import importlib
 import multiprocessing
+import multiprocessing.synchronize
 import os
 import signal
+import sys
 from collections.abc import Callable, Mapping
 from multiprocessing.context import BaseContext
+from types import TracebackType
 from typing import Any
 
 QUIET_PRELOAD = "activelearn.studies.preload"  # what the fork server imports: it runs preload_quietly
@@ -48,6 +53,29 @@ def preload_quietly() -> None:
             importlib.import_module(module)
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+def orphaned(error: BaseException, trace: TracebackType | None) -> bool:
+    """Whether `error` is a worker's failure to rebuild a semaphore of its parent's, which exists only
+    while the parent does: the parent has gone (a Ctrl-C) before the worker unpickled its queues."""
+    if not isinstance(error, FileNotFoundError) or trace is None:
+        return False
+    while trace.tb_next is not None:
+        trace = trace.tb_next
+    code = trace.tb_frame.f_code
+    return code.co_name == "__setstate__" and code.co_filename == multiprocessing.synchronize.__file__
+
+
+def quiet_orphans() -> None:
+    """In the fork server: a worker orphaned at its start (`orphaned`) exits without a traceback; any
+    other error is printed as before."""
+    hook = sys.excepthook
+
+    def excepthook(kind: type[BaseException], error: BaseException, trace: TracebackType | None) -> None:
+        if not orphaned(error, trace):
+            hook(kind, error, trace)
+
+    sys.excepthook = excepthook
 
 
 def with_environment(environment: Mapping[str, str], target: Callable[..., Any], *args: Any) -> Any:
