@@ -2,23 +2,31 @@
 
 A quick run measures little; it drives the same code as a full one (MuJoCo, training, campaigns,
 comparisons, studies) on a handful of maneuvers and epochs, so a change that breaks a benchmark fails
-here rather than on the day someone measures. Each runs in a process of its own, in a scratch folder,
-and one figure of its printout must be finite and within a stated range: a quick run that prints
-nonsense (a NaN, an error off by orders of magnitude, a violation where there was none) fails too.
-The ranges hold the quick runs' figures on a loaded 2-core machine with room to spare (timings by a
-factor of 20); they are not the benchmarks' targets, which only full runs measure.
+here rather than on the day someone measures. Each runs as `python bench_x.py --quick` would, in a
+process of its own and a scratch folder; the process is forked from the fork server that the
+comparisons' workers come from (`activelearn.studies.processes`), which has torch, MuJoCo and the loop
+imported already: about 4 CPU-s a benchmark less than a fresh interpreter. One figure of its printout
+must be finite and within a stated range: a quick run that prints nonsense (a NaN, an error off by
+orders of magnitude, a violation where there was none) fails too. The ranges hold the quick runs'
+figures on a loaded 2-core machine with room to spare (timings by a factor of 20); they are not the
+benchmarks' targets, which only full runs measure.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import re
-import subprocess
+import runpy
 import sys
+import traceback
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import NamedTuple
 
 import pytest
+
+from activelearn.studies.processes import worker_context
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "experiments" / "benchmarks"
 
@@ -106,17 +114,42 @@ CAMPAIGN_BENCHMARKS = ("bench_warm_start", "bench_safety", "bench_sample_efficie
                        "bench_transfer")
 
 
+def run_script(script: str, arguments: list[str], directory: str, stdout: str, stderr: str) -> int:
+    """In a fresh worker: what `python script arguments` does in `directory` (the script as `__main__`,
+    its folder first on sys.path), its output written to the files `stdout` and `stderr`; the exit code."""
+    os.chdir(directory)
+    sys.argv = [script, *arguments]
+    sys.path.insert(0, str(Path(script).parent))
+    with open(stdout, "w") as out, open(stderr, "w") as err:
+        os.dup2(out.fileno(), 1), os.dup2(err.fileno(), 2)  # its child processes' output too
+        try:
+            runpy.run_path(script, run_name="__main__")
+            code = 0
+        except SystemExit as exit_:
+            code = exit_.code if isinstance(exit_.code, int) else (0 if exit_.code is None else 1)
+            if isinstance(exit_.code, str):
+                print(exit_.code, file=sys.stderr)
+        except BaseException:  # the traceback is the test's message
+            traceback.print_exc()
+            code = 1
+        sys.stdout.flush(), sys.stderr.flush()
+    return code
+
+
 def run_quick(name: str, tmp_path: Path) -> None:
     """Run benchmark `name` in its quick mode; check its printout's line and figure."""
     text, takes_out, check = EXPECTED[name]
-    command = [sys.executable, str(BENCHMARKS / f"{name}.py"), "--quick"]
-    if takes_out:
-        command += ["--out", str(tmp_path / "out")]
-    done = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=1200)
-    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-    assert text in done.stdout, done.stdout[-3000:]
-    value = figure(done.stdout, check)
-    assert math.isfinite(value) and check.low <= value <= check.high, (check.what, value, done.stdout[-3000:])
+    arguments = ["--quick", *(["--out", str(tmp_path / "out")] if takes_out else [])]
+    stdout, stderr = tmp_path / "stdout.txt", tmp_path / "stderr.txt"
+    with ProcessPoolExecutor(1, mp_context=worker_context(), max_tasks_per_child=1) as pool:
+        job = pool.submit(run_script, str(BENCHMARKS / f"{name}.py"), arguments, str(tmp_path), str(stdout),
+                          str(stderr))  # fmt: skip
+        code = job.result(timeout=1200)
+    printout = stdout.read_text()
+    assert code == 0, printout[-3000:] + stderr.read_text()[-3000:]
+    assert text in printout, printout[-3000:]
+    value = figure(printout, check)
+    assert math.isfinite(value) and check.low <= value <= check.high, (check.what, value, printout[-3000:])
 
 
 def test_the_two_files_run_every_benchmark_once():
