@@ -181,6 +181,11 @@ def _signed_steering(maneuver: Any) -> float:
     return 0.0 if maneuver.kind == "straight" else maneuver.sign * maneuver.steering
 
 
+# The round figure's size in inches: the map panel (with its colorbar) and, right of it, the chosen
+# signals' panel.
+_MAP_WIDTH, _PLANS_WIDTH, _MAP_HEIGHT = 6.4, 8.6, 5.2
+
+
 def epistemic_map(
     throttles: np.ndarray,
     steerings: np.ndarray,
@@ -232,7 +237,7 @@ def epistemic_map(
                    markerfacecolor="none", markeredgecolor="black", label=f"shape: {kind}")
             for kind in kinds
         ]  # fmt: skip
-    # an empty map (nothing collected or chosen yet) has nothing to explain
+    # no legend on an empty map (nothing collected or chosen yet): nothing to explain
     below = grid.legend_below(_MAP_WIDTH / 2, _MAP_WIDTH, 4, handles=handles, fontsize=9)
     left, right, top, bottom = 0.75, 1.35, 0.35, 0.55 + below  # the colorbar and its label on the right
     ax = grid.axes(left, bottom, _MAP_WIDTH - left - right, _MAP_HEIGHT - top - bottom)
@@ -247,11 +252,6 @@ def epistemic_map(
     ax.set_ylabel("throttle")
     ax.set_title(title)
     return fig
-
-
-# The round figure's size in inches: the map panel (with its colorbar) and, right of it, the chosen
-# signals' panel.
-_MAP_WIDTH, _PLANS_WIDTH, _MAP_HEIGHT = 6.4, 8.6, 5.2
 
 
 def _plans(grid: _InchGrid, names: Sequence[str], controls: Sequence[np.ndarray], rollout: Any) -> None:
