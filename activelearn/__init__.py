@@ -7,7 +7,8 @@ The package has three rooms (see docs/design/index.md):
 - `activelearn.numerics`: models, training, uncertainty, the surrogate and its compiled kernels;
 
 plus the shared ground floor: `config`, `names` (strategies, metrics, log columns), `errors`, `data`,
-`plots`; and the command line on top (`cli`, one module per command).
+`plots`, `terminal` (exit statuses, red lines); and the command line on top (`cli`, one module per
+command, and `console`, the console script's entry point).
 The names users reach for most are importable from the package itself (loaded on first use, so
 `import activelearn` stays cheap):
 

@@ -571,3 +571,30 @@ def test_ctrl_c_outside_a_campaign_is_one_line_and_exit_130(tmp_path, monkeypatc
     assert run(["compare", str(SMOKE), "--no-tracking", "--out", str(tmp_path / "out")]) == 130
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "interrupted" in err[0], err
+
+
+# A Ctrl-C while the command line itself imports (its first second: pandas, MuJoCo), raised where the
+# import reaches the simulator's log writer; then the console script's entry point as it runs.
+_INTERRUPTED_IMPORT = """
+import sys
+
+class CtrlC:
+    def find_spec(self, name, path=None, target=None):
+        if name == "simulator.collect":
+            raise KeyboardInterrupt
+        return None
+
+sys.meta_path.insert(0, CtrlC())
+from activelearn.console import main
+sys.exit(main(["--help"]))
+"""
+
+
+def test_a_ctrl_c_while_the_command_line_imports_is_one_line_and_exit_130():
+    from importlib.metadata import entry_points
+
+    (script,) = entry_points(group="console_scripts", name="activelearn")
+    assert script.value == "activelearn.console:main"  # what `activelearn` runs
+    done = subprocess.run([sys.executable, "-c", _INTERRUPTED_IMPORT], capture_output=True, text=True,
+                          timeout=120)  # fmt: skip
+    assert done.returncode == 130 and done.stderr == "interrupted\n", done.stderr

@@ -8,15 +8,12 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-EXIT_USAGE = 2
-EXIT_STOPPED = 75  # EX_TEMPFAIL: a campaign stopped for a cause outside it; --resume continues it
-EXIT_INTERRUPTED = 130  # Ctrl-C, as a shell reports a process ended by SIGINT
+from activelearn.terminal import EXIT_INTERRUPTED as EXIT_INTERRUPTED
+from activelearn.terminal import EXIT_STOPPED as EXIT_STOPPED
+from activelearn.terminal import EXIT_USAGE as EXIT_USAGE
+from activelearn.terminal import red as red
 
 Handler = Callable[[argparse.Namespace], int]
-
-
-def red(text: str) -> str:
-    return f"\033[31m{text}\033[0m" if sys.stderr.isatty() else text
 
 
 def one_line(text: str) -> str:
