@@ -26,7 +26,7 @@ from typing import NamedTuple
 
 import pytest
 
-from activelearn.studies.processes import worker_context
+from activelearn.studies.processes import with_environment, worker_context
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "experiments" / "benchmarks"
 
@@ -142,8 +142,9 @@ def run_quick(name: str, tmp_path: Path) -> None:
     arguments = ["--quick", *(["--out", str(tmp_path / "out")] if takes_out else [])]
     stdout, stderr = tmp_path / "stdout.txt", tmp_path / "stderr.txt"
     with ProcessPoolExecutor(1, mp_context=worker_context(), max_tasks_per_child=1) as pool:
-        job = pool.submit(run_script, str(BENCHMARKS / f"{name}.py"), arguments, str(tmp_path), str(stdout),
-                          str(stderr))  # fmt: skip
+        # this process's environment as it is now: the fork server's was fixed when it started
+        job = pool.submit(with_environment, dict(os.environ), run_script, str(BENCHMARKS / f"{name}.py"),
+                          arguments, str(tmp_path), str(stdout), str(stderr))  # fmt: skip
         code = job.result(timeout=1200)
     printout = stdout.read_text()
     assert code == 0, printout[-3000:] + stderr.read_text()[-3000:]
