@@ -7,10 +7,9 @@ later (`activelearn.cli.main`), not Python's traceback.
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Sequence
 
-from activelearn.terminal import EXIT_INTERRUPTED, red
+from activelearn.terminal import interrupted
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -18,6 +17,5 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         from activelearn.cli import main as command_line
     except KeyboardInterrupt:
-        print(red("interrupted"), file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return interrupted()
     return command_line(argv)

@@ -13,3 +13,9 @@ EXIT_INTERRUPTED = 130  # Ctrl-C, as a shell reports a process ended by SIGINT
 
 def red(text: str) -> str:
     return f"\033[31m{text}\033[0m" if sys.stderr.isatty() else text
+
+
+def interrupted() -> int:
+    """A Ctrl-C where nothing was running that could say what it kept: one red line; the exit status."""
+    print(red("interrupted"), file=sys.stderr)
+    return EXIT_INTERRUPTED

@@ -10,21 +10,12 @@ stderr and exit code 2; nothing is written in that case.
 from __future__ import annotations
 
 import argparse
-import sys
 from collections.abc import Sequence
 
 from activelearn.cli import campaign, compare, fidelity, identify, predict, simulate, tune
-from activelearn.cli.common import (
-    EXIT_INTERRUPTED,
-    EXIT_STOPPED,
-    EXIT_USAGE,
-    Handler,
-    Parser,
-    fail,
-    one_line,
-    red,
-)
+from activelearn.cli.common import EXIT_STOPPED, EXIT_USAGE, Handler, Parser, fail, one_line
 from activelearn.errors import ActiveLearnError, CampaignStopped
+from activelearn.terminal import interrupted
 from simulator.errors import SimulatorError
 
 __all__ = ["EXIT_STOPPED", "EXIT_USAGE", "build_parser", "fail", "main", "one_line"]
@@ -84,5 +75,4 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ActiveLearnError, SimulatorError) as exc:
         return fail(str(exc) + _nearest_key(exc))
     except KeyboardInterrupt:  # outside a campaign's rounds (they say what they kept): one line
-        print(red("interrupted"), file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return interrupted()
