@@ -95,16 +95,15 @@ class _InchGrid:
         (0 without handles): what the panel above it must leave free."""
         if not kwargs.get("handles"):
             return 0.0
-        renderer = self.fig.canvas.get_renderer()
+        renderer, anchor = self.fig.canvas.get_renderer(), (centre / self.width, 0.0)
         for columns in range(max(ncols, 1), 0, -1):
-            anchor = (centre / self.width, 0.0)
             legend = self.fig.legend(loc="lower center", bbox_to_anchor=anchor, frameon=False,
                                      borderaxespad=0.2, ncols=columns, **kwargs)  # fmt: skip
             box = legend.get_window_extent(renderer)
             if box.width / self.fig.dpi <= width or columns == 1:
-                return float(box.height) / self.fig.dpi
+                break
             legend.remove()
-        raise AssertionError("unreachable: one column is always kept")
+        return float(box.height) / self.fig.dpi
 
 
 def save_figure(fig: Figure, path: str | Path, *, dpi: int) -> Path:
@@ -270,8 +269,7 @@ def _plans(grid: _InchGrid, names: Sequence[str], controls: Sequence[np.ndarray]
     ax_t = grid.axes(x0, bottom + (height + between) / 2, width, (height - between) / 2)
     ax_p = grid.axes(x0 + width + gap, bottom, width, height)
     ax_s.sharex(ax_t)
-    for k, u in enumerate(controls):
-        colour = colours[k]
+    for k, (colour, u) in enumerate(zip(colours, controls, strict=True)):
         t = np.arange(len(u)) * rollout.dt
         ax_t.plot(t, u[:, 0], color=colour, lw=1.2)
         ax_s.plot(t, u[:, 1], color=colour, lw=1.2)
