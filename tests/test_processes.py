@@ -53,14 +53,6 @@ def test_the_fork_server_ignores_ctrl_c_while_it_imports_and_its_workers_do_not(
     assert signal.getsignal(signal.SIGINT) is before  # what the workers inherit: Ctrl-C stops them
 
 
-def _raised(action) -> BaseException:
-    try:
-        action()
-    except BaseException as error:  # the error itself is what the test inspects
-        return error
-    raise AssertionError("nothing was raised")
-
-
 def test_a_worker_orphaned_at_its_start_exits_quietly_and_other_errors_are_printed(tmp_path, monkeypatch):
     """A worker that unpickles its pool's queues after the command removed its semaphores (a Ctrl-C as the
     fork server forks it) fails in SemLock.__setstate__: the fork server's hook prints nothing for that
@@ -69,10 +61,16 @@ def test_a_worker_orphaned_at_its_start_exits_quietly_and_other_errors_are_print
 
     lock = multiprocessing.synchronize.Lock.__new__(multiprocessing.synchronize.Lock)
     name = f"/activelearn-gone-{os.getpid()}"  # no semaphore of that name exists
-    gone = _raised(lambda: lock.__setstate__((0, 1, 1, name)))
-    missing_file = _raised(lambda: open(tmp_path / "missing"))
-    other = _raised(lambda: int("x"))
-    assert isinstance(gone, FileNotFoundError) and processes.orphaned(gone, gone.__traceback__)
+    with pytest.raises(FileNotFoundError) as raised:
+        lock.__setstate__((0, 1, 1, name))
+    gone = raised.value
+    with pytest.raises(FileNotFoundError) as raised:
+        open(tmp_path / "missing")
+    missing_file = raised.value
+    with pytest.raises(ValueError) as raised:
+        int("x")
+    other = raised.value
+    assert processes.orphaned(gone, gone.__traceback__)
     assert not processes.orphaned(missing_file, missing_file.__traceback__)
     assert not processes.orphaned(other, other.__traceback__)
     printed: list[BaseException] = []
