@@ -312,14 +312,16 @@ def test_a_history_campaign_logs_free_run_metrics_every_round(tmp_path):
 @pytest.mark.slow
 def test_compare_ranks_by_the_chosen_metric(tmp_path):
     out, config = tmp_path / "cmp", smoke_file(tmp_path, max_maneuvers=5)  # two rounds
-    args = ["compare", str(config), "--strategies", "uniform,random", "--seeds", "1", "--workers", "1",
-            "--no-tracking", "--out", str(out), "--metric", "rollout_pos_err_30s"]  # fmt: skip
+    args = ["compare", str(config), "--strategies", "uniform,random", "--seeds", "1", "--first-seed", "3",
+            "--workers", "1", "--no-tracking", "--out", str(out),
+            "--metric", "rollout_pos_err_30s"]  # fmt: skip
     done = subprocess.run([sys.executable, "-m", "activelearn.cli", *args], capture_output=True, text=True,
                           timeout=600, cwd=tmp_path)  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert "final rollout_pos_err_30s" in done.stdout
     table = pd.read_csv(out / "summary.csv")
     curves = pd.read_csv(out / "curves.csv")
+    assert set(curves["seed"]) == {3}  # --first-seed: seeds 3..3
     uniform = curves[curves["strategy"] == "uniform"].sort_values("round")
     assert table.set_index("strategy").loc["uniform", "final_metric"] == pytest.approx(
         uniform["rollout_pos_err_30s"].iloc[-1]
@@ -327,6 +329,10 @@ def test_compare_ranks_by_the_chosen_metric(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "activelearn.cli", *args[:-1], "rollout_nonsense"],
                          capture_output=True, text=True, timeout=120, cwd=tmp_path)  # fmt: skip
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "--metric" in bad.stderr
+    negative = [*args[:7], "-1", *args[8:]]  # --first-seed -1
+    bad = subprocess.run([sys.executable, "-m", "activelearn.cli", *negative], capture_output=True, text=True,
+                         timeout=120, cwd=tmp_path)  # fmt: skip
+    assert bad.returncode == 2 and "--first-seed" in bad.stderr
 
 
 @pytest.mark.slow

@@ -44,7 +44,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--strategies", default="uniform,max_epistemic", metavar="A,B,...",
                    help="comma-separated strategies (default: uniform,max_epistemic), from "
                         f"{', '.join(STRATEGY_NAMES)}")
-    p.add_argument("--seeds", type=int, default=3, metavar="N", help="seeds 0..N-1 (default 3)")
+    p.add_argument("--seeds", type=int, default=3, metavar="N",
+                   help="how many seeds: FIRST..FIRST+N-1 (default 3)")
+    p.add_argument("--first-seed", type=int, default=0, metavar="FIRST",
+                   help="the first seed (default 0): fresh seeds confirm what others decided")
     p.add_argument("--workers", type=int, default=None, metavar="K",
                    help="parallel processes, or CPUs of a local Ray cluster (default: number of cores)")
     p.add_argument("--executor", default="process", metavar="NAME",
@@ -66,6 +69,8 @@ def _compare(args: argparse.Namespace) -> int:
     strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
     if args.seeds < 1:
         raise InputError("--seeds", args.seeds, "must be at least 1")
+    if args.first_seed < 0:
+        raise InputError("--first-seed", args.first_seed, "must be at least 0")
     if args.workers is not None and args.workers < 1:
         raise InputError("--workers", args.workers, "must be at least 1")
     cfg = load_campaign_config(args)
@@ -91,7 +96,8 @@ def _compare(args: argparse.Namespace) -> int:
             bar.set_postfix(last=f"{event['strategy']}/seed{event['seed']}", rmse=f"{event[TEST_RMSE]:.4f}")
 
     try:
-        result = compare(cfg, strategies, list(range(args.seeds)), directory=directory, workers=args.workers,
+        seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+        result = compare(cfg, strategies, seeds, directory=directory, workers=args.workers,
                          tracking=cfg.tracking.enabled and not args.no_tracking, resume=args.resume,
                          progress=progress, executor=args.executor, ray_address=args.ray_address,
                          metric=args.metric, lock_wait=args.wait)
