@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import math
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -17,13 +18,8 @@ from activelearn.errors import InputError
 from activelearn.numerics.lags import model_lags
 from activelearn.numerics.models import build_model, load_model, physics, save_model
 from activelearn.numerics.models.dynamic_physics import DynamicPhysicsModel, identify_scales
-from activelearn.numerics.models.dynamic_track import (
-    DynamicCar,
-    dynamic_bounds,
-    dynamic_step,
-    rate_runs,
-    scaled,
-)
+from activelearn.numerics.models.dynamic_scales import dynamic_bounds, scaled
+from activelearn.numerics.models.dynamic_track import DynamicCar, dynamic_step, rate_runs
 from activelearn.numerics.models.single_track import Identified, _map_fit, widened
 from activelearn.numerics.multistep import window_loss, windows_from_logs
 from activelearn.numerics.surrogate import simulate
@@ -75,6 +71,14 @@ def test_the_core_is_chosen_in_the_config_and_checked_there():
     car = model.dynamic_car
     assert (car.wheel_passes, car.blend_share) == (5, 0.25)
     assert car.blend_speed == pytest.approx(0.25 * math.sqrt(GRAVITY * car.wheelbase))
+    with pytest.raises(ValidationError, match="kinematic_blend"):
+        ModelConfig(kind="physics", kinematic_blend="core")  # the kinematic core has no blend
+    with pytest.raises(ValidationError, match="kinematic_blend"):
+        _config(kinematic_blend="core", wheel_forces=True)
+    model = build_model(_config("nigel", kinematic_blend="core"), seed=0)
+    assert model.dynamic_car.kinematic_core
+    assert model.parameter_names[5:] == ("understeer", "scrub", "yaw_lag", "reverse_understeer")
+    assert model.theta.shape == (9,) and model.theta_scale.shape == (9, 9)
 
 
 def test_implicit_tyre_damping_keeps_the_explicit_steps_steady_turns_in_a_few_substeps():
@@ -125,19 +129,24 @@ def test_free_runs_carry_the_lateral_speed_as_the_cores_own_runs_do():
 @pytest.mark.parametrize(("vehicle", "slip"), [("f1tenth", "axle"), ("nigel", "axle"), ("bmw320i", "axle"),
                                                ("f1tenth", "combined"), ("bmw320i", "wheels"),
                                                ("bmw320i", "wheels, tangent"), ("nigel", "axle, tangent"),
-                                               ("bmw320i", "wheels, tangent, 5 passes, blend 0.25")])
+                                               ("bmw320i", "wheels, tangent, 5 passes, blend 0.25"),
+                                               ("nigel", "axle, kinematic core"),
+                                               ("f1tenth", "combined, kinematic core, blend 1.0")])
 def test_the_compiled_free_runs_are_torchs(vehicle: str, slip: str, c_kernels):
     """dynamic_rollout.c's free runs against the torch loop: each draw its own scales, the correction
     widened about the draws' mean (epistemic scale 3), the sensors' noise, the model discrepancy in the
     pose fan, the three interleaved chains of history_step 3, 12 draws (not whole blocks): rates, moments
     and poses to float rounding. The kernel computes in float, the reference partly in double (its
     controls are), so float rounding is 1e-4 of a quantity's scale, or in a chaotic run (the 1:10 car
-    spinning at throttle 0.8) twice what the reference itself moves when its controls move by 1e-7."""
+    spinning at throttle 0.8) twice what the reference itself moves when its controls move by 1e-7. With the
+    kinematic core below the blend speed too (Nigel always; the 1:10 car with its blend raised to √(g L))."""
     model = _untrained(vehicle, parameter_uncertainty="by_log", discrepancy="identification",
                        combined_slip=slip == "combined", wheel_forces=slip.startswith("wheels"),
                        tyre_damping="tangent" if "tangent" in slip else "linear",
-                       **({"wheel_passes": 5, "blend_share": 0.25} if slip.endswith("0.25") else {}))
-    model.theta_scale.copy_(0.1 * torch.eye(5))
+                       kinematic_blend="core" if "kinematic core" in slip else "plain",
+                       **({"wheel_passes": 5, "blend_share": 0.25} if slip.endswith("0.25") else {}),
+                       **({"blend_share": 1.0} if slip.endswith("1.0") else {}))
+    model.theta_scale.copy_(0.1 * torch.eye(len(model.parameter_names)))
     model.epistemic_scale.fill_(3.0)
     model.discrepancy.copy_(torch.tensor([0.05, 0.02]))
     model.discrepancy_logs.fill_(4.0)  # each draw its own discrepancy size
@@ -434,13 +443,14 @@ def test_the_core_is_identified_on_a_log_up_to_its_live_stop():
     assert torch.equal(model.theta, alone.theta)
 
 
-@pytest.mark.parametrize("vehicle", ["nigel", "f1tenth", "bmw320i"])
+@pytest.mark.parametrize("vehicle", ["nigel", "f1tenth", "bmw320i", "nigel, kinematic core"])
 def test_the_step_traces_whole_on_every_car(vehicle: str):
     """torch.compile fuses the model's step only where dynamo traces it whole: a speed-table car's step
     (Nigel) broke its graph 15 times at the table's bounds (a scalar read from a tensor)."""
     from activelearn.numerics.models.dynamic_physics import corrected_step
 
-    model = _untrained(vehicle)
+    name, _, branch = vehicle.partition(", ")
+    model = _untrained(name, kinematic_blend="core" if branch else "plain")
     n = 8
     state, zs = torch.zeros(n, 4), tuple(torch.zeros(n) for _ in range(4))
     explained = torch._dynamo.explain(corrected_step)(
@@ -514,3 +524,17 @@ def test_identify_command_prints_the_dynamic_cores_scales_beside_the_file(tmp_pa
     assert float(motor[1]) == pytest.approx(0.9, abs=0.03)
     assert main(["identify", *logs, "--wheel-forces", "--vehicle", "f1tenth"]) != 0  # the kinematic core's
     assert "--wheel-forces" in capsys.readouterr().err  # no wheels: the flag is named
+
+
+def test_the_shipped_overlay_puts_nigels_dynamics_config_on_the_kinematic_branch():
+    """experiments/params/nigel_dynamic_core.toml over dynamics.toml (what the results page ran): a valid
+    config whose model is the dynamic core with the kinematic core below its blend speed."""
+    from activelearn.config import load_config
+
+    root = Path(__file__).resolve().parents[1]
+    cfg = load_config(root / "experiments" / "configs" / "dynamics.toml",
+                      params=root / "experiments" / "params" / "nigel_dynamic_core.toml")  # fmt: skip
+    assert (cfg.model.core, cfg.model.kinematic_blend, cfg.model.parameter_uncertainty) == (
+        "dynamic", "core", "by_log")
+    model = build_model(cfg.model.model_copy(update={"n_inputs": 16}), seed=0)
+    assert isinstance(model, DynamicPhysicsModel) and model.dynamic_car.kinematic_core

@@ -10,13 +10,8 @@ import pytest
 
 from activelearn.errors import InputError
 from activelearn.numerics.models.dynamic_fit import identify_dynamic, log_information
-from activelearn.numerics.models.dynamic_track import (
-    DynamicCar,
-    free_runs,
-    quasi_static_lateral,
-    rate_runs,
-    scaled,
-)
+from activelearn.numerics.models.dynamic_scales import parameters_of, scaled
+from activelearn.numerics.models.dynamic_track import DynamicCar, free_runs, quasi_static_lateral, rate_runs
 from simulator.vehicles import GRAVITY, load_vehicle
 
 DT = 1.0 / 30.0
@@ -180,20 +175,23 @@ def test_identification_recovers_a_twins_grip_and_motor_from_its_own_logs():
     assert friction == pytest.approx(0.8, abs=0.04) and motor == pytest.approx(0.9, abs=0.02)
 
 
-@pytest.mark.parametrize("slip", ["axle", "combined", "wheels", "wheels, 5 passes, blend 0.25"])
+@pytest.mark.parametrize("slip", ["axle", "combined", "wheels", "wheels, 5 passes, blend 0.25",
+                                  "axle, kinematic core", "combined, kinematic core, blend 1.0"])
 @pytest.mark.parametrize("step", ["implicit", "explicit", "tangent"])
 @pytest.mark.parametrize("name", ["nigel", "f1tenth", "bmw320i"])
 def test_the_compiled_rate_runs_are_numpys(name, step, slip, c_kernels):
     """dynamic_rollout.c against the NumPy loop: random controls with braking steps, starts forward and
     reversing, one car and a batch of scaled ones (the identification's shapes), under each slip law
     (the rear drive's share of its axle's circle, combined slip, the wheels' forces with 3 or 5 passes
-    of their loads) and each step (explicit, implicit, implicit with the tangent damping), and another
-    blend speed, equal to rounding."""
+    of their loads) and each step (explicit, implicit, implicit with the tangent damping), other blend
+    speeds, and the kinematic core below the blend speed, equal to rounding."""
     rng = np.random.default_rng(7)
     other = slip.endswith("0.25")
-    car = dataclasses.replace(DynamicCar.of(load_vehicle(name)), combined_slip=slip == "combined",
+    blend = 0.25 if other else 1.0 if slip.endswith("1.0") else 0.5
+    car = dataclasses.replace(DynamicCar.of(load_vehicle(name)), combined_slip=slip.startswith("combined"),
                               wheel_forces=slip.startswith("wheels"), tangent_damping=step == "tangent",
-                              wheel_passes=5 if other else 3, blend_share=0.25 if other else 0.5)  # fmt: skip
+                              wheel_passes=5 if other else 3, blend_share=blend,
+                              kinematic_core="kinematic core" in slip)  # fmt: skip
     implicit = step != "explicit"
     n_runs, n_steps = 21, 46  # lanes not a multiple of the kernel's block of 8
     shape = (n_runs, n_steps)
@@ -202,7 +200,7 @@ def test_the_compiled_rate_runs_are_numpys(name, step, slip, c_kernels):
     top = car.top_speed or float(car.table_speed[-1])
     start = np.stack([rng.uniform(-0.3, 1, n_runs) * top, rng.normal(0, 0.1, n_runs) * top,
                       rng.uniform(-1, 1, n_runs), rng.uniform(-0.3, 0.3, n_runs)], -1)  # fmt: skip
-    sets = np.clip(1 + 0.3 * rng.standard_normal((6, 5)), 0.4, 1.2)
+    sets = np.clip(1 + 0.3 * rng.standard_normal((6, len(parameters_of(car)))), 0.4, 1.2)
     for cars in (car, scaled(car, sets)):
         reference = rate_runs(cars, controls, start, DT, implicit, backend="reference")
         compiled = rate_runs(cars, controls, start, DT, implicit, backend="native")

@@ -399,7 +399,7 @@ def test_a_campaign_starts_from_another_cars_model(tmp_path):
     under; `use = "finetune"` starts the round from its correction as well. The same model as this
     car's (`same_car = true`) would be fine-tuned as is, and another vehicle's is refused there."""
     from activelearn.numerics.models.dynamic_physics import identify_scales
-    from activelearn.numerics.models.dynamic_track import dynamic_bounds
+    from activelearn.numerics.models.dynamic_scales import dynamic_bounds
 
     donor_dir = tmp_path / "donor"
     Campaign(_small_f1tenth(tmp_path, "donor"), donor_dir).run(figures=False)

@@ -100,7 +100,8 @@ def _print_dynamic(logs, spec, other_car: list[str], dt: float, wheel_forces: bo
         identify_scales,
         scales_of_another_car,
     )
-    from activelearn.numerics.models.dynamic_track import DYNAMIC_PARAMETERS, DynamicCar, scaled_figures
+    from activelearn.numerics.models.dynamic_scales import parameters_of, scaled_figures
+    from activelearn.numerics.models.dynamic_track import DynamicCar
 
     car = dataclasses.replace(DynamicCar.of(spec), wheel_forces=wheel_forces)
     prior, under = None, f"under {spec.name}'s vehicle file (scale 1 ± its width)"
@@ -114,7 +115,7 @@ def _print_dynamic(logs, spec, other_car: list[str], dt: float, wheel_forces: bo
           f"every {IDENTIFY_HORIZON:g} s:")
     header = f"{'parameter':<16}{'scale':>7}{'± s.e.':>8}  {'figure':<8}{'file':>10}{'fitted':>10}"
     print(f"  {header}  unit    meaning")
-    rows = zip(DYNAMIC_PARAMETERS, found.values, found.stderr, scaled_figures(car), strict=True)
+    rows = zip(parameters_of(car), found.values, found.stderr, scaled_figures(car), strict=True)
     for p, value, err, (symbol, figure, unit) in rows:
         row = f"{p.name:<16}{value:>7.3f}{err:>8.3f}  {symbol:<8}{figure:>10.4g}{value * figure:>10.4g}"
         print(f"  {row}  {unit:<7} {p.meaning}")

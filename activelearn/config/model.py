@@ -182,6 +182,17 @@ class ModelConfig(_Section):
         "as a share of √(g L) (L the wheelbase): 0.5 puts Nigel's whole range in the blend, the 1:10 car's "
         "at 0.90 m/s, the full-size car's at 2.5 m/s",
     )
+    # Nigel's whole range sits below the blend speed, where the plain blend's turn is L / tan δ with no
+    # scrub: its identified core ended the test set 0.32 m off at 30 s, the kinematic core 0.031; with the
+    # kinematic core's understeer (forward, reverse), scrub and yaw lag 0.019 (cores alone, 10 seeds;
+    # experiments/investigations/nigel_blend.py).
+    kinematic_blend: Literal["plain", "core"] = Field(
+        "plain",
+        description="core = 'dynamic': below the blend speed the kinematic turn r = v_x tan δ / L ('plain'), "
+        "or the kinematic core's ('core'): its understeer (its own in reverse) and yaw lag, the scrub's drag "
+        "on v_x, and v_x's tyre terms weighed by the blend; four more scales identified (not with "
+        "wheel_forces)",
+    )
     # A spinning car's logs hold rows that no scale fits to the second (a spin a little early or late):
     # by squares they pulled the full-size car's scales to their bounds (docs/results/vehicles.md).
     identification_loss: Literal["squares", "cauchy"] = Field(
@@ -262,7 +273,8 @@ class ModelConfig(_Section):
                         "identification_loss": self.identification_loss != "squares",
                         "identification_starts": self.identification_starts != "last",
                         "tyre_damping": self.tyre_damping != "linear",
-                        "blend_share": self.blend_share != 0.5}  # fmt: skip
+                        "blend_share": self.blend_share != 0.5,
+                        "kinematic_blend": self.kinematic_blend != "plain"}  # fmt: skip
         for name, set_here in dynamic_only.items():
             if set_here and self.core != "dynamic":
                 raise ValueError(f"{name}: the dynamic core's (core = 'dynamic'), not core {self.core!r}")
@@ -270,6 +282,8 @@ class ModelConfig(_Section):
             raise ValueError("wheel_passes: the passes of the wheels' loads; wheel_forces is off")
         if self.combined_slip and self.wheel_forces:
             raise ValueError("wheel_forces: each wheel's own circle replaces combined_slip's axles; set one")
+        if self.kinematic_blend == "core" and self.wheel_forces:
+            raise ValueError("kinematic_blend: 'core' is the axles' step's, not wheel_forces'")
         if self.discrepancy != "none" and self.kind != "physics":
             raise ValueError(f"discrepancy: {self.discrepancy!r} is the physics kind's, not {self.kind!r}'s")
         if self.discrepancy != "none" and self.correction_inputs != "control":

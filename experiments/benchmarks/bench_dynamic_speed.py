@@ -47,7 +47,8 @@ from activelearn.numerics import native
 from activelearn.numerics.diagnostics import free_runs
 from activelearn.numerics.models import build_model
 from activelearn.numerics.models.dynamic_physics import IDENTIFY_HORIZON
-from activelearn.numerics.models.dynamic_track import DynamicCar, quasi_static_lateral, rate_runs, scaled
+from activelearn.numerics.models.dynamic_scales import scaled
+from activelearn.numerics.models.dynamic_track import DynamicCar, quasi_static_lateral, rate_runs
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 CARS = ("f1tenth", "bmw320i")

@@ -3,7 +3,7 @@ the file's models? A pilot for issue 56 (the core is not yet inside a model: no 
 
 For each fast car and seed: `--signals` maneuvers drawn at random from its dynamics config's pool,
 answered by the nominal truth or by its twin (`bench_vehicle_baselines.TWIN`: grip × 0.8, motor × 0.9),
-with sensor noise; the dynamic core's five scales (`dynamic_track.DYNAMIC_PARAMETERS`: friction, front
+with sensor noise; the dynamic core's five scales (`dynamic_scales.DYNAMIC_PARAMETERS`: friction, front
 and rear stiffness, drive, yaw inertia) identified from those logs by free runs
 (`identify_dynamic`); then the 30-s error of the CG's path on the config's test set of that truth,
 for the file's kinematic and dynamic single track and the identified dynamic one. The criterion of
@@ -32,7 +32,8 @@ from bench_vehicle_baselines import config_of, test_errors, twin_of
 from activelearn.loop.campaign import Campaign
 from activelearn.loop.collection import control_rate_logs
 from activelearn.numerics.models.dynamic_fit import identify_dynamic
-from activelearn.numerics.models.dynamic_track import DYNAMIC_PARAMETERS, DynamicCar, scaled
+from activelearn.numerics.models.dynamic_scales import DYNAMIC_PARAMETERS, scaled
+from activelearn.numerics.models.dynamic_track import DynamicCar
 
 
 def campaign_of(car: str, twin: bool, out: Path) -> Campaign:

@@ -38,7 +38,7 @@ from activelearn.names import IDENTIFIED_PREFIX
 from activelearn.numerics.models import load_model
 from activelearn.numerics.models.dynamic_fit import _restart_errors
 from activelearn.numerics.models.dynamic_physics import IDENTIFICATION, before_a_stop
-from activelearn.numerics.models.dynamic_track import DYNAMIC_PARAMETERS, dynamic_bounds
+from activelearn.numerics.models.dynamic_scales import DYNAMIC_PARAMETERS, dynamic_bounds
 from activelearn.numerics.models.single_track import CAUCHY_SCALE, usable_logs
 from activelearn.numerics.training_data import TrainingData
 

@@ -48,6 +48,7 @@ from activelearn.loop.collection import control_rate_logs
 from activelearn.numerics.models import dynamic_track as dt_
 from activelearn.numerics.models.dynamic_fit import identify_dynamic
 from activelearn.numerics.models.dynamic_physics import IDENTIFICATION
+from activelearn.numerics.models.dynamic_scales import dynamic_bounds, scaled
 from activelearn.numerics.models.single_track import (
     Identified,
     _map_fit,
@@ -171,7 +172,7 @@ def cars_of(car: dt_.DynamicCar, sets: np.ndarray, variant: str) -> tuple[dt_.Dy
     sets = np.atleast_2d(sets)
     weighted, extra = VARIANTS[variant]
     figures = {name: sets[:, 5 + i : 6 + i] for i, name in enumerate(extra)}
-    return dt_.scaled(car, sets[:, :5]), Blend(weighted, **figures)
+    return scaled(car, sets[:, :5]), Blend(weighted, **figures)
 
 
 def identify(logs, car: dt_.DynamicCar, dt: float, variant: str, horizon: float | None = None) -> np.ndarray:
@@ -196,7 +197,7 @@ def identify(logs, car: dt_.DynamicCar, dt: float, variant: str, horizon: float 
         predicted = runs(cars, blend, controls, start, dt)[..., [0, 2]]
         return np.nan_to_num(predicted - rates, nan=1e3, posinf=1e3, neginf=-1e3)[:, keep]
 
-    base = dt_.dynamic_bounds()
+    base = dynamic_bounds()
     extra = np.array([EXTRA[name] for name in VARIANTS[variant][1]]).reshape(-1, 4)
     nominal, width = np.r_[base.prior.values, extra[:, 0]], np.r_[base.width, extra[:, 3]]
     bounds = SimpleNamespace(low=np.r_[base.low, extra[:, 1]], high=np.r_[base.high, extra[:, 2]],

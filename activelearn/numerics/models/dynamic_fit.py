@@ -1,5 +1,6 @@
-"""The dynamic core's five scales identified from logs (`identify_dynamic`), its misfit of them in and
-out of sample, and each log's Fisher information about the scales: output error of the core's free
+"""The dynamic core's scales (`dynamic_scales.parameters_of`: five, nine with the kinematic core) identified
+from logs (`identify_dynamic`), its misfit of them in and out of sample, and each log's Fisher
+information about the scales: output error of the core's free
 runs (`dynamic_track.rate_runs`), restarted from the recorded rates every `horizon` s, MAP under the
 file's prior (`single_track._map_fit`) with the cluster-robust covariance, each log a cluster."""
 
@@ -9,14 +10,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from activelearn.numerics.models.dynamic_track import (
-    DYNAMIC_PARAMETERS,
-    DynamicCar,
-    dynamic_bounds,
-    quasi_static_lateral,
-    rate_runs,
-    scaled,
-)
+from activelearn.numerics.models.dynamic_scales import dynamic_bounds, parameters_of, scaled
+from activelearn.numerics.models.dynamic_track import DynamicCar, quasi_static_lateral, rate_runs
 from activelearn.numerics.models.single_track import (
     Identified,
     _map_fit,
@@ -31,7 +26,7 @@ def _restart_errors(
     logs: list[tuple[np.ndarray, np.ndarray]], car: DynamicCar, dt: float, every: int, horizon: float | None,
     implicit: bool,
 ) -> tuple[Callable[[np.ndarray], np.ndarray], np.ndarray, np.ndarray]:  # fmt: skip
-    """An identification's free runs of `logs` (see `identify_dynamic`): `errors_of(sets (P, 5))` → rate
+    """An identification's free runs of `logs` (see `identify_dynamic`): `errors_of(sets (P, scales))` → rate
     errors (P, n, 2) at the compared steps, the error rows' clusters (their log) and the rates' spread."""
     owners, wheels = list(range(len(logs))), [u[0, 1] for u, _ in logs]
     if horizon is not None:
@@ -62,7 +57,7 @@ def identify_dynamic(
     horizon: float | None = None, search_from: np.ndarray | None = None, implicit: bool = False,
     prior: Identified | None = None, loss: str = "squares", also_from_prior: bool = False,
 ) -> Identified:
-    """Output-error MAP of the five `DYNAMIC_PARAMETERS` (scales of the file's figures, the file as the
+    """Output-error MAP of the car's scales (`parameters_of`: of the file's figures, the file as the
     prior) from logs, (controls (T, 2), rates (T, 2) = speed, yaw rate), as the kinematic core's
     `identify_from_logs` does: free runs from each log's first recorded rates (lateral speed: a steady
     turn's there, `quasi_static_lateral`; the wheels at the command before), every `every`-th step
@@ -74,7 +69,7 @@ def identify_dynamic(
     `single_track._map_fit`'s ("cauchy": rows no parameter set fits weigh less); `also_from_prior`: with
     `search_from`, the search also starts from the prior's centre, the lower objective kept (`_map_fit`)."""
     logs = usable_logs(logs)
-    bounds = dynamic_bounds()
+    bounds = dynamic_bounds(car)
     prior = prior or bounds.prior
     if not logs:
         return Identified(prior.values.copy(), prior.covariance.copy())
@@ -132,22 +127,23 @@ def log_information(
     noise: np.ndarray, every: int = 3, horizon: float | None = None, implicit: bool = False,
     step: float = 1e-5,
 ) -> np.ndarray:  # fmt: skip
-    """(L, 5, 5) each log's Fisher information about the five scales at `theta`: Σ Jᵀ diag(noise⁻²) J over
+    """(L, P, P) each log's Fisher information about the car's P scales at `theta`: Σ Jᵀ diag(noise⁻²) J over
     the rows of `identify_dynamic`'s free runs of it (the same restarts and spacing), J the rates'
     forward differences in the scales (`step` × each parameter's prior width, inwards at an upper
     bound, as the identification's Jacobian). `noise` (2,): the rates' error sizes (v m/s, r rad/s).
     Every log needs at least two steps."""
     if any(len(u) < 2 for u, _ in logs):
         raise ValueError("every log needs at least two steps")
-    info = np.zeros((len(logs), len(DYNAMIC_PARAMETERS), len(DYNAMIC_PARAMETERS)))
+    count = len(parameters_of(car))
+    info = np.zeros((len(logs), count, count))
     if not logs:
         return info
-    bounds = dynamic_bounds()
+    bounds = dynamic_bounds(car)
     errors_of, clusters, _ = _restart_errors(usable_logs(logs), car, dt, every, horizon, implicit)
     theta = np.clip(np.asarray(theta, np.float64), bounds.low, bounds.high)
     h = step * bounds.width
     h = np.where(theta + h > bounds.high, -h, h)
-    errors = errors_of(np.vstack([theta, theta + np.diag(h)]))  # (6, n, 2)
-    weighted = (errors[1:] - errors[0]) / h[:, None, None] / np.asarray(noise, np.float64)  # (5, n, 2)
+    errors = errors_of(np.vstack([theta, theta + np.diag(h)]))  # (1 + count, n, 2)
+    weighted = (errors[1:] - errors[0]) / h[:, None, None] / np.asarray(noise, np.float64)  # (count, n, 2)
     np.add.at(info, clusters, np.einsum("inr,jnr->nij", weighted, weighted))
     return info

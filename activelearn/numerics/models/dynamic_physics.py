@@ -2,9 +2,10 @@
 
 The core is `dynamic_track`'s bicycle (tyre slip, saturating tyres, load transfer, the drivetrain,
 the kinematic blend at low speed; its tyre damping exponential, in 25-ms substeps) with its five scales
-(`DYNAMIC_PARAMETERS`) identified under the vehicle file's prior from whole logs, the free runs
-restarted every `IDENTIFY_HORIZON` s (`identify_dynamic`), with their cluster-robust covariance
-(`parameter_uncertainty = "by_log"` draws them per posterior draw).
+(`DYNAMIC_PARAMETERS`; nine with `[model] kinematic_blend = "core"`, `parameters_of`) identified under
+the vehicle file's prior from whole logs, the free runs restarted every `IDENTIFY_HORIZON` s
+(`identify_dynamic`), with their cluster-robust covariance (`parameter_uncertainty = "by_log"` draws them
+per posterior draw).
 The bounded Bayesian correction of the physics kind stays on top, reading the control alone: its
 steady residuals (at most `residual_bound` of the speed and yaw-rate limits) are reached at the car's
 lags (the kinematic prior's, each scaled within [1/3, 3] by the correction), so a step's change is
@@ -52,17 +53,14 @@ from activelearn.numerics.models.dynamic_fit import (
     log_information,
     misfit,
 )
+from activelearn.numerics.models.dynamic_scales import dynamic_bounds, parameters_of, scaled, with_scales
 from activelearn.numerics.models.dynamic_track import (
-    DYNAMIC_PARAMETERS,
     DynamicCar,
-    dynamic_bounds,
     dynamic_step,
     native_car,
     native_sets,
     quasi_static_lateral,
     rate_runs,
-    scaled,
-    with_scales,
 )
 from activelearn.numerics.models.physics import PhysicsModel
 from activelearn.numerics.models.single_track import (
@@ -93,7 +91,7 @@ def identify_scales(
     loss: str = "squares",
     also_from_prior: bool = False,
 ) -> Identified:
-    """The five scales from logs as the model identifies them (`identify_dynamic`: free runs of the step it
+    """The car's scales from logs as the model identifies them (`identify_dynamic`: free runs of the step it
     takes, restarted every `IDENTIFY_HORIZON` s, compared every `IDENTIFY_EVERY` log steps), under `prior`
     (default the file's), by `loss` (`[model] identification_loss`); `also_from_prior`: a search from
     `search_from` also searches from the prior's centre (`[model] identification_starts`)."""
@@ -109,7 +107,7 @@ def scales_of_another_car(
     (`identify_scales` by `loss`, as this car's own, once per set of logs), their covariance widened by
     the scales' widths."""
     estimate = others_estimate(others, identify_scales, car=car, dt=dt, loss=loss)
-    return widened(estimate, dynamic_bounds().width)
+    return widened(estimate, dynamic_bounds(car).width)
 
 
 def before_a_stop(log: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -209,7 +207,7 @@ def compiled_step(name: str) -> Callable:
 class DynamicPhysicsModel(PhysicsModel):
     """The physics kind on the dynamic single track: see the module docstring."""
 
-    core_in_scales = True  # its five parameters scale the vehicle file's figures
+    core_in_scales = True  # its parameters scale the vehicle file's figures
 
     def __init__(self, config: ModelConfig, *, generator: torch.Generator | None = None) -> None:
         super().__init__(config, generator=generator)  # the config checked correction_inputs (`core`)
@@ -217,10 +215,11 @@ class DynamicPhysicsModel(PhysicsModel):
             DynamicCar.of(self.car.spec), combined_slip=config.combined_slip,
             wheel_forces=config.wheel_forces, tangent_damping=config.tyre_damping == "tangent",
             wheel_passes=config.wheel_passes, blend_share=config.blend_share,
+            kinematic_core=config.kinematic_blend == "core",
         )
         self.substeps = self.dynamic_car.implicit_substeps(self.dt)
-        bounds = dynamic_bounds()
-        self.parameter_names = tuple(p.name for p in DYNAMIC_PARAMETERS)
+        bounds = dynamic_bounds(self.dynamic_car)
+        self.parameter_names = tuple(p.name for p in parameters_of(self.dynamic_car))
         self.parameter_bounds = (bounds.low, bounds.high)
         self.parameter_widths = bounds.width
         self.register_buffer("theta", torch.as_tensor(bounds.prior.values, dtype=torch.float32).clone())
@@ -242,7 +241,7 @@ class DynamicPhysicsModel(PhysicsModel):
     # ----- identification ---------------------------------------------------------------------
     @torch.no_grad()
     def identify(self, data: TrainingData, *, warm: bool = False) -> None:
-        """The five scales from the logs of this car (`identify_dynamic`, restarts every
+        """The scales from the logs of this car (`identify_dynamic`, restarts every
         `IDENTIFY_HORIZON` s) under the file's prior, or under another car's: its logs' scales where the
         data flag logs as another car's (`scales_of_another_car`), or its model's (`core_prior`). With no
         log of this car that prior stands, its width in the fans; rows without logs leave the file's
@@ -273,7 +272,7 @@ class DynamicPhysicsModel(PhysicsModel):
     def parameter_information(
         self, controls: list[np.ndarray], rate_hz: float
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Each control sequence's Fisher information about the five scales (`log_information`): the
+        """Each control sequence's Fisher information about the scales (`log_information`): the
         sensitivities of the core's rates along the identification's own restarted free runs, taken along
         the core's path from rest at the current scales, each rate weighted by the misfit of the logs
         (`discrepancy`; without one `FALLBACK_NOISE` of the car's limits); and the scales' prior precision.
@@ -294,7 +293,7 @@ class DynamicPhysicsModel(PhysicsModel):
             noise = self.discrepancy.double().numpy()
         logs = [(np.asarray(u, np.float64), path) for u, path in zip(controls, paths, strict=True)]
         info = log_information(logs, self.dynamic_car, dt, theta, noise, **IDENTIFICATION)
-        return info, np.diag(1.0 / dynamic_bounds().width ** 2)
+        return info, np.diag(1.0 / dynamic_bounds(self.dynamic_car).width ** 2)
 
     def round_metrics(self) -> dict[str, float]:
         """The kept share of the correction and the identified scales (`identified_friction`, ...): a
@@ -324,8 +323,8 @@ class DynamicPhysicsModel(PhysicsModel):
         return guarded
 
     def _scaled_car(self, theta: Tensor) -> DynamicCar:
-        """The file's car under scales `theta` (5,) or one set per draw (S, 1, 5)."""
-        return with_scales(self.dynamic_car, *(theta[..., i] for i in range(len(DYNAMIC_PARAMETERS))))
+        """The file's car under scales `theta` (P,) or one set per draw (S, 1, P)."""
+        return with_scales(self.dynamic_car, *(theta[..., i] for i in range(len(self.parameter_names))))
 
     def _core_step(
         self, phys: Tensor, dim: int, zs: tuple[Tensor, ...], theta: Tensor

@@ -30,6 +30,12 @@ State (v_x, v_y, r, δ_w) at the CG: forward and lateral speed, yaw rate, the fr
   (r = v_x tan δ_w / L, v_y = l_r r) with weight 1 − w, w = ½ (1 + tanh((|v_x| − v_b) / (v_b / 4))): Nigel's
   whole range sits in it (v_b 0.59 m/s, top speed 0.27), the 1:10 car's (0.90 m/s) and the full-size car's
   (2.5 m/s) do not.
+  With `kinematic_core` (`[model] kinematic_blend = "core"`) the kinematic state is the kinematic core's:
+  r_kin follows v_x tan δ_w / (L u) with the lag T_w (u the understeer, its own in reverse), and v_x's
+  terms from the tyres and the body frame's turn (−F_yf sin δ_w / m + v_y r, which at the kinematic state
+  no tyre force balances) weigh w, the scrub's drag s tan² δ_w v_x / T_v (steady: v / (1 + s tan² δ_w),
+  T_v the drive's lag) 1 − w: on Nigel the identified core then follows the kinematic one
+  (`experiments/investigations/nigel_blend.py`).
 - Explicit substeps within each log step, as many as keep the lateral and yaw modes stable at the slip
   floor (each substep at most their time constant m v / (C_f + C_r), I_z v / (l_f² C_f + l_r² C_r)).
   The physics kind's implicit step instead damps v_y and r exponentially at the tyres' linear stiffness
@@ -40,10 +46,8 @@ State (v_x, v_y, r, δ_w) at the CG: forward and lateral speed, yaw rate, the fr
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
-from types import SimpleNamespace
 
 import numpy as np
 import torch
@@ -51,7 +55,7 @@ from torch import Tensor
 
 from activelearn.numerics import native
 from activelearn.numerics.models.base import kernels_for
-from activelearn.numerics.models.single_track import Identified, PhysicalParameter
+from activelearn.numerics.models.single_track import car_parameters
 from simulator.vehicles import GRAVITY, VehicleSpec
 
 BLEND_SHARE = 0.5  # the blend speed, a share of √(g L)
@@ -113,6 +117,13 @@ class DynamicCar:
     tangent_damping: bool = False
     wheel_passes: int = WHEEL_PASSES  # with `wheel_forces`, the loads' passes (`[model] wheel_passes`)
     blend_share: float = BLEND_SHARE  # the kinematic blend's speed over √(g L) (`[model] blend_share`)
+    # below the blend speed the kinematic core's turn and scrub (`[model] kinematic_blend = "core"`): its
+    # understeer (forward, reverse), scrub and yaw lag (s); numbers, or arrays / tensors of parameter sets
+    kinematic_core: bool = False
+    understeer: float = 1.0
+    reverse_understeer: float = 1.0
+    scrub: float = 0.0
+    yaw_lag: float = 0.05
 
     @classmethod
     def of(cls, spec: VehicleSpec, tire_friction: float = 1.0, motor_gain: float = 1.0) -> DynamicCar:
@@ -142,7 +153,7 @@ class DynamicCar:
             max_acceleration=value(d.max_acceleration, motor_gain),
             power_limit_speed=value(d.power_limit_speed),
             table_throttle=np.asarray(grid, float), table_speed=np.asarray(speed, float) * motor_gain,
-            speed_time_constant=lag, track=g.track.value,
+            speed_time_constant=lag, track=g.track.value, yaw_lag=_kinematic_yaw_lag(spec),
         )  # fmt: skip
 
     @property
@@ -173,6 +184,12 @@ class DynamicCar:
         lateral = np.min(self.mass * floor / (c_f + c_r))  # the stiffest of a batch of parameter sets
         yaw = np.min(inertia * floor / (self.lf**2 * c_f + self.lr**2 * c_r))
         return max(1, math.ceil(dt / min(float(lateral), float(yaw))))
+
+
+def _kinematic_yaw_lag(spec: VehicleSpec) -> float:
+    """The kinematic core's prior yaw lag of a car (s, `single_track.car_parameters`): the kinematic
+    branch's (`kinematic_core`) before any log."""
+    return next(p.nominal for p in car_parameters(spec) if p.name == "yaw_lag")
 
 
 def _numbers(value) -> np.ndarray:
@@ -274,6 +291,8 @@ def dynamic_step(
     m, L, g = car.mass, car.wheelbase, GRAVITY
     static_f, static_r = car.static_loads
     target = _clip(steering, -car.steering_limit, car.steering_limit)
+    if car.kinematic_core and car.wheel_forces:
+        raise ValueError("kinematic_core: the kinematic branch is the axles' step's, not wheel_forces'")
     for _ in range(n):
         delta = delta + _clip(target - delta, -car.steering_rate * h, car.steering_rate * h)
         if car.wheel_forces:
@@ -305,7 +324,9 @@ def dynamic_step(
         dvy = (f_f * cos + f_r) / m
         dr = (car.lf * f_f * cos - car.lr * f_r) / car.yaw_inertia
         rates = (dvx, dvy, dr)
-        vx, vy, r = _advance(car, (vx, vy, r), rates, (load_f, load_r), delta, h, implicit, False, slopes)
+        drive = (a, _inverse_lag(car, throttle)) if car.kinematic_core else None
+        vx, vy, r = _advance(car, (vx, vy, r), rates, (load_f, load_r), delta, h, implicit, False, slopes,
+                             drive)  # fmt: skip
     parts = xp.broadcast_arrays(vx, vy, r, delta) if xp is np else torch.broadcast_tensors(vx, vy, r, delta)
     return xp.stack(parts, axis=-1) if xp is np else torch.stack(parts, dim=-1)  # δ_w: no parameter axis
 
@@ -361,16 +382,42 @@ def _damping_slopes(car: DynamicCar, alpha_f, alpha_r) -> tuple | None:
     return tuple(out)
 
 
+def _inverse_lag(car: DynamicCar, throttle):
+    """1 / the drive's time constant (1/s): the speed table's lag, or the motor law's a_max / v_top (in
+    reverse its reverse top speed)."""
+    if car.top_speed is not None and car.max_acceleration is not None:
+        return car.max_acceleration / _where(throttle > 0, car.top_speed, car.reverse_top_speed)
+    return 1.0 / car.speed_time_constant
+
+
+def _blend_weight(car: DynamicCar, speed):
+    """w = ½ (1 + tanh((speed − v_b) / (v_b / 4))): 1 dynamic, 0 kinematic."""
+    blend = car.blend_speed
+    return 0.5 * (1.0 + _namespace(speed).tanh((speed - blend) / (0.25 * blend)))
+
+
 def _advance(car: DynamicCar, state: tuple, rates: tuple, loads: tuple, delta, h: float, implicit: bool,
-             ground: bool, slopes: tuple | None = None) -> tuple:  # fmt: skip
+             ground: bool, slopes: tuple | None = None, drive: tuple | None = None) -> tuple:  # fmt: skip
     """(v_x, v_y, r) after `h` s of their rates of change (the forces over m and I_z, without the body
     frame's turn) at the axles' `loads`, then blended into the kinematic state below the blend speed,
     weighed by |v_x| or, with `ground`, by the speed over ground. `slopes`: the axles' damping slopes
-    per newton of load (`_damping_slopes`), else their cornering stiffness."""
+    per newton of load (`_damping_slopes`), else their cornering stiffness. `drive`: with
+    `kinematic_core`, the drive's acceleration in `dvx` and 1 / its time constant (`_inverse_lag`)."""
     (vx, vy, r), (dvx, dvy, dr), (load_f, load_r) = state, rates, loads
     xp = _namespace(vx)
     m, L, blend = car.mass, car.wheelbase, car.blend_speed
     static_f, static_r = car.static_loads
+    vx0, r0 = vx, r
+
+    def forward(turn):  # v_x's rate with the body frame's `turn` (v_y r)
+        if drive is None:
+            return dvx + turn
+        a, inverse_lag = drive  # the tyres' and turn's terms weigh w at the substep's start, the scrub 1 − w
+        w0 = _blend_weight(car, xp.sqrt(vx0 * vx0 + vy0 * vy0) if ground else xp.abs(vx0))
+        scrub = car.scrub * xp.tan(delta) ** 2 * vx0 * inverse_lag
+        return a + w0 * ((dvx - a) + turn) - (1.0 - w0) * scrub
+
+    vy0 = vy
     if implicit:
         # The tyres' damping of v_y and r exponential (stable at any substep), and the body
         # frame's turn of the velocity semi-implicit, v_x from the new v_y (an explicit turn adds
@@ -385,13 +432,18 @@ def _advance(car: DynamicCar, state: tuple, rates: tuple, loads: tuple, delta, h
             x_lat = _maximum(h * (c_f + c_r) / (m * speed), TINY)
             x_yaw = _maximum(h * (car.lf**2 * c_f + car.lr**2 * c_r) / (car.yaw_inertia * speed), TINY)
         vy = vy + h * (dvy - vx * r) * _relaxed(x_lat)
-        vx = vx + h * (dvx + vy * r)
+        vx = vx + h * forward(vy * r)
         r = r + h * dr * _relaxed(x_yaw)
     else:
-        vx, vy, r = vx + h * (dvx + vy * r), vy + h * (dvy - vx * r), r + h * dr
+        vx, vy, r = vx + h * forward(vy * r), vy + h * (dvy - vx * r), r + h * dr
     speed = xp.sqrt(vx * vx + vy * vy) if ground else xp.abs(vx)
     w = 0.5 * (1.0 + xp.tanh((speed - blend) / (0.25 * blend)))  # 1: dynamic, 0: kinematic
-    r_kin = vx * xp.tan(delta) / L
+    if car.kinematic_core:  # the kinematic core's turn, reached with its yaw lag from the substep's start
+        understeer = _where(vx >= 0.0, car.understeer, car.reverse_understeer)
+        follow = -xp.expm1(_like(vx, -h / car.yaw_lag))
+        r_kin = r0 + follow * (vx * xp.tan(delta) / (L * understeer) - r0)
+    else:
+        r_kin = vx * xp.tan(delta) / L
     return vx, w * vy + (1.0 - w) * car.lr * r_kin, w * r + (1.0 - w) * r_kin
 
 
@@ -477,71 +529,10 @@ def free_runs(car: DynamicCar, controls: np.ndarray, start: np.ndarray, dt: floa
     return out
 
 
-# The dynamic core's parameters identified from logs: scales of the file's figures (1 = the file).
-DYNAMIC_PARAMETERS: tuple[PhysicalParameter, ...] = (
-    PhysicalParameter("friction", 1.0, 0.3, 3.0, 0.3, "-", "scale of the tyres' peak friction μ"),
-    PhysicalParameter("stiffness_front", 1.0, 0.3, 3.0, 0.5, "-", "scale of the front axle's stiffness"),
-    PhysicalParameter("stiffness_rear", 1.0, 0.3, 3.0, 0.5, "-", "scale of the rear cornering stiffness"),
-    # at most 1.25, as the kinematic core's speed gain: a free run's speed stays within 1.25x the file's
-    PhysicalParameter("motor", 1.0, 0.3, 1.25, 0.3, "-", "scale of the drive (a_max, top speeds, table)"),
-    PhysicalParameter("yaw_inertia", 1.0, 0.3, 3.0, 0.5, "-", "scale of the yaw inertia"),
-)
-
-
-def scaled_figures(car: DynamicCar) -> tuple[tuple[str, float, str], ...]:
-    """The file's figure each of `DYNAMIC_PARAMETERS` scales, (symbol, value, unit) in their order: what
-    an identified scale means for this car."""
-    if car.max_acceleration is not None:
-        drive = ("a_max", car.max_acceleration, "m/s²")
-    else:  # a car with a measured speed table: the scale multiplies the table
-        drive = ("v_table", car.table_gain * float(car.table_speed[-1]), "m/s")
-    return (
-        ("μ", car.friction, "-"),
-        ("C_f", car.stiffness_front, "N/rad"),
-        ("C_r", car.stiffness_rear, "N/rad"),
-        drive,
-        ("I_z", car.yaw_inertia, "kg m²"),
-    )
-
-
-def dynamic_bounds() -> SimpleNamespace:
-    """The parameters' ranges, widths and prior in the form `single_track._map_fit` reads."""
-    nominal = np.array([p.nominal for p in DYNAMIC_PARAMETERS])
-    width = np.array([p.width for p in DYNAMIC_PARAMETERS])
-    return SimpleNamespace(
-        low=np.array([p.low for p in DYNAMIC_PARAMETERS]),
-        high=np.array([p.high for p in DYNAMIC_PARAMETERS]),
-        width=width, prior=Identified(nominal, np.diag(width**2)),
-    )  # fmt: skip
-
-
-def scaled(car: DynamicCar, theta: np.ndarray) -> DynamicCar:
-    """The car with parameter sets `theta` (P, 5) applied: its scaled figures are (P, 1) arrays, so a
-    step runs every set against every run at once."""
-    t = np.atleast_2d(np.asarray(theta, np.float64))
-    return with_scales(car, *(t[:, i : i + 1] for i in range(len(DYNAMIC_PARAMETERS))))
-
-
-def with_scales(car: DynamicCar, friction, front, rear, motor, inertia) -> DynamicCar:
-    """The car with the five `DYNAMIC_PARAMETERS` scales applied (numbers, arrays or tensors that
-    broadcast against the runs: one set, or one per parameter set / posterior draw)."""
-    mu = friction * car.friction
-
-    def times(value: float | None):
-        return None if value is None else motor * value
-
-    return dataclasses.replace(
-        car, friction=mu, brake=_minimum(mu * GRAVITY, car.brake),
-        stiffness_front=front * car.stiffness_front,
-        stiffness_rear=rear * car.stiffness_rear, yaw_inertia=inertia * car.yaw_inertia,
-        top_speed=times(car.top_speed), reverse_top_speed=times(car.reverse_top_speed),
-        max_acceleration=times(car.max_acceleration), table_gain=motor * car.table_gain,
-    )  # fmt: skip
-
-
 # What dynamic_rollout.c reads: the car's shared figures (its C_ enum's order) and each lane's (S_).
 NATIVE_SET = ("friction", "brake", "stiffness_front", "stiffness_rear", "yaw_inertia", "top_speed",
-              "reverse_top_speed", "max_acceleration", "table_gain")  # fmt: skip
+              "reverse_top_speed", "max_acceleration", "table_gain", "understeer", "scrub", "yaw_lag",
+              "reverse_understeer")  # fmt: skip
 
 
 def native_car(car: DynamicCar) -> np.ndarray:
@@ -552,6 +543,7 @@ def native_car(car: DynamicCar) -> np.ndarray:
         car.steering_limit, car.steering_rate, car.rear_drive_share, float(motor),
         car.power_limit_speed or 0.0, car.speed_time_constant, car.blend_speed, float(car.combined_slip),
         ROOM_FLOOR, float(car.wheel_passes if car.wheel_forces else 0), car.track, float(car.tangent_damping),
+        float(car.kinematic_core),
     ])  # fmt: skip
 
 

@@ -562,8 +562,10 @@ def dynamic_free_runs(
 
 def _check_dynamic_status(name: str, status: int, failure: str) -> None:
     """A dynamic kernel's status: -2, the car's wheel passes (its C_WHEEL_FORCES) have no variant in
-    the kernel (dynamic_track.WHEEL_PASS_CHOICES); another non-zero, `failure` (memory or threads)."""
+    the kernel (dynamic_track.WHEEL_PASS_CHOICES), or the wheels' forces come with the kinematic core;
+    another non-zero, `failure` (memory or threads)."""
     if status == -2:
-        raise ValueError(f"{name}: the car's wheel passes have no kernel variant (C_WHEEL_FORCES)")
+        raise ValueError(f"{name}: the car's wheel passes have no kernel variant (C_WHEEL_FORCES), or the "
+                         "wheels' forces come with the kinematic core (C_KINEMATIC_CORE)")
     if status != 0:
         raise MemoryError(f"{name} {failure}")

@@ -47,6 +47,8 @@ enum {
                       * (one of WHEEL_PASS_CHOICES; overrides C_COMBINED_SLIP); 0: the axles' */
     C_TRACK,         /* m, with them: the wheels' lateral spacing */
     C_TANGENT_DAMPING, /* 1: the implicit step damps at the tyres' local slope (0 past the peak) */
+    C_KINEMATIC_CORE,  /* 1: below the blend speed the kinematic core's turn, lag and scrub (not with the
+                        * wheels' forces) */
     C_COUNT
 };
 
@@ -67,6 +69,10 @@ enum {
     S_REVERSE_TOP_SPEED,
     S_MAX_ACCELERATION,
     S_TABLE_GAIN,
+    S_UNDERSTEER, /* with C_KINEMATIC_CORE: the kinematic branch's understeer, scrub, yaw lag (s) and */
+    S_SCRUB,      /* understeer in reverse */
+    S_YAW_LAG,
+    S_REVERSE_UNDERSTEER,
     S_COUNT
 };
 
@@ -124,7 +130,7 @@ static void dynamic_blocks(const dynamic_context *c, int64_t first, int count) {
         for (int l = 0; l < LANES_D; ++l) { /* lanes past the end repeat the last one, unwritten */
             const int64_t lane = at + (l < n[k] ? l : n[k] - 1);
             const double *x0 = c->start + lane * 4;
-            load_figures_d(&b[k], gain[k], l, c->sets + lane * S_COUNT, c->car);
+            load_figures_d(&b[k], gain[k], l, c->sets + lane * S_COUNT, c->car, f.h);
             b[k].vx[l] = x0[0], b[k].vy[l] = x0[1], b[k].r[l] = x0[2], b[k].delta[l] = x0[3];
         }
         for (int64_t l = 0; l < n[k]; ++l) {
@@ -261,7 +267,7 @@ static void *free_run_scratch_new(void *context) {
     for (int64_t i = 0; i < lanes; ++i) { /* lanes past the S draws repeat the last draw, unwritten */
         const int64_t s = i < S ? i : S - 1;
         load_figures_f(&r->blocks[i / LANES_F], r->gain + (i / LANES_F) * LANES_F, (int)(i % LANES_F),
-                       c->core.sets + s * S_COUNT, c->core.car);
+                       c->core.sets + s * S_COUNT, c->core.car, c->core.dt / (double)c->core.substeps);
     }
     memcpy(r->common, r->blocks, (size_t)n_blocks * sizeof(block_f)); /* the same draws' figures */
     return r;

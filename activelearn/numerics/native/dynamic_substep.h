@@ -27,6 +27,9 @@ typedef struct {
     /* derived once from the figures (divisions out of the substep): the axles' cornering stiffness per
      * newton of load, their magic formula's B per newton, 1 / yaw inertia, 1 / top speeds */
     REAL k_f[LANES], k_r[LANES], b_f[LANES], b_r[LANES], inv_inertia[LANES], inv_top[LANES], inv_reverse[LANES];
+    /* with the kinematic core below the blend speed: its understeer (forward, reverse), scrub, and the share
+     * of the way to the kinematic yaw rate a substep makes, 1 - exp(-h / yaw lag) */
+    REAL understeer[LANES], reverse_understeer[LANES], scrub[LANES], follow[LANES];
     REAL vx[LANES], vy[LANES], r[LANES], delta[LANES];
     REAL tau[LANES], target[LANES], drive[LANES]; /* this step's controls; drive: the table's speed */
 } NAME(block);
@@ -36,6 +39,7 @@ typedef struct {
     REAL g, m, lf, lr, hcg, L, shape, curvature, blend, floor_speed, share, h, turn;
     REAL vsw, lag, tiny, room_floor, half_track;
     REAL phi_peak; /* |phi| where the magic formula peaks, C atan phi = pi / 2 (C <= 1: never, a large number) */
+    int kinematic_core; /* C_KINEMATIC_CORE: a runtime choice between two lane loops (`substep`) */
 } NAME(figures);
 
 /* Lane l's drive: the motor law on v_x (`motor`) or the lag to the speed table's speed, m/s². */
@@ -110,9 +114,19 @@ static inline __attribute__((always_inline)) void NAME(advance)(NAME(block) *b, 
                                                                 const REAL dvy, const REAL dr,
                                                                 const REAL load_f, const REAL load_r,
                                                                 const REAL slope_f, const REAL slope_r,
-                                                                const REAL delta, const REAL sn, const REAL cs) {
+                                                                const REAL delta, const REAL sn, const REAL cs,
+                                                                const int kinematic, const REAL a,
+                                                                const REAL inverse_lag) {
     const REAL m = f->m, lf = f->lf, lr = f->lr, h = f->h;
     const REAL vx0 = b->vx[l], vy0 = b->vy[l], r0 = b->r[l];
+    /* `kinematic` (dynamic_track._advance's `drive`): v_x's tyre and turn terms weigh w at the substep's
+     * start, the scrub's drag s tan^2 delta v_x / T_v (a: the drive's acceleration in dvx) 1 - w */
+    REAL w0 = K(1), scrub = K(0);
+    if (kinematic) {
+        const REAL speed0 = ground ? sqrt(vx0 * vx0 + vy0 * vy0) : fabs(vx0);
+        w0 = K(0.5) * (K(1) + tanh((speed0 - f->blend) / (K(0.25) * f->blend)));
+        scrub = b->scrub[l] * (sn * sn) / (cs * cs) * vx0 * inverse_lag;
+    }
     REAL vx, vy, r;
     if (implicit) {
         const REAL speed = fmax(fabs(vx0), f->floor_speed);
@@ -120,16 +134,20 @@ static inline __attribute__((always_inline)) void NAME(advance)(NAME(block) *b, 
         const REAL x_lat = fmax(h * (c_f + c_r) / (m * speed), f->tiny);
         const REAL x_yaw = fmax(h * (lf * lf * c_f + lr * lr * c_r) * b->inv_inertia[l] / speed, f->tiny);
         vy = vy0 + h * (dvy - vx0 * r0) * (-expm1(-x_lat) / x_lat);
-        vx = vx0 + h * (dvx + vy * r0);
+        vx = vx0 + h * (kinematic ? a + w0 * ((dvx - a) + vy * r0) - (K(1) - w0) * scrub : dvx + vy * r0);
         r = r0 + h * dr * (-expm1(-x_yaw) / x_yaw);
     } else {
-        vx = vx0 + h * (dvx + vy0 * r0);
+        vx = vx0 + h * (kinematic ? a + w0 * ((dvx - a) + vy0 * r0) - (K(1) - w0) * scrub : dvx + vy0 * r0);
         vy = vy0 + h * (dvy - vx0 * r0);
         r = r0 + h * dr;
     }
     const REAL speed = ground ? sqrt(vx * vx + vy * vy) : fabs(vx);
     const REAL w = K(0.5) * (K(1) + tanh((speed - f->blend) / (K(0.25) * f->blend)));
-    const REAL r_kin = vx * sn / (cs * f->L);
+    REAL r_kin = vx * sn / (cs * f->L);
+    if (kinematic) { /* the kinematic core's turn, reached with its yaw lag from the substep's start */
+        const REAL understeer = vx >= K(0) ? b->understeer[l] : b->reverse_understeer[l];
+        r_kin = r0 + b->follow[l] * (vx * sn / (cs * f->L * understeer) - r0);
+    }
     b->r[l] = w * r + (K(1) - w) * r_kin;
     b->vy[l] = w * vy + (K(1) - w) * lr * r_kin;
     b->vx[l] = vx, b->delta[l] = delta;
@@ -195,7 +213,8 @@ static inline __attribute__((always_inline)) void NAME(wheel_step)(NAME(block) *
     const REAL dr = (lf * (y_f * cs + x_f * sn) - lr * y_r + moment) * b->inv_inertia[l];
     REAL slope_f, slope_r;
     NAME(dampings)(b, l, f, alpha_f, alpha_r, s_f, s_r, linear, curved, implicit == 2, &slope_f, &slope_r);
-    NAME(advance)(b, l, f, implicit, 1, ax, ay, dr, load_f, load_r, slope_f, slope_r, delta, sn, cs);
+    NAME(advance)(b, l, f, implicit, 1, ax, ay, dr, load_f, load_r, slope_f, slope_r, delta, sn, cs, 0, K(0),
+                  K(0));
 }
 
 /* One substep of lane l of a block. `motor`, `linear`, `implicit`, `curved` (the magic formula's
@@ -207,7 +226,8 @@ static inline __attribute__((always_inline)) void NAME(wheel_step)(NAME(block) *
 static inline __attribute__((always_inline)) void NAME(lane_step)(NAME(block) *b, const int l,
                                                                   const NAME(figures) *f, const int motor,
                                                                   const int linear, const int implicit,
-                                                                  const int curved, const int law) {
+                                                                  const int curved, const int law,
+                                                                  const int kinematic) {
     const REAL g = f->g, m = f->m, lf = f->lf, lr = f->lr, L = f->L, h = f->h;
     const int combined = law == 1;
     if (law >= 2) {
@@ -254,7 +274,10 @@ static inline __attribute__((always_inline)) void NAME(lane_step)(NAME(block) *b
         const REAL dr = (lf * f_f * cs - lr * f_r) * b->inv_inertia[l];
         REAL slope_f, slope_r;
         NAME(dampings)(b, l, f, alpha_f, alpha_r, s_f, s_r, linear, curved, implicit == 2, &slope_f, &slope_r);
-        NAME(advance)(b, l, f, implicit, 0, dvx, dvy, dr, load_f, load_r, slope_f, slope_r, delta, sn, cs);
+        const REAL inverse_lag = motor ? b->a_max[l] * (tau > K(0) ? b->inv_top[l] : b->inv_reverse[l])
+                                       : K(1) / f->lag; /* 1 / the drive's time constant */
+        NAME(advance)(b, l, f, implicit, 0, dvx, dvy, dr, load_f, load_r, slope_f, slope_r, delta, sn, cs,
+                      kinematic, a, inverse_lag);
     }
 }
 
@@ -263,8 +286,13 @@ static inline __attribute__((always_inline)) void NAME(substep)(NAME(block) *b, 
                                                                 const int motor, const int linear,
                                                                 const int implicit, const int curved,
                                                                 const int law) {
+    if (law < 2 && f->kinematic_core) {
 #pragma GCC ivdep
-    for (int l = 0; l < LANES; ++l) NAME(lane_step)(b, l, f, motor, linear, implicit, curved, law);
+        for (int l = 0; l < LANES; ++l) NAME(lane_step)(b, l, f, motor, linear, implicit, curved, law, 1);
+        return;
+    }
+#pragma GCC ivdep
+    for (int l = 0; l < LANES; ++l) NAME(lane_step)(b, l, f, motor, linear, implicit, curved, law, 0);
 }
 
 /* Two blocks' substeps in one lane loop: two independent chains of transcendental calls in each vector
@@ -273,10 +301,18 @@ static inline __attribute__((always_inline)) void NAME(substep_pair)(NAME(block)
                                                                      const NAME(figures) *f, const int motor,
                                                                      const int linear, const int implicit,
                                                                      const int curved, const int law) {
+    if (law < 2 && f->kinematic_core) {
+#pragma GCC ivdep
+        for (int l = 0; l < LANES; ++l) {
+            NAME(lane_step)(a, l, f, motor, linear, implicit, curved, law, 1);
+            NAME(lane_step)(b, l, f, motor, linear, implicit, curved, law, 1);
+        }
+        return;
+    }
 #pragma GCC ivdep
     for (int l = 0; l < LANES; ++l) {
-        NAME(lane_step)(a, l, f, motor, linear, implicit, curved, law);
-        NAME(lane_step)(b, l, f, motor, linear, implicit, curved, law);
+        NAME(lane_step)(a, l, f, motor, linear, implicit, curved, law, 0);
+        NAME(lane_step)(b, l, f, motor, linear, implicit, curved, law, 0);
     }
 }
 
@@ -325,6 +361,7 @@ static NAME(substep_run) NAME(substeps_for)(const double *k, int64_t implicit) {
     const int linear = k[C_SHAPE] == 0.0, curved = k[C_CURVATURE] != 0.0;
     int law = k[C_COMBINED_SLIP] != 0.0;
     if (k[C_WHEEL_FORCES] != 0.0) {
+        if (k[C_KINEMATIC_CORE] != 0.0) return NULL; /* the kinematic branch is the axles' step's */
         law = -1;
         for (int i = 0; i < WHEEL_PASS_COUNT; ++i)
             if (k[C_WHEEL_FORCES] == (double)WHEEL_PASS_CHOICES[i]) law = 2 + i;
@@ -350,11 +387,13 @@ static NAME(figures) NAME(figures_of)(const double *k, double dt, int64_t subste
     f.room_floor = (REAL)k[C_ROOM_FLOOR], f.half_track = (REAL)(0.5 * k[C_TRACK]);
     f.tiny = sizeof(REAL) == sizeof(float) ? (REAL)1e-30 : (REAL)1e-300; /* (1 - e^-x) / x at x = 0 */
     f.phi_peak = k[C_SHAPE] > 1.0 ? (REAL)tan(M_PI / (2.0 * k[C_SHAPE])) : (REAL)1e30;
+    f.kinematic_core = k[C_KINEMATIC_CORE] != 0.0;
     return f;
 }
 
-/* Lane l of a block takes parameter set `s`'s figures (its table gain into gain[l]); `k` the car's. */
-static void NAME(load_figures)(NAME(block) *b, REAL *gain, int l, const double *s, const double *k) {
+/* Lane l of a block takes parameter set `s`'s figures (its table gain into gain[l]); `k` the car's, `h` the
+ * substep (s). */
+static void NAME(load_figures)(NAME(block) *b, REAL *gain, int l, const double *s, const double *k, double h) {
     const double L = k[C_LF] + k[C_LR], weight = k[C_MASS] * k[C_GRAVITY];
     const double k_f = s[S_STIFFNESS_FRONT] / (weight * k[C_LR] / L);
     const double k_r = s[S_STIFFNESS_REAR] / (weight * k[C_LF] / L);
@@ -363,6 +402,8 @@ static void NAME(load_figures)(NAME(block) *b, REAL *gain, int l, const double *
     b->b_f[l] = (REAL)(k_f / (k[C_SHAPE] * s[S_FRICTION])), b->b_r[l] = (REAL)(k_r / (k[C_SHAPE] * s[S_FRICTION]));
     b->inv_inertia[l] = (REAL)(1.0 / s[S_YAW_INERTIA]), b->inv_top[l] = (REAL)(1.0 / s[S_TOP_SPEED]);
     b->inv_reverse[l] = (REAL)(1.0 / s[S_REVERSE_TOP_SPEED]);
+    b->understeer[l] = (REAL)s[S_UNDERSTEER], b->reverse_understeer[l] = (REAL)s[S_REVERSE_UNDERSTEER];
+    b->scrub[l] = (REAL)s[S_SCRUB], b->follow[l] = (REAL)(-expm1(-h / s[S_YAW_LAG]));
     gain[l] = (REAL)s[S_TABLE_GAIN];
 }
 
