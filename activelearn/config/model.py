@@ -185,7 +185,9 @@ class ModelConfig(_Section):
     # Nigel's whole range sits below the blend speed, where the plain blend's turn is L / tan δ with no
     # scrub: its identified core ended the test set 0.32 m off at 30 s, the kinematic core 0.031; with the
     # kinematic core's understeer (forward, reverse), scrub and yaw lag 0.019 (cores alone, 10 seeds;
-    # experiments/investigations/nigel_blend.py).
+    # experiments/investigations/nigel_blend.py). In dynamics.toml's campaigns 0.0178 m against the kinematic
+    # core's 0.0299 after 16 signals (seeds 0-9; fresh 10-19: 0.0175), with
+    # experiments/params/nigel_dynamic_core.toml.
     kinematic_blend: Literal["plain", "core"] = Field(
         "plain",
         description="core = 'dynamic': below the blend speed the kinematic turn r = v_x tan δ / L ('plain'), "
