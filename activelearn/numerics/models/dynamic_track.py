@@ -407,17 +407,19 @@ def _advance(car: DynamicCar, state: tuple, rates: tuple, loads: tuple, delta, h
     xp = _namespace(vx)
     m, L, blend = car.mass, car.wheelbase, car.blend_speed
     static_f, static_r = car.static_loads
-    vx0, r0 = vx, r
+    vx0, vy0, r0 = vx, vy, r
+
+    def speed_of(vx, vy):  # what the blend weighs
+        return xp.sqrt(vx * vx + vy * vy) if ground else xp.abs(vx)
 
     def forward(turn):  # v_x's rate with the body frame's `turn` (v_y r)
         if drive is None:
             return dvx + turn
         a, inverse_lag = drive  # the tyres' and turn's terms weigh w at the substep's start, the scrub 1 − w
-        w0 = _blend_weight(car, xp.sqrt(vx0 * vx0 + vy0 * vy0) if ground else xp.abs(vx0))
+        w0 = _blend_weight(car, speed_of(vx0, vy0))
         scrub = car.scrub * xp.tan(delta) ** 2 * vx0 * inverse_lag
         return a + w0 * ((dvx - a) + turn) - (1.0 - w0) * scrub
 
-    vy0 = vy
     if implicit:
         # The tyres' damping of v_y and r exponential (stable at any substep), and the body
         # frame's turn of the velocity semi-implicit, v_x from the new v_y (an explicit turn adds
@@ -436,8 +438,7 @@ def _advance(car: DynamicCar, state: tuple, rates: tuple, loads: tuple, delta, h
         r = r + h * dr * _relaxed(x_yaw)
     else:
         vx, vy, r = vx + h * forward(vy * r), vy + h * (dvy - vx * r), r + h * dr
-    speed = xp.sqrt(vx * vx + vy * vy) if ground else xp.abs(vx)
-    w = 0.5 * (1.0 + xp.tanh((speed - blend) / (0.25 * blend)))  # 1: dynamic, 0: kinematic
+    w = _blend_weight(car, speed_of(vx, vy))  # 1: dynamic, 0: kinematic
     if car.kinematic_core:  # the kinematic core's turn, reached with its yaw lag from the substep's start
         understeer = _where(vx >= 0.0, car.understeer, car.reverse_understeer)
         follow = -xp.expm1(_like(vx, -h / car.yaw_lag))
@@ -504,7 +505,7 @@ def quasi_static_lateral(car: DynamicCar, vx, r):
     reach = car.friction * load_r / car.stiffness_rear
     alpha = _clip(car.mass * vx * r * car.lf / car.wheelbase / car.stiffness_rear, -reach, reach)
     speed = _maximum(xp.abs(vx), 0.5 * car.blend_speed)
-    w = 0.5 * (1.0 + xp.tanh((xp.abs(vx) - car.blend_speed) / (0.25 * car.blend_speed)))
+    w = _blend_weight(car, xp.abs(vx))
     return car.lr * r - w * speed * xp.tan(alpha)
 
 

@@ -103,6 +103,18 @@ static inline __attribute__((always_inline)) void NAME(dampings)(const NAME(bloc
     *slope_r = tangent ? NAME(damping_slope)(b->k_r[l], b->b_r[l], alpha_r, s_r, mu, f, linear, curved) : b->k_r[l];
 }
 
+/* The blend's weight at `speed` (dynamic_track._blend_weight): 1 dynamic, 0 kinematic. */
+static inline __attribute__((always_inline)) REAL NAME(blend_weight)(const NAME(figures) *f, const REAL speed) {
+    return K(0.5) * (K(1) + tanh((speed - f->blend) / (K(0.25) * f->blend)));
+}
+
+/* v_x's rate with the body frame's `turn` (v_y r): dvx's, or with `kinematic` the drive's `a`, the tyres'
+ * and turn's terms weighed by w0 and the scrub's drag by 1 - w0 (dynamic_track._advance's `forward`). */
+static inline __attribute__((always_inline)) REAL NAME(forward)(const int kinematic, const REAL dvx, const REAL turn,
+                                                                const REAL a, const REAL w0, const REAL scrub) {
+    return kinematic ? a + w0 * ((dvx - a) + turn) - (K(1) - w0) * scrub : dvx + turn;
+}
+
 /* The end of lane l's substep: the state moved by its rates of change dvx, dvy, dr (the forces over m and
  * I_z, without the body frame's turn), explicitly or with the tyres' damping exponential and the turn
  * semi-implicit (dynamic_step(implicit=True)), then blended into the kinematic state below the blend
@@ -124,7 +136,7 @@ static inline __attribute__((always_inline)) void NAME(advance)(NAME(block) *b, 
     REAL w0 = K(1), scrub = K(0);
     if (kinematic) {
         const REAL speed0 = ground ? sqrt(vx0 * vx0 + vy0 * vy0) : fabs(vx0);
-        w0 = K(0.5) * (K(1) + tanh((speed0 - f->blend) / (K(0.25) * f->blend)));
+        w0 = NAME(blend_weight)(f, speed0);
         scrub = b->scrub[l] * (sn * sn) / (cs * cs) * vx0 * inverse_lag;
     }
     REAL vx, vy, r;
@@ -134,15 +146,15 @@ static inline __attribute__((always_inline)) void NAME(advance)(NAME(block) *b, 
         const REAL x_lat = fmax(h * (c_f + c_r) / (m * speed), f->tiny);
         const REAL x_yaw = fmax(h * (lf * lf * c_f + lr * lr * c_r) * b->inv_inertia[l] / speed, f->tiny);
         vy = vy0 + h * (dvy - vx0 * r0) * (-expm1(-x_lat) / x_lat);
-        vx = vx0 + h * (kinematic ? a + w0 * ((dvx - a) + vy * r0) - (K(1) - w0) * scrub : dvx + vy * r0);
+        vx = vx0 + h * NAME(forward)(kinematic, dvx, vy * r0, a, w0, scrub);
         r = r0 + h * dr * (-expm1(-x_yaw) / x_yaw);
     } else {
-        vx = vx0 + h * (kinematic ? a + w0 * ((dvx - a) + vy0 * r0) - (K(1) - w0) * scrub : dvx + vy0 * r0);
+        vx = vx0 + h * NAME(forward)(kinematic, dvx, vy0 * r0, a, w0, scrub);
         vy = vy0 + h * (dvy - vx0 * r0);
         r = r0 + h * dr;
     }
     const REAL speed = ground ? sqrt(vx * vx + vy * vy) : fabs(vx);
-    const REAL w = K(0.5) * (K(1) + tanh((speed - f->blend) / (K(0.25) * f->blend)));
+    const REAL w = NAME(blend_weight)(f, speed);
     REAL r_kin = vx * sn / (cs * f->L);
     if (kinematic) { /* the kinematic core's turn, reached with its yaw lag from the substep's start */
         const REAL understeer = vx >= K(0) ? b->understeer[l] : b->reverse_understeer[l];
