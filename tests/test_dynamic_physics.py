@@ -141,7 +141,7 @@ def test_the_compiled_free_runs_are_torchs(vehicle: str, slip: str, c_kernels):
     spinning at throttle 0.8) twice what the reference itself moves when its controls move by 1e-7. With the
     kinematic core below the blend speed too (Nigel always; the 1:10 car with its blend raised to √(g L))."""
     model = _untrained(vehicle, parameter_uncertainty="by_log", discrepancy="identification",
-                       combined_slip=slip == "combined", wheel_forces=slip.startswith("wheels"),
+                       combined_slip=slip.startswith("combined"), wheel_forces=slip.startswith("wheels"),
                        tyre_damping="tangent" if "tangent" in slip else "linear",
                        kinematic_blend="core" if "kinematic core" in slip else "plain",
                        **({"wheel_passes": 5, "blend_share": 0.25} if slip.endswith("0.25") else {}),
